@@ -1,0 +1,187 @@
+//! The CPU backend: the kernels' bodies called natively over rayon, one call
+//! per thread index, in chunks of consecutive indices.
+
+use crate::backend::Backend;
+use crate::error::{Error, Result};
+use crate::knn::{KnnJob, KnnMethod, Neighbors};
+use crate::timing::{timed, Timings};
+use cvd_kernels::abi::QuantPoint;
+use cvd_kernels::buffers::{OutBuf, Window};
+use cvd_kernels::{grid, knn, scan};
+use rayon::prelude::*;
+use std::sync::atomic::{AtomicU32, Ordering};
+
+/// Thread indices per rayon task.
+const CHUNK: usize = 256;
+
+/// Runs kernel bodies on a rayon thread pool.
+pub struct CpuBackend {
+    pool: rayon::ThreadPool,
+}
+
+impl CpuBackend {
+    /// A backend with `threads` worker threads (None: one per core).
+    pub fn new(threads: Option<usize>) -> Result<Self> {
+        if threads == Some(0) {
+            return Err(Error::InvalidInput("--threads must be at least 1".into()));
+        }
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads.unwrap_or(0))
+            .build()
+            .map_err(|e| Error::InvalidInput(format!("cannot start {threads:?} CPU threads: {e}")))?;
+        Ok(Self { pool })
+    }
+
+    /// Number of worker threads.
+    pub fn threads(&self) -> usize {
+        self.pool.current_num_threads()
+    }
+}
+
+/// Slots written by many threads at indices that are each written by exactly
+/// one thread (the scatter of a counting sort, whose slots come from atomic
+/// counters). This is the CPU twin of a storage buffer written at
+/// data-dependent positions.
+struct ScatterSlots<'a, T> {
+    ptr: *mut T,
+    len: usize,
+    _borrow: std::marker::PhantomData<&'a mut [T]>,
+}
+
+// SAFETY: writes go to distinct indices (see the type's contract); reads are
+// not offered.
+unsafe impl<T: Send> Send for ScatterSlots<'_, T> {}
+unsafe impl<T: Send> Sync for ScatterSlots<'_, T> {}
+
+impl<'a, T> ScatterSlots<'a, T> {
+    fn new(data: &'a mut [T]) -> Self {
+        Self { ptr: data.as_mut_ptr(), len: data.len(), _borrow: std::marker::PhantomData }
+    }
+    fn share(&self) -> Self {
+        Self { ptr: self.ptr, len: self.len, _borrow: std::marker::PhantomData }
+    }
+}
+
+impl<T: Copy> OutBuf<T> for ScatterSlots<'_, T> {
+    fn read(&self, _i: usize) -> T {
+        unreachable!("scatter slots are write-only")
+    }
+    fn write(&mut self, i: usize, value: T) {
+        assert!(i < self.len, "scatter slot {i} out of {}", self.len);
+        // SAFETY: in bounds, and no other thread writes or reads slot `i`.
+        unsafe { self.ptr.add(i).write(value) }
+    }
+}
+
+fn atomic_zeros(n: usize) -> Vec<AtomicU32> {
+    (0..n).map(|_| AtomicU32::new(0)).collect()
+}
+
+fn into_plain(v: Vec<AtomicU32>) -> Vec<u32> {
+    v.into_iter().map(AtomicU32::into_inner).collect()
+}
+
+/// The site grid built by the grid kernels' bodies.
+pub(crate) struct CpuGrid {
+    pub cell_start: Vec<u32>,
+    pub cell_count: Vec<u32>,
+    pub sorted: Vec<QuantPoint>,
+}
+
+fn build_grid(job: &KnnJob) -> CpuGrid {
+    let g = &job.params.grid;
+    let n = g.n_sites as usize;
+    let n_cells = g.n_cells as usize;
+    let sites = &job.sites;
+
+    let mut site_cell = vec![0u32; n];
+    let counts = atomic_zeros(n_cells);
+    site_cell.par_chunks_mut(CHUNK).enumerate().for_each(|(c, data)| {
+        let start = c * CHUNK;
+        let mut out = Window { start, data };
+        let mut counters: &[AtomicU32] = &counts;
+        for i in start..start + out.data.len() {
+            grid::count_site(i, g, sites, &mut out, &mut counters);
+        }
+    });
+    let cell_count = into_plain(counts);
+
+    let n_blocks = scan::block_count(n_cells);
+    let mut cell_start = vec![0u32; n_cells];
+    let mut block_sums = vec![0u32; n_blocks];
+    cell_start.par_chunks_mut(scan::SCAN_BLOCK).zip(block_sums.par_chunks_mut(1)).enumerate().for_each(
+        |(b, (data, sum))| {
+            let mut out = Window { start: b * scan::SCAN_BLOCK, data };
+            let mut sums = Window { start: b, data: sum };
+            scan::scan_block(b, n_cells, &cell_count, &mut out, &mut sums);
+        },
+    );
+    scan::scan_block_sums(n_blocks, block_sums.as_mut_slice());
+    cell_start.par_chunks_mut(scan::SCAN_BLOCK).enumerate().for_each(|(b, data)| {
+        let mut out = Window { start: b * scan::SCAN_BLOCK, data };
+        scan::add_block_offset(b, n_cells, &mut out, &block_sums);
+    });
+
+    let mut sorted = vec![[0u32; 4]; n];
+    let cursor = atomic_zeros(n_cells);
+    let slots = ScatterSlots::new(&mut sorted);
+    (0..n).into_par_iter().chunks(CHUNK).for_each(|chunk| {
+        let mut out = slots.share();
+        let mut counters: &[AtomicU32] = &cursor;
+        for i in chunk {
+            grid::scatter_site(i, g, sites, &site_cell, &cell_start, &mut counters, &mut out);
+        }
+    });
+    drop(slots);
+    debug_assert!(cursor.iter().zip(&cell_count).all(|(c, &n)| c.load(Ordering::Relaxed) == n));
+    CpuGrid { cell_start, cell_count, sorted }
+}
+
+impl Backend for CpuBackend {
+    fn name(&self) -> String {
+        format!("cpu ({} threads)", self.threads())
+    }
+
+    fn knn(&self, job: &KnnJob) -> Result<Neighbors> {
+        self.pool.install(|| {
+            let p = &job.params;
+            let k = p.k as usize;
+            let mut timings = Timings::default();
+            let mut indices = vec![0u32; job.queries.len() * k];
+            let mut dist2 = vec![0u64; job.queries.len() * k];
+            let per_task = CHUNK * k;
+            let outputs = indices.par_chunks_mut(per_task).zip(dist2.par_chunks_mut(per_task)).enumerate();
+            match job.method {
+                KnnMethod::Grid => {
+                    let (g, t) = timed(|| build_grid(job));
+                    timings.push("grid", t);
+                    let (_, t) = timed(|| {
+                        outputs.for_each(|(c, (nbr, d2))| {
+                            let mut nbr = Window { start: c * per_task, data: nbr };
+                            let mut d2 = Window { start: c * per_task, data: d2 };
+                            let first = c * CHUNK;
+                            for i in first..first + nbr.data.len() / k {
+                                knn::grid_thread(i, p, &job.queries, &g.cell_start, &g.cell_count, &g.sorted, &mut nbr, &mut d2);
+                            }
+                        })
+                    });
+                    timings.push("knn", t);
+                }
+                KnnMethod::Brute => {
+                    let (_, t) = timed(|| {
+                        outputs.for_each(|(c, (nbr, d2))| {
+                            let mut nbr = Window { start: c * per_task, data: nbr };
+                            let mut d2 = Window { start: c * per_task, data: d2 };
+                            let first = c * CHUNK;
+                            for i in first..first + nbr.data.len() / k {
+                                knn::brute_thread(i, p, &job.queries, &job.sites, &mut nbr, &mut d2);
+                            }
+                        })
+                    });
+                    timings.push("knn", t);
+                }
+            }
+            Ok(Neighbors { k, indices, dist2, timings })
+        })
+    }
+}

@@ -1,0 +1,70 @@
+//! The library's error type.
+
+use ash::vk;
+
+/// Everything that can go wrong, each naming what was expected.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// No Vulkan loader, instance or device could be had.
+    #[error("Vulkan is not available: {0}")]
+    VulkanUnavailable(String),
+    /// A Vulkan call failed.
+    #[error("Vulkan call {call} failed: {result}")]
+    Vulkan {
+        /// The function that failed.
+        call: &'static str,
+        /// Its result code.
+        result: vk::Result,
+    },
+    /// The chosen device lacks something the kernels need.
+    #[error("Vulkan device '{device}' lacks {missing}")]
+    MissingFeature {
+        /// Device name.
+        device: String,
+        /// What is missing (feature or extension name).
+        missing: String,
+    },
+    /// `--device` matched no device.
+    #[error("no Vulkan device matches '{wanted}'; devices: {available}")]
+    NoSuchDevice {
+        /// What was asked for.
+        wanted: String,
+        /// The devices that exist, by index and name.
+        available: String,
+    },
+    /// The input cannot be processed as given.
+    #[error("invalid input: {0}")]
+    InvalidInput(String),
+    /// A file could not be parsed.
+    #[error("{path}:{line}: {message}")]
+    Parse {
+        /// The file.
+        path: String,
+        /// 1-based line number.
+        line: usize,
+        /// What was expected.
+        message: String,
+    },
+    /// An I/O error, with the path it concerns.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: String,
+        /// The underlying error.
+        source: std::io::Error,
+    },
+}
+
+/// Shorthand for results of this crate.
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+/// Adds the name of the failing Vulkan call to a `vk::Result`.
+pub(crate) trait VkContext<T> {
+    fn call(self, call: &'static str) -> Result<T>;
+}
+
+impl<T> VkContext<T> for std::result::Result<T, vk::Result> {
+    fn call(self, call: &'static str) -> Result<T> {
+        self.map_err(|result| Error::Vulkan { call, result })
+    }
+}

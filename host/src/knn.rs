@@ -1,0 +1,137 @@
+//! k nearest neighbours: the job description shared by the backends.
+
+use crate::backend::Backend;
+use crate::error::{Error, Result};
+use crate::quantize::Quantizer;
+use crate::timing::Timings;
+use cvd_kernels::abi::{GridParams, KnnParams, QuantPoint, QUANT_MAX};
+
+/// How the neighbours are searched.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, clap::ValueEnum, serde::Serialize)]
+pub enum KnnMethod {
+    /// Uniform grid with ring search (paper section 5.2).
+    Grid,
+    /// Every query against every site (paper section 5.1).
+    Brute,
+}
+
+/// Target number of sites per grid cell (paper section 5.2).
+pub const SITES_PER_CELL: f64 = 5.0;
+
+/// A validated, quantized k-NN job, ready for any backend.
+#[derive(Clone, Debug)]
+pub struct KnnJob {
+    /// Sites, quantized and tagged with their index.
+    pub sites: Vec<QuantPoint>,
+    /// Query points (the sites themselves for a site job).
+    pub queries: Vec<QuantPoint>,
+    /// Kernel parameters (grid, counts, `k` clamped to what exists).
+    pub params: KnnParams,
+    /// Search method.
+    pub method: KnnMethod,
+    /// The frame the points were quantized in.
+    pub quantizer: Quantizer,
+}
+
+/// The neighbours of every query: `k` per query, nearest first.
+#[derive(Clone, Debug, Default)]
+pub struct Neighbors {
+    /// Neighbours per query (after clamping to the sites that exist).
+    pub k: usize,
+    /// Site indices, `k` per query.
+    pub indices: Vec<u32>,
+    /// Squared distances in quantized units, `k` per query.
+    pub dist2: Vec<u64>,
+    /// Time per phase.
+    pub timings: Timings,
+}
+
+impl Neighbors {
+    /// The neighbours of query `i`.
+    pub fn of(&self, i: usize) -> &[u32] {
+        &self.indices[i * self.k..(i + 1) * self.k]
+    }
+}
+
+impl KnnJob {
+    /// The `k` nearest other sites of every site.
+    pub fn sites(sites: &[[f32; 3]], k: usize, method: KnnMethod) -> Result<Self> {
+        let quantizer = Quantizer::fit(&[("site", sites)])?;
+        let q = quantizer.quantize_all(sites);
+        Self::build(q.clone(), q, true, k, method, quantizer)
+    }
+
+    /// The `k` nearest sites of every query point.
+    pub fn points(sites: &[[f32; 3]], queries: &[[f32; 3]], k: usize, method: KnnMethod) -> Result<Self> {
+        let quantizer = Quantizer::fit(&[("site", sites), ("query point", queries)])?;
+        Self::build(quantizer.quantize_all(sites), quantizer.quantize_all(queries), false, k, method, quantizer)
+    }
+
+    fn build(
+        sites: Vec<QuantPoint>,
+        queries: Vec<QuantPoint>,
+        exclude_self: bool,
+        k: usize,
+        method: KnnMethod,
+        quantizer: Quantizer,
+    ) -> Result<Self> {
+        if k == 0 {
+            return Err(Error::InvalidInput("k must be at least 1".into()));
+        }
+        // Indices are u32 and NO_SITE is reserved; outputs must be addressable.
+        if sites.len() >= u32::MAX as usize || queries.len() >= u32::MAX as usize {
+            return Err(Error::InvalidInput(format!("too many points: {} sites, {} queries", sites.len(), queries.len())));
+        }
+        let available = if exclude_self { sites.len().saturating_sub(1) } else { sites.len() };
+        let k = k.min(available);
+        if queries.len().checked_mul(k).is_none_or(|n| n > u32::MAX as usize) {
+            return Err(Error::InvalidInput(format!("{} queries x k = {k} neighbours do not fit one buffer", queries.len())));
+        }
+        let params = KnnParams {
+            grid: grid_for(&sites),
+            n_queries: queries.len() as u32,
+            k: k as u32,
+            exclude_self: exclude_self as u32,
+            _pad: 0,
+        };
+        Ok(Self { sites, queries, params, method, quantizer })
+    }
+
+    /// Runs the job on a backend.
+    pub fn run(&self, backend: &dyn Backend) -> Result<Neighbors> {
+        if self.params.k == 0 || self.queries.is_empty() {
+            return Ok(Neighbors { k: self.params.k as usize, ..Default::default() });
+        }
+        backend.knn(self)
+    }
+}
+
+/// A grid with about [`SITES_PER_CELL`] sites per cell over the sites'
+/// quantized bounding box (from the frame origin).
+pub fn grid_for(sites: &[QuantPoint]) -> GridParams {
+    let n = sites.len().max(1) as f64;
+    let mut ext = [1u64; 3];
+    for s in sites {
+        for a in 0..3 {
+            ext[a] = ext[a].max(s[a] as u64 + 1);
+        }
+    }
+    let volume = ext.iter().map(|&e| e as f64).product::<f64>();
+    let mut cell = (volume * SITES_PER_CELL / n).cbrt().ceil().clamp(1.0, QUANT_MAX as f64) as u64;
+    let dims = |cell: u64| ext.map(|e| e.div_ceil(cell));
+    // Flat or thin point sets make the volume estimate overshoot the cell
+    // count: widen the cells until the grid is no bigger than the site count.
+    while dims(cell).iter().product::<u64>() > 2 * n as u64 + 64 {
+        cell *= 2;
+    }
+    let d = dims(cell);
+    GridParams {
+        dim_x: d[0] as u32,
+        dim_y: d[1] as u32,
+        dim_z: d[2] as u32,
+        cell_size: cell as u32,
+        n_sites: sites.len() as u32,
+        n_cells: (d[0] * d[1] * d[2]) as u32,
+        _pad: [0; 2],
+    }
+}

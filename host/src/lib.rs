@@ -1,0 +1,27 @@
+//! # cvd: clipped Voronoi diagrams on Vulkan GPUs and CPU cores
+//!
+//! The algorithms live once in the `cvd-kernels` crate; this library runs
+//! them on a Vulkan device ([`vulkan::VulkanBackend`]) or on CPU cores
+//! ([`cpu::CpuBackend`]), behind one [`Backend`] trait.
+//!
+//! ```no_run
+//! use cvd::{backend, KnnJob, KnnMethod};
+//! let sites = vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 2.0, 0.0]];
+//! let backend = backend::open(&Default::default())?;
+//! let nn = KnnJob::sites(&sites, 1, KnnMethod::Grid)?.run(backend.as_ref())?;
+//! assert_eq!(nn.of(0), &[1]);
+//! # Ok::<(), cvd::Error>(())
+//! ```
+
+pub mod backend;
+pub mod cpu;
+pub mod error;
+pub mod knn;
+pub mod points;
+pub mod quantize;
+pub mod timing;
+pub mod vulkan;
+
+pub use backend::{Backend, BackendKind, BackendOptions};
+pub use error::{Error, Result};
+pub use knn::{KnnJob, KnnMethod, Neighbors};

@@ -1,0 +1,66 @@
+//! Deterministic point sets: for default inputs, benchmarks and tests.
+
+/// SplitMix64: a small, fast, well-mixed generator; the same seed gives the
+/// same points on every machine.
+#[derive(Clone, Debug)]
+pub struct Rng(u64);
+
+impl Rng {
+    /// A generator from a seed.
+    pub fn new(seed: u64) -> Self {
+        Self(seed)
+    }
+
+    /// The next 64 random bits.
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    /// Uniform in `[0, 1)`.
+    pub fn unit(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    /// Uniform in `0..n` (n > 0).
+    pub fn below(&mut self, n: usize) -> usize {
+        (self.unit() * n as f64) as usize % n
+    }
+
+    /// Standard normal (Box-Muller).
+    pub fn normal(&mut self) -> f64 {
+        let u = self.unit().max(1e-300);
+        let v = self.unit();
+        (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
+    }
+}
+
+/// `n` points uniform in the unit cube.
+pub fn uniform(n: usize, seed: u64) -> Vec<[f32; 3]> {
+    let mut rng = Rng::new(seed);
+    (0..n).map(|_| [rng.unit() as f32, rng.unit() as f32, rng.unit() as f32]).collect()
+}
+
+/// `n` points in `blobs` tight Gaussian blobs (standard deviation `sigma`)
+/// centred uniformly in the unit cube.
+pub fn clustered(n: usize, blobs: usize, sigma: f64, seed: u64) -> Vec<[f32; 3]> {
+    let mut rng = Rng::new(seed);
+    let centres: Vec<[f64; 3]> = (0..blobs.max(1)).map(|_| [rng.unit(), rng.unit(), rng.unit()]).collect();
+    (0..n)
+        .map(|_| {
+            let c = centres[rng.below(centres.len())];
+            [0, 1, 2].map(|a| (c[a] + sigma * rng.normal()) as f32)
+        })
+        .collect()
+}
+
+/// `n` points on an integer lattice of side `side` (many equal distances),
+/// in random order, with repeats when `n` exceeds the lattice.
+pub fn lattice(n: usize, side: usize, seed: u64) -> Vec<[f32; 3]> {
+    let mut rng = Rng::new(seed);
+    let side = side.max(1);
+    (0..n).map(|_| [0; 3].map(|_| rng.below(side) as f32)).collect()
+}

@@ -1,0 +1,46 @@
+//! Per-phase times of a job.
+
+use std::fmt;
+
+/// Named phases with their duration in seconds, in execution order.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct Timings {
+    /// `(phase, seconds)` pairs.
+    pub phases: Vec<(String, f64)>,
+}
+
+impl Timings {
+    /// Appends a phase.
+    pub fn push(&mut self, phase: impl Into<String>, seconds: f64) {
+        self.phases.push((phase.into(), seconds));
+    }
+
+    /// The time of one phase (0 if absent).
+    pub fn get(&self, phase: &str) -> f64 {
+        self.phases.iter().filter(|(p, _)| p == phase).map(|(_, s)| s).sum()
+    }
+
+    /// Sum of all phases.
+    pub fn total(&self) -> f64 {
+        self.phases.iter().map(|(_, s)| s).sum()
+    }
+}
+
+impl fmt::Display for Timings {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        for (i, (phase, s)) in self.phases.iter().enumerate() {
+            if i > 0 {
+                write!(f, ", ")?;
+            }
+            write!(f, "{phase} {:.3} ms", s * 1e3)?;
+        }
+        Ok(())
+    }
+}
+
+/// Runs `f` and returns its result and wall time in seconds.
+pub fn timed<T>(f: impl FnOnce() -> T) -> (T, f64) {
+    let t = std::time::Instant::now();
+    let out = f();
+    (out, t.elapsed().as_secs_f64())
+}

@@ -1,0 +1,99 @@
+//! The Vulkan backend: the kernels' SPIR-V dispatched with ash.
+
+mod context;
+mod job;
+mod memory;
+mod pipelines;
+
+pub use context::{list_devices, validation_errors, DeviceInfo, VulkanOptions};
+pub use pipelines::KERNELS_SPV;
+
+use crate::backend::Backend;
+use crate::error::Result;
+use crate::knn::{KnnJob, KnnMethod, Neighbors};
+use crate::timing::timed;
+use context::Context;
+use cvd_kernels::abi::GridBuildParams;
+use cvd_kernels::scan;
+use job::Job;
+use pipelines::{Pipelines, KERNELS};
+
+/// Runs the kernels on a Vulkan device.
+pub struct VulkanBackend {
+    // Dropped before the context that owns the device.
+    pipelines: Pipelines,
+    ctx: Context,
+}
+
+impl VulkanBackend {
+    /// Opens a device and loads the kernels' module.
+    pub fn new(options: &VulkanOptions) -> Result<Self> {
+        let ctx = Context::new(options)?;
+        let pipelines = Pipelines::new(&ctx)?;
+        Ok(Self { pipelines, ctx })
+    }
+
+    /// The device in use.
+    pub fn device(&self) -> &DeviceInfo {
+        self.ctx.info()
+    }
+
+    /// Creates every pipeline now (drivers may compile for seconds) and
+    /// returns the time that took.
+    pub fn warm_up(&self) -> Result<f64> {
+        let (r, t) = timed(|| KERNELS.iter().try_for_each(|k| self.pipelines.get(k.name).map(|_| ())));
+        r.map(|_| t)
+    }
+}
+
+impl Backend for VulkanBackend {
+    fn name(&self) -> String {
+        format!("vulkan ({})", self.ctx.info().name)
+    }
+
+    fn knn(&self, job: &KnnJob) -> Result<Neighbors> {
+        let p = &job.params;
+        let (n, nq, k) = (job.sites.len() as u64, job.queries.len() as u64, p.k as u64);
+        let mut j = Job::new(&self.ctx, &self.pipelines, 8)?;
+        let sites = j.upload(&job.sites)?;
+        let queries = if p.exclude_self != 0 { sites } else { j.upload(&job.queries)? };
+        let nbr = j.buffer(nq * k * 4)?;
+        let d2 = j.buffer(nq * k * 8)?;
+        j.mark("upload");
+        match job.method {
+            KnnMethod::Grid => {
+                let n_cells = p.grid.n_cells as u64;
+                let n_blocks = scan::block_count(n_cells as usize) as u64;
+                let bp = GridBuildParams { grid: p.grid, n_blocks: n_blocks as u32, _pad: [0; 3] };
+                let site_cell = j.buffer(n * 4)?;
+                let count = j.zeroed(n_cells * 4)?;
+                let cursor = j.zeroed(n_cells * 4)?;
+                let start = j.buffer(n_cells * 4)?;
+                let sums = j.buffer(n_blocks * 4)?;
+                let sorted = j.buffer(n * 16)?;
+                j.barrier();
+                j.dispatch("grid_count", &[sites, site_cell, count], &bp, n)?;
+                j.barrier();
+                j.dispatch("scan_blocks", &[count, start, sums], &bp, n_blocks)?;
+                j.barrier();
+                j.dispatch("scan_totals", &[sums], &bp, 1)?;
+                j.barrier();
+                j.dispatch("scan_offsets", &[sums, start], &bp, n_blocks)?;
+                j.barrier();
+                j.dispatch("grid_scatter", &[sites, site_cell, start, cursor, sorted], &bp, n)?;
+                j.mark("grid");
+                j.dispatch("knn_grid", &[queries, start, count, sorted, nbr, d2], p, nq)?;
+            }
+            KnnMethod::Brute => {
+                j.dispatch("knn_brute", &[queries, sites, nbr, d2], p, nq)?;
+            }
+        }
+        j.mark("knn");
+        let nbr_back = j.download(nbr, nq * k * 4)?;
+        let d2_back = j.download(d2, nq * k * 8)?;
+        j.mark("download");
+        let done = j.run()?;
+        let len = (nq * k) as usize;
+        Ok(Neighbors { k: k as usize, indices: done.read(nbr_back, len), dist2: done.read(d2_back, len), timings: done.timings })
+    }
+}

@@ -1,0 +1,128 @@
+//! Compute pipelines for the kernels' entry points, from the embedded
+//! SPIR-V module, created on first use (a driver may take seconds to
+//! compile one: lavapipe does).
+
+use super::context::Context;
+use crate::error::{Error, Result, VkContext};
+use ash::vk;
+use cvd_kernels::abi::{GridBuildParams, KnnParams};
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+
+/// The kernels' SPIR-V module, built by rust-gpu at compile time.
+pub const KERNELS_SPV: &[u8] = include_bytes!(env!("CVD_KERNELS_SPV"));
+
+/// The interface of one entry point: storage buffers at bindings
+/// `0..bindings` of set 0, and a push-constant block.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct KernelSpec {
+    pub name: &'static str,
+    pub bindings: u32,
+    pub push_size: u32,
+}
+
+const fn spec<P>(name: &'static str, bindings: u32) -> KernelSpec {
+    KernelSpec { name, bindings, push_size: std::mem::size_of::<P>() as u32 }
+}
+
+/// Every entry point in `cvd_kernels::entry`.
+pub(crate) const KERNELS: &[KernelSpec] = &[
+    spec::<GridBuildParams>("grid_count", 3),
+    spec::<GridBuildParams>("scan_blocks", 3),
+    spec::<GridBuildParams>("scan_totals", 1),
+    spec::<GridBuildParams>("scan_offsets", 2),
+    spec::<GridBuildParams>("grid_scatter", 5),
+    spec::<KnnParams>("knn_grid", 6),
+    spec::<KnnParams>("knn_brute", 4),
+];
+
+/// A ready compute pipeline.
+pub(crate) struct Kernel {
+    pub spec: KernelSpec,
+    pub set_layout: vk::DescriptorSetLayout,
+    pub layout: vk::PipelineLayout,
+    pub pipeline: vk::Pipeline,
+}
+
+/// The shader module and the pipelines made from it so far.
+pub(crate) struct Pipelines {
+    device: ash::Device,
+    module: vk::ShaderModule,
+    cache: vk::PipelineCache,
+    made: Mutex<HashMap<&'static str, Arc<Kernel>>>,
+}
+
+impl Pipelines {
+    pub(crate) fn new(ctx: &Context) -> Result<Self> {
+        let words = ash::util::read_spv(&mut std::io::Cursor::new(KERNELS_SPV))
+            .map_err(|e| Error::InvalidInput(format!("embedded SPIR-V is malformed: {e}")))?;
+        let info = vk::ShaderModuleCreateInfo::default().code(&words);
+        // SAFETY: valid SPIR-V from the build.
+        let module = unsafe { ctx.device.create_shader_module(&info, None) }.call("vkCreateShaderModule")?;
+        // SAFETY: empty cache.
+        let cache = unsafe { ctx.device.create_pipeline_cache(&vk::PipelineCacheCreateInfo::default(), None) }
+            .call("vkCreatePipelineCache")?;
+        Ok(Self { device: ctx.device.clone(), module, cache, made: Mutex::new(HashMap::new()) })
+    }
+
+    /// The pipeline for entry point `name`, created if needed.
+    pub(crate) fn get(&self, name: &str) -> Result<Arc<Kernel>> {
+        let mut made = self.made.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(k) = made.get(name) {
+            return Ok(k.clone());
+        }
+        let spec = *KERNELS
+            .iter()
+            .find(|k| k.name == name)
+            .ok_or_else(|| Error::InvalidInput(format!("no kernel named {name}")))?;
+        let kernel = Arc::new(self.create(spec)?);
+        made.insert(spec.name, kernel.clone());
+        Ok(kernel)
+    }
+
+    fn create(&self, spec: KernelSpec) -> Result<Kernel> {
+        let dev = &self.device;
+        let bindings: Vec<_> = (0..spec.bindings)
+            .map(|b| {
+                vk::DescriptorSetLayoutBinding::default()
+                    .binding(b)
+                    .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+                    .descriptor_count(1)
+                    .stage_flags(vk::ShaderStageFlags::COMPUTE)
+            })
+            .collect();
+        let info = vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings);
+        // SAFETY: valid create infos throughout.
+        let set_layout = unsafe { dev.create_descriptor_set_layout(&info, None) }.call("vkCreateDescriptorSetLayout")?;
+        let ranges = [vk::PushConstantRange::default().stage_flags(vk::ShaderStageFlags::COMPUTE).size(spec.push_size)];
+        let set_layouts = [set_layout];
+        let info = vk::PipelineLayoutCreateInfo::default().set_layouts(&set_layouts).push_constant_ranges(&ranges);
+        let layout = unsafe { dev.create_pipeline_layout(&info, None) }.call("vkCreatePipelineLayout")?;
+        // rust-gpu names entry points by their path inside the kernels crate.
+        let entry = std::ffi::CString::new(format!("entry::{}", spec.name)).expect("kernel names have no NUL");
+        let stage = vk::PipelineShaderStageCreateInfo::default()
+            .stage(vk::ShaderStageFlags::COMPUTE)
+            .module(self.module)
+            .name(&entry);
+        let info = [vk::ComputePipelineCreateInfo::default().stage(stage).layout(layout)];
+        let pipeline = unsafe { dev.create_compute_pipelines(self.cache, &info, None) }
+            .map_err(|(_, e)| Error::Vulkan { call: "vkCreateComputePipelines", result: e })?[0];
+        Ok(Kernel { spec, set_layout, layout, pipeline })
+    }
+}
+
+impl Drop for Pipelines {
+    fn drop(&mut self) {
+        let made = self.made.get_mut().unwrap_or_else(|e| e.into_inner());
+        // SAFETY: the device is idle when the backend is dropped.
+        unsafe {
+            for k in made.values() {
+                self.device.destroy_pipeline(k.pipeline, None);
+                self.device.destroy_pipeline_layout(k.layout, None);
+                self.device.destroy_descriptor_set_layout(k.set_layout, None);
+            }
+            self.device.destroy_pipeline_cache(self.cache, None);
+            self.device.destroy_shader_module(self.module, None);
+        }
+    }
+}

@@ -1,0 +1,88 @@
+//! How a body reaches its buffers, so that one body serves both backends.
+//!
+//! On the GPU a body sees whole storage buffers (`[T]`) and indexes them with
+//! global indices. On the CPU, rayon gives each task a disjoint window of an
+//! output buffer ([`Window`]); the body still uses global indices and the
+//! window translates them (a write outside the window panics, which checks
+//! that threads write only their own part). Shared counters go through
+//! [`AtomicCounters`]: spirv-std atomics on the GPU, std atomics on the CPU.
+
+/// A buffer a body writes, indexed by global element index.
+pub trait OutBuf<T: Copy> {
+    /// Reads element `i`.
+    fn read(&self, i: usize) -> T;
+    /// Writes element `i`.
+    fn write(&mut self, i: usize, value: T);
+}
+
+impl<T: Copy> OutBuf<T> for [T] {
+    #[inline]
+    fn read(&self, i: usize) -> T {
+        self[i]
+    }
+    #[inline]
+    fn write(&mut self, i: usize, value: T) {
+        self[i] = value;
+    }
+}
+
+/// The part `start..start + data.len()` of a larger buffer, addressed with
+/// the larger buffer's indices.
+pub struct Window<'a, T> {
+    /// Global index of `data[0]`.
+    pub start: usize,
+    /// The elements this window owns.
+    pub data: &'a mut [T],
+}
+
+impl<T: Copy> OutBuf<T> for Window<'_, T> {
+    #[inline]
+    fn read(&self, i: usize) -> T {
+        self.data[i - self.start]
+    }
+    #[inline]
+    fn write(&mut self, i: usize, value: T) {
+        self.data[i - self.start] = value;
+    }
+}
+
+/// `u32` counters that many threads add to at once.
+pub trait AtomicCounters {
+    /// Adds `value` to counter `i` and returns its previous value.
+    fn fetch_add(&mut self, i: usize, value: u32) -> u32;
+}
+
+/// A storage buffer of counters on the GPU.
+pub struct DeviceCounters<'a>(pub &'a mut [u32]);
+
+impl AtomicCounters for DeviceCounters<'_> {
+    #[inline]
+    fn fetch_add(&mut self, i: usize, value: u32) -> u32 {
+        #[cfg(target_arch = "spirv")]
+        {
+            use spirv_std::memory::{Scope, Semantics};
+            // SAFETY: an atomic add on a storage buffer element.
+            unsafe {
+                spirv_std::arch::atomic_i_add::<u32, { Scope::Device as u32 }, { Semantics::NONE.bits() }>(
+                    &mut self.0[i],
+                    value,
+                )
+            }
+        }
+        #[cfg(not(target_arch = "spirv"))]
+        {
+            // Natively a `&mut` buffer is not shared: a plain add is atomic.
+            let old = self.0[i];
+            self.0[i] = old.wrapping_add(value);
+            old
+        }
+    }
+}
+
+#[cfg(not(target_arch = "spirv"))]
+impl AtomicCounters for &[core::sync::atomic::AtomicU32] {
+    #[inline]
+    fn fetch_add(&mut self, i: usize, value: u32) -> u32 {
+        self[i].fetch_add(value, core::sync::atomic::Ordering::Relaxed)
+    }
+}

@@ -1,0 +1,114 @@
+//! Compute-shader entry points: read the thread index, call a body.
+//!
+//! Every kernel runs [`WORKGROUP_SIZE`](crate::abi::WORKGROUP_SIZE) threads
+//! per workgroup and is dispatched as a 2D grid of workgroups (see
+//! [`thread_index`]). Descriptor set 0 holds storage buffers in the order of
+//! the parameters; push constants hold the `*Params` struct.
+
+use crate::abi::{thread_index, GridBuildParams, KnnParams, QuantPoint};
+use crate::buffers::DeviceCounters;
+use crate::{grid, knn, scan};
+use spirv_std::glam::UVec3;
+use spirv_std::spirv;
+
+/// Bins each site into the grid and counts the sites per cell.
+#[spirv(compute(threads(64)))]
+pub fn grid_count(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(num_workgroups)] groups: UVec3,
+    #[spirv(push_constant)] p: &GridBuildParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] sites: &[QuantPoint],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] site_cell: &mut [u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] cell_count: &mut [u32],
+) {
+    let i = thread_index(id.x, id.y, groups.x);
+    grid::count_site(i, &p.grid, sites, site_cell, &mut DeviceCounters(cell_count));
+}
+
+/// Prefix sum, step 1: scans each block of cell counts.
+#[spirv(compute(threads(64)))]
+pub fn scan_blocks(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(num_workgroups)] groups: UVec3,
+    #[spirv(push_constant)] p: &GridBuildParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] cell_count: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] cell_start: &mut [u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] block_sums: &mut [u32],
+) {
+    let b = thread_index(id.x, id.y, groups.x);
+    scan::scan_block(b, p.grid.n_cells as usize, cell_count, cell_start, block_sums);
+}
+
+/// Prefix sum, step 2: one thread scans the block totals.
+#[spirv(compute(threads(64)))]
+pub fn scan_totals(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(push_constant)] p: &GridBuildParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] block_sums: &mut [u32],
+) {
+    if id.x == 0 && id.y == 0 {
+        scan::scan_block_sums(p.n_blocks as usize, block_sums);
+    }
+}
+
+/// Prefix sum, step 3: adds each block's offset.
+#[spirv(compute(threads(64)))]
+pub fn scan_offsets(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(num_workgroups)] groups: UVec3,
+    #[spirv(push_constant)] p: &GridBuildParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] block_sums: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] cell_start: &mut [u32],
+) {
+    let b = thread_index(id.x, id.y, groups.x);
+    scan::add_block_offset(b, p.grid.n_cells as usize, cell_start, block_sums);
+}
+
+/// Moves each site into its cell's range of the sorted site array.
+#[spirv(compute(threads(64)))]
+pub fn grid_scatter(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(num_workgroups)] groups: UVec3,
+    #[spirv(push_constant)] p: &GridBuildParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] sites: &[QuantPoint],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] site_cell: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] cell_start: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] cursor: &mut [u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] sorted: &mut [QuantPoint],
+) {
+    let i = thread_index(id.x, id.y, groups.x);
+    grid::scatter_site(i, &p.grid, sites, site_cell, cell_start, &mut DeviceCounters(cursor), sorted);
+}
+
+/// k nearest sites of each query by grid ring search.
+#[spirv(compute(threads(64)))]
+#[allow(clippy::too_many_arguments)]
+pub fn knn_grid(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(num_workgroups)] groups: UVec3,
+    #[spirv(push_constant)] p: &KnnParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] queries: &[QuantPoint],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] cell_start: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] cell_count: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] sorted: &[QuantPoint],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] neighbors: &mut [u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] neighbor_d2: &mut [u64],
+) {
+    let i = thread_index(id.x, id.y, groups.x);
+    knn::grid_thread(i, p, queries, cell_start, cell_count, sorted, neighbors, neighbor_d2);
+}
+
+/// k nearest sites of each query by brute force.
+#[spirv(compute(threads(64)))]
+pub fn knn_brute(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(num_workgroups)] groups: UVec3,
+    #[spirv(push_constant)] p: &KnnParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] queries: &[QuantPoint],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] sites: &[QuantPoint],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] neighbors: &mut [u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] neighbor_d2: &mut [u64],
+) {
+    let i = thread_index(id.x, id.y, groups.x);
+    knn::brute_thread(i, p, queries, sites, neighbors, neighbor_d2);
+}

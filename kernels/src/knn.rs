@@ -1,0 +1,273 @@
+//! k nearest neighbours (paper section 5): brute force and grid ring search.
+//!
+//! Distances are squared Euclidean distances between quantized points,
+//! computed exactly in 64-bit integers, and ties break by site index. So the
+//! answer is one well-defined list, the same on every backend and for both
+//! methods. Each query keeps its sorted candidate list directly in its slots
+//! of the output buffers (`k` slots from `base`), so `k` has no fixed cap.
+
+use crate::abi::{GridParams, KnnParams, QuantPoint, NO_SITE};
+use crate::buffers::OutBuf;
+use crate::grid::{cell_coords, cell_index};
+
+/// `|a - b|` (written out: rust-gpu lacks some integer intrinsics).
+#[inline]
+fn diff(a: u32, b: u32) -> u32 {
+    if a > b {
+        a - b
+    } else {
+        b - a
+    }
+}
+
+/// `max(a - b, 0)`.
+#[inline]
+fn sub_floor0(a: u32, b: u32) -> u32 {
+    if a > b {
+        a - b
+    } else {
+        0
+    }
+}
+
+/// Exact squared distance between quantized points.
+#[inline]
+pub fn dist2(a: [u32; 3], b: &QuantPoint) -> u64 {
+    let dx = diff(a[0], b[0]) as u64;
+    let dy = diff(a[1], b[1]) as u64;
+    let dz = diff(a[2], b[2]) as u64;
+    dx * dx + dy * dy + dz * dz
+}
+
+/// A query's sorted list of the best `k` candidates, kept in `nbr`/`d2` at
+/// `base..base + k`, ordered by `(distance, index)`.
+#[inline]
+fn offer<N, D>(d: u64, idx: u32, k: u32, base: usize, found: &mut u32, nbr: &mut N, d2: &mut D)
+where
+    N: OutBuf<u32> + ?Sized,
+    D: OutBuf<u64> + ?Sized,
+{
+    let mut pos = *found as usize;
+    if *found == k {
+        let wd = d2.read(base + pos - 1);
+        let wi = nbr.read(base + pos - 1);
+        if d > wd || (d == wd && idx > wi) {
+            return;
+        }
+        pos -= 1;
+    } else {
+        *found += 1;
+    }
+    // Shift larger entries up one slot, then insert.
+    while pos > 0 {
+        let pd = d2.read(base + pos - 1);
+        let pi = nbr.read(base + pos - 1);
+        if pd < d || (pd == d && pi < idx) {
+            break;
+        }
+        d2.write(base + pos, pd);
+        nbr.write(base + pos, pi);
+        pos -= 1;
+    }
+    d2.write(base + pos, d);
+    nbr.write(base + pos, idx);
+}
+
+/// Fills the slots a query could not fill (only when `k` exceeds the sites).
+#[inline]
+fn pad<N, D>(found: u32, k: u32, base: usize, nbr: &mut N, d2: &mut D)
+where
+    N: OutBuf<u32> + ?Sized,
+    D: OutBuf<u64> + ?Sized,
+{
+    let mut j = found as usize;
+    while j < k as usize {
+        nbr.write(base + j, NO_SITE);
+        d2.write(base + j, u64::MAX);
+        j += 1;
+    }
+}
+
+/// Brute force: the `k` nearest of all sites to `q`, skipping site `exclude`.
+#[inline]
+pub fn brute_query<N, D>(sites: &[QuantPoint], n_sites: u32, q: [u32; 3], exclude: u32, k: u32, base: usize, nbr: &mut N, d2: &mut D)
+where
+    N: OutBuf<u32> + ?Sized,
+    D: OutBuf<u64> + ?Sized,
+{
+    let mut found = 0u32;
+    let mut j = 0usize;
+    while j < n_sites as usize {
+        let s = sites[j];
+        if s[3] != exclude {
+            offer(dist2(q, &s), s[3], k, base, &mut found, nbr, d2);
+        }
+        j += 1;
+    }
+    pad(found, k, base, nbr, d2);
+}
+
+/// The distance from `q` to the nearest point outside the box of cells
+/// within Chebyshev ring `r` of cell `c`, or `u64::MAX` when that box covers
+/// the whole grid. Every site not yet visited is at least this far.
+#[inline]
+fn ring_gap(g: &GridParams, q: [u32; 3], c: [u32; 3], r: u32) -> u64 {
+    let dims = [g.dim_x, g.dim_y, g.dim_z];
+    let cs = g.cell_size as u64;
+    let mut gap = u64::MAX;
+    let mut a = 0;
+    while a < 3 {
+        if c[a] > r {
+            let lo = q[a] as u64 - (c[a] - r) as u64 * cs;
+            gap = gap.min(lo);
+        }
+        if c[a] + r < dims[a] - 1 {
+            let hi = (c[a] + r + 1) as u64 * cs - q[a] as u64;
+            gap = gap.min(hi);
+        }
+        a += 1;
+    }
+    gap
+}
+
+/// Offers every site of one grid cell.
+#[inline]
+#[allow(clippy::too_many_arguments)]
+fn visit_cell<N, D>(
+    cell: usize,
+    cell_start: &[u32],
+    cell_count: &[u32],
+    sorted: &[QuantPoint],
+    q: [u32; 3],
+    exclude: u32,
+    k: u32,
+    base: usize,
+    found: &mut u32,
+    nbr: &mut N,
+    d2: &mut D,
+) where
+    N: OutBuf<u32> + ?Sized,
+    D: OutBuf<u64> + ?Sized,
+{
+    let start = cell_start[cell] as usize;
+    let end = start + cell_count[cell] as usize;
+    let mut j = start;
+    while j < end {
+        let s = sorted[j];
+        if s[3] != exclude {
+            offer(dist2(q, &s), s[3], k, base, found, nbr, d2);
+        }
+        j += 1;
+    }
+}
+
+/// Grid ring search: visits the cells ring by ring around the query's cell
+/// and stops once the k-th candidate is strictly nearer than anything
+/// outside the rings visited so far (so ties are resolved too).
+#[inline]
+#[allow(clippy::too_many_arguments)]
+pub fn grid_query<N, D>(
+    g: &GridParams,
+    cell_start: &[u32],
+    cell_count: &[u32],
+    sorted: &[QuantPoint],
+    q: [u32; 3],
+    exclude: u32,
+    k: u32,
+    base: usize,
+    nbr: &mut N,
+    d2: &mut D,
+) where
+    N: OutBuf<u32> + ?Sized,
+    D: OutBuf<u64> + ?Sized,
+{
+    let available = if exclude < g.n_sites { g.n_sites - 1 } else { g.n_sites };
+    let c = cell_coords(g, q);
+    let mut found = 0u32;
+    let mut r = 0u32;
+    loop {
+        let z0 = sub_floor0(c[2], r);
+        let z1 = (c[2] + r).min(g.dim_z - 1);
+        let y0 = sub_floor0(c[1], r);
+        let y1 = (c[1] + r).min(g.dim_y - 1);
+        let x0 = sub_floor0(c[0], r);
+        let x1 = (c[0] + r).min(g.dim_x - 1);
+        let mut z = z0;
+        while z <= z1 {
+            let mut y = y0;
+            while y <= y1 {
+                let on_shell = diff(z, c[2]) == r || diff(y, c[1]) == r;
+                if on_shell {
+                    let mut x = x0;
+                    while x <= x1 {
+                        let cell = cell_index(g, [x, y, z]);
+                        visit_cell(cell, cell_start, cell_count, sorted, q, exclude, k, base, &mut found, nbr, d2);
+                        x += 1;
+                    }
+                } else {
+                    // Inside the shell's y-z extent only the two x ends are new.
+                    if c[0] >= r {
+                        let cell = cell_index(g, [c[0] - r, y, z]);
+                        visit_cell(cell, cell_start, cell_count, sorted, q, exclude, k, base, &mut found, nbr, d2);
+                    }
+                    if c[0] + r < g.dim_x {
+                        let cell = cell_index(g, [c[0] + r, y, z]);
+                        visit_cell(cell, cell_start, cell_count, sorted, q, exclude, k, base, &mut found, nbr, d2);
+                    }
+                }
+                y += 1;
+            }
+            z += 1;
+        }
+        let gap = ring_gap(g, q, c, r);
+        if gap == u64::MAX || found == available {
+            break;
+        }
+        if found == k && d2.read(base + k as usize - 1) < gap * gap {
+            break;
+        }
+        r += 1;
+    }
+    pad(found, k, base, nbr, d2);
+}
+
+/// Thread `i` of a grid k-NN job: the neighbours of query `i`.
+#[inline]
+#[allow(clippy::too_many_arguments)]
+pub fn grid_thread<N, D>(
+    i: usize,
+    p: &KnnParams,
+    queries: &[QuantPoint],
+    cell_start: &[u32],
+    cell_count: &[u32],
+    sorted: &[QuantPoint],
+    nbr: &mut N,
+    d2: &mut D,
+) where
+    N: OutBuf<u32> + ?Sized,
+    D: OutBuf<u64> + ?Sized,
+{
+    if i >= p.n_queries as usize {
+        return;
+    }
+    let q = queries[i];
+    let exclude = if p.exclude_self != 0 { q[3] } else { NO_SITE };
+    let base = i * p.k as usize;
+    grid_query(&p.grid, cell_start, cell_count, sorted, [q[0], q[1], q[2]], exclude, p.k, base, nbr, d2);
+}
+
+/// Thread `i` of a brute-force k-NN job: the neighbours of query `i`.
+#[inline]
+pub fn brute_thread<N, D>(i: usize, p: &KnnParams, queries: &[QuantPoint], sites: &[QuantPoint], nbr: &mut N, d2: &mut D)
+where
+    N: OutBuf<u32> + ?Sized,
+    D: OutBuf<u64> + ?Sized,
+{
+    if i >= p.n_queries as usize {
+        return;
+    }
+    let q = queries[i];
+    let exclude = if p.exclude_self != 0 { q[3] } else { NO_SITE };
+    let base = i * p.k as usize;
+    brute_query(sites, p.grid.n_sites, [q[0], q[1], q[2]], exclude, p.k, base, nbr, d2);
+}

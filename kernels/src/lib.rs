@@ -1,0 +1,18 @@
+//! Kernels for clipped Voronoi diagrams, written once.
+//!
+//! Every algorithm here is a plain function over slices (a *body*), called
+//! once per thread index. The same body is compiled to SPIR-V by rust-gpu and
+//! called by thin `#[spirv(compute)]` entry points ([`entry`]), and it is
+//! called natively by the host's CPU backend, one call per thread index. So
+//! the CPU and the GPU run the same code, and the tests compare the two.
+//!
+//! Types that cross the CPU/GPU boundary live in [`abi`], defined once.
+#![no_std]
+#![deny(missing_docs)]
+
+pub mod abi;
+pub mod buffers;
+pub mod entry;
+pub mod grid;
+pub mod knn;
+pub mod scan;

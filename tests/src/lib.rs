@@ -1,0 +1,58 @@
+//! Shared helpers of the cross-crate tests: the Vulkan device every test of a
+//! binary shares, and references written apart from the kernels.
+
+use cvd::vulkan::{validation_errors, VulkanBackend, VulkanOptions};
+use cvd::KnnJob;
+use std::sync::OnceLock;
+
+/// The Vulkan backend shared by all tests of one test binary (pipelines are
+/// compiled once), with the Khronos validation layer on. `None` when no
+/// device exists, which is a failure under `CI=true`.
+pub fn vulkan() -> Option<&'static VulkanBackend> {
+    static BACKEND: OnceLock<Result<VulkanBackend, String>> = OnceLock::new();
+    let backend = BACKEND.get_or_init(|| {
+        let options = VulkanOptions { device: std::env::var("CVD_TEST_DEVICE").ok(), validation: true };
+        VulkanBackend::new(&options).map_err(|e| e.to_string())
+    });
+    match backend {
+        Ok(b) => Some(b),
+        Err(e) if std::env::var("CI").is_ok_and(|v| v == "true") => panic!("CI=true but no Vulkan device: {e}"),
+        Err(e) => {
+            eprintln!("SKIPPED (no Vulkan device: {e})");
+            None
+        }
+    }
+}
+
+/// Fails the test if the validation layer has reported any error so far.
+pub fn assert_no_validation_errors() {
+    assert_eq!(validation_errors(), 0, "the Vulkan validation layer reported errors (see stderr)");
+}
+
+/// The k nearest sites of every query by sorting all distances: squared
+/// distances from the job's quantized coordinates (in i128, apart from the
+/// kernels' arithmetic), ordered by (distance, index).
+pub fn reference_knn(job: &KnnJob) -> (Vec<u32>, Vec<u64>) {
+    let k = job.params.k as usize;
+    let mut indices = Vec::with_capacity(job.queries.len() * k);
+    let mut dist2 = Vec::with_capacity(job.queries.len() * k);
+    let mut all = Vec::with_capacity(job.sites.len());
+    for q in &job.queries {
+        all.clear();
+        for s in &job.sites {
+            if job.params.exclude_self != 0 && s[3] == q[3] {
+                continue;
+            }
+            let d: i128 = (0..3).map(|a| (q[a] as i128 - s[a] as i128).pow(2)).sum();
+            all.push((d as u64, s[3]));
+        }
+        if all.len() > k {
+            all.select_nth_unstable(k);
+            all.truncate(k);
+        }
+        all.sort_unstable();
+        indices.extend(all.iter().map(|&(_, i)| i));
+        dist2.extend(all.iter().map(|&(d, _)| d));
+    }
+    (indices, dist2)
+}

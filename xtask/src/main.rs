@@ -1,0 +1,67 @@
+//! `cargo xtask`: builds, runs, tests and benchmarks the project by driving
+//! cargo (the SPIR-V kernels are built by the host crate's build script).
+
+use std::process::{Command, ExitCode};
+
+const USAGE: &str = "\
+usage: cargo xtask <command> [args...]
+
+commands:
+  run [ARGS]        the main job (cvd knn ARGS, release build)
+  test [ARGS]       the whole test suite, optimised (cargo test ARGS)
+  bench knn [ARGS]  the k-NN benchmark (ARGS: --sizes, --ks, --json PATH, ...)
+  build             build everything, optimised
+  lint              cargo fmt --check and cargo clippy -D warnings
+";
+
+fn cargo(args: &[&str], extra: &[String]) -> Command {
+    let mut cmd = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()));
+    cmd.args(args).args(extra);
+    cmd
+}
+
+fn status(mut cmd: Command) -> Result<(), String> {
+    let shown = format!("{cmd:?}");
+    match cmd.status() {
+        Ok(s) if s.success() => Ok(()),
+        Ok(s) => Err(format!("{shown} failed ({s})")),
+        Err(e) => Err(format!("cannot run {shown}: {e}")),
+    }
+}
+
+fn run(args: &[String]) -> Result<(), String> {
+    let Some((command, rest)) = args.split_first() else {
+        return Err(USAGE.into());
+    };
+    match command.as_str() {
+        "run" => status(cargo(&["run", "--release", "--package", "cvd", "--", "knn"], rest)),
+        "test" => status(cargo(&["test", "--release", "--workspace"], rest)),
+        "build" => status(cargo(&["build", "--release", "--workspace"], rest)),
+        "bench" => match rest.split_first() {
+            Some((which, extra)) if which == "knn" => {
+                status(cargo(&["bench", "--package", "cvd", "--bench", "knn", "--"], extra))
+            }
+            _ => Err(format!("unknown benchmark; expected: knn\n\n{USAGE}")),
+        },
+        "lint" => {
+            status(cargo(&["fmt", "--all", "--check"], &[]))?;
+            status(cargo(&["clippy", "--release", "--workspace", "--all-targets", "--", "-D", "warnings"], &[]))
+        }
+        "help" | "--help" | "-h" => {
+            print!("{USAGE}");
+            Ok(())
+        }
+        other => Err(format!("unknown command '{other}'\n\n{USAGE}")),
+    }
+}
+
+fn main() -> ExitCode {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    match run(&args) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("xtask: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
