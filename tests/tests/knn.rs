@@ -87,10 +87,12 @@ fn large_k_returns_every_other_site() {
     for k in [256, 299, 300, 1000] {
         check_all(|m| KnnJob::sites(&sites, k, m).unwrap());
         let nn = KnnJob::sites(&sites, k, KnnMethod::Grid).unwrap().run(&cpu()).unwrap();
-        assert_eq!(nn.k, 299);
-        let mut first: Vec<u32> = nn.of(0).to_vec();
-        first.sort_unstable();
-        assert_eq!(first, (1..300).collect::<Vec<u32>>());
+        assert_eq!(nn.k, k.min(299));
+        if k >= 299 {
+            let mut first: Vec<u32> = nn.of(0).to_vec();
+            first.sort_unstable();
+            assert_eq!(first, (1..300).collect::<Vec<u32>>());
+        }
     }
 }
 

@@ -63,6 +63,8 @@ pub struct Context {
     debug: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
     pub(crate) device: ash::Device,
     pub(crate) queue: vk::Queue,
+    /// Vulkan requires external synchronisation of queue submissions.
+    pub(crate) queue_lock: std::sync::Mutex<()>,
     pub(crate) queue_family: u32,
     pub(crate) memory: vk::PhysicalDeviceMemoryProperties,
     pub(crate) limits: vk::PhysicalDeviceLimits,
@@ -235,6 +237,7 @@ impl Context {
             debug,
             device,
             queue,
+            queue_lock: std::sync::Mutex::new(()),
             queue_family,
             memory,
             limits: props.limits,

@@ -231,10 +231,11 @@ impl<'a> Job<'a> {
             let fence = dev.create_fence(&vk::FenceCreateInfo::default(), None).call("vkCreateFence")?;
             let cmds = [self.cmd];
             let submit = [vk::SubmitInfo::default().command_buffers(&cmds)];
-            let result = dev
-                .queue_submit(self.ctx.queue, &submit, fence)
-                .call("vkQueueSubmit")
-                .and_then(|_| dev.wait_for_fences(&[fence], true, u64::MAX).call("vkWaitForFences"));
+            let submitted = {
+                let _queue = self.ctx.queue_lock.lock().unwrap_or_else(|e| e.into_inner());
+                dev.queue_submit(self.ctx.queue, &submit, fence).call("vkQueueSubmit")
+            };
+            let result = submitted.and_then(|_| dev.wait_for_fences(&[fence], true, u64::MAX).call("vkWaitForFences"));
             dev.destroy_fence(fence, None);
             result?;
         }
