@@ -10,8 +10,10 @@ use crate::abi::{GridParams, KnnParams, QuantPoint, NO_SITE};
 use crate::buffers::OutBuf;
 use crate::grid::{cell_coords, cell_index};
 
-/// `|a - b|` (written out: rust-gpu lacks some integer intrinsics).
+/// `|a - b|`, written out: rust-gpu 0.11 lacks the intrinsics behind
+/// `abs_diff` and `saturating_sub`.
 #[inline]
+#[allow(clippy::manual_abs_diff)]
 fn diff(a: u32, b: u32) -> u32 {
     if a > b {
         a - b
@@ -22,6 +24,7 @@ fn diff(a: u32, b: u32) -> u32 {
 
 /// `max(a - b, 0)`.
 #[inline]
+#[allow(clippy::implicit_saturating_sub)]
 fn sub_floor0(a: u32, b: u32) -> u32 {
     if a > b {
         a - b
@@ -90,8 +93,16 @@ where
 
 /// Brute force: the `k` nearest of all sites to `q`, skipping site `exclude`.
 #[inline]
-pub fn brute_query<N, D>(sites: &[QuantPoint], n_sites: u32, q: [u32; 3], exclude: u32, k: u32, base: usize, nbr: &mut N, d2: &mut D)
-where
+pub fn brute_query<N, D>(
+    sites: &[QuantPoint],
+    n_sites: u32,
+    q: [u32; 3],
+    exclude: u32,
+    k: u32,
+    base: usize,
+    nbr: &mut N,
+    d2: &mut D,
+) where
     N: OutBuf<u32> + ?Sized,
     D: OutBuf<u64> + ?Sized,
 {
@@ -132,7 +143,6 @@ fn ring_gap(g: &GridParams, q: [u32; 3], c: [u32; 3], r: u32) -> u64 {
 
 /// Offers every site of one grid cell.
 #[inline]
-#[allow(clippy::too_many_arguments)]
 fn visit_cell<N, D>(
     cell: usize,
     cell_start: &[u32],
@@ -165,7 +175,6 @@ fn visit_cell<N, D>(
 /// and stops once the k-th candidate is strictly nearer than anything
 /// outside the rings visited so far (so ties are resolved too).
 #[inline]
-#[allow(clippy::too_many_arguments)]
 pub fn grid_query<N, D>(
     g: &GridParams,
     cell_start: &[u32],
@@ -181,7 +190,11 @@ pub fn grid_query<N, D>(
     N: OutBuf<u32> + ?Sized,
     D: OutBuf<u64> + ?Sized,
 {
-    let available = if exclude < g.n_sites { g.n_sites - 1 } else { g.n_sites };
+    let available = if exclude < g.n_sites {
+        g.n_sites - 1
+    } else {
+        g.n_sites
+    };
     let c = cell_coords(g, q);
     let mut found = 0u32;
     let mut r = 0u32;
@@ -201,18 +214,27 @@ pub fn grid_query<N, D>(
                     let mut x = x0;
                     while x <= x1 {
                         let cell = cell_index(g, [x, y, z]);
-                        visit_cell(cell, cell_start, cell_count, sorted, q, exclude, k, base, &mut found, nbr, d2);
+                        visit_cell(
+                            cell, cell_start, cell_count, sorted, q, exclude, k, base, &mut found,
+                            nbr, d2,
+                        );
                         x += 1;
                     }
                 } else {
                     // Inside the shell's y-z extent only the two x ends are new.
                     if c[0] >= r {
                         let cell = cell_index(g, [c[0] - r, y, z]);
-                        visit_cell(cell, cell_start, cell_count, sorted, q, exclude, k, base, &mut found, nbr, d2);
+                        visit_cell(
+                            cell, cell_start, cell_count, sorted, q, exclude, k, base, &mut found,
+                            nbr, d2,
+                        );
                     }
                     if c[0] + r < g.dim_x {
                         let cell = cell_index(g, [c[0] + r, y, z]);
-                        visit_cell(cell, cell_start, cell_count, sorted, q, exclude, k, base, &mut found, nbr, d2);
+                        visit_cell(
+                            cell, cell_start, cell_count, sorted, q, exclude, k, base, &mut found,
+                            nbr, d2,
+                        );
                     }
                 }
                 y += 1;
@@ -233,7 +255,6 @@ pub fn grid_query<N, D>(
 
 /// Thread `i` of a grid k-NN job: the neighbours of query `i`.
 #[inline]
-#[allow(clippy::too_many_arguments)]
 pub fn grid_thread<N, D>(
     i: usize,
     p: &KnnParams,
@@ -253,13 +274,30 @@ pub fn grid_thread<N, D>(
     let q = queries[i];
     let exclude = if p.exclude_self != 0 { q[3] } else { NO_SITE };
     let base = i * p.k as usize;
-    grid_query(&p.grid, cell_start, cell_count, sorted, [q[0], q[1], q[2]], exclude, p.k, base, nbr, d2);
+    grid_query(
+        &p.grid,
+        cell_start,
+        cell_count,
+        sorted,
+        [q[0], q[1], q[2]],
+        exclude,
+        p.k,
+        base,
+        nbr,
+        d2,
+    );
 }
 
 /// Thread `i` of a brute-force k-NN job: the neighbours of query `i`.
 #[inline]
-pub fn brute_thread<N, D>(i: usize, p: &KnnParams, queries: &[QuantPoint], sites: &[QuantPoint], nbr: &mut N, d2: &mut D)
-where
+pub fn brute_thread<N, D>(
+    i: usize,
+    p: &KnnParams,
+    queries: &[QuantPoint],
+    sites: &[QuantPoint],
+    nbr: &mut N,
+    d2: &mut D,
+) where
     N: OutBuf<u32> + ?Sized,
     D: OutBuf<u64> + ?Sized,
 {
@@ -269,5 +307,14 @@ where
     let q = queries[i];
     let exclude = if p.exclude_self != 0 { q[3] } else { NO_SITE };
     let base = i * p.k as usize;
-    brute_query(sites, p.grid.n_sites, [q[0], q[1], q[2]], exclude, p.k, base, nbr, d2);
+    brute_query(
+        sites,
+        p.grid.n_sites,
+        [q[0], q[1], q[2]],
+        exclude,
+        p.k,
+        base,
+        nbr,
+        d2,
+    );
 }

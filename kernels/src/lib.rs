@@ -9,6 +9,8 @@
 //! Types that cross the CPU/GPU boundary live in [`abi`], defined once.
 #![no_std]
 #![deny(missing_docs)]
+// Kernel bodies take each buffer they touch as an argument.
+#![allow(clippy::too_many_arguments)]
 
 pub mod abi;
 pub mod buffers;

@@ -11,12 +11,17 @@ use std::sync::OnceLock;
 pub fn vulkan() -> Option<&'static VulkanBackend> {
     static BACKEND: OnceLock<Result<VulkanBackend, String>> = OnceLock::new();
     let backend = BACKEND.get_or_init(|| {
-        let options = VulkanOptions { device: std::env::var("CVD_TEST_DEVICE").ok(), validation: true };
+        let options = VulkanOptions {
+            device: std::env::var("CVD_TEST_DEVICE").ok(),
+            validation: true,
+        };
         VulkanBackend::new(&options).map_err(|e| e.to_string())
     });
     match backend {
         Ok(b) => Some(b),
-        Err(e) if std::env::var("CI").is_ok_and(|v| v == "true") => panic!("CI=true but no Vulkan device: {e}"),
+        Err(e) if std::env::var("CI").is_ok_and(|v| v == "true") => {
+            panic!("CI=true but no Vulkan device: {e}")
+        }
         Err(e) => {
             eprintln!("SKIPPED (no Vulkan device: {e})");
             None
@@ -26,7 +31,11 @@ pub fn vulkan() -> Option<&'static VulkanBackend> {
 
 /// Fails the test if the validation layer has reported any error so far.
 pub fn assert_no_validation_errors() {
-    assert_eq!(validation_errors(), 0, "the Vulkan validation layer reported errors (see stderr)");
+    assert_eq!(
+        validation_errors(),
+        0,
+        "the Vulkan validation layer reported errors (see stderr)"
+    );
 }
 
 /// The k nearest sites of every query by sorting all distances: squared

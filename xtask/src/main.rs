@@ -34,18 +34,33 @@ fn run(args: &[String]) -> Result<(), String> {
         return Err(USAGE.into());
     };
     match command.as_str() {
-        "run" => status(cargo(&["run", "--release", "--package", "cvd", "--", "knn"], rest)),
+        "run" => status(cargo(
+            &["run", "--release", "--package", "cvd", "--", "knn"],
+            rest,
+        )),
         "test" => status(cargo(&["test", "--release", "--workspace"], rest)),
         "build" => status(cargo(&["build", "--release", "--workspace"], rest)),
         "bench" => match rest.split_first() {
-            Some((which, extra)) if which == "knn" => {
-                status(cargo(&["bench", "--package", "cvd", "--bench", "knn", "--"], extra))
-            }
+            Some((which, extra)) if which == "knn" => status(cargo(
+                &["bench", "--package", "cvd", "--bench", "knn", "--"],
+                extra,
+            )),
             _ => Err(format!("unknown benchmark; expected: knn\n\n{USAGE}")),
         },
         "lint" => {
             status(cargo(&["fmt", "--all", "--check"], &[]))?;
-            status(cargo(&["clippy", "--release", "--workspace", "--all-targets", "--", "-D", "warnings"], &[]))
+            status(cargo(
+                &[
+                    "clippy",
+                    "--release",
+                    "--workspace",
+                    "--all-targets",
+                    "--",
+                    "-D",
+                    "warnings",
+                ],
+                &[],
+            ))
         }
         "help" | "--help" | "-h" => {
             print!("{USAGE}");

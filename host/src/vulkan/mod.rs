@@ -41,7 +41,11 @@ impl VulkanBackend {
     /// Creates every pipeline now (drivers may compile for seconds) and
     /// returns the time that took.
     pub fn warm_up(&self) -> Result<f64> {
-        let (r, t) = timed(|| KERNELS.iter().try_for_each(|k| self.pipelines.get(k.name).map(|_| ())));
+        let (r, t) = timed(|| {
+            KERNELS
+                .iter()
+                .try_for_each(|k| self.pipelines.get(k.name).map(|_| ()))
+        });
         r.map(|_| t)
     }
 }
@@ -56,7 +60,11 @@ impl Backend for VulkanBackend {
         let (n, nq, k) = (job.sites.len() as u64, job.queries.len() as u64, p.k as u64);
         let mut j = Job::new(&self.ctx, &self.pipelines, 8)?;
         let sites = j.upload(&job.sites)?;
-        let queries = if p.exclude_self != 0 { sites } else { j.upload(&job.queries)? };
+        let queries = if p.exclude_self != 0 {
+            sites
+        } else {
+            j.upload(&job.queries)?
+        };
         let nbr = j.buffer(nq * k * 4)?;
         let d2 = j.buffer(nq * k * 8)?;
         j.mark("upload");
@@ -64,7 +72,11 @@ impl Backend for VulkanBackend {
             KnnMethod::Grid => {
                 let n_cells = p.grid.n_cells as u64;
                 let n_blocks = scan::block_count(n_cells as usize) as u64;
-                let bp = GridBuildParams { grid: p.grid, n_blocks: n_blocks as u32, _pad: [0; 3] };
+                let bp = GridBuildParams {
+                    grid: p.grid,
+                    n_blocks: n_blocks as u32,
+                    _pad: [0; 3],
+                };
                 let site_cell = j.buffer(n * 4)?;
                 let count = j.zeroed(n_cells * 4)?;
                 let cursor = j.zeroed(n_cells * 4)?;
@@ -80,7 +92,12 @@ impl Backend for VulkanBackend {
                 j.barrier();
                 j.dispatch("scan_offsets", &[sums, start], &bp, n_blocks)?;
                 j.barrier();
-                j.dispatch("grid_scatter", &[sites, site_cell, start, cursor, sorted], &bp, n)?;
+                j.dispatch(
+                    "grid_scatter",
+                    &[sites, site_cell, start, cursor, sorted],
+                    &bp,
+                    n,
+                )?;
                 j.mark("grid");
                 j.dispatch("knn_grid", &[queries, start, count, sorted, nbr, d2], p, nq)?;
             }
@@ -94,6 +111,11 @@ impl Backend for VulkanBackend {
         j.mark("download");
         let done = j.run()?;
         let len = (nq * k) as usize;
-        Ok(Neighbors { k: k as usize, indices: done.read(nbr_back, len), dist2: done.read(d2_back, len), timings: done.timings })
+        Ok(Neighbors {
+            k: k as usize,
+            indices: done.read(nbr_back, len),
+            dist2: done.read(d2_back, len),
+            timings: done.timings,
+        })
     }
 }
