@@ -12,9 +12,13 @@
 // Kernel bodies take each buffer they touch as an argument.
 #![allow(clippy::too_many_arguments)]
 
+#[cfg(test)]
+extern crate std;
+
 pub mod abi;
 pub mod buffers;
 pub mod entry;
 pub mod grid;
 pub mod knn;
+pub mod polyhedron;
 pub mod scan;

@@ -1,0 +1,426 @@
+//! A convex polyhedron of fixed capacity, clipped by planes and integrated
+//! exactly (paper Algorithms 1-3).
+//!
+//! Representation (the dual triangles of Ray et al. 2018): the polyhedron is
+//! the intersection of the half-spaces `n·x <= d` of its planes, and each
+//! vertex is stored as the triple of planes that meet there, ordered
+//! consistently around the vertex, with its position cached. Clipping
+//! removes the vertices outside the new plane and closes the hole with one
+//! new vertex per boundary edge; no adjacency is stored (it is found by
+//! searching the few vertices a piece has). All coordinates are relative to
+//! a local origin (the site), so f32 keeps its precision.
+
+use spirv_std::glam::{Vec3, Vec4};
+
+/// Most planes a polyhedron can hold (unused planes are recycled first).
+pub const MAX_PLANES: usize = 64;
+/// Most vertices a polyhedron can hold, including those a clip adds before
+/// it drops the removed ones.
+pub const MAX_VERTS: usize = 128;
+
+/// The result of a clip.
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+pub enum Clip {
+    /// The plane does not cut the polyhedron.
+    Unchanged,
+    /// The plane cut the polyhedron.
+    Cut,
+    /// Nothing is left.
+    Empty,
+    /// The polyhedron ran out of capacity (it is left unchanged).
+    Overflow,
+    /// The vertex structure was inconsistent (numerical breakdown).
+    Broken,
+}
+
+/// Exact integrals over a polyhedron, relative to its local origin.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Moments {
+    /// Volume.
+    pub volume: f32,
+    /// First moment `∫ x dV`.
+    pub first: Vec3,
+    /// Second moment `∫ |x|² dV`.
+    pub second: f32,
+}
+
+/// A convex polyhedron of fixed capacity.
+#[derive(Clone, Copy)]
+pub struct Polyhedron {
+    /// Planes `(n, d)`: the inside is `n·x <= d`.
+    pub planes: [Vec4; MAX_PLANES],
+    /// Vertex positions.
+    pub verts: [Vec3; MAX_VERTS],
+    /// Vertex plane triples, packed 8 bits each: `a | b << 8 | c << 16`.
+    pub tris: [u32; MAX_VERTS],
+    /// Planes in use.
+    pub n_planes: u32,
+    /// Vertices in use.
+    pub n_verts: u32,
+}
+
+#[inline]
+fn pack(a: u32, b: u32, c: u32) -> u32 {
+    a | (b << 8) | (c << 16)
+}
+
+#[inline]
+fn unpack(t: u32) -> [u32; 3] {
+    [t & 0xff, (t >> 8) & 0xff, (t >> 16) & 0xff]
+}
+
+/// Whether packed triple `t` has directed edge `x -> y` (cyclically).
+#[inline]
+fn has_edge(t: u32, x: u32, y: u32) -> bool {
+    let [a, b, c] = unpack(t);
+    (a == x && b == y) || (b == x && c == y) || (c == x && a == y)
+}
+
+/// The plane following `x` in triple `t` (`t` must contain `x`).
+#[inline]
+fn after(t: u32, x: u32) -> u32 {
+    let [a, b, c] = unpack(t);
+    if a == x {
+        b
+    } else if b == x {
+        c
+    } else {
+        a
+    }
+}
+
+#[inline]
+fn contains(t: u32, x: u32) -> bool {
+    let [a, b, c] = unpack(t);
+    a == x || b == x || c == x
+}
+
+impl Polyhedron {
+    /// An empty polyhedron (no vertices).
+    pub fn empty() -> Self {
+        Self {
+            planes: [Vec4::ZERO; MAX_PLANES],
+            verts: [Vec3::ZERO; MAX_VERTS],
+            tris: [0; MAX_VERTS],
+            n_planes: 0,
+            n_verts: 0,
+        }
+    }
+
+    /// Whether nothing is left.
+    #[inline]
+    pub fn is_empty(&self) -> bool {
+        self.n_verts == 0
+    }
+
+    /// Adds vertex `pos` where planes `a, b, c` meet, ordered so that
+    /// `det(n_a, n_b, n_c) > 0` (the orientation every clip preserves).
+    fn add_corner(&mut self, a: u32, b: u32, c: u32, pos: Vec3) {
+        let na = self.planes[a as usize].truncate();
+        let nb = self.planes[b as usize].truncate();
+        let nc = self.planes[c as usize].truncate();
+        let t = if na.cross(nb).dot(nc) > 0.0 { pack(a, b, c) } else { pack(a, c, b) };
+        self.tris[self.n_verts as usize] = t;
+        self.verts[self.n_verts as usize] = pos;
+        self.n_verts += 1;
+    }
+
+    /// The tetrahedron `v` (any orientation), relative to the local origin.
+    pub fn tetrahedron(v: [Vec3; 4]) -> Self {
+        let mut p = Self::empty();
+        // Plane i is the face opposite vertex i, facing away from it.
+        let mut i = 0;
+        while i < 4 {
+            let a = v[(i + 1) % 4];
+            let b = v[(i + 2) % 4];
+            let c = v[(i + 3) % 4];
+            let mut n = (b - a).cross(c - a);
+            if n.dot(v[i] - a) > 0.0 {
+                n = -n;
+            }
+            p.planes[i] = n.extend(n.dot(a));
+            i += 1;
+        }
+        p.n_planes = 4;
+        let mut i = 0u32;
+        while i < 4 {
+            // Vertex i lies on the three faces other than face i.
+            p.add_corner((i + 1) % 4, (i + 2) % 4, (i + 3) % 4, v[i as usize]);
+            i += 1;
+        }
+        p
+    }
+
+    /// The axis-aligned box `[lo, hi]`, relative to the local origin.
+    pub fn cuboid(lo: Vec3, hi: Vec3) -> Self {
+        let mut p = Self::empty();
+        // Planes: 0 -x, 1 +x, 2 -y, 3 +y, 4 -z, 5 +z.
+        p.planes[0] = Vec4::new(-1.0, 0.0, 0.0, -lo.x);
+        p.planes[1] = Vec4::new(1.0, 0.0, 0.0, hi.x);
+        p.planes[2] = Vec4::new(0.0, -1.0, 0.0, -lo.y);
+        p.planes[3] = Vec4::new(0.0, 1.0, 0.0, hi.y);
+        p.planes[4] = Vec4::new(0.0, 0.0, -1.0, -lo.z);
+        p.planes[5] = Vec4::new(0.0, 0.0, 1.0, hi.z);
+        p.n_planes = 6;
+        let mut corner = 0u32;
+        while corner < 8 {
+            let sx = corner & 1;
+            let sy = (corner >> 1) & 1;
+            let sz = (corner >> 2) & 1;
+            let pos = Vec3::new(
+                if sx == 1 { hi.x } else { lo.x },
+                if sy == 1 { hi.y } else { lo.y },
+                if sz == 1 { hi.z } else { lo.z },
+            );
+            p.add_corner(sx, 2 + sy, 4 + sz, pos);
+            corner += 1;
+        }
+        p
+    }
+
+    /// The largest squared distance of a vertex from the local origin.
+    pub fn max_dist2(&self) -> f32 {
+        let mut r = 0.0f32;
+        let mut i = 0;
+        while i < self.n_verts as usize {
+            r = r.max(self.verts[i].length_squared());
+            i += 1;
+        }
+        r
+    }
+
+    #[inline]
+    fn outside(&self, i: usize, plane: Vec4) -> bool {
+        self.verts[i].dot(plane.truncate()) > plane.w
+    }
+
+    /// Frees the planes no vertex uses, renumbering the rest.
+    fn recycle_planes(&mut self) {
+        let mut remap = [0xffu32; MAX_PLANES];
+        let mut i = 0;
+        while i < self.n_verts as usize {
+            let [a, b, c] = unpack(self.tris[i]);
+            remap[a as usize] = 0;
+            remap[b as usize] = 0;
+            remap[c as usize] = 0;
+            i += 1;
+        }
+        let mut used = 0u32;
+        let mut p = 0;
+        while p < self.n_planes as usize {
+            if remap[p] == 0 {
+                self.planes[used as usize] = self.planes[p];
+                remap[p] = used;
+                used += 1;
+            }
+            p += 1;
+        }
+        self.n_planes = used;
+        let mut i = 0;
+        while i < self.n_verts as usize {
+            let [a, b, c] = unpack(self.tris[i]);
+            self.tris[i] = pack(remap[a as usize], remap[b as usize], remap[c as usize]);
+            i += 1;
+        }
+    }
+
+    /// Keeps the part with `n·x <= d` (`plane = (n, d)`).
+    pub fn clip(&mut self, plane: Vec4) -> Clip {
+        let n_old = self.n_verts as usize;
+        let mut n_out = 0;
+        let mut i = 0;
+        while i < n_old {
+            if self.outside(i, plane) {
+                n_out += 1;
+            }
+            i += 1;
+        }
+        if n_out == 0 {
+            return Clip::Unchanged;
+        }
+        if n_out == n_old {
+            self.n_verts = 0;
+            return Clip::Empty;
+        }
+        if self.n_planes as usize == MAX_PLANES {
+            self.recycle_planes();
+            if self.n_planes as usize == MAX_PLANES {
+                return Clip::Overflow;
+            }
+        }
+        let new_plane = self.n_planes;
+        self.planes[new_plane as usize] = plane;
+        // One new vertex per edge from a removed vertex to a kept one: it
+        // inherits the edge's direction, so orientation is preserved.
+        let mut n_new = n_old;
+        let mut t = 0;
+        while t < n_old {
+            if self.outside(t, plane) {
+                let tri = unpack(self.tris[t]);
+                let mut e = 0;
+                while e < 3 {
+                    let x = tri[e];
+                    let y = tri[(e + 1) % 3];
+                    // The vertex across edge x -> y holds edge y -> x.
+                    let mut u = 0;
+                    while u < n_old && !has_edge(self.tris[u], y, x) {
+                        u += 1;
+                    }
+                    if u == n_old {
+                        self.n_verts = n_old as u32;
+                        return Clip::Broken;
+                    }
+                    if !self.outside(u, plane) {
+                        if n_new == MAX_VERTS {
+                            return Clip::Overflow;
+                        }
+                        let v_in = self.verts[u];
+                        let v_out = self.verts[t];
+                        let n = plane.truncate();
+                        let s = (plane.w - n.dot(v_in)) / n.dot(v_out - v_in);
+                        self.verts[n_new] = v_in + (v_out - v_in) * s.clamp(0.0, 1.0);
+                        self.tris[n_new] = pack(x, y, new_plane);
+                        n_new += 1;
+                    }
+                    e += 1;
+                }
+            }
+            t += 1;
+        }
+        // Drop the removed vertices (only old ones are tested: new ones lie
+        // on the plane and must stay whatever rounding says).
+        let mut w = 0;
+        let mut i = 0;
+        while i < n_new {
+            if i >= n_old || !self.outside(i, plane) {
+                self.verts[w] = self.verts[i];
+                self.tris[w] = self.tris[i];
+                w += 1;
+            }
+            i += 1;
+        }
+        self.n_verts = w as u32;
+        self.n_planes += 1;
+        Clip::Cut
+    }
+
+    /// Volume, first and second moments, by fanning each face from its
+    /// first vertex and coning the fan to the local origin (signed tets, so
+    /// the origin may lie outside).
+    pub fn moments(&self) -> Moments {
+        let mut m = Moments::default();
+        let n = self.n_verts as usize;
+        let mut face = 0u32;
+        while face < self.n_planes {
+            // First vertex on this face.
+            let mut t0 = 0;
+            while t0 < n && !contains(self.tris[t0], face) {
+                t0 += 1;
+            }
+            if t0 < n {
+                let v0 = self.verts[t0];
+                let mut prev = v0;
+                let mut next_plane = after(self.tris[t0], face);
+                let mut steps = 0;
+                // Walk around the face: the next vertex holds edge next_plane -> face.
+                while steps < n {
+                    let mut u = 0;
+                    while u < n && !has_edge(self.tris[u], next_plane, face) {
+                        u += 1;
+                    }
+                    if u == n || u == t0 {
+                        break;
+                    }
+                    let cur = self.verts[u];
+                    // With det(n_a, n_b, n_c) > 0 triples this walk turns clockwise
+                    // seen from outside, hence (cur, prev).
+                    add_cone(&mut m, v0, cur, prev);
+                    prev = cur;
+                    next_plane = after(self.tris[u], face);
+                    steps += 1;
+                }
+            }
+            face += 1;
+        }
+        m
+    }
+}
+
+/// Adds the signed tet `(0, a, b, c)` to the moments.
+#[inline]
+fn add_cone(m: &mut Moments, a: Vec3, b: Vec3, c: Vec3) {
+    let v = a.dot(b.cross(c)) / 6.0;
+    m.volume += v;
+    m.first += (a + b + c) * (v / 4.0);
+    let s = a.length_squared() + b.length_squared() + c.length_squared() + a.dot(b) + b.dot(c) + c.dot(a);
+    m.second += v * s / 10.0;
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn close(a: f32, b: f32, tol: f32) -> bool {
+        (a - b).abs() <= tol * b.abs().max(1.0)
+    }
+
+    #[test]
+    fn cube_moments() {
+        let p = Polyhedron::cuboid(Vec3::splat(-1.0), Vec3::splat(1.0));
+        let m = p.moments();
+        assert!(close(m.volume, 8.0, 1e-6), "{m:?}");
+        assert!(m.first.length() < 1e-5, "{m:?}");
+        assert!(close(m.second, 8.0, 1e-6), "{m:?}");
+    }
+
+    #[test]
+    fn tet_moments_either_orientation() {
+        let v = [Vec3::new(0.1, 0.2, 0.3), Vec3::new(1.0, 0.0, 0.0), Vec3::new(0.0, 1.0, 0.0), Vec3::new(0.0, 0.0, 1.0)];
+        let vol = ((v[1] - v[0]).cross(v[2] - v[0]).dot(v[3] - v[0]) / 6.0).abs();
+        let centroid = (v[0] + v[1] + v[2] + v[3]) / 4.0;
+        for order in [[0, 1, 2, 3], [1, 0, 2, 3]] {
+            let m = Polyhedron::tetrahedron(order.map(|i| v[i])).moments();
+            assert!(close(m.volume, vol, 1e-5), "{m:?} vs {vol}");
+            assert!((m.first / m.volume - centroid).length() < 1e-5, "{m:?}");
+        }
+    }
+
+    #[test]
+    fn clipping_a_cube() {
+        let mut p = Polyhedron::cuboid(Vec3::splat(-1.0), Vec3::splat(1.0));
+        assert_eq!(p.clip(Vec4::new(1.0, 0.0, 0.0, 0.3)), Clip::Cut);
+        assert!(close(p.moments().volume, 5.2, 1e-5));
+        assert_eq!(p.clip(Vec4::new(1.0, 0.0, 0.0, 2.0)), Clip::Unchanged);
+        // An oblique plane through the centre halves the symmetric part.
+        let mut q = Polyhedron::cuboid(Vec3::splat(-1.0), Vec3::splat(1.0));
+        assert_eq!(q.clip(Vec4::new(1.0, 1.0, 1.0, 0.0)), Clip::Cut);
+        let m = q.moments();
+        assert!(close(m.volume, 4.0, 1e-5), "{m:?}");
+        assert!(close(m.second, 4.0, 1e-5), "{m:?}");
+        // Corner cut: removes the tet x+y+z >= 2.5 near (1,1,1): volume 0.5^3/6.
+        let mut c = Polyhedron::cuboid(Vec3::splat(-1.0), Vec3::splat(1.0));
+        assert_eq!(c.clip(Vec4::new(1.0, 1.0, 1.0, 2.5)), Clip::Cut);
+        assert!(close(c.moments().volume, 8.0 - 0.125 / 6.0, 1e-5));
+        assert_eq!(c.clip(Vec4::new(-1.0, 0.0, 0.0, -3.0)), Clip::Empty);
+        assert!(c.is_empty());
+    }
+
+    #[test]
+    fn many_clips_make_a_sphere_like_cell() {
+        // Clip by tangent planes of the unit sphere: the volume decreases
+        // toward the ball's and never below it.
+        let mut p = Polyhedron::cuboid(Vec3::splat(-1.0), Vec3::splat(1.0));
+        let mut last = 8.0;
+        let golden = 2.399_963_2f32;
+        for i in 0..40 {
+            let z = 1.0 - 2.0 * (i as f32 + 0.5) / 40.0;
+            let r = (1.0 - z * z).sqrt();
+            let n = Vec3::new(r * (golden * i as f32).cos(), r * (golden * i as f32).sin(), z);
+            let c = p.clip(n.extend(1.0));
+            assert!(c == Clip::Cut || c == Clip::Unchanged, "{c:?} at {i}");
+            let v = p.moments().volume;
+            assert!(v <= last + 1e-5 && v >= 4.18879, "{v} at {i}");
+            last = v;
+        }
+    }
+}
