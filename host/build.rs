@@ -10,6 +10,7 @@ fn main() {
         .join("kernels");
     let mut builder = SpirvBuilder::new(&kernels, "spirv-unknown-vulkan1.2")
         .capability(Capability::Int64)
+        .capability(Capability::Int64Atomics)
         .capability(Capability::VulkanMemoryModelDeviceScope);
     builder.build_script.defaults = true;
     let result = match builder.build() {

@@ -3,6 +3,7 @@
 use crate::cpu::CpuBackend;
 use crate::error::Result;
 use crate::knn::{KnnJob, Neighbors};
+use crate::voronoi::{ClipJob, ClipOutput};
 use crate::vulkan::{VulkanBackend, VulkanOptions};
 
 /// Something that runs the kernels.
@@ -11,6 +12,8 @@ pub trait Backend: Send + Sync {
     fn name(&self) -> String;
     /// Runs a k-NN job.
     fn knn(&self, job: &KnnJob) -> Result<Neighbors>;
+    /// Runs a clipping job: pairing, clipping and accumulation.
+    fn clip(&self, job: &ClipJob) -> Result<ClipOutput>;
 }
 
 /// Which backend to use.

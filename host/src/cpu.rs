@@ -4,12 +4,14 @@
 use crate::backend::Backend;
 use crate::error::{Error, Result};
 use crate::knn::{KnnJob, KnnMethod, Neighbors};
+use crate::voronoi::{ClipJob, ClipOutput, Strategy};
 use crate::timing::{timed, Timings};
-use cvd_kernels::abi::QuantPoint;
-use cvd_kernels::buffers::{OutBuf, Window};
+use cvd_kernels::abi::{counter, QuantPoint, ACCUM_PER_SITE};
+use cvd_kernels::buffers::{DeviceSums, OutBuf, Window};
+use cvd_kernels::clip::{self, CELL_RECORDS};
 use cvd_kernels::{grid, knn, scan};
 use rayon::prelude::*;
-use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::atomic::{AtomicI64, AtomicU32, Ordering};
 
 /// Thread indices per rayon task.
 const CHUNK: usize = 256;
@@ -257,6 +259,89 @@ impl Backend for CpuBackend {
                 k,
                 indices,
                 dist2,
+                timings,
+            })
+        })
+    }
+    fn clip(&self, job: &ClipJob) -> Result<ClipOutput> {
+        let site_nn = job.site_knn.run(self)?;
+        let tet_nn = job.tet_knn.run(self)?;
+        self.pool.install(|| {
+            let p = &job.params;
+            let mut timings = Timings::default();
+            timings.push("knn", site_nn.timings.total() + tet_nn.timings.total());
+            let sums: Vec<AtomicI64> = (0..p.n_sites as usize * ACCUM_PER_SITE).map(|_| AtomicI64::new(0)).collect();
+            let totals: Vec<AtomicI64> = (0..counter::COUNT).map(|_| AtomicI64::new(0)).collect();
+            // Each task counts privately and adds its counts once.
+            let merge = |local: &[i64]| {
+                for (t, &v) in totals.iter().zip(local) {
+                    t.fetch_add(v, Ordering::Relaxed);
+                }
+            };
+            let n_pairs = p.n_tets as usize * p.k_tet as usize;
+            let (sites, verts, tets) = (&job.sites, &job.verts, &job.tets);
+            match job.strategy {
+                Strategy::TetCell => {
+                    let (_, t) = timed(|| {
+                        (0..n_pairs).into_par_iter().chunks(CHUNK / 4).for_each(|chunk| {
+                            let mut local = [0i64; counter::COUNT];
+                            let mut s: &[AtomicI64] = &sums;
+                            for pair in chunk {
+                                clip::tet_cell_pair(
+                                    pair,
+                                    p,
+                                    sites,
+                                    verts,
+                                    tets,
+                                    &tet_nn.indices,
+                                    &site_nn.indices,
+                                    &mut s,
+                                    &mut DeviceSums(&mut local),
+                                );
+                            }
+                            merge(&local);
+                        })
+                    });
+                    timings.push("clip", t);
+                }
+                Strategy::CellTet => {
+                    let (cells, t) = timed(|| {
+                        let mut cells = vec![[0f32; 4]; p.n_sites as usize * CELL_RECORDS];
+                        cells.par_chunks_mut(CELL_RECORDS).enumerate().for_each(|(i, data)| {
+                            let mut local = [0i64; counter::COUNT];
+                            let mut out = Window { start: i * CELL_RECORDS, data };
+                            clip::voronoi_cell(i, p, sites, &site_nn.indices, &mut out, &mut DeviceSums(&mut local));
+                            merge(&local);
+                        });
+                        cells
+                    });
+                    timings.push("cells", t);
+                    let (_, t) = timed(|| {
+                        (0..n_pairs).into_par_iter().chunks(CHUNK / 4).for_each(|chunk| {
+                            let mut local = [0i64; counter::COUNT];
+                            let mut s: &[AtomicI64] = &sums;
+                            for pair in chunk {
+                                clip::cell_tet_pair(
+                                    pair,
+                                    p,
+                                    sites,
+                                    verts,
+                                    tets,
+                                    &tet_nn.indices,
+                                    &cells,
+                                    &mut s,
+                                    &mut DeviceSums(&mut local),
+                                );
+                            }
+                            merge(&local);
+                        })
+                    });
+                    timings.push("clip", t);
+                }
+            }
+            Ok(ClipOutput {
+                sums: sums.into_iter().map(AtomicI64::into_inner).collect(),
+                counters: totals.into_iter().map(AtomicI64::into_inner).collect(),
                 timings,
             })
         })

@@ -17,11 +17,15 @@ pub mod backend;
 pub mod cpu;
 pub mod error;
 pub mod knn;
+pub mod mesh;
 pub mod points;
 pub mod quantize;
 pub mod timing;
+pub mod voronoi;
 pub mod vulkan;
 
 pub use backend::{Backend, BackendKind, BackendOptions};
 pub use error::{Error, Result};
 pub use knn::{KnnJob, KnnMethod, Neighbors};
+pub use mesh::TetMesh;
+pub use voronoi::{Cells, ClippedVoronoi, Counters, Strategy};

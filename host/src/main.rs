@@ -3,7 +3,7 @@
 use clap::{Args, Parser, Subcommand};
 use cvd::backend::{self, BackendKind, BackendOptions};
 use cvd::vulkan::{self, VulkanOptions};
-use cvd::{points, KnnJob, KnnMethod};
+use cvd::{points, ClippedVoronoi, KnnJob, KnnMethod, Strategy, TetMesh};
 use std::process::ExitCode;
 
 #[derive(Parser)]
@@ -21,8 +21,72 @@ struct Cli {
 enum Command {
     /// List the Vulkan devices (the index or a part of the name picks one with --device).
     Devices,
+    /// The clipped Voronoi diagram of random sites in a model.
+    Run(RunArgs),
     /// k nearest neighbours of random sites; checks the backend against the CPU.
     Knn(KnnArgs),
+}
+
+#[derive(Args)]
+struct RunArgs {
+    /// Built-in model: cube.
+    #[arg(long, default_value = "cube")]
+    model: String,
+    /// Model resolution (cube: sub-cubes per side).
+    #[arg(long, default_value_t = 16)]
+    resolution: usize,
+    /// Number of sites, uniform in the model's bounding box.
+    #[arg(long, default_value_t = 5000)]
+    sites: usize,
+    /// Random seed of the sites.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Tet-cell or cell-tet.
+    #[arg(long, value_enum, default_value_t = Strategy::TetCell)]
+    strategy: Strategy,
+    /// Sites paired with each tet (default: the paper's Eq. 6).
+    #[arg(long, short)]
+    k: Option<usize>,
+    /// Neighbours per site for its cell.
+    #[arg(long, default_value_t = cvd::voronoi::DEFAULT_K_SITE)]
+    k_site: usize,
+    #[command(flatten)]
+    backend: BackendArgs,
+}
+
+fn run(args: &RunArgs) -> cvd::Result<()> {
+    let mesh = match args.model.as_str() {
+        "cube" => TetMesh::cube(args.resolution),
+        other => return Err(cvd::Error::InvalidInput(format!("unknown model '{other}'; built-in models: cube"))),
+    };
+    let backend = backend::open(&args.backend.options())?;
+    let sites = points::uniform(args.sites, args.seed);
+    println!(
+        "{}: {} tets, {} sites, {:?}, on {}",
+        args.model,
+        mesh.tets.len(),
+        sites.len(),
+        args.strategy,
+        backend.name()
+    );
+    let cv = ClippedVoronoi::new(&mesh, &sites).strategy(args.strategy).k(args.k).k_site(args.k_site);
+    for attempt in ["first run", "second run"] {
+        let cells = cv.backend(backend.as_ref()).compute()?;
+        println!("{attempt}: {} (total {:.1} ms)", cells.timings, cells.timings.total() * 1e3);
+        if attempt == "second run" {
+            println!(
+                "k = {}, k_site = {}; volume {:.6} of {:.6}, E_vol = {:.2e}; energy {:.6e}",
+                cells.k,
+                cells.k_site,
+                cells.total_volume,
+                cells.mesh_volume,
+                cells.e_vol,
+                cells.energy_total()
+            );
+            println!("counters: {:?}", cells.counters);
+        }
+    }
+    Ok(())
 }
 
 #[derive(Args, Clone)]
@@ -113,6 +177,7 @@ fn main() -> ExitCode {
                 println!("{}: {} ({:?})", d.index, d.name, d.kind);
             }
         }),
+        Command::Run(args) => run(args),
         Command::Knn(args) => knn(args),
     };
     match result {

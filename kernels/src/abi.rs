@@ -81,3 +81,58 @@ pub struct KnnParams {
 pub fn thread_index(global_id_x: u32, global_id_y: u32, groups_x: u32) -> usize {
     global_id_y as usize * (groups_x * WORKGROUP_SIZE) as usize + global_id_x as usize
 }
+
+/// Integrals accumulated per site, each an `i64` in fixed point (see
+/// [`ClipParams::fixed_scale`]), relative to the site: volume, first moment
+/// x, y, z, second moment `∫|x - x_i|²`.
+pub const ACCUM_PER_SITE: usize = 5;
+
+/// Counters of a clipping job (`i64` each), by index.
+pub mod counter {
+    /// Tet-site pairs tried.
+    pub const PAIRS: usize = 0;
+    /// Pairs whose piece was not empty.
+    pub const NONEMPTY: usize = 1;
+    /// Plane clips that cut a polyhedron.
+    pub const CLIPS: usize = 2;
+    /// Cells or pieces whose security radius was not reached within the
+    /// neighbour budget (their result may be too large).
+    pub const SECURITY_MISSED: usize = 3;
+    /// Polyhedra that ran out of capacity (their result is wrong).
+    pub const OVERFLOWS: usize = 4;
+    /// Polyhedra whose structure broke down numerically.
+    pub const BROKEN: usize = 5;
+    /// Number of counters.
+    pub const COUNT: usize = 8;
+}
+
+/// Push constants of the clipping kernels. Coordinates are normalised on
+/// the host (the mesh's bounding box scaled to a unit longest side).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct ClipParams {
+    /// Number of sites.
+    pub n_sites: u32,
+    /// Number of tets.
+    pub n_tets: u32,
+    /// Neighbours per site used for its cell (Algorithm 1).
+    pub k_site: u32,
+    /// Sites paired with each tet.
+    pub k_tet: u32,
+    /// Fixed-point scale of the accumulated integrals (a power of two).
+    pub fixed_scale: f32,
+    /// Lower corner of a box holding the mesh and the sites (cell-tet).
+    pub box_lo_x: f32,
+    /// See `box_lo_x`.
+    pub box_lo_y: f32,
+    /// See `box_lo_x`.
+    pub box_lo_z: f32,
+    /// Upper corner of that box.
+    pub box_hi_x: f32,
+    /// See `box_hi_x`.
+    pub box_hi_y: f32,
+    /// See `box_hi_x`.
+    pub box_hi_z: f32,
+    /// Padding to a 16-byte multiple.
+    pub _pad: u32,
+}

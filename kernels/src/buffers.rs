@@ -87,3 +87,42 @@ impl AtomicCounters for &[core::sync::atomic::AtomicU32] {
         self[i].fetch_add(value, core::sync::atomic::Ordering::Relaxed)
     }
 }
+
+/// `i64` sums that many threads add to at once (fixed-point integrals and
+/// counters: integer adds commute, so results do not depend on timing).
+pub trait AtomicSums {
+    /// Adds `value` to sum `i`.
+    fn add(&mut self, i: usize, value: i64);
+}
+
+/// A storage buffer of sums on the GPU.
+pub struct DeviceSums<'a>(pub &'a mut [i64]);
+
+impl AtomicSums for DeviceSums<'_> {
+    #[inline]
+    fn add(&mut self, i: usize, value: i64) {
+        #[cfg(target_arch = "spirv")]
+        {
+            use spirv_std::memory::{Scope, Semantics};
+            // SAFETY: an atomic add on a storage buffer element.
+            unsafe {
+                spirv_std::arch::atomic_i_add::<i64, { Scope::Device as u32 }, { Semantics::NONE.bits() }>(
+                    &mut self.0[i],
+                    value,
+                );
+            }
+        }
+        #[cfg(not(target_arch = "spirv"))]
+        {
+            self.0[i] = self.0[i].wrapping_add(value);
+        }
+    }
+}
+
+#[cfg(not(target_arch = "spirv"))]
+impl AtomicSums for &[core::sync::atomic::AtomicI64] {
+    #[inline]
+    fn add(&mut self, i: usize, value: i64) {
+        self[i].fetch_add(value, core::sync::atomic::Ordering::Relaxed);
+    }
+}

@@ -5,9 +5,9 @@
 //! [`thread_index`]). Descriptor set 0 holds storage buffers in the order of
 //! the parameters; push constants hold the `*Params` struct.
 
-use crate::abi::{thread_index, GridBuildParams, KnnParams, QuantPoint};
-use crate::buffers::DeviceCounters;
-use crate::{grid, knn, scan};
+use crate::abi::{thread_index, ClipParams, GridBuildParams, KnnParams, QuantPoint};
+use crate::buffers::{DeviceCounters, DeviceSums};
+use crate::{clip, grid, knn, scan};
 use spirv_std::glam::UVec3;
 use spirv_std::spirv;
 
@@ -139,4 +139,75 @@ pub fn knn_brute(
 ) {
     let i = thread_index(id.x, id.y, groups.x);
     knn::brute_thread(i, p, queries, sites, neighbors, neighbor_d2);
+}
+
+/// Tet-cell strategy: one thread per (tet, paired site).
+#[spirv(compute(threads(64)))]
+pub fn clip_tet_cell(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(num_workgroups)] groups: UVec3,
+    #[spirv(push_constant)] p: &ClipParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] sites: &[[f32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] verts: &[[f32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] tets: &[[u32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] tet_sites: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] site_nbrs: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] sums: &mut [i64],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 6)] counters: &mut [i64],
+) {
+    let pair = thread_index(id.x, id.y, groups.x);
+    clip::tet_cell_pair(
+        pair,
+        p,
+        sites,
+        verts,
+        tets,
+        tet_sites,
+        site_nbrs,
+        &mut DeviceSums(sums),
+        &mut DeviceSums(counters),
+    );
+}
+
+/// Algorithm 1: the Voronoi cell of each site, stored for the cell-tet strategy.
+#[spirv(compute(threads(64)))]
+pub fn voronoi_cells(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(num_workgroups)] groups: UVec3,
+    #[spirv(push_constant)] p: &ClipParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] sites: &[[f32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] site_nbrs: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] cells: &mut [[f32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] counters: &mut [i64],
+) {
+    let i = thread_index(id.x, id.y, groups.x);
+    clip::voronoi_cell(i, p, sites, site_nbrs, cells, &mut DeviceSums(counters));
+}
+
+/// Cell-tet strategy: one thread per (tet, paired site).
+#[spirv(compute(threads(64)))]
+pub fn clip_cell_tet(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(num_workgroups)] groups: UVec3,
+    #[spirv(push_constant)] p: &ClipParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] sites: &[[f32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] verts: &[[f32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] tets: &[[u32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] tet_sites: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] cells: &[[f32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] sums: &mut [i64],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 6)] counters: &mut [i64],
+) {
+    let pair = thread_index(id.x, id.y, groups.x);
+    clip::cell_tet_pair(
+        pair,
+        p,
+        sites,
+        verts,
+        tets,
+        tet_sites,
+        cells,
+        &mut DeviceSums(sums),
+        &mut DeviceSums(counters),
+    );
 }

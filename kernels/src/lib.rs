@@ -17,6 +17,7 @@ extern crate std;
 
 pub mod abi;
 pub mod buffers;
+pub mod clip;
 pub mod entry;
 pub mod grid;
 pub mod knn;

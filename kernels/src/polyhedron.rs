@@ -18,8 +18,9 @@ pub const MAX_PLANES: usize = 64;
 /// it drops the removed ones.
 pub const MAX_VERTS: usize = 128;
 
-/// The result of a clip.
+/// The result of a clip (`u32`-sized: SPIR-V has no 8-bit integers here).
 #[derive(Clone, Copy, PartialEq, Eq, Debug)]
+#[repr(u32)]
 pub enum Clip {
     /// The plane does not cut the polyhedron.
     Unchanged,

@@ -261,6 +261,7 @@ impl Context {
         let core = f2.features;
         let checks = [
             ("shaderInt64", core.shader_int64),
+            ("shaderBufferInt64Atomics", f12.shader_buffer_int64_atomics),
             ("vulkanMemoryModel", f12.vulkan_memory_model),
             (
                 "vulkanMemoryModelDeviceScope",
@@ -276,6 +277,7 @@ impl Context {
 
         let enable_core = vk::PhysicalDeviceFeatures::default().shader_int64(true);
         let mut enable12 = vk::PhysicalDeviceVulkan12Features::default()
+            .shader_buffer_int64_atomics(true)
             .vulkan_memory_model(true)
             .vulkan_memory_model_device_scope(true);
         let priorities = [1.0f32];

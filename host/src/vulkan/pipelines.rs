@@ -5,7 +5,7 @@
 use super::context::Context;
 use crate::error::{Error, Result, VkContext};
 use ash::vk;
-use cvd_kernels::abi::{GridBuildParams, KnnParams};
+use cvd_kernels::abi::{ClipParams, GridBuildParams, KnnParams};
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
@@ -38,6 +38,9 @@ pub(crate) const KERNELS: &[KernelSpec] = &[
     spec::<GridBuildParams>("grid_scatter", 5),
     spec::<KnnParams>("knn_grid", 6),
     spec::<KnnParams>("knn_brute", 4),
+    spec::<ClipParams>("clip_tet_cell", 7),
+    spec::<ClipParams>("voronoi_cells", 4),
+    spec::<ClipParams>("clip_cell_tet", 7),
 ];
 
 /// A ready compute pipeline.

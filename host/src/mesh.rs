@@ -1,0 +1,127 @@
+//! Tetrahedral meshes: validation, measures and simple built-in shapes.
+
+use crate::error::{Error, Result};
+
+/// A tetrahedral mesh: vertices and tets as 4 vertex indices. Tets may have
+/// either orientation (signed volumes are used where orientation matters).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct TetMesh {
+    /// Vertex positions.
+    pub vertices: Vec<[f32; 3]>,
+    /// Tets, as indices into `vertices`.
+    pub tets: Vec<[u32; 4]>,
+}
+
+/// Signed volume of the tet `a, b, c, d` (positive when `d` is on the side
+/// of `(b - a) x (c - a)`), in f64.
+pub fn signed_volume(a: [f32; 3], b: [f32; 3], c: [f32; 3], d: [f32; 3]) -> f64 {
+    let s = |p: [f32; 3], q: [f32; 3]| [0, 1, 2].map(|i| p[i] as f64 - q[i] as f64);
+    let (u, v, w) = (s(b, a), s(c, a), s(d, a));
+    let cross = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
+    (cross[0] * w[0] + cross[1] * w[1] + cross[2] * w[2]) / 6.0
+}
+
+impl TetMesh {
+    /// A mesh from vertices and tets, rejecting (by index) out-of-range
+    /// vertex references, non-finite coordinates and zero-volume tets.
+    pub fn new(vertices: Vec<[f32; 3]>, tets: Vec<[u32; 4]>) -> Result<Self> {
+        if let Some(i) = vertices.iter().position(|v| !v.iter().all(|c| c.is_finite())) {
+            return Err(Error::InvalidInput(format!("vertex {i} has a non-finite coordinate: {:?}", vertices[i])));
+        }
+        let n = vertices.len();
+        for (t, tet) in tets.iter().enumerate() {
+            if let Some(&bad) = tet.iter().find(|&&v| v as usize >= n) {
+                return Err(Error::InvalidInput(format!(
+                    "tet {t} refers to vertex {bad}, but the mesh has {n} vertices (indices 0..{n})"
+                )));
+            }
+        }
+        let mesh = Self { vertices, tets };
+        if let Some(t) = (0..mesh.tets.len()).find(|&t| mesh.tet_volume(t) == 0.0) {
+            return Err(Error::InvalidInput(format!("tet {t} {:?} has zero volume", mesh.tets[t])));
+        }
+        Ok(mesh)
+    }
+
+    /// Signed volume of tet `t`.
+    pub fn tet_volume(&self, t: usize) -> f64 {
+        let [a, b, c, d] = self.tets[t].map(|v| self.vertices[v as usize]);
+        signed_volume(a, b, c, d)
+    }
+
+    /// Total volume (sum of the tets' absolute volumes).
+    pub fn volume(&self) -> f64 {
+        (0..self.tets.len()).map(|t| self.tet_volume(t).abs()).sum()
+    }
+
+    /// Centroid of every tet.
+    pub fn centroids(&self) -> Vec<[f32; 3]> {
+        self.tets
+            .iter()
+            .map(|tet| {
+                let mut c = [0.0f64; 3];
+                for &v in tet {
+                    for (a, ca) in c.iter_mut().enumerate() {
+                        *ca += self.vertices[v as usize][a] as f64 / 4.0;
+                    }
+                }
+                c.map(|x| x as f32)
+            })
+            .collect()
+    }
+
+    /// Lower and upper corners of the vertices' bounding box.
+    pub fn bounding_box(&self) -> ([f64; 3], [f64; 3]) {
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for v in &self.vertices {
+            for a in 0..3 {
+                lo[a] = lo[a].min(v[a] as f64);
+                hi[a] = hi[a].max(v[a] as f64);
+            }
+        }
+        (lo, hi)
+    }
+
+    /// The unit cube cut into `n³` sub-cubes, each split into 6 tets.
+    pub fn cube(n: usize) -> Self {
+        Self::voxels(n, |_, _, _| true)
+    }
+
+    /// The sub-cubes `(i, j, k)` of an `n³` grid over the unit cube for
+    /// which `filled` holds, each split into 6 tets (Freudenthal: the tets
+    /// of neighbouring cubes share their faces).
+    pub fn voxels(n: usize, filled: impl Fn(usize, usize, usize) -> bool) -> Self {
+        let n = n.max(1);
+        let side = n + 1;
+        let id = |i: usize, j: usize, k: usize| ((k * side + j) * side + i) as u32;
+        let vertices = (0..side * side * side)
+            .map(|v| {
+                let (i, j, k) = (v % side, (v / side) % side, v / (side * side));
+                [i as f32 / n as f32, j as f32 / n as f32, k as f32 / n as f32]
+            })
+            .collect();
+        const PATHS: [[usize; 3]; 6] = [[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]];
+        let mut tets = Vec::new();
+        for k in 0..n {
+            for j in 0..n {
+                for i in 0..n {
+                    if !filled(i, j, k) {
+                        continue;
+                    }
+                    for path in PATHS {
+                        let mut at = [i, j, k];
+                        let mut tet = [id(i, j, k); 4];
+                        for (step, &axis) in path.iter().enumerate() {
+                            at[axis] += 1;
+                            tet[step + 1] = id(at[0], at[1], at[2]);
+                        }
+                        tets.push(tet);
+                    }
+                }
+            }
+        }
+        // Unused vertices are harmless: nothing refers to them.
+        Self { vertices, tets }
+    }
+}

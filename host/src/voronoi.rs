@@ -1,0 +1,325 @@
+//! Clipped Voronoi diagrams: the library API and the job shared by the
+//! backends.
+
+use crate::backend::Backend;
+use crate::error::{Error, Result};
+use crate::knn::{KnnJob, KnnMethod};
+use crate::mesh::TetMesh;
+use crate::timing::Timings;
+use cvd_kernels::abi::{counter, ClipParams, ACCUM_PER_SITE};
+use std::collections::HashMap;
+
+/// How tets and cells are intersected (paper section 6).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, clap::ValueEnum, serde::Serialize)]
+pub enum Strategy {
+    /// Start from the tet, clip by bisectors (Algorithm 4).
+    #[default]
+    TetCell,
+    /// Build each Voronoi cell, clip it by the tet's faces (Algorithms 1-2).
+    CellTet,
+}
+
+/// Neighbours per site used to build its cell (paper: 90).
+pub const DEFAULT_K_SITE: usize = 90;
+
+/// The paper's Eq. (6): sites paired with each tet, from the ratio of
+/// sites to tets (lambda 20, alpha 10, beta 8, gamma 7).
+pub fn paper_k(n_sites: usize, n_tets: usize) -> usize {
+    const LAMBDA: usize = 20;
+    if n_sites < LAMBDA {
+        return n_sites;
+    }
+    let ratio = n_sites as f64 / n_tets.max(1) as f64;
+    let k = 10 * (8.0 * (7.0 * ratio + 1.0).log10()).ceil() as usize;
+    k.max(LAMBDA)
+}
+
+/// A validated clipping job, normalised and ready for any backend.
+#[derive(Clone, Debug)]
+pub struct ClipJob {
+    /// k nearest sites of each (unique) site.
+    pub site_knn: KnnJob,
+    /// k nearest sites of each tet centroid: the pairs.
+    pub tet_knn: KnnJob,
+    /// Unique sites, normalised, as `[x, y, z, 0]`.
+    pub sites: Vec<[f32; 4]>,
+    /// Mesh vertices, normalised, as `[x, y, z, 0]`.
+    pub verts: Vec<[f32; 4]>,
+    /// Tets.
+    pub tets: Vec<[u32; 4]>,
+    /// Kernel parameters.
+    pub params: ClipParams,
+    /// Which strategy.
+    pub strategy: Strategy,
+}
+
+/// What a backend returns for a [`ClipJob`].
+#[derive(Clone, Debug, Default)]
+pub struct ClipOutput {
+    /// Fixed-point sums, [`ACCUM_PER_SITE`] per unique site.
+    pub sums: Vec<i64>,
+    /// The kernels' counters (see `cvd_kernels::abi::counter`).
+    pub counters: Vec<i64>,
+    /// Time per phase.
+    pub timings: Timings,
+}
+
+/// Counters of a computation: nothing is lost without being counted.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct Counters {
+    /// Tet-site pairs tried.
+    pub pairs: u64,
+    /// Pairs with a non-empty piece.
+    pub nonempty: u64,
+    /// Clips that cut.
+    pub clips: u64,
+    /// Cells or pieces whose security radius was not reached within k_site.
+    pub security_missed: u64,
+    /// Polyhedra that ran out of capacity.
+    pub overflows: u64,
+    /// Polyhedra that broke down numerically.
+    pub broken: u64,
+    /// Sites equal to a lower-indexed site (their cell is empty).
+    pub duplicate_sites: u64,
+}
+
+/// Per-site results and totals.
+#[derive(Clone, Debug, Default)]
+pub struct Cells {
+    /// Volume of each clipped cell.
+    pub volume: Vec<f64>,
+    /// Centroid of each clipped cell (the site itself when empty).
+    pub centroid: Vec<[f64; 3]>,
+    /// `∫ |x - x_i|²` over each clipped cell.
+    pub energy: Vec<f64>,
+    /// Sum of the cells' volumes.
+    pub total_volume: f64,
+    /// The mesh's volume.
+    pub mesh_volume: f64,
+    /// `|total - mesh| / mesh`.
+    pub e_vol: f64,
+    /// Sites paired with each tet.
+    pub k: usize,
+    /// Neighbours per site.
+    pub k_site: usize,
+    /// Counters.
+    pub counters: Counters,
+    /// Time per phase.
+    pub timings: Timings,
+}
+
+impl Cells {
+    /// The CVT energy `Σ_i ∫ |x - x_i|²`.
+    pub fn energy_total(&self) -> f64 {
+        self.energy.iter().sum()
+    }
+}
+
+/// Builder for a clipped Voronoi computation.
+#[derive(Clone, Copy)]
+pub struct ClippedVoronoi<'a> {
+    mesh: &'a TetMesh,
+    sites: &'a [[f32; 3]],
+    strategy: Strategy,
+    k: Option<usize>,
+    k_site: usize,
+    backend: Option<&'a dyn Backend>,
+}
+
+impl<'a> ClippedVoronoi<'a> {
+    /// The clipped Voronoi diagram of `sites` in `mesh`.
+    pub fn new(mesh: &'a TetMesh, sites: &'a [[f32; 3]]) -> Self {
+        Self { mesh, sites, strategy: Strategy::default(), k: None, k_site: DEFAULT_K_SITE, backend: None }
+    }
+
+    /// Tet-cell or cell-tet.
+    pub fn strategy(mut self, strategy: Strategy) -> Self {
+        self.strategy = strategy;
+        self
+    }
+
+    /// Sites paired with each tet (default: the paper's Eq. 6).
+    pub fn k(mut self, k: Option<usize>) -> Self {
+        self.k = k;
+        self
+    }
+
+    /// Neighbours per site for its cell (default 90).
+    pub fn k_site(mut self, k_site: usize) -> Self {
+        self.k_site = k_site;
+        self
+    }
+
+    /// Where to run (default: the CPU backend with all cores).
+    pub fn backend(mut self, backend: &'a dyn Backend) -> Self {
+        self.backend = Some(backend);
+        self
+    }
+
+    /// Validates and normalises the input into a job, with the map from
+    /// each input site to its unique site (`None` for a duplicate).
+    pub fn job(&self) -> Result<(ClipJob, Vec<Option<usize>>, Frame)> {
+        let mesh = self.mesh;
+        if mesh.tets.is_empty() {
+            return Err(Error::InvalidInput("the mesh has no tets".into()));
+        }
+        if self.sites.is_empty() {
+            return Err(Error::InvalidInput("there are no sites".into()));
+        }
+        if let Some(i) = self.sites.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
+            return Err(Error::InvalidInput(format!("site {i} has a non-finite coordinate: {:?}", self.sites[i])));
+        }
+        if self.k_site == 0 || self.k == Some(0) {
+            return Err(Error::InvalidInput("k and k_site must be at least 1".into()));
+        }
+        // Duplicates: the lowest index owns the cell.
+        let mut first: HashMap<[u32; 3], usize> = HashMap::new();
+        let mut unique = Vec::new();
+        let map: Vec<Option<usize>> = self
+            .sites
+            .iter()
+            .map(|p| {
+                let key = p.map(|c| if c == 0.0 { 0 } else { c.to_bits() });
+                match first.get(&key) {
+                    Some(_) => None,
+                    None => {
+                        first.insert(key, unique.len());
+                        unique.push(*p);
+                        Some(unique.len() - 1)
+                    }
+                }
+            })
+            .collect();
+
+        let frame = Frame::of(mesh, &unique);
+        let sites: Vec<[f32; 3]> = unique.iter().map(|&p| frame.to_local(p)).collect();
+        let verts: Vec<[f32; 3]> = mesh.vertices.iter().map(|&p| frame.to_local(p)).collect();
+        let local_mesh = TetMesh { vertices: verts, tets: mesh.tets.clone() };
+        let centroids = local_mesh.centroids();
+        let n = sites.len();
+        let k = self.k.unwrap_or_else(|| paper_k(n, mesh.tets.len())).min(n);
+        let site_knn = KnnJob::sites(&sites, self.k_site, KnnMethod::Grid)?;
+        let tet_knn = KnnJob::points(&sites, &centroids, k, KnnMethod::Grid)?;
+
+        // Box for Algorithm 1 (mesh and sites, with a margin).
+        let mut lo = [f32::INFINITY; 3];
+        let mut hi = [f32::NEG_INFINITY; 3];
+        for p in sites.iter().chain(&local_mesh.vertices) {
+            for a in 0..3 {
+                lo[a] = lo[a].min(p[a]);
+                hi[a] = hi[a].max(p[a]);
+            }
+        }
+        let diag = (0..3).map(|a| ((hi[a] - lo[a]) as f64).powi(2)).sum::<f64>().sqrt();
+        let margin = 0.01 * diag.max(1e-3) as f32;
+        // Per-site sums are at most (mesh volume <= 1) x 3 (1 + diag)²: keep
+        // them well inside i64 with a power-of-two scale.
+        let bound = 3.0 * (1.0 + diag).powi(2);
+        let bits = (62.0 - bound.log2().ceil()).min(48.0);
+        let params = ClipParams {
+            n_sites: n as u32,
+            n_tets: mesh.tets.len() as u32,
+            k_site: site_knn.params.k,
+            k_tet: tet_knn.params.k,
+            fixed_scale: bits.exp2() as f32,
+            box_lo_x: lo[0] - margin,
+            box_lo_y: lo[1] - margin,
+            box_lo_z: lo[2] - margin,
+            box_hi_x: hi[0] + margin,
+            box_hi_y: hi[1] + margin,
+            box_hi_z: hi[2] + margin,
+            _pad: 0,
+        };
+        let job = ClipJob {
+            site_knn,
+            tet_knn,
+            sites: sites.iter().map(|p| [p[0], p[1], p[2], 0.0]).collect(),
+            verts: local_mesh.vertices.iter().map(|p| [p[0], p[1], p[2], 0.0]).collect(),
+            tets: mesh.tets.clone(),
+            params,
+            strategy: self.strategy,
+        };
+        Ok((job, map, frame))
+    }
+
+    /// Computes the clipped cells.
+    pub fn compute(&self) -> Result<Cells> {
+        let (job, map, frame) = self.job()?;
+        let cpu;
+        let backend = match self.backend {
+            Some(b) => b,
+            None => {
+                cpu = crate::cpu::CpuBackend::new(None)?;
+                &cpu
+            }
+        };
+        let out = backend.clip(&job)?;
+        Ok(finish(self.mesh, self.sites, &job, &map, &frame, out))
+    }
+}
+
+/// The normalising map: `local = (world - origin) / scale`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Frame {
+    /// World position of the local origin.
+    pub origin: [f64; 3],
+    /// World length of one local unit (the mesh's longest side).
+    pub scale: f64,
+}
+
+impl Frame {
+    fn of(mesh: &TetMesh, _sites: &[[f32; 3]]) -> Self {
+        let (lo, hi) = mesh.bounding_box();
+        let scale = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
+        Self { origin: lo, scale: if scale > 0.0 { scale } else { 1.0 } }
+    }
+
+    fn to_local(&self, p: [f32; 3]) -> [f32; 3] {
+        [0, 1, 2].map(|a| ((p[a] as f64 - self.origin[a]) / self.scale) as f32)
+    }
+}
+
+fn finish(
+    mesh: &TetMesh,
+    input: &[[f32; 3]],
+    job: &ClipJob,
+    map: &[Option<usize>],
+    frame: &Frame,
+    out: ClipOutput,
+) -> Cells {
+    let inv = 1.0 / job.params.fixed_scale as f64;
+    let l = frame.scale;
+    let mut cells = Cells { k: job.params.k_tet as usize, k_site: job.params.k_site as usize, ..Default::default() };
+    for (i, m) in map.iter().enumerate() {
+        let site = input[i].map(|c| c as f64);
+        let (v, c, e) = match m {
+            Some(u) => {
+                let s = &out.sums[u * ACCUM_PER_SITE..(u + 1) * ACCUM_PER_SITE];
+                let v = s[0] as f64 * inv * l.powi(3);
+                let first = [1, 2, 3].map(|a| s[a] as f64 * inv * l.powi(4));
+                let e = s[4] as f64 * inv * l.powi(5);
+                let c = if v > 0.0 { [0, 1, 2].map(|a| site[a] + first[a] / v) } else { site };
+                (v, c, e)
+            }
+            None => (0.0, site, 0.0),
+        };
+        cells.volume.push(v);
+        cells.centroid.push(c);
+        cells.energy.push(e);
+    }
+    cells.total_volume = cells.volume.iter().sum();
+    cells.mesh_volume = mesh.volume();
+    cells.e_vol = (cells.total_volume - cells.mesh_volume).abs() / cells.mesh_volume;
+    let c = |i: usize| out.counters[i].max(0) as u64;
+    cells.counters = Counters {
+        pairs: c(counter::PAIRS),
+        nonempty: c(counter::NONEMPTY),
+        clips: c(counter::CLIPS),
+        security_missed: c(counter::SECURITY_MISSED),
+        overflows: c(counter::OVERFLOWS),
+        broken: c(counter::BROKEN),
+        duplicate_sites: map.iter().filter(|m| m.is_none()).count() as u64,
+    };
+    cells.timings = out.timings;
+    cells
+}

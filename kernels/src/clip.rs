@@ -1,0 +1,289 @@
+//! Clipped Voronoi cells (paper sections 4 and 6): each tet is paired with
+//! sites, and each pair's piece — the site's Voronoi cell inside the tet —
+//! is built and integrated, then added to the site's sums.
+//!
+//! * tet-cell (Algorithm 4): start from the tet, clip by the bisectors of
+//!   the site and its neighbours, nearest first, until the security radius.
+//! * cell-tet (Algorithms 1 and 2): build each site's Voronoi cell once
+//!   ([`voronoi_cell`]), store it, and clip a copy by the tet's 4 faces.
+//!
+//! Everything is computed relative to the site (the bisector of `x_i` and
+//! `x_j` is `n·x <= |n|²/2` with `n = x_j - x_i`), in f32.
+
+use crate::abi::{counter, ClipParams, ACCUM_PER_SITE, NO_SITE};
+use crate::buffers::{AtomicSums, OutBuf};
+use crate::polyhedron::{Clip, Moments, Polyhedron, MAX_PLANES, MAX_VERTS};
+use spirv_std::glam::{Vec3, Vec4};
+
+/// `[f32; 4]` records per stored cell: a header, the planes, the vertices
+/// (position in `xyz`, packed plane triple in the bits of `w`).
+pub const CELL_RECORDS: usize = 1 + MAX_PLANES + MAX_VERTS;
+
+/// Status of a stored cell (header `z`).
+pub mod cell_status {
+    /// The security radius was reached (or every site was used).
+    pub const COMPLETE: u32 = 0;
+    /// The neighbour budget ran out first.
+    pub const SECURITY_MISSED: u32 = 1;
+    /// The polyhedron overflowed or broke down.
+    pub const FAILED: u32 = 2;
+}
+
+#[inline]
+fn xyz(v: [f32; 4]) -> Vec3 {
+    Vec3::new(v[0], v[1], v[2])
+}
+
+/// How a run of bisector clips ended.
+struct Clipped {
+    clips: i64,
+    security_missed: bool,
+    overflow: bool,
+    broken: bool,
+}
+
+/// Clips `poly` (relative to site `i`) by the bisectors of `i` and its
+/// neighbours, nearest first, until the next neighbour is farther than
+/// twice the farthest vertex (the security radius) or nothing is left.
+#[inline]
+fn clip_by_bisectors(poly: &mut Polyhedron, i: usize, p: &ClipParams, sites: &[[f32; 4]], site_nbrs: &[u32]) -> Clipped {
+    let xi = xyz(sites[i]);
+    let k = p.k_site as usize;
+    let mut out = Clipped { clips: 0, security_missed: true, overflow: false, broken: false };
+    let mut r2 = poly.max_dist2();
+    let mut s = 0;
+    while s < k {
+        let nb = site_nbrs[i * k + s];
+        if nb == NO_SITE {
+            // Every other site has been used: the cell is exact.
+            out.security_missed = false;
+            break;
+        }
+        let n = xyz(sites[nb as usize]) - xi;
+        let d2 = n.length_squared();
+        if d2 > 4.0 * r2 {
+            out.security_missed = false;
+            break;
+        }
+        match poly.clip(n.extend(0.5 * d2)) {
+            Clip::Cut => {
+                out.clips += 1;
+                r2 = poly.max_dist2();
+            }
+            Clip::Unchanged => {}
+            Clip::Empty => {
+                out.clips += 1;
+                out.security_missed = false;
+                break;
+            }
+            Clip::Overflow => {
+                out.overflow = true;
+                break;
+            }
+            Clip::Broken => {
+                out.broken = true;
+                break;
+            }
+        }
+        s += 1;
+    }
+    if s == k && k as u32 + 1 >= p.n_sites {
+        // The list held every other site.
+        out.security_missed = false;
+    }
+    out
+}
+
+/// The vertices of tet `t`, relative to `origin`.
+#[inline]
+fn tet_vertices(t: usize, verts: &[[f32; 4]], tets: &[[u32; 4]], origin: Vec3) -> [Vec3; 4] {
+    let tet = tets[t];
+    [
+        xyz(verts[tet[0] as usize]) - origin,
+        xyz(verts[tet[1] as usize]) - origin,
+        xyz(verts[tet[2] as usize]) - origin,
+        xyz(verts[tet[3] as usize]) - origin,
+    ]
+}
+
+/// Adds a piece's integrals to site `j`'s sums, in fixed point.
+#[inline]
+fn accumulate<A: AtomicSums>(j: usize, m: &Moments, scale: f32, sums: &mut A) {
+    let base = j * ACCUM_PER_SITE;
+    sums.add(base, (m.volume * scale) as i64);
+    sums.add(base + 1, (m.first.x * scale) as i64);
+    sums.add(base + 2, (m.first.y * scale) as i64);
+    sums.add(base + 3, (m.first.z * scale) as i64);
+    sums.add(base + 4, (m.second * scale) as i64);
+}
+
+#[inline]
+fn count<C: AtomicSums>(counters: &mut C, pieces: i64, nonempty: bool, c: &Clipped) {
+    counters.add(counter::PAIRS, pieces);
+    if nonempty {
+        counters.add(counter::NONEMPTY, 1);
+    }
+    counters.add(counter::CLIPS, c.clips);
+    if c.security_missed {
+        counters.add(counter::SECURITY_MISSED, 1);
+    }
+    if c.overflow {
+        counters.add(counter::OVERFLOWS, 1);
+    }
+    if c.broken {
+        counters.add(counter::BROKEN, 1);
+    }
+}
+
+/// Thread `pair` of the tet-cell strategy (Algorithm 4): pair
+/// `(pair / k_tet, pair % k_tet)` of tet and paired site.
+#[inline]
+pub fn tet_cell_pair<A: AtomicSums, C: AtomicSums>(
+    pair: usize,
+    p: &ClipParams,
+    sites: &[[f32; 4]],
+    verts: &[[f32; 4]],
+    tets: &[[u32; 4]],
+    tet_sites: &[u32],
+    site_nbrs: &[u32],
+    sums: &mut A,
+    counters: &mut C,
+) {
+    if pair >= p.n_tets as usize * p.k_tet as usize {
+        return;
+    }
+    let t = pair / p.k_tet as usize;
+    let j = tet_sites[pair];
+    if j == NO_SITE {
+        return;
+    }
+    let j = j as usize;
+    let mut poly = Polyhedron::tetrahedron(tet_vertices(t, verts, tets, xyz(sites[j])));
+    let c = clip_by_bisectors(&mut poly, j, p, sites, site_nbrs);
+    let nonempty = !poly.is_empty() && !c.overflow && !c.broken;
+    if nonempty {
+        accumulate(j, &poly.moments(), p.fixed_scale, sums);
+    }
+    count(counters, 1, nonempty, &c);
+}
+
+/// Thread `i` of Algorithm 1: the Voronoi cell of site `i` inside the
+/// bounding box, stored at records `i * CELL_RECORDS..` of `cells`.
+#[inline]
+pub fn voronoi_cell<O: OutBuf<[f32; 4]> + ?Sized, C: AtomicSums>(
+    i: usize,
+    p: &ClipParams,
+    sites: &[[f32; 4]],
+    site_nbrs: &[u32],
+    cells: &mut O,
+    counters: &mut C,
+) {
+    if i >= p.n_sites as usize {
+        return;
+    }
+    let xi = xyz(sites[i]);
+    let lo = Vec3::new(p.box_lo_x, p.box_lo_y, p.box_lo_z) - xi;
+    let hi = Vec3::new(p.box_hi_x, p.box_hi_y, p.box_hi_z) - xi;
+    let mut poly = Polyhedron::cuboid(lo, hi);
+    let c = clip_by_bisectors(&mut poly, i, p, sites, site_nbrs);
+    let status = if c.overflow || c.broken {
+        cell_status::FAILED
+    } else if c.security_missed {
+        cell_status::SECURITY_MISSED
+    } else {
+        cell_status::COMPLETE
+    };
+    let base = i * CELL_RECORDS;
+    cells.write(base, [f32::from_bits(poly.n_planes), f32::from_bits(poly.n_verts), f32::from_bits(status), 0.0]);
+    let mut q = 0;
+    while q < poly.n_planes as usize {
+        let pl = poly.planes[q];
+        cells.write(base + 1 + q, [pl.x, pl.y, pl.z, pl.w]);
+        q += 1;
+    }
+    let mut v = 0;
+    while v < poly.n_verts as usize {
+        let x = poly.verts[v];
+        cells.write(base + 1 + MAX_PLANES + v, [x.x, x.y, x.z, f32::from_bits(poly.tris[v])]);
+        v += 1;
+    }
+    counters.add(counter::CLIPS, c.clips);
+    if c.security_missed {
+        counters.add(counter::SECURITY_MISSED, 1);
+    }
+    if c.overflow {
+        counters.add(counter::OVERFLOWS, 1);
+    }
+    if c.broken {
+        counters.add(counter::BROKEN, 1);
+    }
+}
+
+/// Thread `pair` of the cell-tet strategy (Algorithm 2): site `j`'s stored
+/// cell clipped by the 4 faces of tet `pair / k_tet`.
+#[inline]
+pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums>(
+    pair: usize,
+    p: &ClipParams,
+    sites: &[[f32; 4]],
+    verts: &[[f32; 4]],
+    tets: &[[u32; 4]],
+    tet_sites: &[u32],
+    cells: &[[f32; 4]],
+    sums: &mut A,
+    counters: &mut C,
+) {
+    if pair >= p.n_tets as usize * p.k_tet as usize {
+        return;
+    }
+    let t = pair / p.k_tet as usize;
+    let j = tet_sites[pair];
+    if j == NO_SITE {
+        return;
+    }
+    let j = j as usize;
+    let base = j * CELL_RECORDS;
+    let header = cells[base];
+    if header[2].to_bits() == cell_status::FAILED {
+        // Counted when the cell was built; its pieces cannot be trusted.
+        counters.add(counter::PAIRS, 1);
+        return;
+    }
+    let mut poly = Polyhedron::empty();
+    poly.n_planes = header[0].to_bits();
+    poly.n_verts = header[1].to_bits();
+    let mut q = 0;
+    while q < poly.n_planes as usize {
+        let r = cells[base + 1 + q];
+        poly.planes[q] = Vec4::new(r[0], r[1], r[2], r[3]);
+        q += 1;
+    }
+    let mut v = 0;
+    while v < poly.n_verts as usize {
+        let r = cells[base + 1 + MAX_PLANES + v];
+        poly.verts[v] = Vec3::new(r[0], r[1], r[2]);
+        poly.tris[v] = r[3].to_bits();
+        v += 1;
+    }
+    let tv = tet_vertices(t, verts, tets, xyz(sites[j]));
+    let faces = Polyhedron::tetrahedron(tv);
+    let mut c = Clipped { clips: 0, security_missed: false, overflow: false, broken: false };
+    let mut f = 0;
+    while f < 4 && !poly.is_empty() {
+        match poly.clip(faces.planes[f]) {
+            Clip::Cut | Clip::Empty => c.clips += 1,
+            Clip::Unchanged => {}
+            Clip::Overflow => c.overflow = true,
+            Clip::Broken => c.broken = true,
+        }
+        if c.overflow || c.broken {
+            break;
+        }
+        f += 1;
+    }
+    let nonempty = !poly.is_empty() && !c.overflow && !c.broken;
+    if nonempty {
+        accumulate(j, &poly.moments(), p.fixed_scale, sums);
+    }
+    count(counters, 1, nonempty, &c);
+}
