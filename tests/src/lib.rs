@@ -1,6 +1,8 @@
 //! Shared helpers of the cross-crate tests: the Vulkan device every test of a
 //! binary shares, and references written apart from the kernels.
 
+pub mod reference;
+
 use cvd::vulkan::{validation_errors, VulkanBackend, VulkanOptions};
 use cvd::KnnJob;
 use std::sync::OnceLock;

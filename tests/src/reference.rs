@@ -1,0 +1,161 @@
+//! An exact reference for clipped Voronoi cells, written apart from the
+//! kernels so that the two cannot share a bug: f64, face polygons clipped
+//! one by one (Sutherland-Hodgman), each tet clipped by the bisectors of
+//! ALL other sites (no k, no security radius), integrated by pyramids from
+//! an interior point.
+
+use cvd::TetMesh;
+
+type P = [f64; 3];
+
+fn sub(a: P, b: P) -> P {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+fn add(a: P, b: P) -> P {
+    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
+}
+fn scale(a: P, s: f64) -> P {
+    [a[0] * s, a[1] * s, a[2] * s]
+}
+fn dot(a: P, b: P) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+fn cross(a: P, b: P) -> P {
+    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+}
+fn norm(a: P) -> f64 {
+    dot(a, a).sqrt()
+}
+
+/// A convex polyhedron as a list of face polygons.
+#[derive(Clone, Debug)]
+struct Poly {
+    faces: Vec<Vec<P>>,
+}
+
+impl Poly {
+    fn tet(v: [P; 4]) -> Self {
+        let f = |a: usize, b: usize, c: usize| vec![v[a], v[b], v[c]];
+        Self { faces: vec![f(1, 2, 3), f(0, 2, 3), f(0, 1, 3), f(0, 1, 2)] }
+    }
+
+    /// Keeps `n·x <= d`.
+    fn clip(&mut self, n: P, d: f64) {
+        // A plane that removes nothing (up to rounding) is skipped, so a
+        // repeated plane does not add a second copy of a face.
+        let size = self.faces.iter().flatten().map(|&p| norm(p)).fold(1.0, f64::max);
+        let tol = 1e-12 * norm(n) * size;
+        if self.faces.iter().flatten().all(|&p| dot(n, p) - d <= tol) {
+            return;
+        }
+        let mut cap: Vec<P> = Vec::new();
+        let mut faces = Vec::with_capacity(self.faces.len() + 1);
+        for face in &self.faces {
+            let mut out = Vec::with_capacity(face.len() + 2);
+            for i in 0..face.len() {
+                let a = face[i];
+                let b = face[(i + 1) % face.len()];
+                let (sa, sb) = (dot(n, a) - d, dot(n, b) - d);
+                if sa <= 0.0 {
+                    out.push(a);
+                }
+                if (sa < 0.0 && sb > 0.0) || (sa > 0.0 && sb < 0.0) {
+                    let p = add(a, scale(sub(b, a), sa / (sa - sb)));
+                    out.push(p);
+                    cap.push(p);
+                } else if sa == 0.0 {
+                    cap.push(a);
+                }
+            }
+            if out.len() >= 3 {
+                faces.push(out);
+            }
+        }
+        if faces.len() >= 3 {
+            // The cap: the points on the plane, ordered by angle.
+            let c = scale(cap.iter().fold([0.0; 3], |s, &p| add(s, p)), 1.0 / cap.len().max(1) as f64);
+            let u = if n[0].abs() < 0.9 { cross(n, [1.0, 0.0, 0.0]) } else { cross(n, [0.0, 1.0, 0.0]) };
+            let w = cross(n, u);
+            let mut pts: Vec<(f64, P)> = cap
+                .iter()
+                .map(|&p| {
+                    let q = sub(p, c);
+                    (dot(q, w).atan2(dot(q, u)), p)
+                })
+                .collect();
+            pts.sort_by(|a, b| a.0.total_cmp(&b.0));
+            let mut ring: Vec<P> = Vec::new();
+            for (_, p) in pts {
+                if ring.last().is_none_or(|&l| norm(sub(l, p)) > 1e-14) {
+                    ring.push(p);
+                }
+            }
+            if ring.len() >= 3 {
+                faces.push(ring);
+            }
+        }
+        self.faces = if faces.len() >= 4 { faces } else { Vec::new() };
+    }
+
+    /// Volume and centroid.
+    fn integrate(&self) -> (f64, P) {
+        let pts: Vec<P> = self.faces.iter().flatten().copied().collect();
+        if pts.is_empty() {
+            return (0.0, [0.0; 3]);
+        }
+        let c = scale(pts.iter().fold([0.0; 3], |s, &p| add(s, p)), 1.0 / pts.len() as f64);
+        let (mut vol, mut moment) = (0.0, [0.0; 3]);
+        for face in &self.faces {
+            for i in 1..face.len() - 1 {
+                let (a, b, d) = (face[0], face[i], face[i + 1]);
+                let v = dot(sub(a, c), cross(sub(b, c), sub(d, c))).abs() / 6.0;
+                vol += v;
+                moment = add(moment, scale(add(add(a, b), add(d, c)), v / 4.0));
+            }
+        }
+        let centroid = if vol > 0.0 { scale(moment, 1.0 / vol) } else { c };
+        (vol, centroid)
+    }
+}
+
+/// Volume and centroid of each site's cell clipped to the mesh; duplicate
+/// sites: the lowest index owns the cell.
+pub fn clipped_cells(mesh: &TetMesh, sites: &[[f32; 3]]) -> (Vec<f64>, Vec<[f64; 3]>) {
+    let x: Vec<P> = sites.iter().map(|p| p.map(|c| c as f64)).collect();
+    let n = x.len();
+    let mut vol = vec![0.0; n];
+    let mut moment = vec![[0.0; 3]; n];
+    // Other sites nearest first, so that far pieces vanish early.
+    let order: Vec<Vec<usize>> = (0..n)
+        .map(|i| {
+            let mut o: Vec<usize> = (0..n).filter(|&j| j != i).collect();
+            o.sort_by(|&a, &b| norm(sub(x[a], x[i])).total_cmp(&norm(sub(x[b], x[i]))));
+            o
+        })
+        .collect();
+    for tet in &mesh.tets {
+        let v = tet.map(|i| mesh.vertices[i as usize].map(|c| c as f64));
+        for i in 0..n {
+            if (0..i).any(|j| x[j] == x[i]) {
+                continue;
+            }
+            let mut poly = Poly::tet(v);
+            for &j in &order[i] {
+                if x[j] == x[i] {
+                    continue;
+                }
+                let nrm = sub(x[j], x[i]);
+                let mid = scale(add(x[i], x[j]), 0.5);
+                poly.clip(nrm, dot(nrm, mid));
+                if poly.faces.is_empty() {
+                    break;
+                }
+            }
+            let (pv, pc) = poly.integrate();
+            vol[i] += pv;
+            moment[i] = add(moment[i], scale(pc, pv));
+        }
+    }
+    let centroids = (0..n).map(|i| if vol[i] > 0.0 { scale(moment[i], 1.0 / vol[i]) } else { x[i] }).collect();
+    (vol, centroids)
+}

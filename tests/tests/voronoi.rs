@@ -1,0 +1,200 @@
+//! Clipped Voronoi cells: both strategies on both backends against the
+//! exact f64 reference, against each other, and the volume balance.
+
+use cvd::cpu::CpuBackend;
+use cvd::{points, Backend, Cells, ClippedVoronoi, Strategy, TetMesh};
+use cvd_tests::reference::clipped_cells;
+use cvd_tests::{assert_no_validation_errors, vulkan};
+use proptest::prelude::*;
+
+#[derive(Clone, Copy, Debug)]
+enum Shape {
+    Cube,
+    /// An L: the cube without one quarter column (non-convex).
+    LShape,
+    /// A cube with a square hole through it.
+    Holed,
+}
+
+fn mesh(shape: Shape) -> TetMesh {
+    match shape {
+        Shape::Cube => TetMesh::cube(4),
+        Shape::LShape => TetMesh::voxels(4, |i, j, _| i < 2 || j < 2),
+        Shape::Holed => TetMesh::voxels(5, |i, j, _| !(i == 2 && j == 2)),
+    }
+}
+
+fn backends() -> Vec<&'static dyn Backend> {
+    static CPU: std::sync::OnceLock<CpuBackend> = std::sync::OnceLock::new();
+    let mut b: Vec<&'static dyn Backend> = vec![CPU.get_or_init(|| CpuBackend::new(None).unwrap())];
+    if let Some(v) = vulkan() {
+        b.push(v);
+    }
+    b
+}
+
+fn compute(mesh: &TetMesh, sites: &[[f32; 3]], strategy: Strategy, backend: &dyn Backend) -> Cells {
+    let n = sites.len();
+    ClippedVoronoi::new(mesh, sites)
+        .strategy(strategy)
+        .k(Some(n))
+        .k_site(n)
+        .backend(backend)
+        .compute()
+        .unwrap_or_else(|e| panic!("{} {strategy:?}: {e}", backend.name()))
+}
+
+/// Per-cell volumes within `tol` of max(V_i, V_M / n) and centroids within
+/// `tol` of the cell size, against expected volumes and centroids.
+fn assert_cells_match(what: &str, got: &Cells, vol: &[f64], centroid: &[[f64; 3]], tol: f64) {
+    let n = vol.len() as f64;
+    let typical = got.mesh_volume / n;
+    for i in 0..vol.len() {
+        let scale = vol[i].max(typical);
+        let dv = (got.volume[i] - vol[i]).abs();
+        assert!(dv <= tol * scale, "{what}: cell {i} volume {} vs {} (diff {dv:.3e})", got.volume[i], vol[i]);
+        if vol[i] > 1e-2 * typical {
+            let size = vol[i].cbrt();
+            let dc = (0..3).map(|a| (got.centroid[i][a] - centroid[i][a]).powi(2)).sum::<f64>().sqrt();
+            assert!(dc <= tol * size, "{what}: cell {i} centroid off by {dc:.3e} (cell size {size:.3e})");
+        }
+    }
+}
+
+fn sites_in_box(n: usize, seed: u64) -> Vec<[f32; 3]> {
+    points::uniform(n, seed)
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 6, failure_persistence: None, ..ProptestConfig::default() })]
+
+    /// Both strategies, both backends, against the exact reference.
+    #[test]
+    fn cells_match_the_exact_reference(
+        shape in prop_oneof![Just(Shape::Cube), Just(Shape::LShape), Just(Shape::Holed)],
+        n in 1usize..=150,
+        seed in any::<u64>(),
+    ) {
+        let mesh = mesh(shape);
+        let sites = sites_in_box(n, seed);
+        let (vol, centroid) = clipped_cells(&mesh, &sites);
+        let total: f64 = vol.iter().sum();
+        prop_assert!((total - mesh.volume()).abs() <= 1e-9 * mesh.volume(), "reference loses volume: {total}");
+        for backend in backends() {
+            for strategy in [Strategy::TetCell, Strategy::CellTet] {
+                let cells = compute(&mesh, &sites, strategy, backend);
+                let what = format!("{shape:?} n={n} {} {strategy:?}", backend.name());
+                assert_cells_match(&what, &cells, &vol, &centroid, 1e-4);
+                prop_assert!(cells.e_vol <= 1e-5, "{what}: E_vol {}", cells.e_vol);
+                prop_assert_eq!(cells.counters.overflows + cells.counters.broken, 0);
+            }
+        }
+        assert_no_vulkan_errors();
+    }
+
+    /// CPU and Vulkan agree per cell to f32 precision; so do the strategies.
+    #[test]
+    fn backends_and_strategies_agree(n in 20usize..=2000, seed in any::<u64>(), resolution in 3usize..=8) {
+        let mesh = TetMesh::cube(resolution);
+        let sites = sites_in_box(n, seed);
+        let cpu = CpuBackend::new(None).unwrap();
+        let run = |b: &dyn Backend, s| ClippedVoronoi::new(&mesh, &sites).strategy(s).backend(b).compute().unwrap();
+        let base = run(&cpu, Strategy::TetCell);
+        let other = run(&cpu, Strategy::CellTet);
+        assert_cells_match("cpu cell-tet vs tet-cell", &other, &base.volume, &base.centroid, 1e-5);
+        if let Some(v) = vulkan() {
+            for s in [Strategy::TetCell, Strategy::CellTet] {
+                let gpu = run(v, s);
+                assert_cells_match(&format!("vulkan {s:?} vs cpu"), &gpu, &base.volume, &base.centroid, 1e-5);
+                prop_assert_eq!(gpu.counters, if s == Strategy::TetCell { base.counters } else { other.counters });
+            }
+            assert_no_vulkan_errors();
+        }
+    }
+}
+
+fn assert_no_vulkan_errors() {
+    if vulkan().is_some() {
+        assert_no_validation_errors();
+    }
+}
+
+#[test]
+fn volumes_sum_to_the_mesh_volume() {
+    let mesh = TetMesh::cube(10);
+    let sites = sites_in_box(3000, 5);
+    for backend in backends() {
+        for strategy in [Strategy::TetCell, Strategy::CellTet] {
+            let cells = ClippedVoronoi::new(&mesh, &sites).strategy(strategy).backend(backend).compute().unwrap();
+            assert!(cells.e_vol <= 1e-5, "{} {strategy:?}: E_vol {}", backend.name(), cells.e_vol);
+            assert_eq!(cells.counters.overflows + cells.counters.broken, 0);
+            assert!(cells.counters.pairs > 0 && cells.counters.nonempty > 0);
+        }
+    }
+}
+
+#[test]
+fn results_are_bit_identical_run_after_run() {
+    let mesh = TetMesh::cube(5);
+    let sites = sites_in_box(500, 9);
+    for backend in backends() {
+        let a = ClippedVoronoi::new(&mesh, &sites).backend(backend).compute().unwrap();
+        let b = ClippedVoronoi::new(&mesh, &sites).backend(backend).compute().unwrap();
+        assert_eq!(a.volume, b.volume, "{}", backend.name());
+        assert_eq!(a.centroid, b.centroid, "{}", backend.name());
+    }
+}
+
+#[test]
+fn duplicate_sites_lowest_index_owns_the_cell() {
+    let mesh = TetMesh::cube(3);
+    let mut sites = sites_in_box(40, 2);
+    sites.push(sites[3]);
+    sites.push(sites[0]);
+    let (vol, centroid) = clipped_cells(&mesh, &sites);
+    for backend in backends() {
+        let cells = compute(&mesh, &sites, Strategy::TetCell, backend);
+        assert_eq!(cells.counters.duplicate_sites, 2);
+        assert_eq!(cells.volume[40], 0.0);
+        assert_eq!(cells.volume[41], 0.0);
+        assert_cells_match("duplicates", &cells, &vol, &centroid, 1e-4);
+    }
+}
+
+#[test]
+fn sites_outside_and_very_few_sites() {
+    let mesh = mesh(Shape::LShape);
+    for sites in [vec![[0.5f32, 0.5, 0.5]], vec![[0.9, 0.9, 0.5], [0.1, 0.1, 0.1]], vec![[3.0, 3.0, 3.0], [-1.0, 0.2, 0.3]]] {
+        let (vol, centroid) = clipped_cells(&mesh, &sites);
+        for backend in backends() {
+            for strategy in [Strategy::TetCell, Strategy::CellTet] {
+                let cells = compute(&mesh, &sites, strategy, backend);
+                assert_cells_match(&format!("{sites:?}"), &cells, &vol, &centroid, 1e-4);
+            }
+        }
+    }
+}
+
+#[test]
+fn paper_k_follows_eq_6() {
+    use cvd::voronoi::paper_k;
+    assert_eq!(paper_k(5, 1000), 5);
+    assert_eq!(paper_k(19, 1000), 19);
+    assert_eq!(paper_k(20, 100_000), 20);
+    // 35k sites in 31k tets: 10 * ceil(8 * log10(7 * 1.13 + 1)) = 80.
+    assert_eq!(paper_k(35_000, 31_000), 80);
+}
+
+#[test]
+fn bad_input_is_rejected_by_name() {
+    let err = TetMesh::new(vec![[0.0; 3]; 3], vec![[0, 1, 2, 3]]).unwrap_err().to_string();
+    assert!(err.contains("tet 0 refers to vertex 3"), "{err}");
+    let flat = vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 1.0, 0.0]];
+    let err = TetMesh::new(flat, vec![[0, 1, 2, 3]]).unwrap_err().to_string();
+    assert!(err.contains("zero volume"), "{err}");
+    let mesh = TetMesh::cube(2);
+    let err = ClippedVoronoi::new(&mesh, &[[f32::NAN, 0.0, 0.0]]).compute().unwrap_err().to_string();
+    assert!(err.contains("site 0"), "{err}");
+    assert!(ClippedVoronoi::new(&mesh, &[]).compute().is_err());
+}
+
