@@ -12,12 +12,13 @@
 
 use crate::abi::{counter, ClipParams, ACCUM_PER_SITE, NO_SITE};
 use crate::buffers::{AtomicSums, OutBuf};
-use crate::polyhedron::{Clip, Moments, Polyhedron, MAX_PLANES, MAX_VERTS};
+use crate::polyhedron::{Cell, Clip, Moments, Piece, Polyhedron, CELL_PLANES, CELL_VERTS};
 use spirv_std::glam::{Vec3, Vec4};
 
 /// `[f32; 4]` records per stored cell: a header, the planes, the vertices
 /// (position in `xyz`, packed plane triple in the bits of `w`).
-pub const CELL_RECORDS: usize = 1 + MAX_PLANES + MAX_VERTS;
+pub const CELL_RECORDS: usize = 1 + CELL_PLANES + CELL_VERTS;
+
 
 /// Status of a stored cell (header `z`).
 pub mod cell_status {
@@ -46,7 +47,9 @@ struct Clipped {
 /// neighbours, nearest first, until the next neighbour is farther than
 /// twice the farthest vertex (the security radius) or nothing is left.
 #[inline]
-fn clip_by_bisectors(poly: &mut Polyhedron, i: usize, p: &ClipParams, sites: &[[f32; 4]], site_nbrs: &[u32]) -> Clipped {
+fn clip_by_bisectors<const P: usize, const V: usize>(
+    poly: &mut Polyhedron<P, V>,
+    i: usize, p: &ClipParams, sites: &[[f32; 4]], site_nbrs: &[u32]) -> Clipped {
     let xi = xyz(sites[i]);
     let k = p.k_site as usize;
     let mut out = Clipped { clips: 0, security_missed: true, overflow: false, broken: false };
@@ -106,6 +109,43 @@ fn tet_vertices(t: usize, verts: &[[f32; 4]], tets: &[[u32; 4]], origin: Vec3) -
     ]
 }
 
+/// Sites nearest the tet's centroid that a pair is first tested against.
+pub const FILTER_SITES: usize = 4;
+
+/// Whether site `j` can own any point of the tet (vertices `tv`, relative
+/// to `x_j`): for each of the first sites `s` of the tet's list, the
+/// half-space where `j` is nearer than `s` must hold a tet vertex (a
+/// half-space meets a convex polytope only if it holds one of its
+/// vertices). The test keeps a margin, so it never drops a real piece.
+#[inline]
+fn may_meet(tv: &[Vec3; 4], j: usize, list: usize, p: &ClipParams, sites: &[[f32; 4]], tet_sites: &[u32]) -> bool {
+    let xj = xyz(sites[j]);
+    let k = p.k_tet as usize;
+    let mut f = 0;
+    while f < FILTER_SITES && f < k {
+        let s = tet_sites[list + f];
+        if s != NO_SITE && s as usize != j {
+            let xs = xyz(sites[s as usize]) - xj;
+            // |v - 0|² <= |v - xs|²  <=>  2 v·xs <= |xs|²
+            let limit = xs.length_squared();
+            let slack = 1e-5 * limit + 1e-12;
+            let mut any = false;
+            let mut v = 0;
+            while v < 4 {
+                if 2.0 * tv[v].dot(xs) <= limit + slack {
+                    any = true;
+                }
+                v += 1;
+            }
+            if !any {
+                return false;
+            }
+        }
+        f += 1;
+    }
+    true
+}
+
 /// Adds a piece's integrals to site `j`'s sums, in fixed point.
 #[inline]
 fn accumulate<A: AtomicSums>(j: usize, m: &Moments, scale: f32, sums: &mut A) {
@@ -158,7 +198,12 @@ pub fn tet_cell_pair<A: AtomicSums, C: AtomicSums>(
         return;
     }
     let j = j as usize;
-    let mut poly = Polyhedron::tetrahedron(tet_vertices(t, verts, tets, xyz(sites[j])));
+    let tv = tet_vertices(t, verts, tets, xyz(sites[j]));
+    if !may_meet(&tv, j, t * p.k_tet as usize, p, sites, tet_sites) {
+        counters.add(counter::PAIRS, 1);
+        return;
+    }
+    let mut poly = Piece::tetrahedron(tv);
     let c = clip_by_bisectors(&mut poly, j, p, sites, site_nbrs);
     let nonempty = !poly.is_empty() && !c.overflow && !c.broken;
     if nonempty {
@@ -184,7 +229,7 @@ pub fn voronoi_cell<O: OutBuf<[f32; 4]> + ?Sized, C: AtomicSums>(
     let xi = xyz(sites[i]);
     let lo = Vec3::new(p.box_lo_x, p.box_lo_y, p.box_lo_z) - xi;
     let hi = Vec3::new(p.box_hi_x, p.box_hi_y, p.box_hi_z) - xi;
-    let mut poly = Polyhedron::cuboid(lo, hi);
+    let mut poly = Cell::cuboid(lo, hi);
     let c = clip_by_bisectors(&mut poly, i, p, sites, site_nbrs);
     let status = if c.overflow || c.broken {
         cell_status::FAILED
@@ -204,7 +249,7 @@ pub fn voronoi_cell<O: OutBuf<[f32; 4]> + ?Sized, C: AtomicSums>(
     let mut v = 0;
     while v < poly.n_verts as usize {
         let x = poly.verts[v];
-        cells.write(base + 1 + MAX_PLANES + v, [x.x, x.y, x.z, f32::from_bits(poly.tris[v])]);
+        cells.write(base + 1 + CELL_PLANES + v, [x.x, x.y, x.z, f32::from_bits(poly.tris[v])]);
         v += 1;
     }
     counters.add(counter::CLIPS, c.clips);
@@ -242,6 +287,11 @@ pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums>(
         return;
     }
     let j = j as usize;
+    let tv = tet_vertices(t, verts, tets, xyz(sites[j]));
+    if !may_meet(&tv, j, t * p.k_tet as usize, p, sites, tet_sites) {
+        counters.add(counter::PAIRS, 1);
+        return;
+    }
     let base = j * CELL_RECORDS;
     let header = cells[base];
     if header[2].to_bits() == cell_status::FAILED {
@@ -249,7 +299,7 @@ pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums>(
         counters.add(counter::PAIRS, 1);
         return;
     }
-    let mut poly = Polyhedron::empty();
+    let mut poly = Cell::empty();
     poly.n_planes = header[0].to_bits();
     poly.n_verts = header[1].to_bits();
     let mut q = 0;
@@ -260,13 +310,12 @@ pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums>(
     }
     let mut v = 0;
     while v < poly.n_verts as usize {
-        let r = cells[base + 1 + MAX_PLANES + v];
+        let r = cells[base + 1 + CELL_PLANES + v];
         poly.verts[v] = Vec3::new(r[0], r[1], r[2]);
         poly.tris[v] = r[3].to_bits();
         v += 1;
     }
-    let tv = tet_vertices(t, verts, tets, xyz(sites[j]));
-    let faces = Polyhedron::tetrahedron(tv);
+    let faces = Piece::tetrahedron(tv);
     let mut c = Clipped { clips: 0, security_missed: false, overflow: false, broken: false };
     let mut f = 0;
     while f < 4 && !poly.is_empty() {

@@ -12,11 +12,18 @@
 
 use spirv_std::glam::{Vec3, Vec4};
 
-/// Most planes a polyhedron can hold (unused planes are recycled first).
-pub const MAX_PLANES: usize = 64;
-/// Most vertices a polyhedron can hold, including those a clip adds before
-/// it drops the removed ones.
-pub const MAX_VERTS: usize = 128;
+/// Capacities: a Voronoi cell of a site (Algorithm 1) may have ~40 faces
+/// and ~80 vertices; a piece of a cell inside a tet has far fewer. A clip
+/// needs room for the new vertices before it drops the removed ones.
+/// Planes no vertex uses are recycled before a plane overflow is declared.
+/// Planes of a [`Cell`].
+pub const CELL_PLANES: usize = 64;
+/// Vertices of a [`Cell`].
+pub const CELL_VERTS: usize = 128;
+/// A Voronoi cell.
+pub type Cell = Polyhedron<CELL_PLANES, CELL_VERTS>;
+/// A piece of a cell inside one tet: at most 32 planes and 64 vertices.
+pub type Piece = Polyhedron<32, 64>;
 
 /// The result of a clip (`u32`-sized: SPIR-V has no 8-bit integers here).
 #[derive(Clone, Copy, PartialEq, Eq, Debug)]
@@ -45,15 +52,15 @@ pub struct Moments {
     pub second: f32,
 }
 
-/// A convex polyhedron of fixed capacity.
+/// A convex polyhedron of at most `P` planes and `V` vertices.
 #[derive(Clone, Copy)]
-pub struct Polyhedron {
+pub struct Polyhedron<const P: usize, const V: usize> {
     /// Planes `(n, d)`: the inside is `n·x <= d`.
-    pub planes: [Vec4; MAX_PLANES],
+    pub planes: [Vec4; P],
     /// Vertex positions.
-    pub verts: [Vec3; MAX_VERTS],
+    pub verts: [Vec3; V],
     /// Vertex plane triples, packed 8 bits each: `a | b << 8 | c << 16`.
-    pub tris: [u32; MAX_VERTS],
+    pub tris: [u32; V],
     /// Planes in use.
     pub n_planes: u32,
     /// Vertices in use.
@@ -96,13 +103,13 @@ fn contains(t: u32, x: u32) -> bool {
     a == x || b == x || c == x
 }
 
-impl Polyhedron {
+impl<const P: usize, const V: usize> Polyhedron<P, V> {
     /// An empty polyhedron (no vertices).
     pub fn empty() -> Self {
         Self {
-            planes: [Vec4::ZERO; MAX_PLANES],
-            verts: [Vec3::ZERO; MAX_VERTS],
-            tris: [0; MAX_VERTS],
+            planes: [Vec4::ZERO; P],
+            verts: [Vec3::ZERO; V],
+            tris: [0; V],
             n_planes: 0,
             n_verts: 0,
         }
@@ -197,7 +204,7 @@ impl Polyhedron {
 
     /// Frees the planes no vertex uses, renumbering the rest.
     fn recycle_planes(&mut self) {
-        let mut remap = [0xffu32; MAX_PLANES];
+        let mut remap = [0xffu32; P];
         let mut i = 0;
         while i < self.n_verts as usize {
             let [a, b, c] = unpack(self.tris[i]);
@@ -243,50 +250,62 @@ impl Polyhedron {
             self.n_verts = 0;
             return Clip::Empty;
         }
-        if self.n_planes as usize == MAX_PLANES {
+        if self.n_planes as usize == P {
             self.recycle_planes();
-            if self.n_planes as usize == MAX_PLANES {
+            if self.n_planes as usize == P {
                 return Clip::Overflow;
             }
         }
         let new_plane = self.n_planes;
         self.planes[new_plane as usize] = plane;
-        // One new vertex per edge from a removed vertex to a kept one: it
-        // inherits the edge's direction, so orientation is preserved.
+        let n = plane.truncate();
+        // The removed vertices, listed once.
+        let mut out = [0u32; V];
+        let mut r = 0;
+        let mut i = 0;
+        while i < n_old {
+            if self.outside(i, plane) {
+                out[r] = i as u32;
+                r += 1;
+            }
+            i += 1;
+        }
+        // Each edge x -> y of a removed vertex whose reverse y -> x belongs
+        // to a kept vertex crosses the plane: it gets a new vertex, which
+        // inherits the edge's direction, so orientation is preserved. The
+        // new vertex slides from the removed one along the edge (the line
+        // where planes x and y meet) to the plane.
         let mut n_new = n_old;
-        let mut t = 0;
-        while t < n_old {
-            if self.outside(t, plane) {
-                let tri = unpack(self.tris[t]);
-                let mut e = 0;
-                while e < 3 {
-                    let x = tri[e];
-                    let y = tri[(e + 1) % 3];
-                    // The vertex across edge x -> y holds edge y -> x.
-                    let mut u = 0;
-                    while u < n_old && !has_edge(self.tris[u], y, x) {
-                        u += 1;
+        let mut a = 0;
+        while a < r {
+            let t = out[a] as usize;
+            let tri = unpack(self.tris[t]);
+            let mut e = 0;
+            while e < 3 {
+                let x = tri[e];
+                let y = tri[(e + 1) % 3];
+                let mut b = 0;
+                while b < r && !has_edge(self.tris[out[b] as usize], y, x) {
+                    b += 1;
+                }
+                if b == r {
+                    if n_new == V {
+                        return Clip::Overflow;
                     }
-                    if u == n_old {
-                        self.n_verts = n_old as u32;
+                    let v_out = self.verts[t];
+                    let dir = self.planes[x as usize].truncate().cross(self.planes[y as usize].truncate());
+                    let along = n.dot(dir);
+                    if along == 0.0 {
                         return Clip::Broken;
                     }
-                    if !self.outside(u, plane) {
-                        if n_new == MAX_VERTS {
-                            return Clip::Overflow;
-                        }
-                        let v_in = self.verts[u];
-                        let v_out = self.verts[t];
-                        let n = plane.truncate();
-                        let s = (plane.w - n.dot(v_in)) / n.dot(v_out - v_in);
-                        self.verts[n_new] = v_in + (v_out - v_in) * s.clamp(0.0, 1.0);
-                        self.tris[n_new] = pack(x, y, new_plane);
-                        n_new += 1;
-                    }
-                    e += 1;
+                    let s = (plane.w - n.dot(v_out)) / along;
+                    self.verts[n_new] = v_out + dir * s;
+                    self.tris[n_new] = pack(x, y, new_plane);
+                    n_new += 1;
                 }
+                e += 1;
             }
-            t += 1;
+            a += 1;
         }
         // Drop the removed vertices (only old ones are tested: new ones lie
         // on the plane and must stay whatever rounding says).
@@ -367,7 +386,7 @@ mod tests {
 
     #[test]
     fn cube_moments() {
-        let p = Polyhedron::cuboid(Vec3::splat(-1.0), Vec3::splat(1.0));
+        let p = Cell::cuboid(Vec3::splat(-1.0), Vec3::splat(1.0));
         let m = p.moments();
         assert!(close(m.volume, 8.0, 1e-6), "{m:?}");
         assert!(m.first.length() < 1e-5, "{m:?}");
@@ -380,7 +399,7 @@ mod tests {
         let vol = ((v[1] - v[0]).cross(v[2] - v[0]).dot(v[3] - v[0]) / 6.0).abs();
         let centroid = (v[0] + v[1] + v[2] + v[3]) / 4.0;
         for order in [[0, 1, 2, 3], [1, 0, 2, 3]] {
-            let m = Polyhedron::tetrahedron(order.map(|i| v[i])).moments();
+            let m = Cell::tetrahedron(order.map(|i| v[i])).moments();
             assert!(close(m.volume, vol, 1e-5), "{m:?} vs {vol}");
             assert!((m.first / m.volume - centroid).length() < 1e-5, "{m:?}");
         }
@@ -388,18 +407,18 @@ mod tests {
 
     #[test]
     fn clipping_a_cube() {
-        let mut p = Polyhedron::cuboid(Vec3::splat(-1.0), Vec3::splat(1.0));
+        let mut p = Cell::cuboid(Vec3::splat(-1.0), Vec3::splat(1.0));
         assert_eq!(p.clip(Vec4::new(1.0, 0.0, 0.0, 0.3)), Clip::Cut);
         assert!(close(p.moments().volume, 5.2, 1e-5));
         assert_eq!(p.clip(Vec4::new(1.0, 0.0, 0.0, 2.0)), Clip::Unchanged);
         // An oblique plane through the centre halves the symmetric part.
-        let mut q = Polyhedron::cuboid(Vec3::splat(-1.0), Vec3::splat(1.0));
+        let mut q = Cell::cuboid(Vec3::splat(-1.0), Vec3::splat(1.0));
         assert_eq!(q.clip(Vec4::new(1.0, 1.0, 1.0, 0.0)), Clip::Cut);
         let m = q.moments();
         assert!(close(m.volume, 4.0, 1e-5), "{m:?}");
         assert!(close(m.second, 4.0, 1e-5), "{m:?}");
         // Corner cut: removes the tet x+y+z >= 2.5 near (1,1,1): volume 0.5^3/6.
-        let mut c = Polyhedron::cuboid(Vec3::splat(-1.0), Vec3::splat(1.0));
+        let mut c = Cell::cuboid(Vec3::splat(-1.0), Vec3::splat(1.0));
         assert_eq!(c.clip(Vec4::new(1.0, 1.0, 1.0, 2.5)), Clip::Cut);
         assert!(close(c.moments().volume, 8.0 - 0.125 / 6.0, 1e-5));
         assert_eq!(c.clip(Vec4::new(-1.0, 0.0, 0.0, -3.0)), Clip::Empty);
@@ -410,7 +429,7 @@ mod tests {
     fn many_clips_make_a_sphere_like_cell() {
         // Clip by tangent planes of the unit sphere: the volume decreases
         // toward the ball's and never below it.
-        let mut p = Polyhedron::cuboid(Vec3::splat(-1.0), Vec3::splat(1.0));
+        let mut p = Cell::cuboid(Vec3::splat(-1.0), Vec3::splat(1.0));
         let mut last = 8.0;
         let golden = 2.399_963_2f32;
         for i in 0..40 {
