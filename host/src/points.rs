@@ -70,3 +70,30 @@ pub fn lattice(n: usize, side: usize, seed: u64) -> Vec<[f32; 3]> {
         .map(|_| [0; 3].map(|_| rng.below(side) as f32))
         .collect()
 }
+
+/// `n` points uniform inside a tet mesh: a tet drawn with probability
+/// proportional to its volume, then a uniform point in it.
+pub fn in_mesh(mesh: &crate::TetMesh, n: usize, seed: u64) -> Vec<[f32; 3]> {
+    let mut rng = Rng::new(seed);
+    let mut cumulative = Vec::with_capacity(mesh.tets.len());
+    let mut total = 0.0;
+    for t in 0..mesh.tets.len() {
+        total += mesh.tet_volume(t).abs();
+        cumulative.push(total);
+    }
+    if mesh.tets.is_empty() || total <= 0.0 {
+        return Vec::new();
+    }
+    (0..n)
+        .map(|_| {
+            let r = rng.unit() * total;
+            let t = cumulative.partition_point(|&c| c <= r).min(mesh.tets.len() - 1);
+            // Uniform barycentric coordinates: sorted uniforms' gaps.
+            let mut u = [rng.unit(), rng.unit(), rng.unit()];
+            u.sort_by(f64::total_cmp);
+            let w = [u[0], u[1] - u[0], u[2] - u[1], 1.0 - u[2]];
+            let v = mesh.tets[t].map(|i| mesh.vertices[i as usize]);
+            [0, 1, 2].map(|a| (0..4).map(|k| w[k] * v[k][a] as f64).sum::<f64>() as f32)
+        })
+        .collect()
+}

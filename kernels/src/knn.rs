@@ -43,37 +43,58 @@ pub fn dist2(a: [u32; 3], b: &QuantPoint) -> u64 {
 }
 
 /// A query's sorted list of the best `k` candidates, kept in `nbr`/`d2` at
-/// `base..base + k`, ordered by `(distance, index)`.
-#[inline]
-fn offer<N, D>(d: u64, idx: u32, k: u32, base: usize, found: &mut u32, nbr: &mut N, d2: &mut D)
-where
-    N: OutBuf<u32> + ?Sized,
-    D: OutBuf<u64> + ?Sized,
-{
-    let mut pos = *found as usize;
-    if *found == k {
-        let wd = d2.read(base + pos - 1);
-        let wi = nbr.read(base + pos - 1);
-        if d > wd || (d == wd && idx > wi) {
+/// `base..base + k`, ordered by `(distance, index)`; the current k-th
+/// entry is mirrored in locals so that most candidates are rejected
+/// without touching memory.
+struct Best {
+    k: u32,
+    base: usize,
+    found: u32,
+    worst_d: u64,
+    worst_i: u32,
+}
+
+impl Best {
+    #[inline]
+    fn new(k: u32, base: usize) -> Self {
+        Self { k, base, found: 0, worst_d: u64::MAX, worst_i: u32::MAX }
+    }
+
+    #[inline]
+    fn offer<N, D>(&mut self, d: u64, idx: u32, nbr: &mut N, d2: &mut D)
+    where
+        N: OutBuf<u32> + ?Sized,
+        D: OutBuf<u64> + ?Sized,
+    {
+        if self.found == self.k && (d > self.worst_d || (d == self.worst_d && idx > self.worst_i)) {
             return;
         }
-        pos -= 1;
-    } else {
-        *found += 1;
-    }
-    // Shift larger entries up one slot, then insert.
-    while pos > 0 {
-        let pd = d2.read(base + pos - 1);
-        let pi = nbr.read(base + pos - 1);
-        if pd < d || (pd == d && pi < idx) {
-            break;
+        let base = self.base;
+        let mut pos = self.found as usize;
+        if self.found == self.k {
+            pos -= 1;
+        } else {
+            self.found += 1;
         }
-        d2.write(base + pos, pd);
-        nbr.write(base + pos, pi);
-        pos -= 1;
+        // Shift larger entries up one slot, then insert.
+        while pos > 0 {
+            let pd = d2.read(base + pos - 1);
+            let pi = nbr.read(base + pos - 1);
+            if pd < d || (pd == d && pi < idx) {
+                break;
+            }
+            d2.write(base + pos, pd);
+            nbr.write(base + pos, pi);
+            pos -= 1;
+        }
+        d2.write(base + pos, d);
+        nbr.write(base + pos, idx);
+        if self.found == self.k {
+            let last = base + self.k as usize - 1;
+            self.worst_d = d2.read(last);
+            self.worst_i = nbr.read(last);
+        }
     }
-    d2.write(base + pos, d);
-    nbr.write(base + pos, idx);
 }
 
 /// Fills the slots a query could not fill (only when `k` exceeds the sites).
@@ -106,16 +127,16 @@ pub fn brute_query<N, D>(
     N: OutBuf<u32> + ?Sized,
     D: OutBuf<u64> + ?Sized,
 {
-    let mut found = 0u32;
+    let mut best = Best::new(k, base);
     let mut j = 0usize;
     while j < n_sites as usize {
         let s = sites[j];
         if s[3] != exclude {
-            offer(dist2(q, &s), s[3], k, base, &mut found, nbr, d2);
+            best.offer(dist2(q, &s), s[3], nbr, d2);
         }
         j += 1;
     }
-    pad(found, k, base, nbr, d2);
+    pad(best.found, k, base, nbr, d2);
 }
 
 /// The distance from `q` to the nearest point outside the box of cells
@@ -150,9 +171,7 @@ fn visit_cell<N, D>(
     sorted: &[QuantPoint],
     q: [u32; 3],
     exclude: u32,
-    k: u32,
-    base: usize,
-    found: &mut u32,
+    best: &mut Best,
     nbr: &mut N,
     d2: &mut D,
 ) where
@@ -165,7 +184,7 @@ fn visit_cell<N, D>(
     while j < end {
         let s = sorted[j];
         if s[3] != exclude {
-            offer(dist2(q, &s), s[3], k, base, found, nbr, d2);
+            best.offer(dist2(q, &s), s[3], nbr, d2);
         }
         j += 1;
     }
@@ -196,7 +215,7 @@ pub fn grid_query<N, D>(
         g.n_sites
     };
     let c = cell_coords(g, q);
-    let mut found = 0u32;
+    let mut best = Best::new(k, base);
     let mut r = 0u32;
     loop {
         let z0 = sub_floor0(c[2], r);
@@ -215,7 +234,7 @@ pub fn grid_query<N, D>(
                     while x <= x1 {
                         let cell = cell_index(g, [x, y, z]);
                         visit_cell(
-                            cell, cell_start, cell_count, sorted, q, exclude, k, base, &mut found,
+                            cell, cell_start, cell_count, sorted, q, exclude, &mut best,
                             nbr, d2,
                         );
                         x += 1;
@@ -225,14 +244,14 @@ pub fn grid_query<N, D>(
                     if c[0] >= r {
                         let cell = cell_index(g, [c[0] - r, y, z]);
                         visit_cell(
-                            cell, cell_start, cell_count, sorted, q, exclude, k, base, &mut found,
+                            cell, cell_start, cell_count, sorted, q, exclude, &mut best,
                             nbr, d2,
                         );
                     }
                     if c[0] + r < g.dim_x {
                         let cell = cell_index(g, [c[0] + r, y, z]);
                         visit_cell(
-                            cell, cell_start, cell_count, sorted, q, exclude, k, base, &mut found,
+                            cell, cell_start, cell_count, sorted, q, exclude, &mut best,
                             nbr, d2,
                         );
                     }
@@ -242,15 +261,15 @@ pub fn grid_query<N, D>(
             z += 1;
         }
         let gap = ring_gap(g, q, c, r);
-        if gap == u64::MAX || found == available {
+        if gap == u64::MAX || best.found == available {
             break;
         }
-        if found == k && d2.read(base + k as usize - 1) < gap * gap {
+        if best.found == k && best.worst_d < gap * gap {
             break;
         }
         r += 1;
     }
-    pad(found, k, base, nbr, d2);
+    pad(best.found, k, base, nbr, d2);
 }
 
 /// Thread `i` of a grid k-NN job: the neighbours of query `i`.

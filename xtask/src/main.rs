@@ -10,6 +10,7 @@ commands:
   run [ARGS]        the main job (cvd knn ARGS, release build)
   test [ARGS]       the whole test suite, optimised (cargo test ARGS)
   bench knn [ARGS]  the k-NN benchmark (ARGS: --sizes, --ks, --json PATH, ...)
+  bench cvd [ARGS]  the clipped Voronoi benchmark (paper Table 1; --models-dir, --json PATH, ...)
   build             build everything, optimised
   lint              cargo fmt --check and cargo clippy -D warnings
 ";
