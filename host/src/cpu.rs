@@ -85,6 +85,41 @@ impl<T: Copy> OutBuf<T> for ScatterSlots<'_, T> {
     }
 }
 
+/// Slots read and written by many threads, each thread touching only its
+/// own disjoint range (a site query in grid order owns the `k` slots of its
+/// site). The CPU twin of a storage buffer indexed by data.
+struct DisjointSlots<'a, T> {
+    ptr: *mut T,
+    len: usize,
+    _borrow: std::marker::PhantomData<&'a mut [T]>,
+}
+
+// SAFETY: threads access disjoint indices (see the type's contract).
+unsafe impl<T: Send> Send for DisjointSlots<'_, T> {}
+unsafe impl<T: Send> Sync for DisjointSlots<'_, T> {}
+
+impl<'a, T> DisjointSlots<'a, T> {
+    fn new(data: &'a mut [T]) -> Self {
+        Self { ptr: data.as_mut_ptr(), len: data.len(), _borrow: std::marker::PhantomData }
+    }
+    fn share(&self) -> Self {
+        Self { ptr: self.ptr, len: self.len, _borrow: std::marker::PhantomData }
+    }
+}
+
+impl<T: Copy> OutBuf<T> for DisjointSlots<'_, T> {
+    fn read(&self, i: usize) -> T {
+        assert!(i < self.len, "slot {i} out of {}", self.len);
+        // SAFETY: in bounds; only this thread touches slot `i`.
+        unsafe { self.ptr.add(i).read() }
+    }
+    fn write(&mut self, i: usize, value: T) {
+        assert!(i < self.len, "slot {i} out of {}", self.len);
+        // SAFETY: in bounds; only this thread touches slot `i`.
+        unsafe { self.ptr.add(i).write(value) }
+    }
+}
+
 fn atomic_zeros(n: usize) -> Vec<AtomicU32> {
     (0..n).map(|_| AtomicU32::new(0)).collect()
 }
@@ -193,44 +228,38 @@ impl Backend for CpuBackend {
             let mut indices = vec![0u32; job.queries.len() * k];
             let mut dist2 = vec![0u64; job.queries.len() * k];
             let per_task = CHUNK * k;
-            let outputs = indices
-                .par_chunks_mut(per_task)
-                .zip(dist2.par_chunks_mut(per_task))
-                .enumerate();
             match job.method {
                 KnnMethod::Grid => {
                     let (g, t) = timed(|| build_grid(job));
                     timings.push("grid", t);
                     let (_, t) = timed(|| {
-                        outputs.for_each(|(c, (nbr, d2))| {
-                            let mut nbr = Window {
-                                start: c * per_task,
-                                data: nbr,
-                            };
-                            let mut d2 = Window {
-                                start: c * per_task,
-                                data: d2,
-                            };
-                            let first = c * CHUNK;
-                            for i in first..first + nbr.data.len() / k {
-                                knn::grid_thread(
-                                    i,
-                                    p,
-                                    &job.queries,
-                                    &g.cell_start,
-                                    &g.cell_count,
-                                    &g.sorted,
-                                    &mut nbr,
-                                    &mut d2,
-                                );
-                            }
-                        })
+                        let (cs, cc, sorted) = (&g.cell_start, &g.cell_count, &g.sorted);
+                        if p.exclude_self != 0 {
+                            // Site queries run in grid order and write their own slots.
+                            let nbr = DisjointSlots::new(&mut indices);
+                            let d2 = DisjointSlots::new(&mut dist2);
+                            (0..job.queries.len()).into_par_iter().chunks(CHUNK).for_each(|chunk| {
+                                let (mut nbr, mut d2) = (nbr.share(), d2.share());
+                                for i in chunk {
+                                    knn::grid_thread(i, p, &job.queries, cs, cc, sorted, &mut nbr, &mut d2);
+                                }
+                            });
+                        } else {
+                            indices.par_chunks_mut(per_task).zip(dist2.par_chunks_mut(per_task)).enumerate().for_each(|(c, (nbr, d2))| {
+                                let mut nbr = Window { start: c * per_task, data: nbr };
+                                let mut d2 = Window { start: c * per_task, data: d2 };
+                                let first = c * CHUNK;
+                                for i in first..first + nbr.data.len() / k {
+                                    knn::grid_thread(i, p, &job.queries, cs, cc, sorted, &mut nbr, &mut d2);
+                                }
+                            });
+                        }
                     });
                     timings.push("knn", t);
                 }
                 KnnMethod::Brute => {
                     let (_, t) = timed(|| {
-                        outputs.for_each(|(c, (nbr, d2))| {
+                        indices.par_chunks_mut(per_task).zip(dist2.par_chunks_mut(per_task)).enumerate().for_each(|(c, (nbr, d2))| {
                             let mut nbr = Window {
                                 start: c * per_task,
                                 data: nbr,

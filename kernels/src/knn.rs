@@ -272,7 +272,10 @@ pub fn grid_query<N, D>(
     pad(best.found, k, base, nbr, d2);
 }
 
-/// Thread `i` of a grid k-NN job: the neighbours of query `i`.
+/// Thread `i` of a grid k-NN job. A site job (`exclude_self`) takes its
+/// queries in grid order — thread `i` answers `sorted[i]`, writing the
+/// slots of that site's own index — so neighbouring threads search the same
+/// cells; a point job answers query `i`.
 #[inline]
 pub fn grid_thread<N, D>(
     i: usize,
@@ -290,21 +293,14 @@ pub fn grid_thread<N, D>(
     if i >= p.n_queries as usize {
         return;
     }
-    let q = queries[i];
-    let exclude = if p.exclude_self != 0 { q[3] } else { NO_SITE };
-    let base = i * p.k as usize;
-    grid_query(
-        &p.grid,
-        cell_start,
-        cell_count,
-        sorted,
-        [q[0], q[1], q[2]],
-        exclude,
-        p.k,
-        base,
-        nbr,
-        d2,
-    );
+    let (q, exclude, slot) = if p.exclude_self != 0 {
+        let q = sorted[i];
+        (q, q[3], q[3] as usize)
+    } else {
+        (queries[i], NO_SITE, i)
+    };
+    let base = slot * p.k as usize;
+    grid_query(&p.grid, cell_start, cell_count, sorted, [q[0], q[1], q[2]], exclude, p.k, base, nbr, d2);
 }
 
 /// Thread `i` of a brute-force k-NN job: the neighbours of query `i`.
