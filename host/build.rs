@@ -5,9 +5,7 @@ use spirv_builder::{Capability, SpirvBuilder};
 use std::path::PathBuf;
 
 fn main() {
-    let kernels = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("..")
-        .join("kernels");
+    let kernels = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..").join("kernels");
     let mut builder = SpirvBuilder::new(&kernels, "spirv-unknown-vulkan1.2")
         .capability(Capability::Int64)
         .capability(Capability::Int64Atomics)

@@ -23,13 +23,7 @@ struct Options {
 }
 
 fn parse_list(s: &str) -> Vec<usize> {
-    s.split(',')
-        .map(|x| {
-            x.trim()
-                .parse()
-                .unwrap_or_else(|_| panic!("not a number: {x}"))
-        })
-        .collect()
+    s.split(',').map(|x| x.trim().parse().unwrap_or_else(|_| panic!("not a number: {x}"))).collect()
 }
 
 fn options() -> Options {
@@ -87,17 +81,10 @@ fn best_of<T>(repeat: usize, mut f: impl FnMut() -> (T, f64)) -> (T, f64) {
 fn main() {
     let o = options();
     let cpu = CpuBackend::new(o.threads).expect("CPU backend");
-    let vulkan = match VulkanBackend::new(&VulkanOptions {
-        device: o.device.clone(),
-        validation: false,
-    }) {
+    let vulkan = match VulkanBackend::new(&VulkanOptions { device: o.device.clone(), validation: false }) {
         Ok(v) => {
             let compile = v.warm_up().expect("pipelines");
-            println!(
-                "Vulkan device: {} (pipeline creation, paid once: {:.2} s)",
-                v.device().name,
-                compile
-            );
+            println!("Vulkan device: {} (pipeline creation, paid once: {:.2} s)", v.device().name, compile);
             Some(v)
         }
         Err(e) => {
@@ -105,15 +92,9 @@ fn main() {
             None
         }
     };
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(cpu.threads())
-        .build()
-        .expect("pool");
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(cpu.threads()).build().expect("pool");
     println!("CPU threads: {}", cpu.threads());
-    println!(
-        "{:<8} {:<34} {:>9} {:>4} {:>11} {:>13}  phases",
-        "method", "backend", "n", "k", "ms", "queries/s"
-    );
+    println!("{:<8} {:<34} {:>9} {:>4} {:>11} {:>13}  phases", "method", "backend", "n", "k", "ms", "queries/s");
     let mut rows = Vec::new();
     let mut print = |row: Row| {
         println!(
@@ -137,8 +118,7 @@ fn main() {
         let sites = points::uniform(n, 42);
         for &k in &o.ks {
             let grid_job = KnnJob::sites(&sites, k, KnnMethod::Grid).expect("job");
-            let (cpu_grid, t) =
-                best_of(o.repeat, || timed(|| grid_job.run(&cpu).expect("cpu grid")));
+            let (cpu_grid, t) = best_of(o.repeat, || timed(|| grid_job.run(&cpu).expect("cpu grid")));
             let row = |method: &str, b: &str, s: f64, phases: String, agrees| Row {
                 method: method.into(),
                 backend: b.into(),
@@ -149,71 +129,37 @@ fn main() {
                 phases,
                 agrees_with_cpu_grid: agrees,
             };
-            print(row(
-                "grid",
-                &cpu.name(),
-                t,
-                cpu_grid.timings.to_string(),
-                None,
-            ));
+            print(row("grid", &cpu.name(), t, cpu_grid.timings.to_string(), None));
 
             // kiddo: build the tree and query every site for k + 1 (itself included).
             let (_, t) = best_of(o.repeat, || {
                 timed(|| {
                     pool.install(|| {
-                        let tree =
-                            ImmutableKdTree::<f32, 3>::new_from_slice(&sites).expect("kiddo tree");
+                        let tree = ImmutableKdTree::<f32, 3>::new_from_slice(&sites).expect("kiddo tree");
                         let kk = NonZeroUsize::new(k + 1).expect("k + 1 > 0");
-                        tree.query_batch(&sites)
-                            .nearest_n::<SquaredEuclidean<f32>>(kk)
-                            .execute()
+                        tree.query_batch(&sites).nearest_n::<SquaredEuclidean<f32>>(kk).execute()
                     })
                 })
             });
-            print(row(
-                "kd-tree",
-                &format!("kiddo ({} threads)", cpu.threads()),
-                t,
-                String::new(),
-                None,
-            ));
+            print(row("kd-tree", &format!("kiddo ({} threads)", cpu.threads()), t, String::new(), None));
 
             let brute_job = KnnJob::sites(&sites, k, KnnMethod::Brute).expect("job");
             if n <= o.brute_max {
                 let (nn, t) = timed(|| brute_job.run(&cpu).expect("cpu brute"));
-                print(row(
-                    "brute",
-                    &cpu.name(),
-                    t,
-                    nn.timings.to_string(),
-                    Some(nn.indices == cpu_grid.indices),
-                ));
+                print(row("brute", &cpu.name(), t, nn.timings.to_string(), Some(nn.indices == cpu_grid.indices)));
             }
             if let Some(v) = &vulkan {
                 let (nn, _) = best_of(o.repeat, || {
                     let nn = grid_job.run(v).expect("vulkan grid");
-                    let t =
-                        nn.timings.total() - nn.timings.get("upload") - nn.timings.get("download");
+                    let t = nn.timings.total() - nn.timings.get("upload") - nn.timings.get("download");
                     (nn, t)
                 });
                 let t = nn.timings.total() - nn.timings.get("upload") - nn.timings.get("download");
-                print(row(
-                    "grid",
-                    &v.name(),
-                    t,
-                    nn.timings.to_string(),
-                    Some(nn.indices == cpu_grid.indices),
-                ));
+                print(row("grid", &v.name(), t, nn.timings.to_string(), Some(nn.indices == cpu_grid.indices)));
                 if n <= o.brute_max {
                     let nn = brute_job.run(v).expect("vulkan brute");
                     let t = nn.timings.get("knn");
-                    print(row(
-                        "brute",
-                        &v.name(),
-                        t,
-                        nn.timings.to_string(),
-                        Some(nn.indices == cpu_grid.indices),
-                    ));
+                    print(row("brute", &v.name(), t, nn.timings.to_string(), Some(nn.indices == cpu_grid.indices)));
                 }
             }
         }

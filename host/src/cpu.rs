@@ -4,8 +4,8 @@
 use crate::backend::Backend;
 use crate::error::{Error, Result};
 use crate::knn::{KnnJob, KnnMethod, Neighbors};
-use crate::voronoi::{ClipJob, ClipOutput, Strategy};
 use crate::timing::{timed, Timings};
+use crate::voronoi::{ClipJob, ClipOutput, Strategy};
 use cvd_kernels::abi::{counter, QuantPoint, ACCUM_PER_SITE};
 use cvd_kernels::buffers::{DeviceSums, OutBuf, Window};
 use cvd_kernels::clip::{self, CELL_RECORDS};
@@ -30,9 +30,7 @@ impl CpuBackend {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads.unwrap_or(0))
             .build()
-            .map_err(|e| {
-                Error::InvalidInput(format!("cannot start {threads:?} CPU threads: {e}"))
-            })?;
+            .map_err(|e| Error::InvalidInput(format!("cannot start {threads:?} CPU threads: {e}")))?;
         Ok(Self { pool })
     }
 
@@ -59,18 +57,10 @@ unsafe impl<T: Send> Sync for ScatterSlots<'_, T> {}
 
 impl<'a, T> ScatterSlots<'a, T> {
     fn new(data: &'a mut [T]) -> Self {
-        Self {
-            ptr: data.as_mut_ptr(),
-            len: data.len(),
-            _borrow: std::marker::PhantomData,
-        }
+        Self { ptr: data.as_mut_ptr(), len: data.len(), _borrow: std::marker::PhantomData }
     }
     fn share(&self) -> Self {
-        Self {
-            ptr: self.ptr,
-            len: self.len,
-            _borrow: std::marker::PhantomData,
-        }
+        Self { ptr: self.ptr, len: self.len, _borrow: std::marker::PhantomData }
     }
 }
 
@@ -143,48 +133,31 @@ fn build_grid(job: &KnnJob) -> CpuGrid {
 
     let mut site_cell = vec![0u32; n];
     let counts = atomic_zeros(n_cells);
-    site_cell
-        .par_chunks_mut(CHUNK)
-        .enumerate()
-        .for_each(|(c, data)| {
-            let start = c * CHUNK;
-            let mut out = Window { start, data };
-            let mut counters: &[AtomicU32] = &counts;
-            for i in start..start + out.data.len() {
-                grid::count_site(i, g, sites, &mut out, &mut counters);
-            }
-        });
+    site_cell.par_chunks_mut(CHUNK).enumerate().for_each(|(c, data)| {
+        let start = c * CHUNK;
+        let mut out = Window { start, data };
+        let mut counters: &[AtomicU32] = &counts;
+        for i in start..start + out.data.len() {
+            grid::count_site(i, g, sites, &mut out, &mut counters);
+        }
+    });
     let cell_count = into_plain(counts);
 
     let n_blocks = scan::block_count(n_cells);
     let mut cell_start = vec![0u32; n_cells];
     let mut block_sums = vec![0u32; n_blocks];
-    cell_start
-        .par_chunks_mut(scan::SCAN_BLOCK)
-        .zip(block_sums.par_chunks_mut(1))
-        .enumerate()
-        .for_each(|(b, (data, sum))| {
-            let mut out = Window {
-                start: b * scan::SCAN_BLOCK,
-                data,
-            };
-            let mut sums = Window {
-                start: b,
-                data: sum,
-            };
+    cell_start.par_chunks_mut(scan::SCAN_BLOCK).zip(block_sums.par_chunks_mut(1)).enumerate().for_each(
+        |(b, (data, sum))| {
+            let mut out = Window { start: b * scan::SCAN_BLOCK, data };
+            let mut sums = Window { start: b, data: sum };
             scan::scan_block(b, n_cells, &cell_count, &mut out, &mut sums);
-        });
+        },
+    );
     scan::scan_block_sums(n_blocks, block_sums.as_mut_slice());
-    cell_start
-        .par_chunks_mut(scan::SCAN_BLOCK)
-        .enumerate()
-        .for_each(|(b, data)| {
-            let mut out = Window {
-                start: b * scan::SCAN_BLOCK,
-                data,
-            };
-            scan::add_block_offset(b, n_cells, &mut out, &block_sums);
-        });
+    cell_start.par_chunks_mut(scan::SCAN_BLOCK).enumerate().for_each(|(b, data)| {
+        let mut out = Window { start: b * scan::SCAN_BLOCK, data };
+        scan::add_block_offset(b, n_cells, &mut out, &block_sums);
+    });
 
     let mut sorted = vec![[0u32; 4]; n];
     let cursor = atomic_zeros(n_cells);
@@ -193,26 +166,11 @@ fn build_grid(job: &KnnJob) -> CpuGrid {
         let mut out = slots.share();
         let mut counters: &[AtomicU32] = &cursor;
         for i in chunk {
-            grid::scatter_site(
-                i,
-                g,
-                sites,
-                &site_cell,
-                &cell_start,
-                &mut counters,
-                &mut out,
-            );
+            grid::scatter_site(i, g, sites, &site_cell, &cell_start, &mut counters, &mut out);
         }
     });
-    debug_assert!(cursor
-        .iter()
-        .zip(&cell_count)
-        .all(|(c, &n)| c.load(Ordering::Relaxed) == n));
-    CpuGrid {
-        cell_start,
-        cell_count,
-        sorted,
-    }
+    debug_assert!(cursor.iter().zip(&cell_count).all(|(c, &n)| c.load(Ordering::Relaxed) == n));
+    CpuGrid { cell_start, cell_count, sorted }
 }
 
 impl Backend for CpuBackend {
@@ -245,51 +203,37 @@ impl Backend for CpuBackend {
                                 }
                             });
                         } else {
-                            indices.par_chunks_mut(per_task).zip(dist2.par_chunks_mut(per_task)).enumerate().for_each(|(c, (nbr, d2))| {
-                                let mut nbr = Window { start: c * per_task, data: nbr };
-                                let mut d2 = Window { start: c * per_task, data: d2 };
-                                let first = c * CHUNK;
-                                for i in first..first + nbr.data.len() / k {
-                                    knn::grid_thread(i, p, &job.queries, cs, cc, sorted, &mut nbr, &mut d2);
-                                }
-                            });
+                            indices.par_chunks_mut(per_task).zip(dist2.par_chunks_mut(per_task)).enumerate().for_each(
+                                |(c, (nbr, d2))| {
+                                    let mut nbr = Window { start: c * per_task, data: nbr };
+                                    let mut d2 = Window { start: c * per_task, data: d2 };
+                                    let first = c * CHUNK;
+                                    for i in first..first + nbr.data.len() / k {
+                                        knn::grid_thread(i, p, &job.queries, cs, cc, sorted, &mut nbr, &mut d2);
+                                    }
+                                },
+                            );
                         }
                     });
                     timings.push("knn", t);
                 }
                 KnnMethod::Brute => {
                     let (_, t) = timed(|| {
-                        indices.par_chunks_mut(per_task).zip(dist2.par_chunks_mut(per_task)).enumerate().for_each(|(c, (nbr, d2))| {
-                            let mut nbr = Window {
-                                start: c * per_task,
-                                data: nbr,
-                            };
-                            let mut d2 = Window {
-                                start: c * per_task,
-                                data: d2,
-                            };
-                            let first = c * CHUNK;
-                            for i in first..first + nbr.data.len() / k {
-                                knn::brute_thread(
-                                    i,
-                                    p,
-                                    &job.queries,
-                                    &job.sites,
-                                    &mut nbr,
-                                    &mut d2,
-                                );
-                            }
-                        })
+                        indices.par_chunks_mut(per_task).zip(dist2.par_chunks_mut(per_task)).enumerate().for_each(
+                            |(c, (nbr, d2))| {
+                                let mut nbr = Window { start: c * per_task, data: nbr };
+                                let mut d2 = Window { start: c * per_task, data: d2 };
+                                let first = c * CHUNK;
+                                for i in first..first + nbr.data.len() / k {
+                                    knn::brute_thread(i, p, &job.queries, &job.sites, &mut nbr, &mut d2);
+                                }
+                            },
+                        )
                     });
                     timings.push("knn", t);
                 }
             }
-            Ok(Neighbors {
-                k,
-                indices,
-                dist2,
-                timings,
-            })
+            Ok(Neighbors { k, indices, dist2, timings })
         })
     }
     fn clip(&self, job: &ClipJob) -> Result<ClipOutput> {

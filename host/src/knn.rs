@@ -62,21 +62,9 @@ impl KnnJob {
     }
 
     /// The `k` nearest sites of every query point.
-    pub fn points(
-        sites: &[[f32; 3]],
-        queries: &[[f32; 3]],
-        k: usize,
-        method: KnnMethod,
-    ) -> Result<Self> {
+    pub fn points(sites: &[[f32; 3]], queries: &[[f32; 3]], k: usize, method: KnnMethod) -> Result<Self> {
         let quantizer = Quantizer::fit(&[("site", sites), ("query point", queries)])?;
-        Self::build(
-            quantizer.quantize_all(sites),
-            quantizer.quantize_all(queries),
-            false,
-            k,
-            method,
-            quantizer,
-        )
+        Self::build(quantizer.quantize_all(sites), quantizer.quantize_all(queries), false, k, method, quantizer)
     }
 
     fn build(
@@ -98,17 +86,9 @@ impl KnnJob {
                 queries.len()
             )));
         }
-        let available = if exclude_self {
-            sites.len().saturating_sub(1)
-        } else {
-            sites.len()
-        };
+        let available = if exclude_self { sites.len().saturating_sub(1) } else { sites.len() };
         let k = k.min(available);
-        if queries
-            .len()
-            .checked_mul(k)
-            .is_none_or(|n| n > u32::MAX as usize)
-        {
+        if queries.len().checked_mul(k).is_none_or(|n| n > u32::MAX as usize) {
             return Err(Error::InvalidInput(format!(
                 "{} queries x k = {k} neighbours do not fit one buffer",
                 queries.len()
@@ -121,22 +101,13 @@ impl KnnJob {
             exclude_self: exclude_self as u32,
             _pad: 0,
         };
-        Ok(Self {
-            sites,
-            queries,
-            params,
-            method,
-            quantizer,
-        })
+        Ok(Self { sites, queries, params, method, quantizer })
     }
 
     /// Runs the job on a backend.
     pub fn run(&self, backend: &dyn Backend) -> Result<Neighbors> {
         if self.params.k == 0 || self.queries.is_empty() {
-            return Ok(Neighbors {
-                k: self.params.k as usize,
-                ..Default::default()
-            });
+            return Ok(Neighbors { k: self.params.k as usize, ..Default::default() });
         }
         backend.knn(self)
     }
@@ -153,10 +124,7 @@ pub fn grid_for(sites: &[QuantPoint]) -> GridParams {
         }
     }
     let volume = ext.iter().map(|&e| e as f64).product::<f64>();
-    let mut cell = (volume * SITES_PER_CELL / n)
-        .cbrt()
-        .ceil()
-        .clamp(1.0, QUANT_MAX as f64) as u64;
+    let mut cell = (volume * SITES_PER_CELL / n).cbrt().ceil().clamp(1.0, QUANT_MAX as f64) as u64;
     let dims = |cell: u64| ext.map(|e| e.div_ceil(cell));
     // Flat or thin point sets make the volume estimate overshoot the cell
     // count: widen the cells until the grid is no bigger than the site count.

@@ -7,11 +7,7 @@ use cvd::{points, ClippedVoronoi, KnnJob, KnnMethod, Strategy, TetMesh};
 use std::process::ExitCode;
 
 #[derive(Parser)]
-#[command(
-    name = "cvd",
-    version,
-    about = "Clipped Voronoi diagrams on Vulkan GPUs and CPU cores"
-)]
+#[command(name = "cvd", version, about = "Clipped Voronoi diagrams on Vulkan GPUs and CPU cores")]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -110,10 +106,7 @@ impl BackendArgs {
         BackendOptions {
             kind: self.backend,
             threads: self.threads,
-            vulkan: VulkanOptions {
-                device: self.device.clone(),
-                validation: self.validation,
-            },
+            vulkan: VulkanOptions { device: self.device.clone(), validation: self.validation },
         }
     }
 }
@@ -140,31 +133,16 @@ fn knn(args: &KnnArgs) -> cvd::Result<()> {
     let backend = backend::open(&args.backend.options())?;
     let sites = points::uniform(args.sites, args.seed);
     let job = KnnJob::sites(&sites, args.k, args.method)?;
-    println!(
-        "k-NN of {} uniform sites, k = {}, {:?}, on {}",
-        args.sites,
-        job.params.k,
-        args.method,
-        backend.name()
-    );
+    println!("k-NN of {} uniform sites, k = {}, {:?}, on {}", args.sites, job.params.k, args.method, backend.name());
     let first = job.run(backend.as_ref())?;
     let again = job.run(backend.as_ref())?;
     println!("first run: {}", first.timings);
-    println!(
-        "second run: {} (total {:.3} ms)",
-        again.timings,
-        again.timings.total() * 1e3
-    );
+    println!("second run: {} (total {:.3} ms)", again.timings, again.timings.total() * 1e3);
     let reference = job.run(&cvd::cpu::CpuBackend::new(args.backend.threads)?)?;
     let same = reference.indices == again.indices && reference.dist2 == again.dist2;
-    println!(
-        "same neighbours as the CPU backend: {}",
-        if same { "yes" } else { "NO" }
-    );
+    println!("same neighbours as the CPU backend: {}", if same { "yes" } else { "NO" });
     if !same {
-        return Err(cvd::Error::InvalidInput(
-            "the backend disagrees with the CPU backend".into(),
-        ));
+        return Err(cvd::Error::InvalidInput("the backend disagrees with the CPU backend".into()));
     }
     Ok(())
 }

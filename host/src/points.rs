@@ -41,18 +41,14 @@ impl Rng {
 /// `n` points uniform in the unit cube.
 pub fn uniform(n: usize, seed: u64) -> Vec<[f32; 3]> {
     let mut rng = Rng::new(seed);
-    (0..n)
-        .map(|_| [rng.unit() as f32, rng.unit() as f32, rng.unit() as f32])
-        .collect()
+    (0..n).map(|_| [rng.unit() as f32, rng.unit() as f32, rng.unit() as f32]).collect()
 }
 
 /// `n` points in `blobs` tight Gaussian blobs (standard deviation `sigma`)
 /// centred uniformly in the unit cube.
 pub fn clustered(n: usize, blobs: usize, sigma: f64, seed: u64) -> Vec<[f32; 3]> {
     let mut rng = Rng::new(seed);
-    let centres: Vec<[f64; 3]> = (0..blobs.max(1))
-        .map(|_| [rng.unit(), rng.unit(), rng.unit()])
-        .collect();
+    let centres: Vec<[f64; 3]> = (0..blobs.max(1)).map(|_| [rng.unit(), rng.unit(), rng.unit()]).collect();
     (0..n)
         .map(|_| {
             let c = centres[rng.below(centres.len())];
@@ -66,9 +62,7 @@ pub fn clustered(n: usize, blobs: usize, sigma: f64, seed: u64) -> Vec<[f32; 3]>
 pub fn lattice(n: usize, side: usize, seed: u64) -> Vec<[f32; 3]> {
     let mut rng = Rng::new(seed);
     let side = side.max(1);
-    (0..n)
-        .map(|_| [0; 3].map(|_| rng.below(side) as f32))
-        .collect()
+    (0..n).map(|_| [0; 3].map(|_| rng.below(side) as f32)).collect()
 }
 
 /// `n` points uniform inside a tet mesh: a tet drawn with probability

@@ -26,9 +26,7 @@ impl Quantizer {
         for (name, points) in sets {
             for (i, p) in points.iter().enumerate() {
                 if !p.iter().all(|c| c.is_finite()) {
-                    return Err(Error::InvalidInput(format!(
-                        "{name} {i} has a non-finite coordinate: {p:?}"
-                    )));
+                    return Err(Error::InvalidInput(format!("{name} {i} has a non-finite coordinate: {p:?}")));
                 }
                 for a in 0..3 {
                     lo[a] = lo[a].min(p[a] as f64);
@@ -37,39 +35,24 @@ impl Quantizer {
             }
         }
         if lo[0] > hi[0] {
-            return Ok(Self {
-                origin: [0.0; 3],
-                scale: 1.0,
-            });
+            return Ok(Self { origin: [0.0; 3], scale: 1.0 });
         }
         let extent = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
         // A power-of-two scale keeps points on a dyadic lattice exactly on
         // the integer lattice, so their distance ties stay ties.
-        let scale = if extent > 0.0 {
-            (QUANT_MAX as f64 / extent).log2().floor().exp2()
-        } else {
-            1.0
-        };
+        let scale = if extent > 0.0 { (QUANT_MAX as f64 / extent).log2().floor().exp2() } else { 1.0 };
         Ok(Self { origin: lo, scale })
     }
 
     /// The quantized point for `p`, tagged with `index`.
     pub fn quantize(&self, p: [f32; 3], index: u32) -> QuantPoint {
-        let q = |a: usize| {
-            ((p[a] as f64 - self.origin[a]) * self.scale)
-                .round()
-                .clamp(0.0, QUANT_MAX as f64) as u32
-        };
+        let q = |a: usize| ((p[a] as f64 - self.origin[a]) * self.scale).round().clamp(0.0, QUANT_MAX as f64) as u32;
         [q(0), q(1), q(2), index]
     }
 
     /// Quantizes a whole set, tagging each point with its position.
     pub fn quantize_all(&self, points: &[[f32; 3]]) -> Vec<QuantPoint> {
-        points
-            .iter()
-            .enumerate()
-            .map(|(i, &p)| self.quantize(p, i as u32))
-            .collect()
+        points.iter().enumerate().map(|(i, &p)| self.quantize(p, i as u32)).collect()
     }
 
     /// A quantized squared distance in the points' own units.

@@ -17,11 +17,7 @@ impl Timings {
 
     /// The time of one phase (0 if absent).
     pub fn get(&self, phase: &str) -> f64 {
-        self.phases
-            .iter()
-            .filter(|(p, _)| p == phase)
-            .map(|(_, s)| s)
-            .sum()
+        self.phases.iter().filter(|(p, _)| p == phase).map(|(_, s)| s).sum()
     }
 
     /// Sum of all phases.

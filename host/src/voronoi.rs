@@ -274,7 +274,7 @@ impl Frame {
         Self { origin: lo, scale: if scale > 0.0 { scale } else { 1.0 } }
     }
 
-    fn to_local(&self, p: [f32; 3]) -> [f32; 3] {
+    fn to_local(self, p: [f32; 3]) -> [f32; 3] {
         [0, 1, 2].map(|a| ((p[a] as f64 - self.origin[a]) / self.scale) as f32)
     }
 }

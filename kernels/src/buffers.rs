@@ -63,11 +63,10 @@ impl AtomicCounters for DeviceCounters<'_> {
             use spirv_std::memory::{Scope, Semantics};
             // SAFETY: an atomic add on a storage buffer element.
             unsafe {
-                spirv_std::arch::atomic_i_add::<
-                    u32,
-                    { Scope::Device as u32 },
-                    { Semantics::NONE.bits() },
-                >(&mut self.0[i], value)
+                spirv_std::arch::atomic_i_add::<u32, { Scope::Device as u32 }, { Semantics::NONE.bits() }>(
+                    &mut self.0[i],
+                    value,
+                )
             }
         }
         #[cfg(not(target_arch = "spirv"))]

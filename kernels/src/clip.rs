@@ -19,7 +19,6 @@ use spirv_std::glam::{Vec3, Vec4};
 /// (position in `xyz`, packed plane triple in the bits of `w`).
 pub const CELL_RECORDS: usize = 1 + CELL_PLANES + CELL_VERTS;
 
-
 /// Status of a stored cell (header `z`).
 pub mod cell_status {
     /// The security radius was reached (or every site was used).
@@ -49,7 +48,11 @@ struct Clipped {
 #[inline]
 fn clip_by_bisectors<const P: usize, const V: usize>(
     poly: &mut Polyhedron<P, V>,
-    i: usize, p: &ClipParams, sites: &[[f32; 4]], site_nbrs: &[u32]) -> Clipped {
+    i: usize,
+    p: &ClipParams,
+    sites: &[[f32; 4]],
+    site_nbrs: &[u32],
+) -> Clipped {
     let xi = xyz(sites[i]);
     let k = p.k_site as usize;
     let mut out = Clipped { clips: 0, security_missed: true, overflow: false, broken: false };

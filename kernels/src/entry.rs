@@ -22,13 +22,7 @@ pub fn grid_count(
     #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] cell_count: &mut [u32],
 ) {
     let i = thread_index(id.x, id.y, groups.x);
-    grid::count_site(
-        i,
-        &p.grid,
-        sites,
-        site_cell,
-        &mut DeviceCounters(cell_count),
-    );
+    grid::count_site(i, &p.grid, sites, site_cell, &mut DeviceCounters(cell_count));
 }
 
 /// Prefix sum, step 1: scans each block of cell counts.
@@ -42,13 +36,7 @@ pub fn scan_blocks(
     #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] block_sums: &mut [u32],
 ) {
     let b = thread_index(id.x, id.y, groups.x);
-    scan::scan_block(
-        b,
-        p.grid.n_cells as usize,
-        cell_count,
-        cell_start,
-        block_sums,
-    );
+    scan::scan_block(b, p.grid.n_cells as usize, cell_count, cell_start, block_sums);
 }
 
 /// Prefix sum, step 2: one thread scans the block totals.
@@ -89,15 +77,7 @@ pub fn grid_scatter(
     #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] sorted: &mut [QuantPoint],
 ) {
     let i = thread_index(id.x, id.y, groups.x);
-    grid::scatter_site(
-        i,
-        &p.grid,
-        sites,
-        site_cell,
-        cell_start,
-        &mut DeviceCounters(cursor),
-        sorted,
-    );
+    grid::scatter_site(i, &p.grid, sites, site_cell, cell_start, &mut DeviceCounters(cursor), sorted);
 }
 
 /// k nearest sites of each query by grid ring search.
@@ -114,16 +94,7 @@ pub fn knn_grid(
     #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] neighbor_d2: &mut [u64],
 ) {
     let i = thread_index(id.x, id.y, groups.x);
-    knn::grid_thread(
-        i,
-        p,
-        queries,
-        cell_start,
-        cell_count,
-        sorted,
-        neighbors,
-        neighbor_d2,
-    );
+    knn::grid_thread(i, p, queries, cell_start, cell_count, sorted, neighbors, neighbor_d2);
 }
 
 /// k nearest sites of each query by brute force.

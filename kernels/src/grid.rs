@@ -25,13 +25,8 @@ pub fn cell_index(g: &GridParams, c: [u32; 3]) -> usize {
 
 /// Thread `i`: records the cell of site `i` and counts it in `counts`.
 #[inline]
-pub fn count_site<C, A>(
-    i: usize,
-    g: &GridParams,
-    sites: &[QuantPoint],
-    site_cell: &mut C,
-    counts: &mut A,
-) where
+pub fn count_site<C, A>(i: usize, g: &GridParams, sites: &[QuantPoint], site_cell: &mut C, counts: &mut A)
+where
     C: OutBuf<u32> + ?Sized,
     A: AtomicCounters,
 {

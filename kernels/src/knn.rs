@@ -209,11 +209,7 @@ pub fn grid_query<N, D>(
     N: OutBuf<u32> + ?Sized,
     D: OutBuf<u64> + ?Sized,
 {
-    let available = if exclude < g.n_sites {
-        g.n_sites - 1
-    } else {
-        g.n_sites
-    };
+    let available = if exclude < g.n_sites { g.n_sites - 1 } else { g.n_sites };
     let c = cell_coords(g, q);
     let mut best = Best::new(k, base);
     let mut r = 0u32;
@@ -233,27 +229,18 @@ pub fn grid_query<N, D>(
                     let mut x = x0;
                     while x <= x1 {
                         let cell = cell_index(g, [x, y, z]);
-                        visit_cell(
-                            cell, cell_start, cell_count, sorted, q, exclude, &mut best,
-                            nbr, d2,
-                        );
+                        visit_cell(cell, cell_start, cell_count, sorted, q, exclude, &mut best, nbr, d2);
                         x += 1;
                     }
                 } else {
                     // Inside the shell's y-z extent only the two x ends are new.
                     if c[0] >= r {
                         let cell = cell_index(g, [c[0] - r, y, z]);
-                        visit_cell(
-                            cell, cell_start, cell_count, sorted, q, exclude, &mut best,
-                            nbr, d2,
-                        );
+                        visit_cell(cell, cell_start, cell_count, sorted, q, exclude, &mut best, nbr, d2);
                     }
                     if c[0] + r < g.dim_x {
                         let cell = cell_index(g, [c[0] + r, y, z]);
-                        visit_cell(
-                            cell, cell_start, cell_count, sorted, q, exclude, &mut best,
-                            nbr, d2,
-                        );
+                        visit_cell(cell, cell_start, cell_count, sorted, q, exclude, &mut best, nbr, d2);
                     }
                 }
                 y += 1;
@@ -322,14 +309,5 @@ pub fn brute_thread<N, D>(
     let q = queries[i];
     let exclude = if p.exclude_self != 0 { q[3] } else { NO_SITE };
     let base = i * p.k as usize;
-    brute_query(
-        sites,
-        p.grid.n_sites,
-        [q[0], q[1], q[2]],
-        exclude,
-        p.k,
-        base,
-        nbr,
-        d2,
-    );
+    brute_query(sites, p.grid.n_sites, [q[0], q[1], q[2]], exclude, p.k, base, nbr, d2);
 }

@@ -106,13 +106,7 @@ fn contains(t: u32, x: u32) -> bool {
 impl<const P: usize, const V: usize> Polyhedron<P, V> {
     /// An empty polyhedron (no vertices).
     pub fn empty() -> Self {
-        Self {
-            planes: [Vec4::ZERO; P],
-            verts: [Vec3::ZERO; V],
-            tris: [0; V],
-            n_planes: 0,
-            n_verts: 0,
-        }
+        Self { planes: [Vec4::ZERO; P], verts: [Vec3::ZERO; V], tris: [0; V], n_planes: 0, n_verts: 0 }
     }
 
     /// Whether nothing is left.
@@ -395,7 +389,8 @@ mod tests {
 
     #[test]
     fn tet_moments_either_orientation() {
-        let v = [Vec3::new(0.1, 0.2, 0.3), Vec3::new(1.0, 0.0, 0.0), Vec3::new(0.0, 1.0, 0.0), Vec3::new(0.0, 0.0, 1.0)];
+        let v =
+            [Vec3::new(0.1, 0.2, 0.3), Vec3::new(1.0, 0.0, 0.0), Vec3::new(0.0, 1.0, 0.0), Vec3::new(0.0, 0.0, 1.0)];
         let vol = ((v[1] - v[0]).cross(v[2] - v[0]).dot(v[3] - v[0]) / 6.0).abs();
         let centroid = (v[0] + v[1] + v[2] + v[3]) / 4.0;
         for order in [[0, 1, 2, 3], [1, 0, 2, 3]] {

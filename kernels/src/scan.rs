@@ -26,11 +26,7 @@ where
     if lo >= n {
         return;
     }
-    let hi = if lo + SCAN_BLOCK < n {
-        lo + SCAN_BLOCK
-    } else {
-        n
-    };
+    let hi = if lo + SCAN_BLOCK < n { lo + SCAN_BLOCK } else { n };
     let mut acc = 0u32;
     let mut i = lo;
     while i < hi {
@@ -67,11 +63,7 @@ where
     if lo >= n || b == 0 {
         return;
     }
-    let hi = if lo + SCAN_BLOCK < n {
-        lo + SCAN_BLOCK
-    } else {
-        n
-    };
+    let hi = if lo + SCAN_BLOCK < n { lo + SCAN_BLOCK } else { n };
     let offset = block_offsets[b];
     let mut i = lo;
     while i < hi {

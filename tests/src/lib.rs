@@ -13,10 +13,7 @@ use std::sync::OnceLock;
 pub fn vulkan() -> Option<&'static VulkanBackend> {
     static BACKEND: OnceLock<Result<VulkanBackend, String>> = OnceLock::new();
     let backend = BACKEND.get_or_init(|| {
-        let options = VulkanOptions {
-            device: std::env::var("CVD_TEST_DEVICE").ok(),
-            validation: true,
-        };
+        let options = VulkanOptions { device: std::env::var("CVD_TEST_DEVICE").ok(), validation: true };
         VulkanBackend::new(&options).map_err(|e| e.to_string())
     });
     match backend {
@@ -33,11 +30,7 @@ pub fn vulkan() -> Option<&'static VulkanBackend> {
 
 /// Fails the test if the validation layer has reported any error so far.
 pub fn assert_no_validation_errors() {
-    assert_eq!(
-        validation_errors(),
-        0,
-        "the Vulkan validation layer reported errors (see stderr)"
-    );
+    assert_eq!(validation_errors(), 0, "the Vulkan validation layer reported errors (see stderr)");
 }
 
 /// The k nearest sites of every query by sorting all distances: squared

@@ -44,20 +44,10 @@ fn check_all(job_for: impl Fn(KnnMethod) -> KnnJob) {
     for method in [KnnMethod::Brute, KnnMethod::Grid] {
         let job = job_for(method);
         for b in &backends {
-            let got = job
-                .run(*b)
-                .unwrap_or_else(|e| panic!("{} {method:?}: {e}", b.name()));
+            let got = job.run(*b).unwrap_or_else(|e| panic!("{} {method:?}: {e}", b.name()));
             assert_eq!(got.k, job.params.k as usize);
-            assert!(
-                got.indices == reference.0,
-                "{} {method:?}: neighbour indices differ from the reference",
-                b.name()
-            );
-            assert!(
-                got.dist2 == reference.1,
-                "{} {method:?}: distances differ from the reference",
-                b.name()
-            );
+            assert!(got.indices == reference.0, "{} {method:?}: neighbour indices differ from the reference", b.name());
+            assert!(got.dist2 == reference.1, "{} {method:?}: distances differ from the reference", b.name());
         }
     }
     if vk.is_some() {
@@ -66,12 +56,7 @@ fn check_all(job_for: impl Fn(KnnMethod) -> KnnJob) {
 }
 
 fn layout() -> impl Strategy<Value = Layout> {
-    prop_oneof![
-        Just(Layout::Uniform),
-        Just(Layout::Clustered),
-        Just(Layout::Duplicates),
-        Just(Layout::Lattice)
-    ]
+    prop_oneof![Just(Layout::Uniform), Just(Layout::Clustered), Just(Layout::Duplicates), Just(Layout::Lattice)]
 }
 
 fn size() -> impl Strategy<Value = usize> {
@@ -101,10 +86,7 @@ fn large_k_returns_every_other_site() {
     let sites = points::uniform(300, 7);
     for k in [256, 299, 300, 1000] {
         check_all(|m| KnnJob::sites(&sites, k, m).unwrap());
-        let nn = KnnJob::sites(&sites, k, KnnMethod::Grid)
-            .unwrap()
-            .run(&cpu())
-            .unwrap();
+        let nn = KnnJob::sites(&sites, k, KnnMethod::Grid).unwrap().run(&cpu()).unwrap();
         assert_eq!(nn.k, k.min(299));
         if k >= 299 {
             let mut first: Vec<u32> = nn.of(0).to_vec();
@@ -117,10 +99,7 @@ fn large_k_returns_every_other_site() {
 #[test]
 fn tiny_inputs() {
     let one = [[0.5f32, 0.5, 0.5]];
-    let nn = KnnJob::sites(&one, 5, KnnMethod::Grid)
-        .unwrap()
-        .run(&cpu())
-        .unwrap();
+    let nn = KnnJob::sites(&one, 5, KnnMethod::Grid).unwrap().run(&cpu()).unwrap();
     assert_eq!(nn.k, 0);
     assert!(nn.indices.is_empty());
     let two = [[0.0f32, 0.0, 0.0], [1.0, 1.0, 1.0]];
@@ -131,23 +110,16 @@ fn tiny_inputs() {
 #[test]
 fn bad_input_is_rejected_by_name() {
     let nan = [[0.0f32, 0.0, 0.0], [f32::NAN, 0.0, 0.0]];
-    let err = KnnJob::sites(&nan, 1, KnnMethod::Grid)
-        .unwrap_err()
-        .to_string();
+    let err = KnnJob::sites(&nan, 1, KnnMethod::Grid).unwrap_err().to_string();
     assert!(err.contains("site 1"), "{err}");
-    let err = KnnJob::sites(&[[0.0f32; 3]], 0, KnnMethod::Grid)
-        .unwrap_err()
-        .to_string();
+    let err = KnnJob::sites(&[[0.0f32; 3]], 0, KnnMethod::Grid).unwrap_err().to_string();
     assert!(err.contains("k must be at least 1"), "{err}");
 }
 
 #[test]
 fn flat_sites_keep_the_grid_small() {
     // All sites on a plane: the grid must not explode to millions of cells.
-    let sites: Vec<[f32; 3]> = points::uniform(5000, 3)
-        .iter()
-        .map(|p| [p[0], p[1], 0.25])
-        .collect();
+    let sites: Vec<[f32; 3]> = points::uniform(5000, 3).iter().map(|p| [p[0], p[1], 0.25]).collect();
     let job = KnnJob::sites(&sites, 10, KnnMethod::Grid).unwrap();
     assert!(job.params.grid.n_cells as usize <= 2 * sites.len() + 64);
     check_all(|m| KnnJob::sites(&sites, 10, m).unwrap());

@@ -10,8 +10,8 @@ use proptest::prelude::*;
 #[derive(Clone, Copy, Debug)]
 enum Shape {
     Cube,
-    /// An L: the cube without one quarter column (non-convex).
-    LShape,
+    /// The letter L: the cube without one quarter column (non-convex).
+    Ell,
     /// A cube with a square hole through it.
     Holed,
 }
@@ -19,7 +19,7 @@ enum Shape {
 fn mesh(shape: Shape) -> TetMesh {
     match shape {
         Shape::Cube => TetMesh::cube(4),
-        Shape::LShape => TetMesh::voxels(4, |i, j, _| i < 2 || j < 2),
+        Shape::Ell => TetMesh::voxels(4, |i, j, _| i < 2 || j < 2),
         Shape::Holed => TetMesh::voxels(5, |i, j, _| !(i == 2 && j == 2)),
     }
 }
@@ -71,7 +71,7 @@ proptest! {
     /// Both strategies, both backends, against the exact reference.
     #[test]
     fn cells_match_the_exact_reference(
-        shape in prop_oneof![Just(Shape::Cube), Just(Shape::LShape), Just(Shape::Holed)],
+        shape in prop_oneof![Just(Shape::Cube), Just(Shape::Ell), Just(Shape::Holed)],
         n in 1usize..=150,
         seed in any::<u64>(),
     ) {
@@ -163,8 +163,10 @@ fn duplicate_sites_lowest_index_owns_the_cell() {
 
 #[test]
 fn sites_outside_and_very_few_sites() {
-    let mesh = mesh(Shape::LShape);
-    for sites in [vec![[0.5f32, 0.5, 0.5]], vec![[0.9, 0.9, 0.5], [0.1, 0.1, 0.1]], vec![[3.0, 3.0, 3.0], [-1.0, 0.2, 0.3]]] {
+    let mesh = mesh(Shape::Ell);
+    for sites in
+        [vec![[0.5f32, 0.5, 0.5]], vec![[0.9, 0.9, 0.5], [0.1, 0.1, 0.1]], vec![[3.0, 3.0, 3.0], [-1.0, 0.2, 0.3]]]
+    {
         let (vol, centroid) = clipped_cells(&mesh, &sites);
         for backend in backends() {
             for strategy in [Strategy::TetCell, Strategy::CellTet] {
@@ -197,4 +199,3 @@ fn bad_input_is_rejected_by_name() {
     assert!(err.contains("site 0"), "{err}");
     assert!(ClippedVoronoi::new(&mesh, &[]).compute().is_err());
 }
-

@@ -7,7 +7,7 @@ const USAGE: &str = "\
 usage: cargo xtask <command> [args...]
 
 commands:
-  run [ARGS]        the main job (cvd knn ARGS, release build)
+  run [ARGS]        the main job: a clipped Voronoi diagram (cvd run ARGS, release build)
   test [ARGS]       the whole test suite, optimised (cargo test ARGS)
   bench knn [ARGS]  the k-NN benchmark (ARGS: --sizes, --ks, --json PATH, ...)
   bench cvd [ARGS]  the clipped Voronoi benchmark (paper Table 1; --models-dir, --json PATH, ...)
@@ -15,9 +15,28 @@ commands:
   lint              cargo fmt --check and cargo clippy -D warnings
 ";
 
+/// Paths given after these options are made absolute: cargo runs benches
+/// from the package's folder, not from where the user typed the command.
+const PATH_OPTIONS: &[&str] = &["--json", "--models-dir", "--mesh", "--sites-file", "--output"];
+
+fn absolute_paths(args: &[String]) -> Vec<String> {
+    let cwd = std::env::current_dir().unwrap_or_default();
+    let mut out = Vec::with_capacity(args.len());
+    for (i, a) in args.iter().enumerate() {
+        let after_path_option = i > 0 && PATH_OPTIONS.contains(&args[i - 1].as_str());
+        if after_path_option && std::path::Path::new(a).is_relative() {
+            out.push(cwd.join(a).to_string_lossy().into_owned());
+        } else {
+            out.push(a.clone());
+        }
+    }
+    out
+}
+
 fn cargo(args: &[&str], extra: &[String]) -> Command {
+    let extra = absolute_paths(extra);
     let mut cmd = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()));
-    cmd.args(args).args(extra);
+    cmd.args(args).args(&extra);
     cmd
 }
 
@@ -35,33 +54,18 @@ fn run(args: &[String]) -> Result<(), String> {
         return Err(USAGE.into());
     };
     match command.as_str() {
-        "run" => status(cargo(
-            &["run", "--release", "--package", "cvd", "--", "knn"],
-            rest,
-        )),
+        "run" => status(cargo(&["run", "--release", "--package", "cvd", "--", "knn"], rest)),
         "test" => status(cargo(&["test", "--release", "--workspace"], rest)),
         "build" => status(cargo(&["build", "--release", "--workspace"], rest)),
         "bench" => match rest.split_first() {
-            Some((which, extra)) if which == "knn" => status(cargo(
-                &["bench", "--package", "cvd", "--bench", "knn", "--"],
-                extra,
-            )),
+            Some((which, extra)) if which == "knn" => {
+                status(cargo(&["bench", "--package", "cvd", "--bench", "knn", "--"], extra))
+            }
             _ => Err(format!("unknown benchmark; expected: knn\n\n{USAGE}")),
         },
         "lint" => {
             status(cargo(&["fmt", "--all", "--check"], &[]))?;
-            status(cargo(
-                &[
-                    "clippy",
-                    "--release",
-                    "--workspace",
-                    "--all-targets",
-                    "--",
-                    "-D",
-                    "warnings",
-                ],
-                &[],
-            ))
+            status(cargo(&["clippy", "--release", "--workspace", "--all-targets", "--", "-D", "warnings"], &[]))
         }
         "help" | "--help" | "-h" => {
             print!("{USAGE}");

@@ -75,24 +75,18 @@ pub struct Context {
 
 fn load_entry() -> Result<ash::Entry> {
     // SAFETY: loading the system's Vulkan loader library.
-    unsafe { ash::Entry::load() }
-        .map_err(|e| Error::VulkanUnavailable(format!("no Vulkan loader ({e})")))
+    unsafe { ash::Entry::load() }.map_err(|e| Error::VulkanUnavailable(format!("no Vulkan loader ({e})")))
 }
 
 fn create_instance(entry: &ash::Entry, validation: bool) -> Result<ash::Instance> {
-    let app = vk::ApplicationInfo::default()
-        .application_name(c"cvd")
-        .api_version(vk::API_VERSION_1_2);
+    let app = vk::ApplicationInfo::default().application_name(c"cvd").api_version(vk::API_VERSION_1_2);
     let mut layers = Vec::new();
     let mut extensions = Vec::new();
     if validation {
         // SAFETY: plain enumeration calls.
-        let available = unsafe { entry.enumerate_instance_layer_properties() }
-            .call("vkEnumerateInstanceLayerProperties")?;
-        if !available
-            .iter()
-            .any(|l| l.layer_name_as_c_str() == Ok(VALIDATION_LAYER))
-        {
+        let available =
+            unsafe { entry.enumerate_instance_layer_properties() }.call("vkEnumerateInstanceLayerProperties")?;
+        if !available.iter().any(|l| l.layer_name_as_c_str() == Ok(VALIDATION_LAYER)) {
             return Err(Error::VulkanUnavailable(
                 "validation was asked for but VK_LAYER_KHRONOS_validation is not installed (Debian: vulkan-validationlayers)".into(),
             ));
@@ -121,56 +115,30 @@ pub fn list_devices() -> Result<Vec<DeviceInfo>> {
 
 fn describe_devices(instance: &ash::Instance) -> Result<Vec<(vk::PhysicalDevice, DeviceInfo)>> {
     // SAFETY: valid instance.
-    let devices =
-        unsafe { instance.enumerate_physical_devices() }.call("vkEnumeratePhysicalDevices")?;
+    let devices = unsafe { instance.enumerate_physical_devices() }.call("vkEnumeratePhysicalDevices")?;
     Ok(devices
         .into_iter()
         .enumerate()
         .map(|(index, pd)| {
             // SAFETY: valid physical device.
             let props = unsafe { instance.get_physical_device_properties(pd) };
-            let name = props
-                .device_name_as_c_str()
-                .map(|n| n.to_string_lossy().into_owned())
-                .unwrap_or_default();
-            (
-                pd,
-                DeviceInfo {
-                    index,
-                    name,
-                    kind: props.device_type,
-                    api_version: props.api_version,
-                },
-            )
+            let name = props.device_name_as_c_str().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+            (pd, DeviceInfo { index, name, kind: props.device_type, api_version: props.api_version })
         })
         .collect())
 }
 
-fn pick_device(
-    devices: &[(vk::PhysicalDevice, DeviceInfo)],
-    wanted: Option<&str>,
-) -> Result<usize> {
-    let listing = || {
-        devices
-            .iter()
-            .map(|(_, d)| format!("{}: {}", d.index, d.name))
-            .collect::<Vec<_>>()
-            .join(", ")
-    };
+fn pick_device(devices: &[(vk::PhysicalDevice, DeviceInfo)], wanted: Option<&str>) -> Result<usize> {
+    let listing = || devices.iter().map(|(_, d)| format!("{}: {}", d.index, d.name)).collect::<Vec<_>>().join(", ");
     if devices.is_empty() {
         return Err(Error::VulkanUnavailable("no Vulkan device found".into()));
     }
     if let Some(w) = wanted {
         let found = match w.parse::<usize>() {
             Ok(i) => devices.iter().position(|(_, d)| d.index == i),
-            Err(_) => devices
-                .iter()
-                .position(|(_, d)| d.name.to_lowercase().contains(&w.to_lowercase())),
+            Err(_) => devices.iter().position(|(_, d)| d.name.to_lowercase().contains(&w.to_lowercase())),
         };
-        return found.ok_or_else(|| Error::NoSuchDevice {
-            wanted: w.into(),
-            available: listing(),
-        });
+        return found.ok_or_else(|| Error::NoSuchDevice { wanted: w.into(), available: listing() });
     }
     let rank = |t: vk::PhysicalDeviceType| match t {
         vk::PhysicalDeviceType::DISCRETE_GPU => 0,
@@ -179,16 +147,13 @@ fn pick_device(
         vk::PhysicalDeviceType::CPU => 3,
         _ => 4,
     };
-    Ok((0..devices.len())
-        .min_by_key(|&i| (rank(devices[i].1.kind), i))
-        .unwrap_or(0))
+    Ok((0..devices.len()).min_by_key(|&i| (rank(devices[i].1.kind), i)).unwrap_or(0))
 }
 
 impl Context {
     /// Opens the device the options name, or the best one.
     pub fn new(options: &VulkanOptions) -> Result<Self> {
-        let validation =
-            options.validation || std::env::var("CVD_VALIDATION").is_ok_and(|v| v == "1");
+        let validation = options.validation || std::env::var("CVD_VALIDATION").is_ok_and(|v| v == "1");
         let entry = load_entry()?;
         let instance = create_instance(&entry, validation)?;
         match Self::open(entry, instance.clone(), validation, options) {
@@ -201,18 +166,12 @@ impl Context {
         }
     }
 
-    fn open(
-        entry: ash::Entry,
-        instance: ash::Instance,
-        validation: bool,
-        options: &VulkanOptions,
-    ) -> Result<Self> {
+    fn open(entry: ash::Entry, instance: ash::Instance, validation: bool, options: &VulkanOptions) -> Result<Self> {
         let debug = if validation {
             let loader = ash::ext::debug_utils::Instance::new(&entry, &instance);
             let info = vk::DebugUtilsMessengerCreateInfoEXT::default()
                 .message_severity(
-                    vk::DebugUtilsMessageSeverityFlagsEXT::ERROR
-                        | vk::DebugUtilsMessageSeverityFlagsEXT::WARNING,
+                    vk::DebugUtilsMessageSeverityFlagsEXT::ERROR | vk::DebugUtilsMessageSeverityFlagsEXT::WARNING,
                 )
                 .message_type(
                     vk::DebugUtilsMessageTypeFlagsEXT::VALIDATION
@@ -221,8 +180,8 @@ impl Context {
                 )
                 .pfn_user_callback(Some(debug_callback));
             // SAFETY: valid create info.
-            let messenger = unsafe { loader.create_debug_utils_messenger(&info, None) }
-                .call("vkCreateDebugUtilsMessengerEXT")?;
+            let messenger =
+                unsafe { loader.create_debug_utils_messenger(&info, None) }.call("vkCreateDebugUtilsMessengerEXT")?;
             Some((loader, messenger))
         } else {
             None
@@ -231,28 +190,17 @@ impl Context {
         let chosen = pick_device(&devices, options.device.as_deref())?;
         let (physical, info) = devices[chosen].clone();
         if info.api_version < vk::API_VERSION_1_2 {
-            return Err(Error::MissingFeature {
-                device: info.name,
-                missing: "Vulkan 1.2".into(),
-            });
+            return Err(Error::MissingFeature { device: info.name, missing: "Vulkan 1.2".into() });
         }
 
         // SAFETY: valid physical device.
         let families = unsafe { instance.get_physical_device_queue_family_properties(physical) };
         let queue_family = families
             .iter()
-            .position(|f| {
-                f.queue_flags.contains(vk::QueueFlags::COMPUTE) && f.timestamp_valid_bits > 0
-            })
-            .or_else(|| {
-                families
-                    .iter()
-                    .position(|f| f.queue_flags.contains(vk::QueueFlags::COMPUTE))
-            })
-            .ok_or_else(|| Error::MissingFeature {
-                device: info.name.clone(),
-                missing: "a compute queue".into(),
-            })? as u32;
+            .position(|f| f.queue_flags.contains(vk::QueueFlags::COMPUTE) && f.timestamp_valid_bits > 0)
+            .or_else(|| families.iter().position(|f| f.queue_flags.contains(vk::QueueFlags::COMPUTE)))
+            .ok_or_else(|| Error::MissingFeature { device: info.name.clone(), missing: "a compute queue".into() })?
+            as u32;
 
         let mut f12 = vk::PhysicalDeviceVulkan12Features::default();
         let mut f2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut f12);
@@ -263,16 +211,10 @@ impl Context {
             ("shaderInt64", core.shader_int64),
             ("shaderBufferInt64Atomics", f12.shader_buffer_int64_atomics),
             ("vulkanMemoryModel", f12.vulkan_memory_model),
-            (
-                "vulkanMemoryModelDeviceScope",
-                f12.vulkan_memory_model_device_scope,
-            ),
+            ("vulkanMemoryModelDeviceScope", f12.vulkan_memory_model_device_scope),
         ];
         if let Some((name, _)) = checks.iter().find(|(_, on)| *on == vk::FALSE) {
-            return Err(Error::MissingFeature {
-                device: info.name,
-                missing: format!("the feature {name}"),
-            });
+            return Err(Error::MissingFeature { device: info.name, missing: format!("the feature {name}") });
         }
 
         let enable_core = vk::PhysicalDeviceFeatures::default().shader_int64(true);
@@ -281,16 +223,14 @@ impl Context {
             .vulkan_memory_model(true)
             .vulkan_memory_model_device_scope(true);
         let priorities = [1.0f32];
-        let queues = [vk::DeviceQueueCreateInfo::default()
-            .queue_family_index(queue_family)
-            .queue_priorities(&priorities)];
+        let queues =
+            [vk::DeviceQueueCreateInfo::default().queue_family_index(queue_family).queue_priorities(&priorities)];
         let device_info = vk::DeviceCreateInfo::default()
             .queue_create_infos(&queues)
             .enabled_features(&enable_core)
             .push_next(&mut enable12);
         // SAFETY: valid create info; the features were checked above.
-        let device = unsafe { instance.create_device(physical, &device_info, None) }
-            .call("vkCreateDevice")?;
+        let device = unsafe { instance.create_device(physical, &device_info, None) }.call("vkCreateDevice")?;
         // SAFETY: the queue family and index exist.
         let queue = unsafe { device.get_device_queue(queue_family, 0) };
         // SAFETY: valid physical device.

@@ -50,11 +50,7 @@ impl Finished {
 
 impl<'a> Job<'a> {
     /// Starts recording a job of at most `max_dispatches` dispatches.
-    pub(crate) fn new(
-        ctx: &'a Context,
-        pipelines: &'a Pipelines,
-        max_dispatches: u32,
-    ) -> Result<Self> {
+    pub(crate) fn new(ctx: &'a Context, pipelines: &'a Pipelines, max_dispatches: u32) -> Result<Self> {
         let dev = &ctx.device;
         let info = vk::CommandPoolCreateInfo::default()
             .queue_family_index(ctx.queue_family)
@@ -71,28 +67,18 @@ impl<'a> Job<'a> {
             marks: Vec::new(),
             buffers: Vec::new(),
         };
-        let info = vk::CommandBufferAllocateInfo::default()
-            .command_pool(pool)
-            .command_buffer_count(1);
-        job.cmd =
-            unsafe { dev.allocate_command_buffers(&info) }.call("vkAllocateCommandBuffers")?[0];
+        let info = vk::CommandBufferAllocateInfo::default().command_pool(pool).command_buffer_count(1);
+        job.cmd = unsafe { dev.allocate_command_buffers(&info) }.call("vkAllocateCommandBuffers")?[0];
         let sizes = [vk::DescriptorPoolSize::default()
             .ty(vk::DescriptorType::STORAGE_BUFFER)
             .descriptor_count(max_dispatches * 8)];
-        let info = vk::DescriptorPoolCreateInfo::default()
-            .max_sets(max_dispatches)
-            .pool_sizes(&sizes);
-        job.descriptors =
-            unsafe { dev.create_descriptor_pool(&info, None) }.call("vkCreateDescriptorPool")?;
-        let info = vk::QueryPoolCreateInfo::default()
-            .query_type(vk::QueryType::TIMESTAMP)
-            .query_count(MAX_MARKS);
+        let info = vk::DescriptorPoolCreateInfo::default().max_sets(max_dispatches).pool_sizes(&sizes);
+        job.descriptors = unsafe { dev.create_descriptor_pool(&info, None) }.call("vkCreateDescriptorPool")?;
+        let info = vk::QueryPoolCreateInfo::default().query_type(vk::QueryType::TIMESTAMP).query_count(MAX_MARKS);
         job.queries = unsafe { dev.create_query_pool(&info, None) }.call("vkCreateQueryPool")?;
-        let begin = vk::CommandBufferBeginInfo::default()
-            .flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT);
+        let begin = vk::CommandBufferBeginInfo::default().flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT);
         unsafe {
-            dev.begin_command_buffer(job.cmd, &begin)
-                .call("vkBeginCommandBuffer")?;
+            dev.begin_command_buffer(job.cmd, &begin).call("vkBeginCommandBuffer")?;
             dev.cmd_reset_query_pool(job.cmd, job.queries, 0, MAX_MARKS);
         }
         job.mark("start");
@@ -103,10 +89,7 @@ impl<'a> Job<'a> {
     /// between phases, so every later command sees earlier writes) and
     /// writes a timestamp named `phase`.
     pub(crate) fn mark(&mut self, phase: &str) {
-        assert!(
-            (self.marks.len() as u32) < MAX_MARKS,
-            "too many phases in one job"
-        );
+        assert!((self.marks.len() as u32) < MAX_MARKS, "too many phases in one job");
         if !self.marks.is_empty() {
             self.barrier();
         }
@@ -162,15 +145,7 @@ impl<'a> Job<'a> {
     pub(crate) fn zeroed(&mut self, bytes: u64) -> Result<BufId> {
         let id = self.buffer(bytes)?;
         // SAFETY: recording into our command buffer; whole-size fill.
-        unsafe {
-            self.ctx.device.cmd_fill_buffer(
-                self.cmd,
-                self.buffers[id.0].buffer,
-                0,
-                vk::WHOLE_SIZE,
-                0,
-            )
-        };
+        unsafe { self.ctx.device.cmd_fill_buffer(self.cmd, self.buffers[id.0].buffer, 0, vk::WHOLE_SIZE, 0) };
         Ok(id)
     }
 
@@ -211,16 +186,8 @@ impl<'a> Job<'a> {
         threads: u64,
     ) -> Result<()> {
         let kernel = self.pipelines.get(name)?;
-        assert_eq!(
-            buffers.len() as u32,
-            kernel.spec.bindings,
-            "kernel {name}: wrong number of buffers"
-        );
-        assert_eq!(
-            std::mem::size_of::<P>() as u32,
-            kernel.spec.push_size,
-            "kernel {name}: wrong push constants"
-        );
+        assert_eq!(buffers.len() as u32, kernel.spec.bindings, "kernel {name}: wrong number of buffers");
+        assert_eq!(std::mem::size_of::<P>() as u32, kernel.spec.push_size, "kernel {name}: wrong push constants");
         if threads == 0 {
             return Ok(());
         }
@@ -228,25 +195,17 @@ impl<'a> Job<'a> {
         let gx = groups.min(MAX_GROUPS_X);
         let gy = groups.div_ceil(gx);
         if gy > self.ctx.limits.max_compute_work_group_count[1] as u64 {
-            return Err(Error::InvalidInput(format!(
-                "{threads} threads exceed the device's dispatch limits"
-            )));
+            return Err(Error::InvalidInput(format!("{threads} threads exceed the device's dispatch limits")));
         }
         let dev = &self.ctx.device;
         let layouts = [kernel.set_layout];
-        let info = vk::DescriptorSetAllocateInfo::default()
-            .descriptor_pool(self.descriptors)
-            .set_layouts(&layouts);
+        let info = vk::DescriptorSetAllocateInfo::default().descriptor_pool(self.descriptors).set_layouts(&layouts);
         // SAFETY: the pool was sized for the job's dispatches.
-        let set =
-            unsafe { dev.allocate_descriptor_sets(&info) }.call("vkAllocateDescriptorSets")?[0];
+        let set = unsafe { dev.allocate_descriptor_sets(&info) }.call("vkAllocateDescriptorSets")?[0];
         let infos: Vec<[vk::DescriptorBufferInfo; 1]> = buffers
             .iter()
             .map(|b| {
-                [vk::DescriptorBufferInfo::default()
-                    .buffer(self.buffers[b.0].buffer)
-                    .offset(0)
-                    .range(vk::WHOLE_SIZE)]
+                [vk::DescriptorBufferInfo::default().buffer(self.buffers[b.0].buffer).offset(0).range(vk::WHOLE_SIZE)]
             })
             .collect();
         let writes: Vec<_> = infos
@@ -264,21 +223,8 @@ impl<'a> Job<'a> {
         unsafe {
             dev.update_descriptor_sets(&writes, &[]);
             dev.cmd_bind_pipeline(self.cmd, vk::PipelineBindPoint::COMPUTE, kernel.pipeline);
-            dev.cmd_bind_descriptor_sets(
-                self.cmd,
-                vk::PipelineBindPoint::COMPUTE,
-                kernel.layout,
-                0,
-                &[set],
-                &[],
-            );
-            dev.cmd_push_constants(
-                self.cmd,
-                kernel.layout,
-                vk::ShaderStageFlags::COMPUTE,
-                0,
-                bytemuck::bytes_of(push),
-            );
+            dev.cmd_bind_descriptor_sets(self.cmd, vk::PipelineBindPoint::COMPUTE, kernel.layout, 0, &[set], &[]);
+            dev.cmd_push_constants(self.cmd, kernel.layout, vk::ShaderStageFlags::COMPUTE, 0, bytemuck::bytes_of(push));
             dev.cmd_dispatch(self.cmd, gx as u32, gy as u32, 1);
         }
         Ok(())
@@ -289,26 +235,15 @@ impl<'a> Job<'a> {
         let dev = &self.ctx.device;
         // SAFETY: ending and submitting our command buffer, then waiting.
         unsafe {
-            dev.end_command_buffer(self.cmd)
-                .call("vkEndCommandBuffer")?;
-            let fence = dev
-                .create_fence(&vk::FenceCreateInfo::default(), None)
-                .call("vkCreateFence")?;
+            dev.end_command_buffer(self.cmd).call("vkEndCommandBuffer")?;
+            let fence = dev.create_fence(&vk::FenceCreateInfo::default(), None).call("vkCreateFence")?;
             let cmds = [self.cmd];
             let submit = [vk::SubmitInfo::default().command_buffers(&cmds)];
             let submitted = {
-                let _queue = self
-                    .ctx
-                    .queue_lock
-                    .lock()
-                    .unwrap_or_else(|e| e.into_inner());
-                dev.queue_submit(self.ctx.queue, &submit, fence)
-                    .call("vkQueueSubmit")
+                let _queue = self.ctx.queue_lock.lock().unwrap_or_else(|e| e.into_inner());
+                dev.queue_submit(self.ctx.queue, &submit, fence).call("vkQueueSubmit")
             };
-            let result = submitted.and_then(|_| {
-                dev.wait_for_fences(&[fence], true, u64::MAX)
-                    .call("vkWaitForFences")
-            });
+            let result = submitted.and_then(|_| dev.wait_for_fences(&[fence], true, u64::MAX).call("vkWaitForFences"));
             dev.destroy_fence(fence, None);
             result?;
         }
@@ -328,10 +263,7 @@ impl<'a> Job<'a> {
             let dt = ticks[i].wrapping_sub(ticks[i - 1]) as f64 * self.ctx.timestamp_period * 1e-9;
             timings.push(self.marks[i].clone(), dt);
         }
-        Ok(Finished {
-            timings,
-            buffers: std::mem::take(&mut self.buffers),
-        })
+        Ok(Finished { timings, buffers: std::mem::take(&mut self.buffers) })
     }
 }
 

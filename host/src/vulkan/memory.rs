@@ -30,16 +30,11 @@ pub(crate) enum Location {
     Readback,
 }
 
-fn find_memory_type(
-    ctx: &Context,
-    type_bits: u32,
-    preferred: &[vk::MemoryPropertyFlags],
-) -> Option<u32> {
+fn find_memory_type(ctx: &Context, type_bits: u32, preferred: &[vk::MemoryPropertyFlags]) -> Option<u32> {
     let m = &ctx.memory;
     preferred.iter().find_map(|&want| {
-        (0..m.memory_type_count).find(|&i| {
-            type_bits & (1 << i) != 0 && m.memory_types[i as usize].property_flags.contains(want)
-        })
+        (0..m.memory_type_count)
+            .find(|&i| type_bits & (1 << i) != 0 && m.memory_types[i as usize].property_flags.contains(want))
     })
 }
 
@@ -57,10 +52,7 @@ impl Buffer {
             Location::Readback => vk::BufferUsageFlags::TRANSFER_DST,
         };
         let dev = &ctx.device;
-        let info = vk::BufferCreateInfo::default()
-            .size(size)
-            .usage(usage)
-            .sharing_mode(vk::SharingMode::EXCLUSIVE);
+        let info = vk::BufferCreateInfo::default().size(size).usage(usage).sharing_mode(vk::SharingMode::EXCLUSIVE);
         // SAFETY: valid create info.
         let buffer = unsafe { dev.create_buffer(&info, None) }.call("vkCreateBuffer")?;
         // SAFETY: valid buffer.
@@ -69,10 +61,9 @@ impl Buffer {
         let preferred: &[F] = match location {
             Location::Device => &[F::DEVICE_LOCAL, F::empty()],
             Location::Upload => &[F::HOST_VISIBLE | F::HOST_COHERENT],
-            Location::Readback => &[
-                F::HOST_VISIBLE | F::HOST_COHERENT | F::HOST_CACHED,
-                F::HOST_VISIBLE | F::HOST_COHERENT,
-            ],
+            Location::Readback => {
+                &[F::HOST_VISIBLE | F::HOST_COHERENT | F::HOST_CACHED, F::HOST_VISIBLE | F::HOST_COHERENT]
+            }
         };
         let Some(type_index) = find_memory_type(ctx, req.memory_type_bits, preferred) else {
             // SAFETY: the buffer is unused.
@@ -82,36 +73,24 @@ impl Buffer {
                 missing: "a suitable memory type".into(),
             });
         };
-        let alloc = vk::MemoryAllocateInfo::default()
-            .allocation_size(req.size)
-            .memory_type_index(type_index);
+        let alloc = vk::MemoryAllocateInfo::default().allocation_size(req.size).memory_type_index(type_index);
         // SAFETY: valid allocate info.
         let memory = match unsafe { dev.allocate_memory(&alloc, None) } {
             Ok(m) => m,
             Err(e) => {
                 // SAFETY: the buffer is unused.
                 unsafe { dev.destroy_buffer(buffer, None) };
-                return Err(Error::Vulkan {
-                    call: "vkAllocateMemory",
-                    result: e,
-                });
+                return Err(Error::Vulkan { call: "vkAllocateMemory", result: e });
             }
         };
-        let mut out = Self {
-            device: dev.clone(),
-            buffer,
-            memory,
-            size,
-            mapped: std::ptr::null_mut(),
-        };
+        let mut out = Self { device: dev.clone(), buffer, memory, size, mapped: std::ptr::null_mut() };
         // SAFETY: memory matches the buffer's requirements.
         unsafe { dev.bind_buffer_memory(buffer, memory, 0) }.call("vkBindBufferMemory")?;
         if location != Location::Device {
             // SAFETY: host-visible memory, mapped once for the buffer's life.
-            out.mapped =
-                unsafe { dev.map_memory(memory, 0, vk::WHOLE_SIZE, vk::MemoryMapFlags::empty()) }
-                    .call("vkMapMemory")?
-                    .cast();
+            out.mapped = unsafe { dev.map_memory(memory, 0, vk::WHOLE_SIZE, vk::MemoryMapFlags::empty()) }
+                .call("vkMapMemory")?
+                .cast();
         }
         Ok(out)
     }

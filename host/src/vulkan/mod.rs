@@ -11,8 +11,8 @@ pub use pipelines::KERNELS_SPV;
 use crate::backend::Backend;
 use crate::error::Result;
 use crate::knn::{KnnJob, KnnMethod, Neighbors};
-use crate::voronoi::{ClipJob, ClipOutput, Strategy};
 use crate::timing::timed;
+use crate::voronoi::{ClipJob, ClipOutput, Strategy};
 use context::Context;
 use cvd_kernels::abi::{counter, GridBuildParams, ACCUM_PER_SITE};
 use cvd_kernels::clip::CELL_RECORDS;
@@ -43,11 +43,7 @@ impl VulkanBackend {
     /// Creates every pipeline now (drivers may compile for seconds) and
     /// returns the time that took.
     pub fn warm_up(&self) -> Result<f64> {
-        let (r, t) = timed(|| {
-            KERNELS
-                .iter()
-                .try_for_each(|k| self.pipelines.get(k.name).map(|_| ()))
-        });
+        let (r, t) = timed(|| KERNELS.iter().try_for_each(|k| self.pipelines.get(k.name).map(|_| ())));
         r.map(|_| t)
     }
 }
@@ -66,7 +62,12 @@ impl Backend for VulkanBackend {
         j.mark("download");
         let done = j.run()?;
         let len = (nq * k) as usize;
-        Ok(Neighbors { k: k as usize, indices: done.read(nbr_back, len), dist2: done.read(d2_back, len), timings: done.timings })
+        Ok(Neighbors {
+            k: k as usize,
+            indices: done.read(nbr_back, len),
+            dist2: done.read(d2_back, len),
+            timings: done.timings,
+        })
     }
 
     fn clip(&self, job: &ClipJob) -> Result<ClipOutput> {

@@ -22,11 +22,7 @@ pub(crate) struct KernelSpec {
 }
 
 const fn spec<P>(name: &'static str, bindings: u32) -> KernelSpec {
-    KernelSpec {
-        name,
-        bindings,
-        push_size: std::mem::size_of::<P>() as u32,
-    }
+    KernelSpec { name, bindings, push_size: std::mem::size_of::<P>() as u32 }
 }
 
 /// Every entry point in `cvd_kernels::entry`.
@@ -65,20 +61,11 @@ impl Pipelines {
             .map_err(|e| Error::InvalidInput(format!("embedded SPIR-V is malformed: {e}")))?;
         let info = vk::ShaderModuleCreateInfo::default().code(&words);
         // SAFETY: valid SPIR-V from the build.
-        let module =
-            unsafe { ctx.device.create_shader_module(&info, None) }.call("vkCreateShaderModule")?;
+        let module = unsafe { ctx.device.create_shader_module(&info, None) }.call("vkCreateShaderModule")?;
         // SAFETY: empty cache.
-        let cache = unsafe {
-            ctx.device
-                .create_pipeline_cache(&vk::PipelineCacheCreateInfo::default(), None)
-        }
-        .call("vkCreatePipelineCache")?;
-        Ok(Self {
-            device: ctx.device.clone(),
-            module,
-            cache,
-            made: Mutex::new(HashMap::new()),
-        })
+        let cache = unsafe { ctx.device.create_pipeline_cache(&vk::PipelineCacheCreateInfo::default(), None) }
+            .call("vkCreatePipelineCache")?;
+        Ok(Self { device: ctx.device.clone(), module, cache, made: Mutex::new(HashMap::new()) })
     }
 
     /// The pipeline for entry point `name`, created if needed.
@@ -109,39 +96,22 @@ impl Pipelines {
             .collect();
         let info = vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings);
         // SAFETY: valid create infos throughout.
-        let set_layout = unsafe { dev.create_descriptor_set_layout(&info, None) }
-            .call("vkCreateDescriptorSetLayout")?;
-        let ranges = [vk::PushConstantRange::default()
-            .stage_flags(vk::ShaderStageFlags::COMPUTE)
-            .size(spec.push_size)];
+        let set_layout =
+            unsafe { dev.create_descriptor_set_layout(&info, None) }.call("vkCreateDescriptorSetLayout")?;
+        let ranges = [vk::PushConstantRange::default().stage_flags(vk::ShaderStageFlags::COMPUTE).size(spec.push_size)];
         let set_layouts = [set_layout];
-        let info = vk::PipelineLayoutCreateInfo::default()
-            .set_layouts(&set_layouts)
-            .push_constant_ranges(&ranges);
-        let layout =
-            unsafe { dev.create_pipeline_layout(&info, None) }.call("vkCreatePipelineLayout")?;
+        let info = vk::PipelineLayoutCreateInfo::default().set_layouts(&set_layouts).push_constant_ranges(&ranges);
+        let layout = unsafe { dev.create_pipeline_layout(&info, None) }.call("vkCreatePipelineLayout")?;
         // rust-gpu names entry points by their path inside the kernels crate.
-        let entry = std::ffi::CString::new(format!("entry::{}", spec.name))
-            .expect("kernel names have no NUL");
+        let entry = std::ffi::CString::new(format!("entry::{}", spec.name)).expect("kernel names have no NUL");
         let stage = vk::PipelineShaderStageCreateInfo::default()
             .stage(vk::ShaderStageFlags::COMPUTE)
             .module(self.module)
             .name(&entry);
-        let info = [vk::ComputePipelineCreateInfo::default()
-            .stage(stage)
-            .layout(layout)];
-        let pipeline = unsafe { dev.create_compute_pipelines(self.cache, &info, None) }.map_err(
-            |(_, e)| Error::Vulkan {
-                call: "vkCreateComputePipelines",
-                result: e,
-            },
-        )?[0];
-        Ok(Kernel {
-            spec,
-            set_layout,
-            layout,
-            pipeline,
-        })
+        let info = [vk::ComputePipelineCreateInfo::default().stage(stage).layout(layout)];
+        let pipeline = unsafe { dev.create_compute_pipelines(self.cache, &info, None) }
+            .map_err(|(_, e)| Error::Vulkan { call: "vkCreateComputePipelines", result: e })?[0];
+        Ok(Kernel { spec, set_layout, layout, pipeline })
     }
 }
 
@@ -153,8 +123,7 @@ impl Drop for Pipelines {
             for k in made.values() {
                 self.device.destroy_pipeline(k.pipeline, None);
                 self.device.destroy_pipeline_layout(k.layout, None);
-                self.device
-                    .destroy_descriptor_set_layout(k.set_layout, None);
+                self.device.destroy_descriptor_set_layout(k.set_layout, None);
             }
             self.device.destroy_pipeline_cache(self.cache, None);
             self.device.destroy_shader_module(self.module, None);

@@ -1,0 +1,342 @@
+//! Reading tet meshes and site files, and writing them back.
+//!
+//! Meshes: Medit `.mesh`, TetGen `.node`/`.ele`, the `.tet` files of the
+//! paper's code and Gmsh `.msh` (2.2 and 4.1 ASCII). Sites: `.xyz`.
+//!
+//! A bad file is reported as [`Error::Parse`] naming its line and what was
+//! expected there; no input makes a reader panic, and counts read from a
+//! file only reserve as much memory as the file could actually fill.
+
+mod gmsh;
+mod lex;
+mod medit;
+mod tet;
+mod tetgen;
+mod xyz;
+
+pub use gmsh::parse_gmsh;
+pub use medit::parse_medit;
+pub use tet::parse_tet;
+pub use tetgen::parse_tetgen;
+pub use xyz::parse_xyz;
+
+use crate::error::{Error, Result};
+use crate::mesh::{signed_volume, TetMesh};
+use lex::parse_error;
+use std::io::Write;
+use std::path::Path;
+
+/// Reads a tet mesh, choosing the format by the extension (any case):
+/// `.mesh` (Medit), `.node` or `.ele` (TetGen: both files are read),
+/// `.tet` (the paper's code), `.msh` (Gmsh 2.2 or 4.1 ASCII).
+pub fn read_mesh(path: &Path) -> Result<TetMesh> {
+    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
+    let name = path.display().to_string();
+    match ext.to_ascii_lowercase().as_str() {
+        "mesh" => parse_medit(&read_text(path)?, &name),
+        "tet" => parse_tet(&read_text(path)?, &name),
+        "msh" => parse_gmsh(&read_text(path)?, &name),
+        "node" | "ele" => {
+            // The sibling keeps the case of the given extension.
+            let upper = ext.bytes().any(|b| b.is_ascii_uppercase());
+            let node = path.with_extension(if upper { "NODE" } else { "node" });
+            let ele = path.with_extension(if upper { "ELE" } else { "ele" });
+            let (node_name, ele_name) = (node.display().to_string(), ele.display().to_string());
+            parse_tetgen(&read_text(&node)?, &node_name, &read_text(&ele)?, &ele_name)
+        }
+        _ => Err(Error::InvalidInput(format!(
+            "{name}: unknown mesh format; supported extensions: .mesh (Medit ASCII), .node/.ele (TetGen), \
+             .tet (the paper's code), .msh (Gmsh 2.2 or 4.1 ASCII)"
+        ))),
+    }
+}
+
+/// Reads sites from an `.xyz` file (any extension): see [`parse_xyz`].
+pub fn read_sites(path: &Path) -> Result<Vec<[f32; 3]>> {
+    parse_xyz(&read_text(path)?, &path.display().to_string())
+}
+
+/// Writes sites as `.xyz`: a line with the count, then `x y z` per line,
+/// each coordinate written so that it reads back exactly.
+pub fn write_sites_xyz(path: &Path, sites: &[[f32; 3]]) -> Result<()> {
+    write_file(path, |w| {
+        writeln!(w, "{}", sites.len())?;
+        for [x, y, z] in sites {
+            writeln!(w, "{x} {y} {z}")?;
+        }
+        Ok(())
+    })
+}
+
+/// Writes a mesh as Medit ASCII `.mesh` (references 0 for vertices, 1 for
+/// tets), coordinates written so that they read back exactly.
+pub fn write_medit(path: &Path, mesh: &TetMesh) -> Result<()> {
+    write_file(path, |w| {
+        writeln!(w, "MeshVersionFormatted 1\n\nDimension 3\n\nVertices\n{}", mesh.vertices.len())?;
+        for [x, y, z] in &mesh.vertices {
+            writeln!(w, "{x} {y} {z} 0")?;
+        }
+        writeln!(w, "\nTetrahedra\n{}", mesh.tets.len())?;
+        for [a, b, c, d] in &mesh.tets {
+            // u64: a u32 index plus 1 must not wrap.
+            let [a, b, c, d] = [a, b, c, d].map(|&v| v as u64 + 1);
+            writeln!(w, "{a} {b} {c} {d} 1")?;
+        }
+        writeln!(w, "\nEnd")
+    })
+}
+
+/// A file's text. Bytes that are not UTF-8 become U+FFFD, so that a
+/// binary or Latin-1 file still gets a parse error naming a line.
+fn read_text(path: &Path) -> Result<String> {
+    let bytes = std::fs::read(path).map_err(|source| Error::Io { path: path.display().to_string(), source })?;
+    Ok(String::from_utf8(bytes).unwrap_or_else(|e| String::from_utf8_lossy(e.as_bytes()).into_owned()))
+}
+
+fn write_file(path: &Path, body: impl FnOnce(&mut dyn Write) -> std::io::Result<()>) -> Result<()> {
+    let io = |source| Error::Io { path: path.display().to_string(), source };
+    let mut w = std::io::BufWriter::new(std::fs::File::create(path).map_err(io)?);
+    body(&mut w).map_err(io)?;
+    w.flush().map_err(io)
+}
+
+/// Tets as read, 0-based, with the line each came from so that the checks
+/// made once all vertices are known can still name it.
+#[derive(Default)]
+struct TetList {
+    tets: Vec<[u32; 4]>,
+    lines: Vec<usize>,
+}
+
+impl TetList {
+    fn with_capacity(n: usize) -> Self {
+        Self { tets: Vec::with_capacity(n), lines: Vec::with_capacity(n) }
+    }
+
+    fn push(&mut self, tet: [u32; 4], line: usize) {
+        self.tets.push(tet);
+        self.lines.push(line);
+    }
+}
+
+/// The mesh, after the checks of [`TetMesh::new`] made here first so that
+/// errors name the tet's line (`base`: how the file numbers its vertices).
+fn build(path: &str, vertices: Vec<[f32; 3]>, list: TetList, base: u32, end_line: usize) -> Result<TetMesh> {
+    if list.tets.is_empty() {
+        return Err(parse_error(path, end_line, "expected tetrahedra, found none (a surface mesh?)"));
+    }
+    let n = vertices.len();
+    let base = base as u64;
+    for (t, (tet, &line)) in list.tets.iter().zip(&list.lines).enumerate() {
+        let numbers = || tet.map(|v| v as u64 + base);
+        if let Some(&v) = tet.iter().find(|&&v| v as usize >= n) {
+            let has = match n {
+                0 => "no vertices".to_string(),
+                _ => format!("{n} vertices, numbered {base} to {}", n as u64 - 1 + base),
+            };
+            let message =
+                format!("tet {} {:?} refers to vertex {}, but the file has {has}", t + 1, numbers(), v as u64 + base);
+            return Err(parse_error(path, line, message));
+        }
+        let [a, b, c, d] = tet.map(|v| vertices[v as usize]);
+        if signed_volume(a, b, c, d) == 0.0 {
+            let message = format!("tet {} {:?} has zero volume", t + 1, numbers());
+            return Err(parse_error(path, line, message));
+        }
+    }
+    TetMesh::new(vertices, list.tets)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::PathBuf;
+    use std::time::Instant;
+
+    /// A fresh path in the temporary directory.
+    pub(super) fn temp_path(name: &str) -> PathBuf {
+        std::env::temp_dir().join(format!("cvd-io-{}-{name}", std::process::id()))
+    }
+
+    /// The parse error's line and message, or a panic naming what came.
+    pub(super) fn parse_err<T: std::fmt::Debug>(r: Result<T>) -> (usize, String) {
+        match r {
+            Err(Error::Parse { line, message, .. }) => (line, message),
+            other => panic!("expected a parse error, got {other:?}"),
+        }
+    }
+
+    /// Parses every prefix of `text`, the text with each token replaced by
+    /// hostile values, and with each line removed or doubled: a fuzz-like
+    /// check that nothing panics (the results are not looked at).
+    pub(super) fn no_panic_on_mutations<T>(text: &str, parse: impl Fn(&str) -> Result<T>) {
+        for (cut, _) in text.char_indices() {
+            let _ = parse(&text[..cut]);
+        }
+        const HOSTILE: &[&str] = &[
+            "",
+            "0",
+            "-1",
+            "nan",
+            "inf",
+            "1e40",
+            "0.5",
+            "4294967296",
+            "1000000000000",
+            "18446744073709551616",
+            "#",
+            "x",
+            "End",
+            "Vertices",
+            "$EndNodes",
+            "$Nodes",
+            "\u{fffd}",
+        ];
+        let mut at = 0;
+        while let Some(start) = text[at..].find(|c: char| !c.is_ascii_whitespace()).map(|s| at + s) {
+            let end = text[start..].find(|c: char| c.is_ascii_whitespace()).map_or(text.len(), |e| start + e);
+            for h in HOSTILE {
+                let _ = parse(&format!("{}{h}{}", &text[..start], &text[end..]));
+            }
+            at = end;
+        }
+        let lines: Vec<&str> = text.lines().collect();
+        for i in 0..lines.len() {
+            let mut without = lines.clone();
+            without.remove(i);
+            let _ = parse(&without.join("\n"));
+            let mut doubled = lines.clone();
+            doubled.insert(i, lines[i]);
+            let _ = parse(&doubled.join("\n"));
+        }
+    }
+
+    /// Two tets sharing the face 1 2 3 (1-based), volume 1/3 in all.
+    pub(super) fn two_tets() -> TetMesh {
+        let vertices = vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 1.0, 1.0]];
+        TetMesh::new(vertices, vec![[0, 1, 2, 3], [1, 2, 3, 4]]).unwrap()
+    }
+
+    /// A file of the shared models folder (`$CVD_MODELS` or
+    /// `../shared/models` beside the workspace), or None with a message.
+    fn model(name: &str) -> Option<PathBuf> {
+        let dir = std::env::var_os("CVD_MODELS").map(PathBuf::from).unwrap_or_else(|| {
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join("..").join("shared").join("models")
+        });
+        let path = dir.join(name);
+        if path.exists() {
+            Some(path)
+        } else {
+            eprintln!("skipped: {} is absent", path.display());
+            None
+        }
+    }
+
+    fn check_model(name: &str, vertices: usize, tets: usize, volume: f64) {
+        let Some(path) = model(name) else { return };
+        let start = Instant::now();
+        let mesh = read_mesh(&path).unwrap();
+        eprintln!("{name}: read in {:.1} ms", start.elapsed().as_secs_f64() * 1e3);
+        assert_eq!((mesh.vertices.len(), mesh.tets.len()), (vertices, tets));
+        let v = mesh.volume();
+        assert!((v - volume).abs() <= 1e-5 * volume, "{name}: volume {v}, expected {volume}");
+    }
+
+    #[test]
+    fn reads_joint_31k_mesh() {
+        check_model("joint_31k.mesh", 7265, 32730, 0.359608);
+    }
+
+    #[test]
+    fn reads_torus_8k_mesh() {
+        check_model("torus_8k.mesh", 2165, 8523, 0.142325);
+    }
+
+    #[test]
+    fn reads_paper_joint_tet() {
+        check_model("paper_joint.tet", 7369, 31349, 0.501127);
+    }
+
+    #[test]
+    fn reads_the_other_models() {
+        check_model("bunny_10k.mesh", 2452, 9478, 0.199478);
+        check_model("fandisk_26k.mesh", 5515, 26018, 0.140657);
+        check_model("joint_100k.mesh", 21404, 105279, 0.359658);
+    }
+
+    #[test]
+    fn reads_paper_joint_sites() {
+        let Some(path) = model("paper_joint_3000.xyz") else {
+            return;
+        };
+        let sites = read_sites(&path).unwrap();
+        assert_eq!(sites.len(), 3000);
+        assert_eq!(sites[0], [0.368190565_f64, 0.311753023, -0.155509743].map(|x| x as f32));
+    }
+
+    #[test]
+    fn medit_round_trip_through_files() {
+        let mesh = two_tets();
+        let path = temp_path("round_trip.mesh");
+        write_medit(&path, &mesh).unwrap();
+        let back = read_mesh(&path);
+        std::fs::remove_file(&path).unwrap();
+        assert_eq!(back.unwrap(), mesh);
+    }
+
+    #[test]
+    fn sites_round_trip_exactly() {
+        let sites = vec![[0.1, -2.5e-7, 3.0e30], [f32::MIN_POSITIVE, 1.0 / 3.0, -0.0], [123456.79, 1e-45, 7.0]];
+        let path = temp_path("round_trip.xyz");
+        write_sites_xyz(&path, &sites).unwrap();
+        let back = read_sites(&path);
+        std::fs::remove_file(&path).unwrap();
+        assert_eq!(back.unwrap(), sites);
+    }
+
+    #[test]
+    fn tetgen_is_read_from_either_file() {
+        let (node, ele) = (temp_path("pair.node"), temp_path("pair.ele"));
+        std::fs::write(&node, "5 3 0 0\n1 0 0 0\n2 1 0 0\n3 0 1 0\n4 0 0 1\n5 1 1 1\n").unwrap();
+        std::fs::write(&ele, "2 4 0\n1 1 2 3 4\n2 2 3 4 5\n").unwrap();
+        let (a, b) = (read_mesh(&node), read_mesh(&ele));
+        std::fs::remove_file(&node).unwrap();
+        std::fs::remove_file(&ele).unwrap();
+        assert_eq!(a.unwrap(), two_tets());
+        assert_eq!(b.unwrap(), two_tets());
+    }
+
+    #[test]
+    fn missing_files_and_unknown_extensions() {
+        let missing = temp_path("missing.mesh");
+        assert!(matches!(read_mesh(&missing), Err(Error::Io { path, .. }) if path.contains("missing.mesh")));
+        let e = read_mesh(Path::new("x.obj")).unwrap_err().to_string();
+        assert!(matches!(read_mesh(Path::new("x.obj")), Err(Error::InvalidInput(_))));
+        assert!(e.contains("x.obj") && e.contains(".mesh") && e.contains(".msh") && e.contains(".node"), "{e}");
+    }
+
+    #[test]
+    fn binary_garbage_is_a_parse_error() {
+        let path = temp_path("garbage.mesh");
+        std::fs::write(&path, [0xff, 0xfe, 0x00, 0x9f, b'\n', 0x80]).unwrap();
+        let r = read_mesh(&path);
+        std::fs::remove_file(&path).unwrap();
+        assert_eq!(parse_err(r).0, 1);
+    }
+
+    #[test]
+    fn bad_tets_name_their_line() {
+        let list = |tets: &[[u32; 4]]| TetList { tets: tets.to_vec(), lines: (10..10 + tets.len()).collect() };
+        let v = two_tets().vertices;
+        let (line, m) = parse_err(build("f", v.clone(), list(&[[0, 1, 2, 3], [0, 1, 2, 5]]), 1, 99));
+        assert_eq!(
+            (line, m.as_str()),
+            (11, "tet 2 [1, 2, 3, 6] refers to vertex 6, but the file has 5 vertices, numbered 1 to 5")
+        );
+        let (line, m) = parse_err(build("f", v.clone(), list(&[[0, 1, 2, 2]]), 0, 99));
+        assert_eq!((line, m.as_str()), (10, "tet 1 [0, 1, 2, 2] has zero volume"));
+        let (line, m) = parse_err(build("f", vec![], list(&[[0, 1, 2, 3]]), 0, 99));
+        assert_eq!((line, m.contains("the file has no vertices")), (10, true));
+        assert_eq!(parse_err(build("f", v, TetList::default(), 0, 99)).0, 99);
+    }
+}
