@@ -58,10 +58,10 @@ fn run(args: &[String]) -> Result<(), String> {
         "test" => status(cargo(&["test", "--release", "--workspace"], rest)),
         "build" => status(cargo(&["build", "--release", "--workspace"], rest)),
         "bench" => match rest.split_first() {
-            Some((which, extra)) if which == "knn" => {
-                status(cargo(&["bench", "--package", "cvd", "--bench", "knn", "--"], extra))
+            Some((which, extra)) if which == "knn" || which == "cvd" => {
+                status(cargo(&["bench", "--package", "cvd", "--bench", which, "--"], extra))
             }
-            _ => Err(format!("unknown benchmark; expected: knn\n\n{USAGE}")),
+            _ => Err(format!("unknown benchmark; expected: knn or cvd\n\n{USAGE}")),
         },
         "lint" => {
             status(cargo(&["fmt", "--all", "--check"], &[]))?;
