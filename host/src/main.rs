@@ -4,6 +4,7 @@ use clap::{Args, Parser, Subcommand};
 use cvd::backend::{self, BackendKind, BackendOptions};
 use cvd::vulkan::{self, VulkanOptions};
 use cvd::{points, ClippedVoronoi, KnnJob, KnnMethod, Strategy, TetMesh};
+use std::path::PathBuf;
 use std::process::ExitCode;
 
 #[derive(Parser)]
@@ -25,15 +26,24 @@ enum Command {
 
 #[derive(Args)]
 struct RunArgs {
-    /// Built-in model: cube.
+    /// Model: built-in `cube`, or NAME.mesh / NAME_*.mesh / NAME.tet in the models folder.
     #[arg(long, default_value = "cube")]
     model: String,
-    /// Model resolution (cube: sub-cubes per side).
+    /// Folder of model files (default: $CVD_MODELS); its files win over built-in models.
+    #[arg(long)]
+    models_dir: Option<PathBuf>,
+    /// A tet mesh file (.mesh, .node/.ele, .tet, .msh) instead of --model.
+    #[arg(long)]
+    mesh: Option<PathBuf>,
+    /// Built-in model resolution (cube: sub-cubes per side).
     #[arg(long, default_value_t = 16)]
     resolution: usize,
-    /// Number of sites, uniform in the model's bounding box.
+    /// Number of sites, uniform inside the mesh.
     #[arg(long, default_value_t = 5000)]
     sites: usize,
+    /// Sites from a file (.xyz: x y z per line, optional count line).
+    #[arg(long)]
+    sites_file: Option<PathBuf>,
     /// Random seed of the sites.
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -46,41 +56,100 @@ struct RunArgs {
     /// Neighbours per site for its cell.
     #[arg(long, default_value_t = cvd::voronoi::DEFAULT_K_SITE)]
     k_site: usize,
+    /// Write per-site results as CSV (index, site, volume, centroid, energy).
+    #[arg(long)]
+    output: Option<PathBuf>,
     #[command(flatten)]
     backend: BackendArgs,
 }
 
+/// The model's mesh: an explicit file, a file of that name in the models
+/// folder, or a built-in model.
+fn load_model(args: &RunArgs) -> cvd::Result<(String, TetMesh)> {
+    if let Some(path) = &args.mesh {
+        return Ok((path.display().to_string(), cvd::io::read_mesh(path)?));
+    }
+    let dir = args.models_dir.clone().or_else(|| std::env::var_os("CVD_MODELS").map(PathBuf::from));
+    if let Some(dir) = dir {
+        let name = &args.model;
+        let mut candidates = vec![dir.join(format!("{name}.mesh")), dir.join(format!("{name}.tet"))];
+        if let Ok(entries) = std::fs::read_dir(&dir) {
+            let mut more: Vec<PathBuf> = entries
+                .filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|p| {
+                    let file = p.file_name().and_then(|f| f.to_str()).unwrap_or("");
+                    file.starts_with(&format!("{name}_")) && file.ends_with(".mesh")
+                })
+                .collect();
+            more.sort();
+            candidates.extend(more);
+        }
+        if let Some(path) = candidates.into_iter().find(|p| p.is_file()) {
+            return Ok((path.display().to_string(), cvd::io::read_mesh(&path)?));
+        }
+    }
+    match args.model.as_str() {
+        "cube" => Ok(("cube".into(), TetMesh::cube(args.resolution))),
+        other => Err(cvd::Error::InvalidInput(format!(
+            "unknown model '{other}': built-in models: cube; or give --mesh PATH, or --models-dir DIR holding {other}.mesh"
+        ))),
+    }
+}
+
+fn write_cells(path: &std::path::Path, sites: &[[f32; 3]], cells: &cvd::Cells) -> cvd::Result<()> {
+    use std::io::Write;
+    let io_err = |source| cvd::Error::Io { path: path.display().to_string(), source };
+    let mut out = std::io::BufWriter::new(std::fs::File::create(path).map_err(io_err)?);
+    writeln!(out, "index,x,y,z,volume,cx,cy,cz,energy").map_err(io_err)?;
+    for (i, s) in sites.iter().enumerate() {
+        let c = cells.centroid[i];
+        writeln!(
+            out,
+            "{i},{},{},{},{:e},{},{},{},{:e}",
+            s[0], s[1], s[2], cells.volume[i], c[0], c[1], c[2], cells.energy[i]
+        )
+        .map_err(io_err)?;
+    }
+    out.flush().map_err(io_err)
+}
+
 fn run(args: &RunArgs) -> cvd::Result<()> {
-    let mesh = match args.model.as_str() {
-        "cube" => TetMesh::cube(args.resolution),
-        other => return Err(cvd::Error::InvalidInput(format!("unknown model '{other}'; built-in models: cube"))),
+    let (model, mesh) = load_model(args)?;
+    let sites = match &args.sites_file {
+        Some(path) => cvd::io::read_sites(path)?,
+        None => points::in_mesh(&mesh, args.sites, args.seed),
     };
     let backend = backend::open(&args.backend.options())?;
-    let sites = points::uniform(args.sites, args.seed);
     println!(
-        "{}: {} tets, {} sites, {:?}, on {}",
-        args.model,
+        "{model}: {} tets (volume {:.6}), {} sites, {:?}, on {}",
         mesh.tets.len(),
+        mesh.volume(),
         sites.len(),
         args.strategy,
         backend.name()
     );
     let cv = ClippedVoronoi::new(&mesh, &sites).strategy(args.strategy).k(args.k).k_site(args.k_site);
-    for attempt in ["first run", "second run"] {
-        let cells = cv.backend(backend.as_ref()).compute()?;
-        println!("{attempt}: {} (total {:.1} ms)", cells.timings, cells.timings.total() * 1e3);
-        if attempt == "second run" {
-            println!(
-                "k = {}, k_site = {}; volume {:.6} of {:.6}, E_vol = {:.2e}; energy {:.6e}",
-                cells.k,
-                cells.k_site,
-                cells.total_volume,
-                cells.mesh_volume,
-                cells.e_vol,
-                cells.energy_total()
-            );
-            println!("counters: {:?}", cells.counters);
-        }
+    let first = cv.backend(backend.as_ref()).compute()?;
+    println!("first run: {} (total {:.1} ms)", first.timings, first.timings.total() * 1e3);
+    let cells = cv.backend(backend.as_ref()).compute()?;
+    println!("second run: {} (total {:.1} ms)", cells.timings, cells.timings.total() * 1e3);
+    println!(
+        "k = {}, k_site = {}; volume {:.6} of {:.6}, E_vol = {:.2e}; energy {:.6e}",
+        cells.k,
+        cells.k_site,
+        cells.total_volume,
+        cells.mesh_volume,
+        cells.e_vol,
+        cells.energy_total()
+    );
+    let c = &cells.counters;
+    println!(
+        "pairs {} (non-empty {}), clips {}, security radius not reached {}, overflows {}, broken {}, duplicate sites {}",
+        c.pairs, c.nonempty, c.clips, c.security_missed, c.overflows, c.broken, c.duplicate_sites
+    );
+    if let Some(path) = &args.output {
+        write_cells(path, &sites, &cells)?;
+        println!("wrote {}", path.display());
     }
     Ok(())
 }
