@@ -40,55 +40,22 @@ impl CpuBackend {
     }
 }
 
-/// Slots written by many threads at indices that are each written by exactly
-/// one thread (the scatter of a counting sort, whose slots come from atomic
-/// counters). This is the CPU twin of a storage buffer written at
-/// data-dependent positions.
-struct ScatterSlots<'a, T> {
-    ptr: *mut T,
-    len: usize,
-    _borrow: std::marker::PhantomData<&'a mut [T]>,
-}
-
-// SAFETY: writes go to distinct indices (see the type's contract); reads are
-// not offered.
-unsafe impl<T: Send> Send for ScatterSlots<'_, T> {}
-unsafe impl<T: Send> Sync for ScatterSlots<'_, T> {}
-
-impl<'a, T> ScatterSlots<'a, T> {
-    fn new(data: &'a mut [T]) -> Self {
-        Self { ptr: data.as_mut_ptr(), len: data.len(), _borrow: std::marker::PhantomData }
-    }
-    fn share(&self) -> Self {
-        Self { ptr: self.ptr, len: self.len, _borrow: std::marker::PhantomData }
-    }
-}
-
-impl<T: Copy> OutBuf<T> for ScatterSlots<'_, T> {
-    fn read(&self, _i: usize) -> T {
-        unreachable!("scatter slots are write-only")
-    }
-    fn write(&mut self, i: usize, value: T) {
-        assert!(i < self.len, "scatter slot {i} out of {}", self.len);
-        // SAFETY: in bounds, and no other thread writes or reads slot `i`.
-        unsafe { self.ptr.add(i).write(value) }
-    }
-}
-
-/// Slots read and written by many threads, each thread touching only its
-/// own disjoint range (a site query in grid order owns the `k` slots of its
-/// site). The CPU twin of a storage buffer indexed by data.
-struct DisjointSlots<'a, T> {
+/// A buffer shared by many threads, each index read and written by one
+/// thread only, at positions the algorithm computes: the counting sort's
+/// scatter (slots from atomic counters), site queries in grid order (a
+/// query owns the `k` slots of its site). The CPU twin of a storage buffer
+/// indexed by data.
+struct SharedSlots<'a, T> {
     ptr: *mut T,
     len: usize,
     _borrow: std::marker::PhantomData<&'a mut [T]>,
 }
 
 // SAFETY: threads access disjoint indices (see the type's contract).
-unsafe impl<T: Send> Send for DisjointSlots<'_, T> {}
-unsafe impl<T: Send> Sync for DisjointSlots<'_, T> {}
+unsafe impl<T: Send> Send for SharedSlots<'_, T> {}
+unsafe impl<T: Send> Sync for SharedSlots<'_, T> {}
 
-impl<'a, T> DisjointSlots<'a, T> {
+impl<'a, T> SharedSlots<'a, T> {
     fn new(data: &'a mut [T]) -> Self {
         Self { ptr: data.as_mut_ptr(), len: data.len(), _borrow: std::marker::PhantomData }
     }
@@ -97,7 +64,7 @@ impl<'a, T> DisjointSlots<'a, T> {
     }
 }
 
-impl<T: Copy> OutBuf<T> for DisjointSlots<'_, T> {
+impl<T: Copy> OutBuf<T> for SharedSlots<'_, T> {
     fn read(&self, i: usize) -> T {
         assert!(i < self.len, "slot {i} out of {}", self.len);
         // SAFETY: in bounds; only this thread touches slot `i`.
@@ -161,7 +128,7 @@ fn build_grid(job: &KnnJob) -> CpuGrid {
 
     let mut sorted = vec![[0u32; 4]; n];
     let cursor = atomic_zeros(n_cells);
-    let slots = ScatterSlots::new(&mut sorted);
+    let slots = SharedSlots::new(&mut sorted);
     (0..n).into_par_iter().chunks(CHUNK).for_each(|chunk| {
         let mut out = slots.share();
         let mut counters: &[AtomicU32] = &cursor;
@@ -194,8 +161,8 @@ impl Backend for CpuBackend {
                         let (cs, cc, sorted) = (&g.cell_start, &g.cell_count, &g.sorted);
                         if p.exclude_self != 0 {
                             // Site queries run in grid order and write their own slots.
-                            let nbr = DisjointSlots::new(&mut indices);
-                            let d2 = DisjointSlots::new(&mut dist2);
+                            let nbr = SharedSlots::new(&mut indices);
+                            let d2 = SharedSlots::new(&mut dist2);
                             (0..job.queries.len()).into_par_iter().chunks(CHUNK).for_each(|chunk| {
                                 let (mut nbr, mut d2) = (nbr.share(), d2.share());
                                 for i in chunk {

@@ -91,3 +91,36 @@ pub fn in_mesh(mesh: &crate::TetMesh, n: usize, seed: u64) -> Vec<[f32; 3]> {
         })
         .collect()
 }
+
+/// The order of `points` along a Morton (Z-order) curve: neighbours in
+/// space become neighbours in memory, which keeps caches (and GPU
+/// workgroups) on nearby data. Ties keep the input order.
+pub fn morton_order(points: &[[f32; 3]]) -> Vec<u32> {
+    let mut lo = [f32::INFINITY; 3];
+    let mut hi = [f32::NEG_INFINITY; 3];
+    for p in points {
+        for a in 0..3 {
+            lo[a] = lo[a].min(p[a]);
+            hi[a] = hi[a].max(p[a]);
+        }
+    }
+    let extent = (0..3).map(|a| hi[a] - lo[a]).fold(0.0f32, f32::max).max(f32::MIN_POSITIVE);
+    // Spreads the low 10 bits of v to every third bit.
+    let spread = |v: u32| {
+        let mut x = v & 0x3ff;
+        x = (x | (x << 16)) & 0x0300_00ff;
+        x = (x | (x << 8)) & 0x0300_f00f;
+        x = (x | (x << 4)) & 0x030c_30c3;
+        (x | (x << 2)) & 0x0924_9249
+    };
+    let mut keyed: Vec<(u32, u32)> = points
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let q = |a: usize| (((p[a] - lo[a]) / extent) * 1023.0) as u32;
+            (spread(q(0)) | (spread(q(1)) << 1) | (spread(q(2)) << 2), i as u32)
+        })
+        .collect();
+    keyed.sort_unstable();
+    keyed.into_iter().map(|(_, i)| i).collect()
+}

@@ -5,6 +5,7 @@ use crate::backend::Backend;
 use crate::error::{Error, Result};
 use crate::knn::{KnnJob, KnnMethod};
 use crate::mesh::TetMesh;
+use crate::points;
 use crate::timing::Timings;
 use cvd_kernels::abi::{counter, ClipParams, ACCUM_PER_SITE};
 use std::collections::HashMap;
@@ -191,10 +192,22 @@ impl<'a> ClippedVoronoi<'a> {
             })
             .collect();
 
+        // Sites and tets go to the kernels in Morton order, for locality;
+        // the map sends each input site to its place in that order.
+        let order = points::morton_order(&unique);
+        let mut rank = vec![0usize; unique.len()];
+        for (new, &old) in order.iter().enumerate() {
+            rank[old as usize] = new;
+        }
+        let map: Vec<Option<usize>> = map.into_iter().map(|m| m.map(|u| rank[u])).collect();
+        let unique: Vec<[f32; 3]> = order.iter().map(|&old| unique[old as usize]).collect();
+
         let frame = Frame::of(mesh, &unique);
         let sites: Vec<[f32; 3]> = unique.iter().map(|&p| frame.to_local(p)).collect();
         let verts: Vec<[f32; 3]> = mesh.vertices.iter().map(|&p| frame.to_local(p)).collect();
-        let local_mesh = TetMesh { vertices: verts, tets: mesh.tets.clone() };
+        let tet_order = points::morton_order(&mesh.centroids());
+        let tets = tet_order.iter().map(|&t| mesh.tets[t as usize]).collect();
+        let local_mesh = TetMesh { vertices: verts, tets };
         let centroids = local_mesh.centroids();
         let n = sites.len();
         let k = self.k.unwrap_or_else(|| paper_k(n, mesh.tets.len())).min(n);
@@ -235,7 +248,7 @@ impl<'a> ClippedVoronoi<'a> {
             tet_knn,
             sites: sites.iter().map(|p| [p[0], p[1], p[2], 0.0]).collect(),
             verts: local_mesh.vertices.iter().map(|p| [p[0], p[1], p[2], 0.0]).collect(),
-            tets: mesh.tets.clone(),
+            tets: local_mesh.tets,
             params,
             strategy: self.strategy,
         };

@@ -255,16 +255,7 @@ pub fn voronoi_cell<O: OutBuf<[f32; 4]> + ?Sized, C: AtomicSums>(
         cells.write(base + 1 + CELL_PLANES + v, [x.x, x.y, x.z, f32::from_bits(poly.tris[v])]);
         v += 1;
     }
-    counters.add(counter::CLIPS, c.clips);
-    if c.security_missed {
-        counters.add(counter::SECURITY_MISSED, 1);
-    }
-    if c.overflow {
-        counters.add(counter::OVERFLOWS, 1);
-    }
-    if c.broken {
-        counters.add(counter::BROKEN, 1);
-    }
+    count(counters, 0, false, &c);
 }
 
 /// Thread `pair` of the cell-tet strategy (Algorithm 2): site `j`'s stored
