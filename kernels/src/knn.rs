@@ -162,10 +162,35 @@ fn ring_gap(g: &GridParams, q: [u32; 3], c: [u32; 3], r: u32) -> u64 {
     gap
 }
 
-/// Offers every site of one grid cell.
+/// The squared distance from `q` to the box of grid cell `c` (0 inside).
+#[inline]
+fn cell_dist2(g: &GridParams, q: [u32; 3], c: [u32; 3]) -> u64 {
+    let cs = g.cell_size as u64;
+    let mut d2 = 0u64;
+    let mut a = 0;
+    while a < 3 {
+        let lo = c[a] as u64 * cs;
+        let hi = lo + cs;
+        let x = q[a] as u64;
+        let gap = if x < lo {
+            lo - x
+        } else if x > hi {
+            x - hi
+        } else {
+            0
+        };
+        d2 += gap * gap;
+        a += 1;
+    }
+    d2
+}
+
+/// Offers every site of grid cell `c`, unless the list is full and the
+/// whole cell is farther than its worst entry.
 #[inline]
 fn visit_cell<N, D>(
-    cell: usize,
+    g: &GridParams,
+    c: [u32; 3],
     cell_start: &[u32],
     cell_count: &[u32],
     sorted: &[QuantPoint],
@@ -178,6 +203,10 @@ fn visit_cell<N, D>(
     N: OutBuf<u32> + ?Sized,
     D: OutBuf<u64> + ?Sized,
 {
+    if best.found == best.k && cell_dist2(g, q, c) > best.worst_d {
+        return;
+    }
+    let cell = cell_index(g, c);
     let start = cell_start[cell] as usize;
     let end = start + cell_count[cell] as usize;
     let mut j = start;
@@ -228,19 +257,16 @@ pub fn grid_query<N, D>(
                 if on_shell {
                     let mut x = x0;
                     while x <= x1 {
-                        let cell = cell_index(g, [x, y, z]);
-                        visit_cell(cell, cell_start, cell_count, sorted, q, exclude, &mut best, nbr, d2);
+                        visit_cell(g, [x, y, z], cell_start, cell_count, sorted, q, exclude, &mut best, nbr, d2);
                         x += 1;
                     }
                 } else {
                     // Inside the shell's y-z extent only the two x ends are new.
                     if c[0] >= r {
-                        let cell = cell_index(g, [c[0] - r, y, z]);
-                        visit_cell(cell, cell_start, cell_count, sorted, q, exclude, &mut best, nbr, d2);
+                        visit_cell(g, [c[0] - r, y, z], cell_start, cell_count, sorted, q, exclude, &mut best, nbr, d2);
                     }
                     if c[0] + r < g.dim_x {
-                        let cell = cell_index(g, [c[0] + r, y, z]);
-                        visit_cell(cell, cell_start, cell_count, sorted, q, exclude, &mut best, nbr, d2);
+                        visit_cell(g, [c[0] + r, y, z], cell_start, cell_count, sorted, q, exclude, &mut best, nbr, d2);
                     }
                 }
                 y += 1;
