@@ -84,25 +84,6 @@ fn has_edge(t: u32, x: u32, y: u32) -> bool {
     (a == x && b == y) || (b == x && c == y) || (c == x && a == y)
 }
 
-/// The plane following `x` in triple `t` (`t` must contain `x`).
-#[inline]
-fn after(t: u32, x: u32) -> u32 {
-    let [a, b, c] = unpack(t);
-    if a == x {
-        b
-    } else if b == x {
-        c
-    } else {
-        a
-    }
-}
-
-#[inline]
-fn contains(t: u32, x: u32) -> bool {
-    let [a, b, c] = unpack(t);
-    a == x || b == x || c == x
-}
-
 impl<const P: usize, const V: usize> Polyhedron<P, V> {
     /// An empty polyhedron (no vertices).
     pub fn empty() -> Self {
@@ -318,45 +299,44 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
         Clip::Cut
     }
 
-    /// Volume, first and second moments, by fanning each face from its
-    /// first vertex and coning the fan to the local origin (signed tets, so
-    /// the origin may lie outside).
+    /// Volume, first and second moments, from vertex-local pieces only
+    /// (no adjacency search): each face is fanned from the foot `c_x` of
+    /// the perpendicular from the site to its plane, and each fan triangle
+    /// is split at the foot `m` of the perpendicular to its edge's line, so
+    /// a vertex `v` with edge `x -> y` owns the triangles `(c_x, m, v)` on
+    /// face `x` and `(c_y, v, m)` on face `y`; each triangle is coned to the
+    /// site (signed tets, so the site may lie outside). `|m| <= |v|`, so no
+    /// far-away point enters the sums.
     pub fn moments(&self) -> Moments {
+        let mut feet = [Vec3::ZERO; P];
+        let mut p = 0;
+        while p < self.n_planes as usize {
+            let n = self.planes[p].truncate();
+            feet[p] = n * (self.planes[p].w / n.length_squared());
+            p += 1;
+        }
         let mut m = Moments::default();
-        let n = self.n_verts as usize;
-        let mut face = 0u32;
-        while face < self.n_planes {
-            // First vertex on this face.
-            let mut t0 = 0;
-            while t0 < n && !contains(self.tris[t0], face) {
-                t0 += 1;
-            }
-            if t0 < n {
-                let v0 = self.verts[t0];
-                let mut prev = v0;
-                let mut next_plane = after(self.tris[t0], face);
-                let mut steps = 0;
-                // Walk around the face: the next vertex holds edge next_plane -> face.
-                while steps < n {
-                    let mut u = 0;
-                    while u < n && !has_edge(self.tris[u], next_plane, face) {
-                        u += 1;
-                    }
-                    if u == n || u == t0 {
-                        break;
-                    }
-                    let cur = self.verts[u];
-                    // With det(n_a, n_b, n_c) > 0 triples this walk turns clockwise
-                    // seen from outside, hence (cur, prev).
-                    add_cone(&mut m, v0, cur, prev);
-                    prev = cur;
-                    next_plane = after(self.tris[u], face);
-                    steps += 1;
-                }
-            }
-            face += 1;
+        let mut i = 0;
+        while i < self.n_verts as usize {
+            let v = self.verts[i];
+            let [a, b, c] = unpack(self.tris[i]);
+            self.add_corner_edge(&mut m, &feet, v, a, b);
+            self.add_corner_edge(&mut m, &feet, v, b, c);
+            self.add_corner_edge(&mut m, &feet, v, c, a);
+            i += 1;
         }
         m
+    }
+
+    #[inline]
+    fn add_corner_edge(&self, m: &mut Moments, feet: &[Vec3; P], v: Vec3, x: u32, y: u32) {
+        let cx = feet[x as usize];
+        let cy = feet[y as usize];
+        let u = self.planes[x as usize].truncate().cross(self.planes[y as usize].truncate());
+        let uu = u.length_squared();
+        let foot = if uu > 0.0 { v - u * (v.dot(u) / uu) } else { v };
+        add_cone(m, cx, foot, v);
+        add_cone(m, cy, v, foot);
     }
 }
 
