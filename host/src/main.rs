@@ -81,7 +81,8 @@ fn load_model(args: &RunArgs) -> cvd::Result<(String, TetMesh)> {
                     file.starts_with(&format!("{name}_")) && file.ends_with(".mesh")
                 })
                 .collect();
-            more.sort();
+            // joint_31k before joint_100k: numbers compare as numbers.
+            more.sort_by_key(|p| natural_key(&p.to_string_lossy()));
             candidates.extend(more);
         }
         if let Some(path) = candidates.into_iter().find(|p| p.is_file()) {
@@ -94,6 +95,27 @@ fn load_model(args: &RunArgs) -> cvd::Result<(String, TetMesh)> {
             "unknown model '{other}': built-in models: cube; or give --mesh PATH, or --models-dir DIR holding {other}.mesh"
         ))),
     }
+}
+
+/// A sort key in which runs of digits compare by value.
+fn natural_key(s: &str) -> Vec<(String, u64)> {
+    let mut key = Vec::new();
+    let mut text = String::new();
+    let mut chars = s.chars().peekable();
+    while let Some(c) = chars.next() {
+        if c.is_ascii_digit() {
+            let mut n = c.to_digit(10).unwrap_or(0) as u64;
+            while let Some(d) = chars.peek().and_then(|d| d.to_digit(10)) {
+                n = n.saturating_mul(10).saturating_add(d as u64);
+                chars.next();
+            }
+            key.push((std::mem::take(&mut text), n));
+        } else {
+            text.push(c);
+        }
+    }
+    key.push((text, 0));
+    key
 }
 
 fn write_cells(path: &std::path::Path, sites: &[[f32; 3]], cells: &cvd::Cells) -> cvd::Result<()> {
@@ -217,6 +239,12 @@ fn knn(args: &KnnArgs) -> cvd::Result<()> {
 }
 
 fn main() -> ExitCode {
+    // Die quietly when the reader of our output goes away (`cvd ... | head`).
+    #[cfg(unix)]
+    // SAFETY: restoring the default action of a signal at start-up.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     let cli = Cli::parse();
     let result = match &cli.command {
         Command::Devices => vulkan::list_devices().map(|devices| {

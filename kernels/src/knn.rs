@@ -33,6 +33,17 @@ fn sub_floor0(a: u32, b: u32) -> u32 {
     }
 }
 
+/// `max(a - b, 0)` in 64 bits.
+#[inline]
+#[allow(clippy::implicit_saturating_sub)]
+fn sub_floor0_u64(a: u64, b: u64) -> u64 {
+    if a > b {
+        a - b
+    } else {
+        0
+    }
+}
+
 /// Exact squared distance between quantized points.
 #[inline]
 pub fn dist2(a: [u32; 3], b: &QuantPoint) -> u64 {
@@ -172,13 +183,7 @@ fn cell_dist2(g: &GridParams, q: [u32; 3], c: [u32; 3]) -> u64 {
         let lo = c[a] as u64 * cs;
         let hi = lo + cs;
         let x = q[a] as u64;
-        let gap = if x < lo {
-            lo - x
-        } else if x > hi {
-            x - hi
-        } else {
-            0
-        };
+        let gap = if x < lo { lo - x } else { sub_floor0_u64(x, hi) };
         d2 += gap * gap;
         a += 1;
     }
