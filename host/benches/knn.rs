@@ -84,7 +84,11 @@ fn main() {
     let vulkan = match VulkanBackend::new(&VulkanOptions { device: o.device.clone(), validation: false }) {
         Ok(v) => {
             let compile = v.warm_up().expect("pipelines");
-            println!("Vulkan device: {} (pipeline creation, paid once: {:.2} s)", v.device().name, compile);
+            println!(
+                "Vulkan device: {} (kernel compilation on first use, paid once: {:.2} s)",
+                v.device().name,
+                compile
+            );
             Some(v)
         }
         Err(e) => {
