@@ -116,7 +116,7 @@ fn main() {
                 let (cells, wall) = best;
                 let t = &cells.timings;
                 let knn = t.get("grid") + t.get("knn") + t.get("site knn") + t.get("tet knn");
-                let clip = t.get("cells") + t.get("clip");
+                let clip = t.get("cells") + t.get("clip") + t.get("second pass");
                 let row = Row {
                     model: name.clone(),
                     tets: mesh.tets.len(),
@@ -132,7 +132,7 @@ fn main() {
                     counters: cells.counters,
                 };
                 println!(
-                    "{:<12} {:>7} {:>6} {:<8} {:<30} {:>4} {:>9.1} {:>9.1} {:>9.1} {:>9.1} {:>9.2e}  pairs {} nonempty {} clips {} security-missed {} overflow {} broken {}",
+                    "{:<12} {:>7} {:>6} {:<8} {:<30} {:>4} {:>9.1} {:>9.1} {:>9.1} {:>9.1} {:>9.2e}  pairs {} nonempty {} clips {} security-missed {} overflow {} broken {} second-pass {} unresolved {}",
                     row.model,
                     row.tets,
                     row.sites,
@@ -149,7 +149,9 @@ fn main() {
                     row.counters.clips,
                     row.counters.security_missed,
                     row.counters.overflows,
-                    row.counters.broken
+                    row.counters.broken,
+                    row.counters.second_pass,
+                    row.counters.unresolved
                 );
                 rows.push(row);
             }

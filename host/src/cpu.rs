@@ -7,7 +7,7 @@ use crate::knn::{KnnJob, KnnMethod, Neighbors};
 use crate::timing::{timed, Timings};
 use crate::voronoi::{ClipJob, ClipOutput, Strategy};
 use cvd_kernels::abi::{counter, QuantPoint, ACCUM_PER_SITE};
-use cvd_kernels::buffers::{DeviceSums, OutBuf, Window};
+use cvd_kernels::buffers::{DeviceSums, OutBuf, PairList, Window};
 use cvd_kernels::clip::{self, CELL_RECORDS};
 use cvd_kernels::{grid, knn, scan};
 use rayon::prelude::*;
@@ -74,6 +74,16 @@ impl<T: Copy> OutBuf<T> for SharedSlots<'_, T> {
         assert!(i < self.len, "slot {i} out of {}", self.len);
         // SAFETY: in bounds; only this thread touches slot `i`.
         unsafe { self.ptr.add(i).write(value) }
+    }
+}
+
+/// A task's list of unfinished pairs, merged after the task.
+#[derive(Default)]
+struct LocalPairs(Vec<[u32; 2]>);
+
+impl PairList for LocalPairs {
+    fn push(&mut self, tet: u32, site: u32) {
+        self.0.push([tet, site]);
     }
 }
 
@@ -212,10 +222,16 @@ impl Backend for CpuBackend {
             timings.push("knn", site_nn.timings.total() + tet_nn.timings.total());
             let sums: Vec<AtomicI64> = (0..p.n_sites as usize * ACCUM_PER_SITE).map(|_| AtomicI64::new(0)).collect();
             let totals: Vec<AtomicI64> = (0..counter::COUNT).map(|_| AtomicI64::new(0)).collect();
-            // Each task counts privately and adds its counts once.
+            // Each task counts and lists privately and merges once.
+            let unfinished = std::sync::Mutex::new(Vec::new());
             let merge = |local: &[i64]| {
                 for (t, &v) in totals.iter().zip(local) {
                     t.fetch_add(v, Ordering::Relaxed);
+                }
+            };
+            let merge_pairs = |pairs: LocalPairs| {
+                if !pairs.0.is_empty() {
+                    unfinished.lock().unwrap_or_else(|e| e.into_inner()).extend(pairs.0);
                 }
             };
             let n_pairs = p.n_tets as usize * p.k_tet as usize;
@@ -225,6 +241,7 @@ impl Backend for CpuBackend {
                     let (_, t) = timed(|| {
                         (0..n_pairs).into_par_iter().chunks(CHUNK / 4).for_each(|chunk| {
                             let mut local = [0i64; counter::COUNT];
+                            let mut pairs = LocalPairs::default();
                             let mut s: &[AtomicI64] = &sums;
                             for pair in chunk {
                                 clip::tet_cell_pair(
@@ -237,9 +254,11 @@ impl Backend for CpuBackend {
                                     &site_nn.indices,
                                     &mut s,
                                     &mut DeviceSums(&mut local),
+                                    &mut pairs,
                                 );
                             }
                             merge(&local);
+                            merge_pairs(pairs);
                         })
                     });
                     timings.push("clip", t);
@@ -259,6 +278,7 @@ impl Backend for CpuBackend {
                     let (_, t) = timed(|| {
                         (0..n_pairs).into_par_iter().chunks(CHUNK / 4).for_each(|chunk| {
                             let mut local = [0i64; counter::COUNT];
+                            let mut pairs = LocalPairs::default();
                             let mut s: &[AtomicI64] = &sums;
                             for pair in chunk {
                                 clip::cell_tet_pair(
@@ -271,9 +291,11 @@ impl Backend for CpuBackend {
                                     &cells,
                                     &mut s,
                                     &mut DeviceSums(&mut local),
+                                    &mut pairs,
                                 );
                             }
                             merge(&local);
+                            merge_pairs(pairs);
                         })
                     });
                     timings.push("clip", t);
@@ -282,6 +304,11 @@ impl Backend for CpuBackend {
             Ok(ClipOutput {
                 sums: sums.into_iter().map(AtomicI64::into_inner).collect(),
                 counters: totals.into_iter().map(AtomicI64::into_inner).collect(),
+                unfinished: {
+                    let mut u = unfinished.into_inner().unwrap_or_else(|e| e.into_inner());
+                    u.sort_unstable();
+                    u
+                },
                 timings,
             })
         })

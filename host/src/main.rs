@@ -166,8 +166,17 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
     );
     let c = &cells.counters;
     println!(
-        "pairs {} (non-empty {}), clips {}, security radius not reached {}, overflows {}, broken {}, duplicate sites {}",
-        c.pairs, c.nonempty, c.clips, c.security_missed, c.overflows, c.broken, c.duplicate_sites
+        "pairs {} (non-empty {}), clips {}; unfinished by the kernels: security radius {}, overflows {}, broken {}; \
+         finished by the second pass {}, unresolved {}; duplicate sites {}",
+        c.pairs,
+        c.nonempty,
+        c.clips,
+        c.security_missed,
+        c.overflows,
+        c.broken,
+        c.second_pass,
+        c.unresolved,
+        c.duplicate_sites
     );
     if let Some(path) = &args.output {
         write_cells(path, &sites, &cells)?;

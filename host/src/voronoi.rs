@@ -61,6 +61,8 @@ pub struct ClipOutput {
     pub sums: Vec<i64>,
     /// The kernels' counters (see `cvd_kernels::abi::counter`).
     pub counters: Vec<i64>,
+    /// `(tet, site)` pairs the kernels could not finish, sorted.
+    pub unfinished: Vec<[u32; 2]>,
     /// Time per phase.
     pub timings: Timings,
 }
@@ -80,6 +82,12 @@ pub struct Counters {
     pub overflows: u64,
     /// Polyhedra that broke down numerically.
     pub broken: u64,
+    /// Pieces the kernels could not finish (any of the three above), all
+    /// redone on the CPU with every neighbour needed and more capacity.
+    pub second_pass: u64,
+    /// Pieces not even the second pass could finish (0 unless a cell has
+    /// more faces than a polyhedron holds); their volume is missing.
+    pub unresolved: u64,
     /// Sites equal to a lower-indexed site (their cell is empty).
     pub duplicate_sites: u64,
 }
@@ -266,8 +274,16 @@ impl<'a> ClippedVoronoi<'a> {
                 &cpu
             }
         };
-        let out = backend.clip(&job)?;
-        Ok(finish(self.mesh, self.sites, &job, &map, &frame, out))
+        let mut out = backend.clip(&job)?;
+        let (second, t) = crate::timing::timed(|| second_pass(&job, &mut out));
+        let (redone, unresolved) = second?;
+        if redone > 0 {
+            out.timings.push("second pass", t);
+        }
+        let mut cells = finish(self.mesh, self.sites, &job, &map, &frame, out);
+        cells.counters.second_pass = redone;
+        cells.counters.unresolved = unresolved;
+        Ok(cells)
     }
 }
 
@@ -332,7 +348,84 @@ fn finish(
         overflows: c(counter::OVERFLOWS),
         broken: c(counter::BROKEN),
         duplicate_sites: map.iter().filter(|m| m.is_none()).count() as u64,
+        second_pass: 0,
+        unresolved: 0,
     };
     cells.timings = out.timings;
     cells
+}
+
+/// The `(tet, site)` pairs of a device list (count, then pairs), sorted.
+pub(crate) fn pair_list(raw: &[u32]) -> Vec<[u32; 2]> {
+    let count = raw.first().copied().unwrap_or(0) as usize;
+    let stored = count.min(raw.len().saturating_sub(1) / 2);
+    let mut pairs: Vec<[u32; 2]> = (0..stored).map(|i| [raw[1 + 2 * i], raw[2 + 2 * i]]).collect();
+    pairs.sort_unstable();
+    pairs
+}
+
+/// Finishes the pieces the kernels could not, on the CPU with the same
+/// body: a larger polyhedron and a longer neighbour list (all sites when
+/// needed, which always reaches the security radius). Returns the pieces
+/// redone and those that still failed (capacity).
+fn second_pass(job: &ClipJob, out: &mut ClipOutput) -> Result<(u64, u64)> {
+    use cvd_kernels::buffers::DeviceSums;
+    use cvd_kernels::clip::{accumulate, clip_by_bisectors, tet_vertices};
+    use cvd_kernels::glam::Vec3;
+    use cvd_kernels::polyhedron::Cell;
+
+    if out.unfinished.is_empty() {
+        return Ok((0, 0));
+    }
+    let p = &job.params;
+    let n = job.sites.len();
+    let cpu = crate::cpu::CpuBackend::new(None)?;
+    let mut pending = out.unfinished.clone();
+    let mut budget = (4 * p.k_site as usize).max(256).min(n.saturating_sub(1));
+    let mut redone = 0;
+    let mut unresolved = 0;
+    loop {
+        // The neighbours of the sites involved, nearest first, self excluded.
+        let mut involved: Vec<u32> = pending.iter().map(|&[_, j]| j).collect();
+        involved.sort_unstable();
+        involved.dedup();
+        let points: Vec<[f32; 3]> = involved
+            .iter()
+            .map(|&j| {
+                let s = job.sites[j as usize];
+                [s[0], s[1], s[2]]
+            })
+            .collect();
+        let all: Vec<[f32; 3]> = job.sites.iter().map(|s| [s[0], s[1], s[2]]).collect();
+        let nn = KnnJob::points(&all, &points, budget + 1, KnnMethod::Grid)?.run(&cpu)?;
+        let mut lists = Vec::with_capacity(involved.len() * budget);
+        for (row, &j) in involved.iter().enumerate() {
+            let mut list: Vec<u32> = nn.of(row).iter().copied().filter(|&s| s != j).collect();
+            list.resize(budget, cvd_kernels::abi::NO_SITE);
+            lists.extend(list);
+        }
+        let mut missed = Vec::new();
+        let mut sums = DeviceSums(&mut out.sums);
+        for &[t, j] in &pending {
+            let row = involved.binary_search(&j).unwrap_or(0);
+            let xj = Vec3::new(job.sites[j as usize][0], job.sites[j as usize][1], job.sites[j as usize][2]);
+            let mut poly = Cell::tetrahedron(tet_vertices(t as usize, &job.verts, &job.tets, xj));
+            let c = clip_by_bisectors(&mut poly, j as usize, p.n_sites, &job.sites, &lists, row * budget, budget);
+            if c.finished() {
+                if !poly.is_empty() {
+                    accumulate(j as usize, &poly.moments(), p.fixed_scale, &mut sums);
+                }
+                redone += 1;
+            } else if c.security_missed && !c.overflow && !c.broken && budget + 1 < n {
+                missed.push([t, j]);
+            } else {
+                unresolved += 1;
+            }
+        }
+        if missed.is_empty() {
+            return Ok((redone, unresolved));
+        }
+        pending = missed;
+        budget = n - 1;
+    }
 }

@@ -125,3 +125,26 @@ impl AtomicSums for &[core::sync::atomic::AtomicI64] {
         self[i].fetch_add(value, core::sync::atomic::Ordering::Relaxed);
     }
 }
+
+/// A list of `(tet, site)` pairs many threads append to (the pairs a
+/// kernel could not finish).
+pub trait PairList {
+    /// Appends a pair.
+    fn push(&mut self, tet: u32, site: u32);
+}
+
+/// A pair list in a storage buffer: element 0 counts the pairs, which
+/// follow as two `u32` each. Pairs beyond the capacity are counted but not
+/// stored (the host sizes the buffer for the worst case, so none is lost).
+pub struct DeviceList<'a>(pub &'a mut [u32]);
+
+impl PairList for DeviceList<'_> {
+    #[inline]
+    fn push(&mut self, tet: u32, site: u32) {
+        let slot = 1 + 2 * DeviceCounters(&mut *self.0).fetch_add(0, 1) as usize;
+        if slot + 1 < self.0.len() {
+            self.0[slot] = tet;
+            self.0[slot + 1] = site;
+        }
+    }
+}

@@ -7,11 +7,16 @@
 //! * cell-tet (Algorithms 1 and 2): build each site's Voronoi cell once
 //!   ([`voronoi_cell`]), store it, and clip a copy by the tet's 4 faces.
 //!
+//! A pair whose piece could not be finished (security radius not reached
+//! within the neighbour list, capacity overflow, numerical breakdown) adds
+//! nothing and is listed in `unfinished`, for a second pass with more
+//! neighbours and more capacity ([`clip_by_bisectors`] with a [`Cell`]).
+//!
 //! Everything is computed relative to the site (the bisector of `x_i` and
 //! `x_j` is `n·x <= |n|²/2` with `n = x_j - x_i`), in f32.
 
 use crate::abi::{counter, ClipParams, ACCUM_PER_SITE, NO_SITE};
-use crate::buffers::{AtomicSums, OutBuf};
+use crate::buffers::{AtomicSums, OutBuf, PairList};
 use crate::polyhedron::{Cell, Clip, Moments, Piece, Polyhedron, CELL_PLANES, CELL_VERTS};
 use spirv_std::glam::{Vec3, Vec4};
 
@@ -34,32 +39,47 @@ fn xyz(v: [f32; 4]) -> Vec3 {
     Vec3::new(v[0], v[1], v[2])
 }
 
-/// How a run of bisector clips ended.
-struct Clipped {
-    clips: i64,
-    security_missed: bool,
-    overflow: bool,
-    broken: bool,
+/// How a run of clips ended.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Clipped {
+    /// Clips that cut.
+    pub clips: i64,
+    /// The neighbour list ended before the security radius was reached.
+    pub security_missed: bool,
+    /// The polyhedron ran out of capacity.
+    pub overflow: bool,
+    /// The polyhedron's structure broke down numerically.
+    pub broken: bool,
+}
+
+impl Clipped {
+    /// Whether the piece is exact.
+    #[inline]
+    pub fn finished(&self) -> bool {
+        !self.security_missed && !self.overflow && !self.broken
+    }
 }
 
 /// Clips `poly` (relative to site `i`) by the bisectors of `i` and its
-/// neighbours, nearest first, until the next neighbour is farther than
-/// twice the farthest vertex (the security radius) or nothing is left.
+/// neighbours `site_nbrs[base..base + k]`, nearest first, until the next
+/// neighbour is farther than twice the farthest vertex (the security
+/// radius) or nothing is left.
 #[inline]
-fn clip_by_bisectors<const P: usize, const V: usize>(
+pub fn clip_by_bisectors<const P: usize, const V: usize>(
     poly: &mut Polyhedron<P, V>,
     i: usize,
-    p: &ClipParams,
+    n_sites: u32,
     sites: &[[f32; 4]],
     site_nbrs: &[u32],
+    base: usize,
+    k: usize,
 ) -> Clipped {
     let xi = xyz(sites[i]);
-    let k = p.k_site as usize;
     let mut out = Clipped { clips: 0, security_missed: true, overflow: false, broken: false };
     let mut r2 = poly.max_dist2();
     let mut s = 0;
     while s < k {
-        let nb = site_nbrs[i * k + s];
+        let nb = site_nbrs[base + s];
         if nb == NO_SITE {
             // Every other site has been used: the cell is exact.
             out.security_missed = false;
@@ -93,7 +113,7 @@ fn clip_by_bisectors<const P: usize, const V: usize>(
         }
         s += 1;
     }
-    if s == k && k as u32 + 1 >= p.n_sites {
+    if s == k && k as u32 + 1 >= n_sites {
         // The list held every other site.
         out.security_missed = false;
     }
@@ -102,7 +122,7 @@ fn clip_by_bisectors<const P: usize, const V: usize>(
 
 /// The vertices of tet `t`, relative to `origin`.
 #[inline]
-fn tet_vertices(t: usize, verts: &[[f32; 4]], tets: &[[u32; 4]], origin: Vec3) -> [Vec3; 4] {
+pub fn tet_vertices(t: usize, verts: &[[f32; 4]], tets: &[[u32; 4]], origin: Vec3) -> [Vec3; 4] {
     let tet = tets[t];
     [
         xyz(verts[tet[0] as usize]) - origin,
@@ -151,7 +171,7 @@ fn may_meet(tv: &[Vec3; 4], j: usize, list: usize, p: &ClipParams, sites: &[[f32
 
 /// Adds a piece's integrals to site `j`'s sums, in fixed point.
 #[inline]
-fn accumulate<A: AtomicSums>(j: usize, m: &Moments, scale: f32, sums: &mut A) {
+pub fn accumulate<A: AtomicSums>(j: usize, m: &Moments, scale: f32, sums: &mut A) {
     let base = j * ACCUM_PER_SITE;
     sums.add(base, (m.volume * scale) as i64);
     sums.add(base + 1, (m.first.x * scale) as i64);
@@ -181,7 +201,7 @@ fn count<C: AtomicSums>(counters: &mut C, pieces: i64, nonempty: bool, c: &Clipp
 /// Thread `pair` of the tet-cell strategy (Algorithm 4): pair
 /// `(pair / k_tet, pair % k_tet)` of tet and paired site.
 #[inline]
-pub fn tet_cell_pair<A: AtomicSums, C: AtomicSums>(
+pub fn tet_cell_pair<A: AtomicSums, C: AtomicSums, L: PairList>(
     pair: usize,
     p: &ClipParams,
     sites: &[[f32; 4]],
@@ -191,6 +211,7 @@ pub fn tet_cell_pair<A: AtomicSums, C: AtomicSums>(
     site_nbrs: &[u32],
     sums: &mut A,
     counters: &mut C,
+    unfinished: &mut L,
 ) {
     if pair >= p.n_tets as usize * p.k_tet as usize {
         return;
@@ -207,10 +228,14 @@ pub fn tet_cell_pair<A: AtomicSums, C: AtomicSums>(
         return;
     }
     let mut poly = Piece::tetrahedron(tv);
-    let c = clip_by_bisectors(&mut poly, j, p, sites, site_nbrs);
-    let nonempty = !poly.is_empty() && !c.overflow && !c.broken;
+    let k = p.k_site as usize;
+    let c = clip_by_bisectors(&mut poly, j, p.n_sites, sites, site_nbrs, j * k, k);
+    let nonempty = c.finished() && !poly.is_empty();
     if nonempty {
         accumulate(j, &poly.moments(), p.fixed_scale, sums);
+    }
+    if !c.finished() {
+        unfinished.push(t as u32, j as u32);
     }
     count(counters, 1, nonempty, &c);
 }
@@ -233,7 +258,8 @@ pub fn voronoi_cell<O: OutBuf<[f32; 4]> + ?Sized, C: AtomicSums>(
     let lo = Vec3::new(p.box_lo_x, p.box_lo_y, p.box_lo_z) - xi;
     let hi = Vec3::new(p.box_hi_x, p.box_hi_y, p.box_hi_z) - xi;
     let mut poly = Cell::cuboid(lo, hi);
-    let c = clip_by_bisectors(&mut poly, i, p, sites, site_nbrs);
+    let k = p.k_site as usize;
+    let c = clip_by_bisectors(&mut poly, i, p.n_sites, sites, site_nbrs, i * k, k);
     let status = if c.overflow || c.broken {
         cell_status::FAILED
     } else if c.security_missed {
@@ -261,7 +287,7 @@ pub fn voronoi_cell<O: OutBuf<[f32; 4]> + ?Sized, C: AtomicSums>(
 /// Thread `pair` of the cell-tet strategy (Algorithm 2): site `j`'s stored
 /// cell clipped by the 4 faces of tet `pair / k_tet`.
 #[inline]
-pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums>(
+pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums, L: PairList>(
     pair: usize,
     p: &ClipParams,
     sites: &[[f32; 4]],
@@ -271,6 +297,7 @@ pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums>(
     cells: &[[f32; 4]],
     sums: &mut A,
     counters: &mut C,
+    unfinished: &mut L,
 ) {
     if pair >= p.n_tets as usize * p.k_tet as usize {
         return;
@@ -288,9 +315,11 @@ pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums>(
     }
     let base = j * CELL_RECORDS;
     let header = cells[base];
-    if header[2].to_bits() == cell_status::FAILED {
-        // Counted when the cell was built; its pieces cannot be trusted.
+    if header[2].to_bits() != cell_status::COMPLETE {
+        // Counted when the cell was built; its pieces are left to the
+        // second pass.
         counters.add(counter::PAIRS, 1);
+        unfinished.push(t as u32, j as u32);
         return;
     }
     let mut poly = Cell::empty();
@@ -324,9 +353,12 @@ pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums>(
         }
         f += 1;
     }
-    let nonempty = !poly.is_empty() && !c.overflow && !c.broken;
+    let nonempty = c.finished() && !poly.is_empty();
     if nonempty {
         accumulate(j, &poly.moments(), p.fixed_scale, sums);
+    }
+    if !c.finished() {
+        unfinished.push(t as u32, j as u32);
     }
     count(counters, 1, nonempty, &c);
 }

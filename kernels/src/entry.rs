@@ -6,7 +6,7 @@
 //! the parameters; push constants hold the `*Params` struct.
 
 use crate::abi::{thread_index, ClipParams, GridBuildParams, KnnParams, QuantPoint};
-use crate::buffers::{DeviceCounters, DeviceSums};
+use crate::buffers::{DeviceCounters, DeviceList, DeviceSums};
 use crate::{clip, grid, knn, scan};
 use spirv_std::glam::UVec3;
 use spirv_std::spirv;
@@ -125,6 +125,7 @@ pub fn clip_tet_cell(
     #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] site_nbrs: &[u32],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] sums: &mut [i64],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 6)] counters: &mut [i64],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 7)] unfinished: &mut [u32],
 ) {
     let pair = thread_index(id.x, id.y, groups.x);
     clip::tet_cell_pair(
@@ -137,6 +138,7 @@ pub fn clip_tet_cell(
         site_nbrs,
         &mut DeviceSums(sums),
         &mut DeviceSums(counters),
+        &mut DeviceList(unfinished),
     );
 }
 
@@ -168,6 +170,7 @@ pub fn clip_cell_tet(
     #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] cells: &[[f32; 4]],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] sums: &mut [i64],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 6)] counters: &mut [i64],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 7)] unfinished: &mut [u32],
 ) {
     let pair = thread_index(id.x, id.y, groups.x);
     clip::cell_tet_pair(
@@ -180,5 +183,6 @@ pub fn clip_cell_tet(
         cells,
         &mut DeviceSums(sums),
         &mut DeviceSums(counters),
+        &mut DeviceList(unfinished),
     );
 }

@@ -15,6 +15,9 @@
 #[cfg(test)]
 extern crate std;
 
+/// The glam the kernels use (spirv-std's), for hosts that call the bodies.
+pub use spirv_std::glam;
+
 pub mod abi;
 pub mod buffers;
 pub mod clip;

@@ -125,9 +125,11 @@ fn cell_tet_matches_voro_plus_plus() {
     assert_matches_voro(&format!("seed {seed} CellTet"), &cells, &vol, &centroid);
 }
 
-/// With the default k_site, a cell that disagrees with voro++ is counted.
+/// With the default k_site, cells whose security radius is not reached
+/// within 90 neighbours (seed 1 has one needing 115) are finished by the
+/// second pass: every cell matches voro++.
 #[test]
-fn default_k_site_misses_are_counted() {
+fn default_k_site_cells_are_finished_by_the_second_pass() {
     let mesh = TetMesh::cube(6);
     for seed in [1, 2, 3] {
         let sites = points::uniform(N, seed);
@@ -139,10 +141,11 @@ fn default_k_site_misses_are_counted() {
                 "seed {seed} {strategy:?} default k_site: worst relative volume diff {worst:.3e}, {:?}",
                 cells.counters
             );
-            assert!(
-                worst <= VOLUME_TOL || cells.counters.security_missed > 0,
-                "seed {seed} {strategy:?}: volume off by {worst:.3e} of voro++ with no security miss counted"
-            );
+            assert!(worst <= VOLUME_TOL, "seed {seed} {strategy:?}: volume off by {worst:.3e} of voro++");
+            assert_eq!(cells.counters.unresolved, 0);
+            if cells.counters.security_missed > 0 {
+                assert!(cells.counters.second_pass > 0, "seed {seed} {strategy:?}: misses not finished");
+            }
         }
     }
 }

@@ -199,3 +199,28 @@ fn bad_input_is_rejected_by_name() {
     assert!(err.contains("site 0"), "{err}");
     assert!(ClippedVoronoi::new(&mesh, &[]).compute().is_err());
 }
+
+/// A neighbour budget far too small: the kernels leave most pieces
+/// unfinished and the second pass must finish every one of them exactly.
+#[test]
+fn second_pass_finishes_what_the_kernels_could_not() {
+    let mesh = mesh(Shape::Ell);
+    let sites = sites_in_box(120, 11);
+    let (vol, centroid) = clipped_cells(&mesh, &sites);
+    for backend in backends() {
+        for strategy in [Strategy::TetCell, Strategy::CellTet] {
+            let cells = ClippedVoronoi::new(&mesh, &sites)
+                .strategy(strategy)
+                .k(Some(120))
+                .k_site(3)
+                .backend(backend)
+                .compute()
+                .unwrap();
+            let what = format!("{} {strategy:?} k_site 3", backend.name());
+            assert!(cells.counters.second_pass > 0, "{what}: nothing went to the second pass");
+            assert_eq!(cells.counters.unresolved, 0, "{what}");
+            assert_cells_match(&what, &cells, &vol, &centroid, 1e-4);
+        }
+    }
+    assert_no_vulkan_errors();
+}

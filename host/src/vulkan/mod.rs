@@ -79,27 +79,42 @@ impl Backend for VulkanBackend {
         let tets = j.upload(&job.tets)?;
         let sums = j.zeroed(n * ACCUM_PER_SITE as u64 * 8)?;
         let counters = j.zeroed(counter::COUNT as u64 * 8)?;
+        // Count, then up to one (tet, site) entry per pair.
+        let list_len = 1 + 2 * n_pairs;
+        let unfinished = j.zeroed(list_len * 4)?;
         let (site_nbrs, _) = record_knn(&mut j, &job.site_knn, "site knn")?;
         let (tet_sites, _) = record_knn(&mut j, &job.tet_knn, "tet knn")?;
         match job.strategy {
             Strategy::TetCell => {
-                j.dispatch("clip_tet_cell", &[sites, verts, tets, tet_sites, site_nbrs, sums, counters], p, n_pairs)?;
+                j.dispatch(
+                    "clip_tet_cell",
+                    &[sites, verts, tets, tet_sites, site_nbrs, sums, counters, unfinished],
+                    p,
+                    n_pairs,
+                )?;
             }
             Strategy::CellTet => {
                 let cells = j.buffer(n * CELL_RECORDS as u64 * 16)?;
                 j.dispatch("voronoi_cells", &[sites, site_nbrs, cells, counters], p, n)?;
                 j.mark("cells");
-                j.dispatch("clip_cell_tet", &[sites, verts, tets, tet_sites, cells, sums, counters], p, n_pairs)?;
+                j.dispatch(
+                    "clip_cell_tet",
+                    &[sites, verts, tets, tet_sites, cells, sums, counters, unfinished],
+                    p,
+                    n_pairs,
+                )?;
             }
         }
         j.mark("clip");
         let sums_back = j.download(sums, n * ACCUM_PER_SITE as u64 * 8)?;
         let counters_back = j.download(counters, counter::COUNT as u64 * 8)?;
+        let unfinished_back = j.download(unfinished, list_len * 4)?;
         j.mark("download");
         let done = j.run()?;
         Ok(ClipOutput {
             sums: done.read(sums_back, n as usize * ACCUM_PER_SITE),
             counters: done.read(counters_back, counter::COUNT),
+            unfinished: crate::voronoi::pair_list(&done.read(unfinished_back, list_len as usize)),
             timings: done.timings,
         })
     }

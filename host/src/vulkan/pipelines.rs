@@ -34,9 +34,9 @@ pub(crate) const KERNELS: &[KernelSpec] = &[
     spec::<GridBuildParams>("grid_scatter", 5),
     spec::<KnnParams>("knn_grid", 6),
     spec::<KnnParams>("knn_brute", 4),
-    spec::<ClipParams>("clip_tet_cell", 7),
+    spec::<ClipParams>("clip_tet_cell", 8),
     spec::<ClipParams>("voronoi_cells", 4),
-    spec::<ClipParams>("clip_cell_tet", 7),
+    spec::<ClipParams>("clip_cell_tet", 8),
 ];
 
 /// A ready compute pipeline.
