@@ -166,10 +166,11 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
     );
     let c = &cells.counters;
     println!(
-        "pairs {} (non-empty {}), clips {}; unfinished by the kernels: security radius {}, overflows {}, broken {}; \
+        "pairs {} (non-empty {}, dropped before clipping {}), clips {}; unfinished by the kernels: security radius {}, overflows {}, broken {}; \
          finished by the second pass {}, unresolved {}; duplicate sites {}",
         c.pairs,
         c.nonempty,
+        c.filtered,
         c.clips,
         c.security_missed,
         c.overflows,

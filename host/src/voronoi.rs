@@ -74,6 +74,8 @@ pub struct Counters {
     pub pairs: u64,
     /// Pairs with a non-empty piece.
     pub nonempty: u64,
+    /// Pairs dropped by the half-space test before any clipping.
+    pub filtered: u64,
     /// Clips that cut.
     pub clips: u64,
     /// Cells or pieces whose security radius was not reached within k_site.
@@ -343,6 +345,7 @@ fn finish(
     cells.counters = Counters {
         pairs: c(counter::PAIRS),
         nonempty: c(counter::NONEMPTY),
+        filtered: c(counter::FILTERED),
         clips: c(counter::CLIPS),
         security_missed: c(counter::SECURITY_MISSED),
         overflows: c(counter::OVERFLOWS),

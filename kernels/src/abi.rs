@@ -102,6 +102,8 @@ pub mod counter {
     pub const OVERFLOWS: usize = 4;
     /// Polyhedra whose structure broke down numerically.
     pub const BROKEN: usize = 5;
+    /// Pairs dropped by the half-space test before any clipping.
+    pub const FILTERED: usize = 6;
     /// Number of counters.
     pub const COUNT: usize = 8;
 }

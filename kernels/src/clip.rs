@@ -133,7 +133,7 @@ pub fn tet_vertices(t: usize, verts: &[[f32; 4]], tets: &[[u32; 4]], origin: Vec
 }
 
 /// Sites nearest the tet's centroid that a pair is first tested against.
-pub const FILTER_SITES: usize = 4;
+pub const FILTER_SITES: usize = 8;
 
 /// Whether site `j` can own any point of the tet (vertices `tv`, relative
 /// to `x_j`): for each of the first sites `s` of the tet's list, the
@@ -225,6 +225,7 @@ pub fn tet_cell_pair<A: AtomicSums, C: AtomicSums, L: PairList>(
     let tv = tet_vertices(t, verts, tets, xyz(sites[j]));
     if !may_meet(&tv, j, t * p.k_tet as usize, p, sites, tet_sites) {
         counters.add(counter::PAIRS, 1);
+        counters.add(counter::FILTERED, 1);
         return;
     }
     let mut poly = Piece::tetrahedron(tv);
@@ -311,6 +312,7 @@ pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums, L: PairList>(
     let tv = tet_vertices(t, verts, tets, xyz(sites[j]));
     if !may_meet(&tv, j, t * p.k_tet as usize, p, sites, tet_sites) {
         counters.add(counter::PAIRS, 1);
+        counters.add(counter::FILTERED, 1);
         return;
     }
     let base = j * CELL_RECORDS;
