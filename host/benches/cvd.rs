@@ -11,7 +11,7 @@
 use cvd::cpu::CpuBackend;
 use cvd::timing::timed;
 use cvd::vulkan::{VulkanBackend, VulkanOptions};
-use cvd::{points, Backend, ClippedVoronoi, Strategy, TetMesh};
+use cvd::{points, Backend, ClippedVoronoi, Pairing, Strategy, TetMesh};
 use std::path::PathBuf;
 
 struct Options {
@@ -53,6 +53,7 @@ struct Row {
     tets: usize,
     sites: usize,
     strategy: Strategy,
+    pairing: Pairing,
     backend: String,
     k: usize,
     knn_ms: f64,
@@ -94,8 +95,8 @@ fn main() {
         backends.push(v);
     }
     println!(
-        "{:<12} {:>7} {:>6} {:<8} {:<30} {:>4} {:>9} {:>9} {:>9} {:>9} {:>9}  counters",
-        "model", "|T|", "|X|", "strategy", "backend", "k", "knn ms", "clip ms", "total ms", "wall ms", "E_vol"
+        "{:<12} {:>7} {:>6} {:<8} {:<6} {:<30} {:>4} {:>9} {:>9} {:>9} {:>9} {:>9}  counters",
+        "model", "|T|", "|X|", "strategy", "pairs", "backend", "k", "knn ms", "clip ms", "total ms", "wall ms", "E_vol"
     );
     let mut rows = Vec::new();
     for (name, mesh, n) in &models {
@@ -104,8 +105,13 @@ fn main() {
         }
         let sites = points::in_mesh(mesh, *n, 2020);
         for backend in &backends {
-            for strategy in [Strategy::TetCell, Strategy::CellTet] {
-                let cv = ClippedVoronoi::new(mesh, &sites).strategy(strategy).backend(*backend);
+            let runs = [
+                (Strategy::TetCell, Pairing::Flood),
+                (Strategy::TetCell, Pairing::Knn),
+                (Strategy::CellTet, Pairing::Knn),
+            ];
+            for (strategy, pairing) in runs {
+                let cv = ClippedVoronoi::new(mesh, &sites).strategy(strategy).pairing(pairing).backend(*backend);
                 let mut best = timed(|| cv.compute().expect("compute"));
                 for _ in 1..o.repeat {
                     let r = timed(|| cv.compute().expect("compute"));
@@ -122,6 +128,7 @@ fn main() {
                     tets: mesh.tets.len(),
                     sites: *n,
                     strategy,
+                    pairing,
                     backend: backend.name(),
                     k: cells.k,
                     knn_ms: knn * 1e3,
@@ -132,11 +139,12 @@ fn main() {
                     counters: cells.counters,
                 };
                 println!(
-                    "{:<12} {:>7} {:>6} {:<8} {:<30} {:>4} {:>9.1} {:>9.1} {:>9.1} {:>9.1} {:>9.2e}  pairs {} nonempty {} clips {} security-missed {} overflow {} broken {} second-pass {} unresolved {}",
+                    "{:<12} {:>7} {:>6} {:<8} {:<6} {:<30} {:>4} {:>9.1} {:>9.1} {:>9.1} {:>9.1} {:>9.2e}  pairs {} nonempty {} clips {} security-missed {} overflow {} broken {} second-pass {} unresolved {}",
                     row.model,
                     row.tets,
                     row.sites,
                     format!("{strategy:?}"),
+                    format!("{pairing:?}"),
                     row.backend.chars().take(30).collect::<String>(),
                     row.k,
                     row.knn_ms,

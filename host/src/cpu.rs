@@ -5,7 +5,7 @@ use crate::backend::Backend;
 use crate::error::{Error, Result};
 use crate::knn::{KnnJob, KnnMethod, Neighbors};
 use crate::timing::{timed, Timings};
-use crate::voronoi::{ClipJob, ClipOutput, Strategy};
+use crate::voronoi::{ClipJob, ClipOutput, Pairing, Strategy};
 use cvd_kernels::abi::{counter, QuantPoint, ACCUM_PER_SITE};
 use cvd_kernels::buffers::{DeviceSums, OutBuf, PairList, Window};
 use cvd_kernels::clip::{self, CELL_RECORDS};
@@ -237,6 +237,32 @@ impl Backend for CpuBackend {
             let n_pairs = p.n_tets as usize * p.k_tet as usize;
             let (sites, verts, tets) = (&job.sites, &job.verts, &job.tets);
             match job.strategy {
+                Strategy::TetCell if job.pairing == Pairing::Flood => {
+                    let (_, t) = timed(|| {
+                        (0..p.n_tets as usize).into_par_iter().chunks(CHUNK / 16).for_each(|chunk| {
+                            let mut local = [0i64; counter::COUNT];
+                            let mut pairs = LocalPairs::default();
+                            let mut s: &[AtomicI64] = &sums;
+                            for t in chunk {
+                                clip::flood_tet(
+                                    t,
+                                    p,
+                                    sites,
+                                    verts,
+                                    tets,
+                                    &tet_nn.indices,
+                                    &site_nn.indices,
+                                    &mut s,
+                                    &mut DeviceSums(&mut local),
+                                    &mut pairs,
+                                );
+                            }
+                            merge(&local);
+                            merge_pairs(pairs);
+                        })
+                    });
+                    timings.push("clip", t);
+                }
                 Strategy::TetCell => {
                     let (_, t) = timed(|| {
                         (0..n_pairs).into_par_iter().chunks(CHUNK / 4).for_each(|chunk| {

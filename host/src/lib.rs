@@ -29,4 +29,4 @@ pub use backend::{Backend, BackendKind, BackendOptions};
 pub use error::{Error, Result};
 pub use knn::{KnnJob, KnnMethod, Neighbors};
 pub use mesh::TetMesh;
-pub use voronoi::{Cells, ClippedVoronoi, Counters, Strategy};
+pub use voronoi::{Cells, ClippedVoronoi, Counters, Pairing, Strategy};

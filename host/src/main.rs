@@ -3,7 +3,7 @@
 use clap::{Args, Parser, Subcommand};
 use cvd::backend::{self, BackendKind, BackendOptions};
 use cvd::vulkan::{self, VulkanOptions};
-use cvd::{points, ClippedVoronoi, KnnJob, KnnMethod, Strategy, TetMesh};
+use cvd::{points, ClippedVoronoi, KnnJob, KnnMethod, Pairing, Strategy, TetMesh};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -50,6 +50,10 @@ struct RunArgs {
     /// Tet-cell or cell-tet.
     #[arg(long, value_enum, default_value_t = Strategy::TetCell)]
     strategy: Strategy,
+    /// Pairing of tets and sites: flood (exact; default for tet-cell) or knn
+    /// (paper Eq. 6; default for cell-tet).
+    #[arg(long, value_enum)]
+    pairing: Option<Pairing>,
     /// Sites paired with each tet (default: the paper's Eq. 6).
     #[arg(long, short)]
     k: Option<usize>,
@@ -150,13 +154,17 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
         args.strategy,
         backend.name()
     );
-    let cv = ClippedVoronoi::new(&mesh, &sites).strategy(args.strategy).k(args.k).k_site(args.k_site);
+    let mut cv = ClippedVoronoi::new(&mesh, &sites).strategy(args.strategy).k(args.k).k_site(args.k_site);
+    if let Some(pairing) = args.pairing {
+        cv = cv.pairing(pairing);
+    }
     let first = cv.backend(backend.as_ref()).compute()?;
     println!("first run: {} (total {:.1} ms)", first.timings, first.timings.total() * 1e3);
     let cells = cv.backend(backend.as_ref()).compute()?;
     println!("second run: {} (total {:.1} ms)", cells.timings, cells.timings.total() * 1e3);
     println!(
-        "k = {}, k_site = {}; volume {:.6} of {:.6}, E_vol = {:.2e}; energy {:.6e}",
+        "{:?} pairing, k = {}, k_site = {}; volume {:.6} of {:.6}, E_vol = {:.2e}; energy {:.6e}",
+        cells.pairing,
         cells.k,
         cells.k_site,
         cells.total_volume,

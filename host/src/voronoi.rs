@@ -20,6 +20,21 @@ pub enum Strategy {
     CellTet,
 }
 
+/// How tets are paired with the sites whose cells may meet them. Default:
+/// flood for the tet-cell strategy, knn for cell-tet.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, clap::ValueEnum, serde::Serialize)]
+pub enum Pairing {
+    /// The k nearest sites of each tet's centroid (paper Eq. 6). A site
+    /// owning part of a tet but not among its k nearest is missed, silently:
+    /// the paper's heuristic, kept for comparison.
+    Knn,
+    #[default]
+    /// From the site nearest the centroid, visit the sites whose bisectors
+    /// are faces of the pieces found so far: exactly the sites that own
+    /// part of the tet (tet-cell only).
+    Flood,
+}
+
 /// Neighbours per site used to build its cell (paper: 90).
 pub const DEFAULT_K_SITE: usize = 90;
 
@@ -52,6 +67,8 @@ pub struct ClipJob {
     pub params: ClipParams,
     /// Which strategy.
     pub strategy: Strategy,
+    /// How tets and sites are paired.
+    pub pairing: Pairing,
 }
 
 /// What a backend returns for a [`ClipJob`].
@@ -109,7 +126,9 @@ pub struct Cells {
     pub mesh_volume: f64,
     /// `|total - mesh| / mesh`.
     pub e_vol: f64,
-    /// Sites paired with each tet.
+    /// How tets were paired with sites.
+    pub pairing: Pairing,
+    /// Sites paired with each tet (1 for flood: its starting site).
     pub k: usize,
     /// Neighbours per site.
     pub k_site: usize,
@@ -132,6 +151,7 @@ pub struct ClippedVoronoi<'a> {
     mesh: &'a TetMesh,
     sites: &'a [[f32; 3]],
     strategy: Strategy,
+    pairing: Option<Pairing>,
     k: Option<usize>,
     k_site: usize,
     backend: Option<&'a dyn Backend>,
@@ -140,13 +160,35 @@ pub struct ClippedVoronoi<'a> {
 impl<'a> ClippedVoronoi<'a> {
     /// The clipped Voronoi diagram of `sites` in `mesh`.
     pub fn new(mesh: &'a TetMesh, sites: &'a [[f32; 3]]) -> Self {
-        Self { mesh, sites, strategy: Strategy::default(), k: None, k_site: DEFAULT_K_SITE, backend: None }
+        Self {
+            mesh,
+            sites,
+            strategy: Strategy::default(),
+            pairing: None,
+            k: None,
+            k_site: DEFAULT_K_SITE,
+            backend: None,
+        }
     }
 
     /// Tet-cell or cell-tet.
     pub fn strategy(mut self, strategy: Strategy) -> Self {
         self.strategy = strategy;
         self
+    }
+
+    /// k-nearest or flood pairing (default: flood for tet-cell, knn for
+    /// cell-tet).
+    pub fn pairing(mut self, pairing: Pairing) -> Self {
+        self.pairing = Some(pairing);
+        self
+    }
+
+    fn resolved_pairing(&self) -> Pairing {
+        self.pairing.unwrap_or(match self.strategy {
+            Strategy::TetCell => Pairing::Flood,
+            Strategy::CellTet => Pairing::Knn,
+        })
     }
 
     /// Sites paired with each tet (default: the paper's Eq. 6).
@@ -179,6 +221,10 @@ impl<'a> ClippedVoronoi<'a> {
         }
         if let Some(i) = self.sites.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
             return Err(Error::InvalidInput(format!("site {i} has a non-finite coordinate: {:?}", self.sites[i])));
+        }
+        let pairing = self.resolved_pairing();
+        if pairing == Pairing::Flood && self.strategy != Strategy::TetCell {
+            return Err(Error::InvalidInput("flood pairing works with the tet-cell strategy only".into()));
         }
         if self.k_site == 0 || self.k == Some(0) {
             return Err(Error::InvalidInput("k and k_site must be at least 1".into()));
@@ -220,7 +266,10 @@ impl<'a> ClippedVoronoi<'a> {
         let local_mesh = TetMesh { vertices: verts, tets };
         let centroids = local_mesh.centroids();
         let n = sites.len();
-        let k = self.k.unwrap_or_else(|| paper_k(n, mesh.tets.len())).min(n);
+        let k = match pairing {
+            Pairing::Knn => self.k.unwrap_or_else(|| paper_k(n, mesh.tets.len())).min(n),
+            Pairing::Flood => 1,
+        };
         let site_knn = KnnJob::sites(&sites, self.k_site, KnnMethod::Grid)?;
         let tet_knn = KnnJob::points(&sites, &centroids, k, KnnMethod::Grid)?;
 
@@ -245,13 +294,13 @@ impl<'a> ClippedVoronoi<'a> {
             k_site: site_knn.params.k,
             k_tet: tet_knn.params.k,
             fixed_scale: bits.exp2() as f32,
+            list_len: site_knn.params.k,
             box_lo_x: lo[0] - margin,
             box_lo_y: lo[1] - margin,
             box_lo_z: lo[2] - margin,
             box_hi_x: hi[0] + margin,
             box_hi_y: hi[1] + margin,
             box_hi_z: hi[2] + margin,
-            _pad: 0,
         };
         let job = ClipJob {
             site_knn,
@@ -261,6 +310,7 @@ impl<'a> ClippedVoronoi<'a> {
             tets: local_mesh.tets,
             params,
             strategy: self.strategy,
+            pairing,
         };
         Ok((job, map, frame))
     }
@@ -320,7 +370,12 @@ fn finish(
 ) -> Cells {
     let inv = 1.0 / job.params.fixed_scale as f64;
     let l = frame.scale;
-    let mut cells = Cells { k: job.params.k_tet as usize, k_site: job.params.k_site as usize, ..Default::default() };
+    let mut cells = Cells {
+        pairing: job.pairing,
+        k: job.params.k_tet as usize,
+        k_site: job.params.k_site as usize,
+        ..Default::default()
+    };
     for (i, m) in map.iter().enumerate() {
         let site = input[i].map(|c| c as f64);
         let (v, c, e) = match m {
@@ -373,9 +428,10 @@ pub(crate) fn pair_list(raw: &[u32]) -> Vec<[u32; 2]> {
 /// redone and those that still failed (capacity).
 fn second_pass(job: &ClipJob, out: &mut ClipOutput) -> Result<(u64, u64)> {
     use cvd_kernels::buffers::DeviceSums;
-    use cvd_kernels::clip::{accumulate, clip_by_bisectors, tet_vertices};
+    use cvd_kernels::clip::{accumulate, clip_by_bisectors, tet_vertices, Clipped};
     use cvd_kernels::glam::Vec3;
-    use cvd_kernels::polyhedron::Cell;
+    use cvd_kernels::polyhedron::{Cell, Moments};
+    use rayon::prelude::*;
 
     if out.unfinished.is_empty() {
         return Ok((0, 0));
@@ -383,8 +439,8 @@ fn second_pass(job: &ClipJob, out: &mut ClipOutput) -> Result<(u64, u64)> {
     let p = &job.params;
     let n = job.sites.len();
     let cpu = crate::cpu::CpuBackend::new(None)?;
-    let mut pending = out.unfinished.clone();
-    let mut budget = (4 * p.k_site as usize).max(256).min(n.saturating_sub(1));
+    let mut pending = expand_whole_tets(job, &out.unfinished);
+    let mut budget = (2 * p.k_site as usize).max(128).min(n.saturating_sub(1));
     let mut redone = 0;
     let mut unresolved = 0;
     loop {
@@ -407,16 +463,25 @@ fn second_pass(job: &ClipJob, out: &mut ClipOutput) -> Result<(u64, u64)> {
             list.resize(budget, cvd_kernels::abi::NO_SITE);
             lists.extend(list);
         }
+        // Each piece in parallel; the sums are added in pair order after.
+        let results: Vec<(Clipped, Option<Moments>)> = pending
+            .par_iter()
+            .map(|&[t, j]| {
+                let row = involved.binary_search(&j).unwrap_or(0);
+                let x = job.sites[j as usize];
+                let xj = Vec3::new(x[0], x[1], x[2]);
+                let mut poly = Cell::tetrahedron(tet_vertices(t as usize, &job.verts, &job.tets, xj));
+                let c = clip_by_bisectors(&mut poly, j as usize, p.n_sites, &job.sites, &lists, row * budget, budget);
+                let m = (c.finished() && !poly.is_empty()).then(|| poly.moments());
+                (c, m)
+            })
+            .collect();
         let mut missed = Vec::new();
         let mut sums = DeviceSums(&mut out.sums);
-        for &[t, j] in &pending {
-            let row = involved.binary_search(&j).unwrap_or(0);
-            let xj = Vec3::new(job.sites[j as usize][0], job.sites[j as usize][1], job.sites[j as usize][2]);
-            let mut poly = Cell::tetrahedron(tet_vertices(t as usize, &job.verts, &job.tets, xj));
-            let c = clip_by_bisectors(&mut poly, j as usize, p.n_sites, &job.sites, &lists, row * budget, budget);
+        for (&[t, j], (c, m)) in pending.iter().zip(results) {
             if c.finished() {
-                if !poly.is_empty() {
-                    accumulate(j as usize, &poly.moments(), p.fixed_scale, &mut sums);
+                if let Some(m) = m {
+                    accumulate(j as usize, &m, p.fixed_scale, &mut sums);
                 }
                 redone += 1;
             } else if c.security_missed && !c.overflow && !c.broken && budget + 1 < n {
@@ -431,4 +496,46 @@ fn second_pass(job: &ClipJob, out: &mut ClipOutput) -> Result<(u64, u64)> {
         pending = missed;
         budget = n - 1;
     }
+}
+
+/// Replaces each whole-tet entry `(tet, NO_SITE)` by the pairs of that tet
+/// with every site that may own part of it: with `c` the centroid, `r` its
+/// distance to the farthest vertex and `d1` the distance to the nearest
+/// site, any site owning a point of the tet lies within `d1 + 2r` of `c`.
+fn expand_whole_tets(job: &ClipJob, entries: &[[u32; 2]]) -> Vec<[u32; 2]> {
+    use cvd_kernels::abi::NO_SITE;
+    let dist = |a: [f32; 4], b: [f64; 3]| (0..3).map(|i| (a[i] as f64 - b[i]).powi(2)).sum::<f64>().sqrt();
+    use rayon::prelude::*;
+    let per_entry: Vec<Vec<[u32; 2]>> = entries
+        .par_iter()
+        .map(|&[t, j]| {
+            if j != NO_SITE {
+                return vec![[t, j]];
+            }
+            let v = job.tets[t as usize].map(|i| job.verts[i as usize]);
+            let c = [0, 1, 2].map(|a| v.iter().map(|p| p[a] as f64).sum::<f64>() / 4.0);
+            let r = v.iter().map(|&p| dist(p, c)).fold(0.0, f64::max);
+            let (nearest, d1) = job
+                .sites
+                .iter()
+                .enumerate()
+                .map(|(s, &x)| (s, dist(x, c)))
+                .fold((0, f64::INFINITY), |a, b| if b.1 < a.1 { b } else { a });
+            let reach = (d1 + 2.0 * r) * (1.0 + 1e-6) + 1e-9;
+            // A site can own part of the tet only where it beats the nearest
+            // site: that half-space must hold a tet vertex (with a margin).
+            let s1 = job.sites[nearest];
+            let beats_nearest = |x: [f32; 4]| {
+                v.iter().any(|&p| {
+                    let q = [p[0] as f64, p[1] as f64, p[2] as f64];
+                    dist(x, q) <= dist(s1, q) * (1.0 + 1e-5) + 1e-9
+                })
+            };
+            (0..job.sites.len())
+                .filter(|&s| dist(job.sites[s], c) <= reach && beats_nearest(job.sites[s]))
+                .map(|s| [t, s as u32])
+                .collect()
+        })
+        .collect();
+    per_entry.into_iter().flatten().collect()
 }

@@ -135,6 +135,6 @@ pub struct ClipParams {
     pub box_hi_y: f32,
     /// See `box_hi_x`.
     pub box_hi_z: f32,
-    /// Padding to a 16-byte multiple.
-    pub _pad: u32,
+    /// Length of each site's slot in the neighbour list (`k_site`).
+    pub list_len: u32,
 }

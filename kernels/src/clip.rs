@@ -17,7 +17,7 @@
 
 use crate::abi::{counter, ClipParams, ACCUM_PER_SITE, NO_SITE};
 use crate::buffers::{AtomicSums, OutBuf, PairList};
-use crate::polyhedron::{Cell, Clip, Moments, Piece, Polyhedron, CELL_PLANES, CELL_VERTS};
+use crate::polyhedron::{Cell, Clip, Moments, Piece, Polyhedron, CELL_PLANES, CELL_VERTS, NO_ID};
 use spirv_std::glam::{Vec3, Vec4};
 
 /// `[f32; 4]` records per stored cell: a header, the planes, the vertices
@@ -91,7 +91,7 @@ pub fn clip_by_bisectors<const P: usize, const V: usize>(
             out.security_missed = false;
             break;
         }
-        match poly.clip(n.extend(0.5 * d2)) {
+        match poly.clip_as(n.extend(0.5 * d2), nb) {
             Clip::Cut => {
                 out.clips += 1;
                 r2 = poly.max_dist2();
@@ -363,4 +363,116 @@ pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums, L: PairList>(
         unfinished.push(t as u32, j as u32);
     }
     count(counters, 1, nonempty, &c);
+}
+
+/// Most sites one tet's flood can visit; more sends the tet to the second
+/// pass.
+pub const FLOOD_CAP: usize = 32;
+
+/// Thread `t` of flood pairing (tet-cell): start from the site nearest the
+/// tet's centroid (`tet_sites[t]`, a 1-NN list), build its piece, and visit
+/// every site whose bisector is a face of a piece built so far. The pieces
+/// of the cells that meet a convex tet tile it and are connected through
+/// such faces, so this finds exactly the sites that own part of the tet —
+/// no k, no empty pairs. Certificate: the pieces' volumes must add up to
+/// the tet's. A tet whose flood fails (a piece unfinished, the queue full,
+/// the certificate off) adds nothing and goes to the second pass whole, as
+/// `(tet, NO_SITE)`.
+#[inline]
+pub fn flood_tet<A: AtomicSums, C: AtomicSums, L: PairList>(
+    t: usize,
+    p: &ClipParams,
+    sites: &[[f32; 4]],
+    verts: &[[f32; 4]],
+    tets: &[[u32; 4]],
+    tet_sites: &[u32],
+    site_nbrs: &[u32],
+    sums: &mut A,
+    counters: &mut C,
+    unfinished: &mut L,
+) {
+    if t >= p.n_tets as usize {
+        return;
+    }
+    let k = p.list_len as usize;
+    let mut queue = [0u32; FLOOD_CAP];
+    let mut found = [Moments::default(); FLOOD_CAP];
+    queue[0] = tet_sites[t];
+    let mut len = 1;
+    let mut head = 0;
+    let mut ok = queue[0] != NO_SITE;
+    let mut c = Clipped::default();
+    let mut total = 0.0f32;
+    let mut tet_volume = 0.0f32;
+    while ok && head < len {
+        let j = queue[head] as usize;
+        let tv = tet_vertices(t, verts, tets, xyz(sites[j]));
+        if head == 0 {
+            tet_volume = ((tv[1] - tv[0]).cross(tv[2] - tv[0]).dot(tv[3] - tv[0]) / 6.0).abs();
+        }
+        let mut poly = Piece::tetrahedron(tv);
+        let ci = clip_by_bisectors(&mut poly, j, p.n_sites, sites, site_nbrs, j * k, k);
+        c.clips += ci.clips;
+        c.security_missed |= ci.security_missed;
+        c.overflow |= ci.overflow;
+        c.broken |= ci.broken;
+        if !ci.finished() {
+            ok = false;
+        } else if !poly.is_empty() {
+            found[head] = poly.moments();
+            total += found[head].volume;
+            poly.keep_faces_only();
+            let mut q = 0;
+            while q < poly.n_planes as usize {
+                let id = poly.ids[q];
+                if id != NO_ID {
+                    let mut seen = false;
+                    let mut s = 0;
+                    while s < len {
+                        seen |= queue[s] == id;
+                        s += 1;
+                    }
+                    if !seen {
+                        if len == FLOOD_CAP {
+                            ok = false;
+                        } else {
+                            queue[len] = id;
+                            len += 1;
+                        }
+                    }
+                }
+                q += 1;
+            }
+        }
+        head += 1;
+    }
+    // The pieces tile the tet: anything else means a piece was missed.
+    if ok && (total - tet_volume).abs() > 1e-4 * tet_volume {
+        ok = false;
+    }
+    let mut nonempty = 0;
+    if ok {
+        let mut i = 0;
+        while i < len {
+            if found[i].volume != 0.0 {
+                accumulate(queue[i] as usize, &found[i], p.fixed_scale, sums);
+                nonempty += 1;
+            }
+            i += 1;
+        }
+    } else {
+        unfinished.push(t as u32, NO_SITE);
+    }
+    counters.add(counter::PAIRS, head as i64);
+    counters.add(counter::NONEMPTY, nonempty);
+    counters.add(counter::CLIPS, c.clips);
+    if c.security_missed {
+        counters.add(counter::SECURITY_MISSED, 1);
+    }
+    if c.overflow {
+        counters.add(counter::OVERFLOWS, 1);
+    }
+    if c.broken {
+        counters.add(counter::BROKEN, 1);
+    }
 }

@@ -186,3 +186,33 @@ pub fn clip_cell_tet(
         &mut DeviceList(unfinished),
     );
 }
+
+/// Flood pairing (tet-cell): one thread per tet.
+#[spirv(compute(threads(64)))]
+pub fn clip_flood(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(num_workgroups)] groups: UVec3,
+    #[spirv(push_constant)] p: &ClipParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] sites: &[[f32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] verts: &[[f32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] tets: &[[u32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] tet_sites: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] site_nbrs: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] sums: &mut [i64],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 6)] counters: &mut [i64],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 7)] unfinished: &mut [u32],
+) {
+    let t = thread_index(id.x, id.y, groups.x);
+    clip::flood_tet(
+        t,
+        p,
+        sites,
+        verts,
+        tets,
+        tet_sites,
+        site_nbrs,
+        &mut DeviceSums(sums),
+        &mut DeviceSums(counters),
+        &mut DeviceList(unfinished),
+    );
+}

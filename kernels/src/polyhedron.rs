@@ -20,6 +20,9 @@ use spirv_std::glam::{Vec3, Vec4};
 pub const CELL_PLANES: usize = 64;
 /// Vertices of a [`Cell`].
 pub const CELL_VERTS: usize = 128;
+/// The id of planes no site made.
+pub const NO_ID: u32 = u32::MAX;
+
 /// A Voronoi cell.
 pub type Cell = Polyhedron<CELL_PLANES, CELL_VERTS>;
 /// A piece of a cell inside one tet: at most 32 planes and 64 vertices.
@@ -57,6 +60,9 @@ pub struct Moments {
 pub struct Polyhedron<const P: usize, const V: usize> {
     /// Planes `(n, d)`: the inside is `n·x <= d`.
     pub planes: [Vec4; P],
+    /// Who made each plane (the neighbour site of a bisector), or
+    /// [`NO_ID`] for the starting shape's planes.
+    pub ids: [u32; P],
     /// Vertex positions.
     pub verts: [Vec3; V],
     /// Vertex plane triples, packed 8 bits each: `a | b << 8 | c << 16`.
@@ -87,7 +93,7 @@ fn has_edge(t: u32, x: u32, y: u32) -> bool {
 impl<const P: usize, const V: usize> Polyhedron<P, V> {
     /// An empty polyhedron (no vertices).
     pub fn empty() -> Self {
-        Self { planes: [Vec4::ZERO; P], verts: [Vec3::ZERO; V], tris: [0; V], n_planes: 0, n_verts: 0 }
+        Self { planes: [Vec4::ZERO; P], ids: [NO_ID; P], verts: [Vec3::ZERO; V], tris: [0; V], n_planes: 0, n_verts: 0 }
     }
 
     /// Whether nothing is left.
@@ -161,6 +167,12 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
         p
     }
 
+    /// Drops the planes no vertex uses (keeping the others' order), so that
+    /// every plane left is a face.
+    pub fn keep_faces_only(&mut self) {
+        self.recycle_planes();
+    }
+
     /// The largest squared distance of a vertex from the local origin.
     pub fn max_dist2(&self) -> f32 {
         let mut r = 0.0f32;
@@ -193,6 +205,7 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
         while p < self.n_planes as usize {
             if remap[p] == 0 {
                 self.planes[used as usize] = self.planes[p];
+                self.ids[used as usize] = self.ids[p];
                 remap[p] = used;
                 used += 1;
             }
@@ -209,6 +222,11 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
 
     /// Keeps the part with `n·x <= d` (`plane = (n, d)`).
     pub fn clip(&mut self, plane: Vec4) -> Clip {
+        self.clip_as(plane, NO_ID)
+    }
+
+    /// Like [`Self::clip`], recording `id` as the new plane's maker.
+    pub fn clip_as(&mut self, plane: Vec4, id: u32) -> Clip {
         let n_old = self.n_verts as usize;
         let mut n_out = 0;
         let mut i = 0;
@@ -233,6 +251,7 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
         }
         let new_plane = self.n_planes;
         self.planes[new_plane as usize] = plane;
+        self.ids[new_plane as usize] = id;
         let n = plane.truncate();
         // The removed vertices, listed once.
         let mut out = [0u32; V];

@@ -2,7 +2,7 @@
 //! exact f64 reference, against each other, and the volume balance.
 
 use cvd::cpu::CpuBackend;
-use cvd::{points, Backend, Cells, ClippedVoronoi, Strategy, TetMesh};
+use cvd::{points, Backend, Cells, ClippedVoronoi, Pairing, Strategy, TetMesh};
 use cvd_tests::reference::clipped_cells;
 use cvd_tests::{assert_no_validation_errors, vulkan};
 use proptest::prelude::*;
@@ -88,6 +88,16 @@ proptest! {
                 prop_assert!(cells.e_vol <= 1e-5, "{what}: E_vol {}", cells.e_vol);
                 prop_assert_eq!(cells.counters.overflows + cells.counters.broken, 0);
             }
+            // Flood pairing needs no k at all.
+            let cells = ClippedVoronoi::new(&mesh, &sites)
+                .pairing(Pairing::Flood)
+                .k_site(n)
+                .backend(backend)
+                .compute()
+                .unwrap();
+            let what = format!("{shape:?} n={n} {} flood", backend.name());
+            assert_cells_match(&what, &cells, &vol, &centroid, 1e-4);
+            prop_assert_eq!(cells.counters.unresolved, 0);
         }
         assert_no_vulkan_errors();
     }
@@ -98,11 +108,19 @@ proptest! {
         let mesh = TetMesh::cube(resolution);
         let sites = sites_in_box(n, seed);
         let cpu = CpuBackend::new(None).unwrap();
-        let run = |b: &dyn Backend, s| ClippedVoronoi::new(&mesh, &sites).strategy(s).backend(b).compute().unwrap();
+        // Both strategies with the same (k-nearest) pairs compute the same pieces.
+        let run = |b: &dyn Backend, s| {
+            ClippedVoronoi::new(&mesh, &sites).strategy(s).pairing(Pairing::Knn).backend(b).compute().unwrap()
+        };
         let base = run(&cpu, Strategy::TetCell);
         let other = run(&cpu, Strategy::CellTet);
         assert_cells_match("cpu cell-tet vs tet-cell", &other, &base.volume, &base.centroid, 1e-5);
+        let flood = ClippedVoronoi::new(&mesh, &sites).pairing(Pairing::Flood).backend(&cpu).compute().unwrap();
+        prop_assert!(flood.e_vol <= 1e-5, "flood E_vol {}", flood.e_vol);
         if let Some(v) = vulkan() {
+            let gpu = ClippedVoronoi::new(&mesh, &sites).pairing(Pairing::Flood).backend(v).compute().unwrap();
+            assert_cells_match("vulkan flood vs cpu flood", &gpu, &flood.volume, &flood.centroid, 1e-5);
+            prop_assert_eq!(gpu.counters.unresolved, 0);
             for s in [Strategy::TetCell, Strategy::CellTet] {
                 let gpu = run(v, s);
                 assert_cells_match(&format!("vulkan {s:?} vs cpu"), &gpu, &base.volume, &base.centroid, 1e-5);
@@ -195,28 +213,39 @@ fn bad_input_is_rejected_by_name() {
     let err = TetMesh::new(flat, vec![[0, 1, 2, 3]]).unwrap_err().to_string();
     assert!(err.contains("zero volume"), "{err}");
     let mesh = TetMesh::cube(2);
+    let err = ClippedVoronoi::new(&mesh, &[[0.5, 0.5, 0.5]])
+        .strategy(Strategy::CellTet)
+        .pairing(Pairing::Flood)
+        .compute()
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("tet-cell"), "{err}");
     let err = ClippedVoronoi::new(&mesh, &[[f32::NAN, 0.0, 0.0]]).compute().unwrap_err().to_string();
     assert!(err.contains("site 0"), "{err}");
     assert!(ClippedVoronoi::new(&mesh, &[]).compute().is_err());
 }
 
 /// A neighbour budget far too small: the kernels leave most pieces
-/// unfinished and the second pass must finish every one of them exactly.
+/// unfinished and the second pass must finish every one of them exactly
+/// (whole tets, for flood pairing).
 #[test]
 fn second_pass_finishes_what_the_kernels_could_not() {
     let mesh = mesh(Shape::Ell);
     let sites = sites_in_box(120, 11);
     let (vol, centroid) = clipped_cells(&mesh, &sites);
     for backend in backends() {
-        for strategy in [Strategy::TetCell, Strategy::CellTet] {
+        for (strategy, pairing) in
+            [(Strategy::TetCell, Pairing::Knn), (Strategy::CellTet, Pairing::Knn), (Strategy::TetCell, Pairing::Flood)]
+        {
             let cells = ClippedVoronoi::new(&mesh, &sites)
                 .strategy(strategy)
+                .pairing(pairing)
                 .k(Some(120))
                 .k_site(3)
                 .backend(backend)
                 .compute()
                 .unwrap();
-            let what = format!("{} {strategy:?} k_site 3", backend.name());
+            let what = format!("{} {strategy:?} {pairing:?} k_site 3", backend.name());
             assert!(cells.counters.second_pass > 0, "{what}: nothing went to the second pass");
             assert_eq!(cells.counters.unresolved, 0, "{what}");
             assert_cells_match(&what, &cells, &vol, &centroid, 1e-4);

@@ -12,7 +12,7 @@ use crate::backend::Backend;
 use crate::error::Result;
 use crate::knn::{KnnJob, KnnMethod, Neighbors};
 use crate::timing::timed;
-use crate::voronoi::{ClipJob, ClipOutput, Strategy};
+use crate::voronoi::{ClipJob, ClipOutput, Pairing, Strategy};
 use context::Context;
 use cvd_kernels::abi::{counter, GridBuildParams, ACCUM_PER_SITE};
 use cvd_kernels::clip::CELL_RECORDS;
@@ -85,6 +85,10 @@ impl Backend for VulkanBackend {
         let (site_nbrs, _) = record_knn(&mut j, &job.site_knn, "site knn")?;
         let (tet_sites, _) = record_knn(&mut j, &job.tet_knn, "tet knn")?;
         match job.strategy {
+            Strategy::TetCell if job.pairing == Pairing::Flood => {
+                let args = [sites, verts, tets, tet_sites, site_nbrs, sums, counters, unfinished];
+                j.dispatch("clip_flood", &args, p, p.n_tets as u64)?;
+            }
             Strategy::TetCell => {
                 j.dispatch(
                     "clip_tet_cell",

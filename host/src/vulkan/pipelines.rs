@@ -37,6 +37,7 @@ pub(crate) const KERNELS: &[KernelSpec] = &[
     spec::<ClipParams>("clip_tet_cell", 8),
     spec::<ClipParams>("voronoi_cells", 4),
     spec::<ClipParams>("clip_cell_tet", 8),
+    spec::<ClipParams>("clip_flood", 8),
 ];
 
 /// A ready compute pipeline.
