@@ -12,6 +12,7 @@ use cvd_kernels::clip::{self, CELL_RECORDS};
 use cvd_kernels::{grid, knn, scan};
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicI64, AtomicU32, Ordering};
+use std::sync::Mutex;
 
 /// Thread indices per rayon task.
 const CHUNK: usize = 256;
@@ -85,6 +86,35 @@ impl PairList for LocalPairs {
     fn push(&mut self, tet: u32, site: u32) {
         self.0.push([tet, site]);
     }
+}
+
+/// Calls `body` for every index in `0..n` over rayon, in chunks whose
+/// counters and unfinished pairs are kept privately and merged once.
+fn par_indices<F>(
+    n: usize,
+    chunk: usize,
+    sums: &[AtomicI64],
+    totals: &[AtomicI64],
+    unfinished: &Mutex<Vec<[u32; 2]>>,
+    body: F,
+) where
+    F: Fn(usize, &mut &[AtomicI64], &mut DeviceSums<'_>, &mut LocalPairs) + Sync,
+{
+    (0..n).into_par_iter().chunks(chunk).for_each(|indices| {
+        let mut local = [0i64; counter::COUNT];
+        let mut pairs = LocalPairs::default();
+        let mut s = sums;
+        let mut counters = DeviceSums(&mut local);
+        for i in indices {
+            body(i, &mut s, &mut counters, &mut pairs);
+        }
+        for (t, &v) in totals.iter().zip(&local) {
+            t.fetch_add(v, Ordering::Relaxed);
+        }
+        if !pairs.0.is_empty() {
+            unfinished.lock().unwrap_or_else(|e| e.into_inner()).extend(pairs.0);
+        }
+    });
 }
 
 fn atomic_zeros(n: usize) -> Vec<AtomicU32> {
@@ -222,69 +252,22 @@ impl Backend for CpuBackend {
             timings.push("knn", site_nn.timings.total() + tet_nn.timings.total());
             let sums: Vec<AtomicI64> = (0..p.n_sites as usize * ACCUM_PER_SITE).map(|_| AtomicI64::new(0)).collect();
             let totals: Vec<AtomicI64> = (0..counter::COUNT).map(|_| AtomicI64::new(0)).collect();
-            // Each task counts and lists privately and merges once.
-            let unfinished = std::sync::Mutex::new(Vec::new());
-            let merge = |local: &[i64]| {
-                for (t, &v) in totals.iter().zip(local) {
-                    t.fetch_add(v, Ordering::Relaxed);
-                }
-            };
-            let merge_pairs = |pairs: LocalPairs| {
-                if !pairs.0.is_empty() {
-                    unfinished.lock().unwrap_or_else(|e| e.into_inner()).extend(pairs.0);
-                }
-            };
+            let unfinished = Mutex::new(Vec::new());
             let n_pairs = p.n_tets as usize * p.k_tet as usize;
             let (sites, verts, tets) = (&job.sites, &job.verts, &job.tets);
             match job.strategy {
                 Strategy::TetCell if job.pairing == Pairing::Flood => {
                     let (_, t) = timed(|| {
-                        (0..p.n_tets as usize).into_par_iter().chunks(CHUNK / 16).for_each(|chunk| {
-                            let mut local = [0i64; counter::COUNT];
-                            let mut pairs = LocalPairs::default();
-                            let mut s: &[AtomicI64] = &sums;
-                            for t in chunk {
-                                clip::flood_tet(
-                                    t,
-                                    p,
-                                    sites,
-                                    verts,
-                                    tets,
-                                    &tet_nn.indices,
-                                    &site_nn.indices,
-                                    &mut s,
-                                    &mut DeviceSums(&mut local),
-                                    &mut pairs,
-                                );
-                            }
-                            merge(&local);
-                            merge_pairs(pairs);
+                        par_indices(p.n_tets as usize, CHUNK / 16, &sums, &totals, &unfinished, |t, s, c, u| {
+                            clip::flood_tet(t, p, sites, verts, tets, &tet_nn.indices, &site_nn.indices, s, c, u)
                         })
                     });
                     timings.push("clip", t);
                 }
                 Strategy::TetCell => {
                     let (_, t) = timed(|| {
-                        (0..n_pairs).into_par_iter().chunks(CHUNK / 4).for_each(|chunk| {
-                            let mut local = [0i64; counter::COUNT];
-                            let mut pairs = LocalPairs::default();
-                            let mut s: &[AtomicI64] = &sums;
-                            for pair in chunk {
-                                clip::tet_cell_pair(
-                                    pair,
-                                    p,
-                                    sites,
-                                    verts,
-                                    tets,
-                                    &tet_nn.indices,
-                                    &site_nn.indices,
-                                    &mut s,
-                                    &mut DeviceSums(&mut local),
-                                    &mut pairs,
-                                );
-                            }
-                            merge(&local);
-                            merge_pairs(pairs);
+                        par_indices(n_pairs, CHUNK / 4, &sums, &totals, &unfinished, |pair, s, c, u| {
+                            clip::tet_cell_pair(pair, p, sites, verts, tets, &tet_nn.indices, &site_nn.indices, s, c, u)
                         })
                     });
                     timings.push("clip", t);
@@ -296,32 +279,16 @@ impl Backend for CpuBackend {
                             let mut local = [0i64; counter::COUNT];
                             let mut out = Window { start: i * CELL_RECORDS, data };
                             clip::voronoi_cell(i, p, sites, &site_nn.indices, &mut out, &mut DeviceSums(&mut local));
-                            merge(&local);
+                            for (t, &v) in totals.iter().zip(&local) {
+                                t.fetch_add(v, Ordering::Relaxed);
+                            }
                         });
                         cells
                     });
                     timings.push("cells", t);
                     let (_, t) = timed(|| {
-                        (0..n_pairs).into_par_iter().chunks(CHUNK / 4).for_each(|chunk| {
-                            let mut local = [0i64; counter::COUNT];
-                            let mut pairs = LocalPairs::default();
-                            let mut s: &[AtomicI64] = &sums;
-                            for pair in chunk {
-                                clip::cell_tet_pair(
-                                    pair,
-                                    p,
-                                    sites,
-                                    verts,
-                                    tets,
-                                    &tet_nn.indices,
-                                    &cells,
-                                    &mut s,
-                                    &mut DeviceSums(&mut local),
-                                    &mut pairs,
-                                );
-                            }
-                            merge(&local);
-                            merge_pairs(pairs);
+                        par_indices(n_pairs, CHUNK / 4, &sums, &totals, &unfinished, |pair, s, c, u| {
+                            clip::cell_tet_pair(pair, p, sites, verts, tets, &tet_nn.indices, &cells, s, c, u)
                         })
                     });
                     timings.push("clip", t);
