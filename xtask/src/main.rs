@@ -54,7 +54,7 @@ fn run(args: &[String]) -> Result<(), String> {
         return Err(USAGE.into());
     };
     match command.as_str() {
-        "run" => status(cargo(&["run", "--release", "--package", "cvd", "--", "knn"], rest)),
+        "run" => status(cargo(&["run", "--release", "--package", "cvd", "--", "run"], rest)),
         "test" => status(cargo(&["test", "--release", "--workspace"], rest)),
         "build" => status(cargo(&["build", "--release", "--workspace"], rest)),
         "bench" => match rest.split_first() {
