@@ -88,6 +88,23 @@ impl PairList for LocalPairs {
     }
 }
 
+/// Calls `body` for every query over rayon, each chunk of queries owning
+/// the windows of the `k`-slot outputs it writes.
+fn per_query_windows<F>(indices: &mut [u32], dist2: &mut [u64], k: usize, body: F)
+where
+    F: Fn(usize, &mut Window<'_, u32>, &mut Window<'_, u64>) + Sync,
+{
+    let per_task = CHUNK * k;
+    indices.par_chunks_mut(per_task).zip(dist2.par_chunks_mut(per_task)).enumerate().for_each(|(c, (nbr, d2))| {
+        let mut nbr = Window { start: c * per_task, data: nbr };
+        let mut d2 = Window { start: c * per_task, data: d2 };
+        let first = c * CHUNK;
+        for i in first..first + nbr.data.len() / k {
+            body(i, &mut nbr, &mut d2);
+        }
+    });
+}
+
 /// Calls `body` for every index in `0..n` over rayon, in chunks whose
 /// counters and unfinished pairs are kept privately and merged once.
 fn par_indices<F>(
@@ -192,7 +209,6 @@ impl Backend for CpuBackend {
             let mut timings = Timings::default();
             let mut indices = vec![0u32; job.queries.len() * k];
             let mut dist2 = vec![0u64; job.queries.len() * k];
-            let per_task = CHUNK * k;
             match job.method {
                 KnnMethod::Grid => {
                     let (g, t) = timed(|| build_grid(job));
@@ -210,32 +226,18 @@ impl Backend for CpuBackend {
                                 }
                             });
                         } else {
-                            indices.par_chunks_mut(per_task).zip(dist2.par_chunks_mut(per_task)).enumerate().for_each(
-                                |(c, (nbr, d2))| {
-                                    let mut nbr = Window { start: c * per_task, data: nbr };
-                                    let mut d2 = Window { start: c * per_task, data: d2 };
-                                    let first = c * CHUNK;
-                                    for i in first..first + nbr.data.len() / k {
-                                        knn::grid_thread(i, p, &job.queries, cs, cc, sorted, &mut nbr, &mut d2);
-                                    }
-                                },
-                            );
+                            per_query_windows(&mut indices, &mut dist2, k, |i, nbr, d2| {
+                                knn::grid_thread(i, p, &job.queries, cs, cc, sorted, nbr, d2)
+                            });
                         }
                     });
                     timings.push("knn", t);
                 }
                 KnnMethod::Brute => {
                     let (_, t) = timed(|| {
-                        indices.par_chunks_mut(per_task).zip(dist2.par_chunks_mut(per_task)).enumerate().for_each(
-                            |(c, (nbr, d2))| {
-                                let mut nbr = Window { start: c * per_task, data: nbr };
-                                let mut d2 = Window { start: c * per_task, data: d2 };
-                                let first = c * CHUNK;
-                                for i in first..first + nbr.data.len() / k {
-                                    knn::brute_thread(i, p, &job.queries, &job.sites, &mut nbr, &mut d2);
-                                }
-                            },
-                        )
+                        per_query_windows(&mut indices, &mut dist2, k, |i, nbr, d2| {
+                            knn::brute_thread(i, p, &job.queries, &job.sites, nbr, d2)
+                        })
                     });
                     timings.push("knn", t);
                 }

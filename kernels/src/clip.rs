@@ -181,11 +181,9 @@ pub fn accumulate<A: AtomicSums>(j: usize, m: &Moments, scale: f32, sums: &mut A
 }
 
 #[inline]
-fn count<C: AtomicSums>(counters: &mut C, pieces: i64, nonempty: bool, c: &Clipped) {
+fn count<C: AtomicSums>(counters: &mut C, pieces: i64, nonempty: i64, c: &Clipped) {
     counters.add(counter::PAIRS, pieces);
-    if nonempty {
-        counters.add(counter::NONEMPTY, 1);
-    }
+    counters.add(counter::NONEMPTY, nonempty);
     counters.add(counter::CLIPS, c.clips);
     if c.security_missed {
         counters.add(counter::SECURITY_MISSED, 1);
@@ -196,6 +194,40 @@ fn count<C: AtomicSums>(counters: &mut C, pieces: i64, nonempty: bool, c: &Clipp
     if c.broken {
         counters.add(counter::BROKEN, 1);
     }
+}
+
+/// The tet and site of thread `pair` (knn pairing), with the tet's
+/// vertices relative to the site in `tv`; the site is `NO_SITE` when there
+/// is nothing to do (out of range, an empty slot, or dropped — and counted
+/// — by the half-space test).
+#[inline]
+fn open_pair<C: AtomicSums>(
+    pair: usize,
+    p: &ClipParams,
+    sites: &[[f32; 4]],
+    verts: &[[f32; 4]],
+    tets: &[[u32; 4]],
+    tet_sites: &[u32],
+    tv: &mut [Vec3; 4],
+    counters: &mut C,
+) -> (usize, usize) {
+    let none = (0, NO_SITE as usize);
+    if pair >= p.n_tets as usize * p.k_tet as usize {
+        return none;
+    }
+    let t = pair / p.k_tet as usize;
+    let j = tet_sites[pair];
+    if j == NO_SITE {
+        return none;
+    }
+    let j = j as usize;
+    *tv = tet_vertices(t, verts, tets, xyz(sites[j]));
+    if !may_meet(tv, j, t * p.k_tet as usize, p, sites, tet_sites) {
+        counters.add(counter::PAIRS, 1);
+        counters.add(counter::FILTERED, 1);
+        return none;
+    }
+    (t, j)
 }
 
 /// Thread `pair` of the tet-cell strategy (Algorithm 4): pair
@@ -213,19 +245,9 @@ pub fn tet_cell_pair<A: AtomicSums, C: AtomicSums, L: PairList>(
     counters: &mut C,
     unfinished: &mut L,
 ) {
-    if pair >= p.n_tets as usize * p.k_tet as usize {
-        return;
-    }
-    let t = pair / p.k_tet as usize;
-    let j = tet_sites[pair];
-    if j == NO_SITE {
-        return;
-    }
-    let j = j as usize;
-    let tv = tet_vertices(t, verts, tets, xyz(sites[j]));
-    if !may_meet(&tv, j, t * p.k_tet as usize, p, sites, tet_sites) {
-        counters.add(counter::PAIRS, 1);
-        counters.add(counter::FILTERED, 1);
+    let mut tv = [Vec3::ZERO; 4];
+    let (t, j) = open_pair(pair, p, sites, verts, tets, tet_sites, &mut tv, counters);
+    if j == NO_SITE as usize {
         return;
     }
     let mut poly = Piece::tetrahedron(tv);
@@ -238,7 +260,7 @@ pub fn tet_cell_pair<A: AtomicSums, C: AtomicSums, L: PairList>(
     if !c.finished() {
         unfinished.push(t as u32, j as u32);
     }
-    count(counters, 1, nonempty, &c);
+    count(counters, 1, nonempty as i64, &c);
 }
 
 /// Thread `i` of Algorithm 1: the Voronoi cell of site `i` inside the
@@ -282,7 +304,7 @@ pub fn voronoi_cell<O: OutBuf<[f32; 4]> + ?Sized, C: AtomicSums>(
         cells.write(base + 1 + CELL_PLANES + v, [x.x, x.y, x.z, f32::from_bits(poly.tris[v])]);
         v += 1;
     }
-    count(counters, 0, false, &c);
+    count(counters, 0, 0, &c);
 }
 
 /// Thread `pair` of the cell-tet strategy (Algorithm 2): site `j`'s stored
@@ -300,19 +322,9 @@ pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums, L: PairList>(
     counters: &mut C,
     unfinished: &mut L,
 ) {
-    if pair >= p.n_tets as usize * p.k_tet as usize {
-        return;
-    }
-    let t = pair / p.k_tet as usize;
-    let j = tet_sites[pair];
-    if j == NO_SITE {
-        return;
-    }
-    let j = j as usize;
-    let tv = tet_vertices(t, verts, tets, xyz(sites[j]));
-    if !may_meet(&tv, j, t * p.k_tet as usize, p, sites, tet_sites) {
-        counters.add(counter::PAIRS, 1);
-        counters.add(counter::FILTERED, 1);
+    let mut tv = [Vec3::ZERO; 4];
+    let (t, j) = open_pair(pair, p, sites, verts, tets, tet_sites, &mut tv, counters);
+    if j == NO_SITE as usize {
         return;
     }
     let base = j * CELL_RECORDS;
@@ -362,7 +374,7 @@ pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums, L: PairList>(
     if !c.finished() {
         unfinished.push(t as u32, j as u32);
     }
-    count(counters, 1, nonempty, &c);
+    count(counters, 1, nonempty as i64, &c);
 }
 
 /// Most sites one tet's flood can visit; more sends the tet to the second
@@ -463,16 +475,5 @@ pub fn flood_tet<A: AtomicSums, C: AtomicSums, L: PairList>(
     } else {
         unfinished.push(t as u32, NO_SITE);
     }
-    counters.add(counter::PAIRS, head as i64);
-    counters.add(counter::NONEMPTY, nonempty);
-    counters.add(counter::CLIPS, c.clips);
-    if c.security_missed {
-        counters.add(counter::SECURITY_MISSED, 1);
-    }
-    if c.overflow {
-        counters.add(counter::OVERFLOWS, 1);
-    }
-    if c.broken {
-        counters.add(counter::BROKEN, 1);
-    }
+    count(counters, head as i64, nonempty, &c);
 }
