@@ -80,7 +80,7 @@ impl<T: Copy> OutBuf<T> for SharedSlots<'_, T> {
 
 /// A task's list of unfinished pairs, merged after the task.
 #[derive(Default)]
-struct LocalPairs(Vec<[u32; 2]>);
+pub(crate) struct LocalPairs(Vec<[u32; 2]>);
 
 impl PairList for LocalPairs {
     fn push(&mut self, tet: u32, site: u32) {
@@ -107,7 +107,7 @@ where
 
 /// Calls `body` for every index in `0..n` over rayon, in chunks whose
 /// counters and unfinished pairs are kept privately and merged once.
-fn par_indices<F>(
+pub(crate) fn par_indices<F>(
     n: usize,
     chunk: usize,
     sums: &[AtomicI64],

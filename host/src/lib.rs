@@ -21,6 +21,8 @@ pub mod knn;
 pub mod mesh;
 pub mod points;
 pub mod quantize;
+pub mod second_pass;
+pub mod site_grid;
 pub mod timing;
 pub mod voronoi;
 pub mod vulkan;

@@ -327,14 +327,14 @@ impl<'a> ClippedVoronoi<'a> {
             }
         };
         let mut out = backend.clip(&job)?;
-        let (second, t) = crate::timing::timed(|| second_pass(&job, &mut out));
-        let (redone, unresolved) = second?;
-        if redone > 0 {
+        let (redone, t) = crate::timing::timed(|| crate::second_pass::run(&job, &mut out));
+        let redone = redone?;
+        if redone.finished + redone.unresolved > 0 {
             out.timings.push("second pass", t);
         }
         let mut cells = finish(self.mesh, self.sites, &job, &map, &frame, out);
-        cells.counters.second_pass = redone;
-        cells.counters.unresolved = unresolved;
+        cells.counters.second_pass = redone.finished;
+        cells.counters.unresolved = redone.unresolved;
         Ok(cells)
     }
 }
@@ -420,122 +420,4 @@ pub(crate) fn pair_list(raw: &[u32]) -> Vec<[u32; 2]> {
     let mut pairs: Vec<[u32; 2]> = (0..stored).map(|i| [raw[1 + 2 * i], raw[2 + 2 * i]]).collect();
     pairs.sort_unstable();
     pairs
-}
-
-/// Finishes the pieces the kernels could not, on the CPU with the same
-/// body: a larger polyhedron and a longer neighbour list (all sites when
-/// needed, which always reaches the security radius). Returns the pieces
-/// redone and those that still failed (capacity).
-fn second_pass(job: &ClipJob, out: &mut ClipOutput) -> Result<(u64, u64)> {
-    use cvd_kernels::buffers::DeviceSums;
-    use cvd_kernels::clip::{accumulate, clip_by_bisectors, tet_vertices, Clipped};
-    use cvd_kernels::glam::Vec3;
-    use cvd_kernels::polyhedron::{Cell, Moments};
-    use rayon::prelude::*;
-
-    if out.unfinished.is_empty() {
-        return Ok((0, 0));
-    }
-    let p = &job.params;
-    let n = job.sites.len();
-    let cpu = crate::cpu::CpuBackend::new(None)?;
-    let mut pending = expand_whole_tets(job, &out.unfinished);
-    let mut budget = (2 * p.k_site as usize).max(128).min(n.saturating_sub(1));
-    let mut redone = 0;
-    let mut unresolved = 0;
-    loop {
-        // The neighbours of the sites involved, nearest first, self excluded.
-        let mut involved: Vec<u32> = pending.iter().map(|&[_, j]| j).collect();
-        involved.sort_unstable();
-        involved.dedup();
-        let points: Vec<[f32; 3]> = involved
-            .iter()
-            .map(|&j| {
-                let s = job.sites[j as usize];
-                [s[0], s[1], s[2]]
-            })
-            .collect();
-        let all: Vec<[f32; 3]> = job.sites.iter().map(|s| [s[0], s[1], s[2]]).collect();
-        let nn = KnnJob::points(&all, &points, budget + 1, KnnMethod::Grid)?.run(&cpu)?;
-        let mut lists = Vec::with_capacity(involved.len() * budget);
-        for (row, &j) in involved.iter().enumerate() {
-            let mut list: Vec<u32> = nn.of(row).iter().copied().filter(|&s| s != j).collect();
-            list.resize(budget, cvd_kernels::abi::NO_SITE);
-            lists.extend(list);
-        }
-        // Each piece in parallel; the sums are added in pair order after.
-        let results: Vec<(Clipped, Option<Moments>)> = pending
-            .par_iter()
-            .map(|&[t, j]| {
-                let row = involved.binary_search(&j).unwrap_or(0);
-                let x = job.sites[j as usize];
-                let xj = Vec3::new(x[0], x[1], x[2]);
-                let mut poly = Cell::tetrahedron(tet_vertices(t as usize, &job.verts, &job.tets, xj));
-                let c = clip_by_bisectors(&mut poly, j as usize, p.n_sites, &job.sites, &lists, row * budget, budget);
-                let m = (c.finished() && !poly.is_empty()).then(|| poly.moments());
-                (c, m)
-            })
-            .collect();
-        let mut missed = Vec::new();
-        let mut sums = DeviceSums(&mut out.sums);
-        for (&[t, j], (c, m)) in pending.iter().zip(results) {
-            if c.finished() {
-                if let Some(m) = m {
-                    accumulate(j as usize, &m, p.fixed_scale, &mut sums);
-                }
-                redone += 1;
-            } else if c.security_missed && !c.overflow && !c.broken && budget + 1 < n {
-                missed.push([t, j]);
-            } else {
-                unresolved += 1;
-            }
-        }
-        if missed.is_empty() {
-            return Ok((redone, unresolved));
-        }
-        pending = missed;
-        budget = n - 1;
-    }
-}
-
-/// Replaces each whole-tet entry `(tet, NO_SITE)` by the pairs of that tet
-/// with every site that may own part of it: with `c` the centroid, `r` its
-/// distance to the farthest vertex and `d1` the distance to the nearest
-/// site, any site owning a point of the tet lies within `d1 + 2r` of `c`.
-fn expand_whole_tets(job: &ClipJob, entries: &[[u32; 2]]) -> Vec<[u32; 2]> {
-    use cvd_kernels::abi::NO_SITE;
-    let dist = |a: [f32; 4], b: [f64; 3]| (0..3).map(|i| (a[i] as f64 - b[i]).powi(2)).sum::<f64>().sqrt();
-    use rayon::prelude::*;
-    let per_entry: Vec<Vec<[u32; 2]>> = entries
-        .par_iter()
-        .map(|&[t, j]| {
-            if j != NO_SITE {
-                return vec![[t, j]];
-            }
-            let v = job.tets[t as usize].map(|i| job.verts[i as usize]);
-            let c = [0, 1, 2].map(|a| v.iter().map(|p| p[a] as f64).sum::<f64>() / 4.0);
-            let r = v.iter().map(|&p| dist(p, c)).fold(0.0, f64::max);
-            let (nearest, d1) = job
-                .sites
-                .iter()
-                .enumerate()
-                .map(|(s, &x)| (s, dist(x, c)))
-                .fold((0, f64::INFINITY), |a, b| if b.1 < a.1 { b } else { a });
-            let reach = (d1 + 2.0 * r) * (1.0 + 1e-6) + 1e-9;
-            // A site can own part of the tet only where it beats the nearest
-            // site: that half-space must hold a tet vertex (with a margin).
-            let s1 = job.sites[nearest];
-            let beats_nearest = |x: [f32; 4]| {
-                v.iter().any(|&p| {
-                    let q = [p[0] as f64, p[1] as f64, p[2] as f64];
-                    dist(x, q) <= dist(s1, q) * (1.0 + 1e-5) + 1e-9
-                })
-            };
-            (0..job.sites.len())
-                .filter(|&s| dist(job.sites[s], c) <= reach && beats_nearest(job.sites[s]))
-                .map(|s| [t, s as u32])
-                .collect()
-        })
-        .collect();
-    per_entry.into_iter().flatten().collect()
 }

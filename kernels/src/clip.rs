@@ -377,19 +377,13 @@ pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums, L: PairList>(
     count(counters, 1, nonempty as i64, &c);
 }
 
-/// Most sites one tet's flood can visit; more sends the tet to the second
-/// pass.
+/// Most sites one tet's flood can visit in the kernel; more sends the tet
+/// to the second pass.
 pub const FLOOD_CAP: usize = 32;
 
-/// Thread `t` of flood pairing (tet-cell): start from the site nearest the
-/// tet's centroid (`tet_sites[t]`, a 1-NN list), build its piece, and visit
-/// every site whose bisector is a face of a piece built so far. The pieces
-/// of the cells that meet a convex tet tile it and are connected through
-/// such faces, so this finds exactly the sites that own part of the tet —
-/// no k, no empty pairs. Certificate: the pieces' volumes must add up to
-/// the tet's. A tet whose flood fails (a piece unfinished, the queue full,
-/// the certificate off) adds nothing and goes to the second pass whole, as
-/// `(tet, NO_SITE)`.
+/// Thread `t` of flood pairing (tet-cell): [`flood`] from the site nearest
+/// the tet's centroid (`tet_sites[t]`, a 1-NN list), each piece clipped by
+/// the bisectors of its site's `list_len` nearest neighbours.
 #[inline]
 pub fn flood_tet<A: AtomicSums, C: AtomicSums, L: PairList>(
     t: usize,
@@ -407,12 +401,54 @@ pub fn flood_tet<A: AtomicSums, C: AtomicSums, L: PairList>(
         return;
     }
     let k = p.list_len as usize;
-    let mut queue = [0u32; FLOOD_CAP];
-    let mut found = [Moments::default(); FLOOD_CAP];
-    queue[0] = tet_sites[t];
+    let n_sites = p.n_sites;
+    flood::<32, 64, FLOOD_CAP, _, _, _, _>(
+        t,
+        tet_sites[t],
+        p.fixed_scale,
+        sites,
+        verts,
+        tets,
+        move |j: usize, poly: &mut Piece| clip_by_bisectors(poly, j, n_sites, sites, site_nbrs, j * k, k),
+        sums,
+        counters,
+        unfinished,
+    );
+}
+
+/// Flood pairing of tet `t` from site `start`: build its piece, and visit
+/// every site whose bisector is a face of a piece built so far. The pieces
+/// of the cells that meet a convex tet tile it and are connected through
+/// such faces, so this finds exactly the sites that own part of the tet —
+/// no k, no empty pairs. `piece(j, poly)` clips `poly`, the tet relative to
+/// site `j`, into `j`'s piece. Certificate: the pieces' volumes must add up
+/// to the tet's. A tet whose flood fails (a piece unfinished, more than `Q`
+/// sites, the certificate off) adds nothing and is listed whole, as
+/// `(tet, NO_SITE)`.
+#[inline]
+pub fn flood<const P: usize, const V: usize, const Q: usize, F, A, C, L>(
+    t: usize,
+    start: u32,
+    fixed_scale: f32,
+    sites: &[[f32; 4]],
+    verts: &[[f32; 4]],
+    tets: &[[u32; 4]],
+    mut piece: F,
+    sums: &mut A,
+    counters: &mut C,
+    unfinished: &mut L,
+) where
+    F: FnMut(usize, &mut Polyhedron<P, V>) -> Clipped,
+    A: AtomicSums,
+    C: AtomicSums,
+    L: PairList,
+{
+    let mut queue = [0u32; Q];
+    let mut found = [Moments::default(); Q];
+    queue[0] = start;
     let mut len = 1;
     let mut head = 0;
-    let mut ok = queue[0] != NO_SITE;
+    let mut ok = start != NO_SITE;
     let mut c = Clipped::default();
     let mut total = 0.0f32;
     let mut tet_volume = 0.0f32;
@@ -422,8 +458,8 @@ pub fn flood_tet<A: AtomicSums, C: AtomicSums, L: PairList>(
         if head == 0 {
             tet_volume = ((tv[1] - tv[0]).cross(tv[2] - tv[0]).dot(tv[3] - tv[0]) / 6.0).abs();
         }
-        let mut poly = Piece::tetrahedron(tv);
-        let ci = clip_by_bisectors(&mut poly, j, p.n_sites, sites, site_nbrs, j * k, k);
+        let mut poly = Polyhedron::<P, V>::tetrahedron(tv);
+        let ci = piece(j, &mut poly);
         c.clips += ci.clips;
         c.security_missed |= ci.security_missed;
         c.overflow |= ci.overflow;
@@ -445,7 +481,7 @@ pub fn flood_tet<A: AtomicSums, C: AtomicSums, L: PairList>(
                         s += 1;
                     }
                     if !seen {
-                        if len == FLOOD_CAP {
+                        if len == Q {
                             ok = false;
                         } else {
                             queue[len] = id;
@@ -467,7 +503,7 @@ pub fn flood_tet<A: AtomicSums, C: AtomicSums, L: PairList>(
         let mut i = 0;
         while i < len {
             if found[i].volume != 0.0 {
-                accumulate(queue[i] as usize, &found[i], p.fixed_scale, sums);
+                accumulate(queue[i] as usize, &found[i], fixed_scale, sums);
                 nonempty += 1;
             }
             i += 1;

@@ -1,0 +1,179 @@
+//! The second pass: finishes on the host, with the kernels' own bodies,
+//! everything the kernels listed as unfinished, so that no volume is lost.
+//!
+//! The kernels clip a piece by its site's `k_site` nearest neighbours; here
+//! each piece gets a *complete* list instead: every site within twice the
+//! distance from its site to the farthest tet vertex, nearest first. The
+//! piece lies in the tet, so that ball holds every bisector that can cut
+//! it, and the list ending means the piece is exact. Pieces are built in a
+//! [`Cell`], which has room for far more faces than a kernel's piece.
+//!
+//! * A whole tet (flood pairing) is flooded again from its nearest site,
+//!   with a longer queue.
+//! * A tet whose flood still fails (more owners than the queue holds, or a
+//!   certificate off) is paired with every site that may own part of it
+//!   (a radius bound, filtered), and each pair is done as below.
+//! * A `(tet, site)` pair (knn pairing, cell-tet) is clipped directly.
+
+use crate::cpu::par_indices;
+use crate::error::Result;
+use crate::site_grid::SiteGrid;
+use crate::voronoi::{ClipJob, ClipOutput};
+use cvd_kernels::abi::{counter, NO_SITE};
+use cvd_kernels::clip::{self, accumulate, clip_by_bisectors, tet_vertices, Clipped};
+use cvd_kernels::glam::Vec3;
+use cvd_kernels::polyhedron::{Cell, Polyhedron, CELL_PLANES, CELL_VERTS};
+use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, Ordering};
+use std::sync::Mutex;
+
+/// Most sites a tet's flood may visit in the second pass.
+const QUEUE: usize = 256;
+
+/// What the second pass did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Redone {
+    /// Unfinished entries (whole tets or pairs) finished here.
+    pub finished: u64,
+    /// Pieces that could not be finished even here (more faces than a
+    /// [`Cell`] holds): their volume is missing, and counted.
+    pub unresolved: u64,
+}
+
+/// Finishes `out.unfinished`, adding the pieces to `out.sums`.
+pub(crate) fn run(job: &ClipJob, out: &mut ClipOutput) -> Result<Redone> {
+    if out.unfinished.is_empty() {
+        return Ok(Redone::default());
+    }
+    let grid = SiteGrid::new(&job.sites);
+    let sums: Vec<AtomicI64> = out.sums.iter().map(|&s| AtomicI64::new(s)).collect();
+    let (tets, pairs): (Vec<[u32; 2]>, Vec<[u32; 2]>) = out.unfinished.iter().partition(|e| e[1] == NO_SITE);
+    let mut redone = Redone::default();
+
+    // Whole tets: flood again.
+    let failed = Mutex::new(Vec::new());
+    let ignored: Vec<AtomicI64> = (0..counter::COUNT).map(|_| AtomicI64::new(0)).collect();
+    par_indices(tets.len(), 16, &sums, &ignored, &failed, |e, sums, counters, failed| {
+        let t = tets[e][0] as usize;
+        let centroid = centroid(job, t);
+        let (start, _) = grid.nearest(centroid);
+        let mut list = Vec::new();
+        clip::flood::<CELL_PLANES, CELL_VERTS, QUEUE, _, _, _, _>(
+            t,
+            start,
+            job.params.fixed_scale,
+            &job.sites,
+            &job.verts,
+            &job.tets,
+            |j: usize, poly: &mut Cell| clip_completely(job, &grid, t, j, poly, &mut list),
+            sums,
+            counters,
+            failed,
+        );
+    });
+    let failed = failed.into_inner().unwrap_or_else(|e| e.into_inner());
+    redone.finished += (tets.len() - failed.len()) as u64;
+
+    // Tets still unfinished, and the pairs: each pair on its own. An entry
+    // is finished when all of its pairs are.
+    let entries: Vec<[u32; 2]> = pairs.iter().chain(&failed).copied().collect();
+    let mut work: Vec<([u32; 2], usize)> = pairs.iter().enumerate().map(|(e, &p)| (p, e)).collect();
+    work.extend(candidate_pairs(job, &grid, &failed).into_iter().map(|(p, e)| (p, pairs.len() + e)));
+    let ok: Vec<AtomicBool> = entries.iter().map(|_| AtomicBool::new(true)).collect();
+    let unresolved = AtomicU64::new(0);
+    par_indices(work.len(), 16, &sums, &ignored, &Mutex::new(Vec::new()), |w, sums, _, _| {
+        let ([t, j], entry) = work[w];
+        let (t, j) = (t as usize, j as usize);
+        let mut poly = Cell::empty();
+        let c = clip_completely(job, &grid, t, j, &mut poly, &mut Vec::new());
+        if !c.finished() {
+            unresolved.fetch_add(1, Ordering::Relaxed);
+            ok[entry].store(false, Ordering::Relaxed);
+        } else if !poly.is_empty() {
+            accumulate(j, &poly.moments(), job.params.fixed_scale, sums);
+        }
+    });
+    redone.finished += ok.iter().filter(|o| o.load(Ordering::Relaxed)).count() as u64;
+    redone.unresolved = unresolved.into_inner();
+    out.sums = sums.into_iter().map(AtomicI64::into_inner).collect();
+    Ok(redone)
+}
+
+fn centroid(job: &ClipJob, t: usize) -> [f64; 3] {
+    let v = job.tets[t].map(|i| job.verts[i as usize]);
+    [0, 1, 2].map(|a| v.iter().map(|p| p[a] as f64).sum::<f64>() / 4.0)
+}
+
+/// Sites in the first ball [`clip_completely`] tries: most pieces are
+/// finished within it.
+const FIRST_BALL: f64 = 64.0;
+
+/// Builds site `j`'s piece of tet `t` in `poly` (replacing what it held)
+/// with a complete neighbour list (see the module's documentation). A
+/// smaller ball is tried first: once every site in a ball of radius `b`
+/// is clipped, the piece is exact if its farthest vertex is within `b / 2`.
+fn clip_completely<const P: usize, const V: usize>(
+    job: &ClipJob,
+    grid: &SiteGrid,
+    t: usize,
+    j: usize,
+    poly: &mut Polyhedron<P, V>,
+    list: &mut Vec<u32>,
+) -> Clipped {
+    let s = job.sites[j];
+    let xj = [s[0], s[1], s[2]].map(f64::from);
+    let tv = tet_vertices(t, &job.verts, &job.tets, Vec3::new(s[0], s[1], s[2]));
+    let reach = tv.iter().map(|v| (v.as_dvec3()).length()).fold(0.0, f64::max);
+    let complete = 2.0 * reach * (1.0 + 1e-5) + 1e-9;
+    let first = grid.radius_holding(FIRST_BALL).min(complete);
+    let mut c = Clipped::default();
+    for ball in [first, complete] {
+        *poly = Polyhedron::tetrahedron(tv);
+        grid.sorted_within(xj, ball, j as u32, list);
+        let last = ball == complete;
+        if last {
+            list.push(NO_SITE);
+        }
+        c = clip_by_bisectors(poly, j, job.params.n_sites, &job.sites, list, 0, list.len());
+        if c.security_missed && !c.overflow && !c.broken && 4.0 * poly.max_dist2() as f64 * (1.0 + 1e-5) <= ball * ball
+        {
+            c.security_missed = false;
+        }
+        if !c.security_missed || last {
+            break;
+        }
+    }
+    c
+}
+
+/// The pairs of each tet `(t, NO_SITE)` with every site that may own part
+/// of it: with `c` the centroid, `r` its distance to the farthest vertex
+/// and `d1` the distance to the nearest site, any site owning a point of
+/// the tet lies within `d1 + 2r` of `c`; and it must beat the nearest site
+/// `s1` somewhere, so the half-space where it does must hold a tet vertex.
+fn candidate_pairs(job: &ClipJob, grid: &SiteGrid, tets: &[[u32; 2]]) -> Vec<([u32; 2], usize)> {
+    use rayon::prelude::*;
+    let per_tet: Vec<Vec<([u32; 2], usize)>> = tets
+        .par_iter()
+        .enumerate()
+        .map(|(e, &[t, _])| {
+            let c = centroid(job, t as usize);
+            let v = job.tets[t as usize].map(|i| job.verts[i as usize].map(f64::from));
+            let dist = |a: [f64; 4], b: [f64; 3]| (0..3).map(|i| (a[i] - b[i]).powi(2)).sum::<f64>().sqrt();
+            let r = v.iter().map(|&p| dist(p, c)).fold(0.0, f64::max);
+            let (nearest, d1) = grid.nearest(c);
+            let mut found = Vec::new();
+            grid.within(c, (d1 + 2.0 * r) * (1.0 + 1e-6) + 1e-9, &mut found);
+            found
+                .into_iter()
+                .filter(|&s| {
+                    v.iter().any(|&p| {
+                        let q = [p[0], p[1], p[2]];
+                        grid.dist2(s, q).sqrt() <= grid.dist2(nearest, q).sqrt() * (1.0 + 1e-5) + 1e-9
+                    })
+                })
+                .map(|s| ([t, s], e))
+                .collect()
+        })
+        .collect();
+    per_tet.into_iter().flatten().collect()
+}
