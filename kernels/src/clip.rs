@@ -76,7 +76,7 @@ pub fn clip_by_bisectors<const P: usize, const V: usize>(
 ) -> Clipped {
     let xi = xyz(sites[i]);
     let mut out = Clipped { clips: 0, security_missed: true, overflow: false, broken: false };
-    let mut r2 = poly.max_dist2();
+    let (mut r2, mut mid, mut half) = poly.bounds();
     let mut s = 0;
     while s < k {
         let nb = site_nbrs[base + s];
@@ -91,10 +91,18 @@ pub fn clip_by_bisectors<const P: usize, const V: usize>(
             out.security_missed = false;
             break;
         }
+        // The bounding box's support in direction n bounds the vertices':
+        // a plane that clears the box leaves the polyhedron unchanged (the
+        // margin keeps this test from deciding what rounding could flip).
+        let support = n.dot(mid) + n.abs().dot(half);
+        if support + 1e-5 * (n.dot(mid).abs() + n.abs().dot(half)) < 0.5 * d2 {
+            s += 1;
+            continue;
+        }
         match poly.clip_as(n.extend(0.5 * d2), nb) {
             Clip::Cut => {
                 out.clips += 1;
-                r2 = poly.max_dist2();
+                (r2, mid, half) = poly.bounds();
             }
             Clip::Unchanged => {}
             Clip::Empty => {

@@ -78,16 +78,20 @@ fn pack(a: u32, b: u32, c: u32) -> u32 {
     a | (b << 8) | (c << 16)
 }
 
+/// Flags a vertex a clip removes (above the 24 bits of its triple).
+const REMOVED: u32 = 1 << 31;
+
 #[inline]
 fn unpack(t: u32) -> [u32; 3] {
     [t & 0xff, (t >> 8) & 0xff, (t >> 16) & 0xff]
 }
 
-/// Whether packed triple `t` has directed edge `x -> y` (cyclically).
+/// Whether packed triple `t` has directed edge `x -> y` (cyclically):
+/// its edges `a -> b`, `b -> c`, `c -> a` are compared packed, as `x | y << 8`.
 #[inline]
 fn has_edge(t: u32, x: u32, y: u32) -> bool {
-    let [a, b, c] = unpack(t);
-    (a == x && b == y) || (b == x && c == y) || (c == x && a == y)
+    let e = x | (y << 8);
+    (t & 0xffff) == e || ((t >> 8) & 0xffff) == e || (((t >> 16) & 0xff) | ((t & 0xff) << 8)) == e
 }
 
 impl<const P: usize, const V: usize> Polyhedron<P, V> {
@@ -173,6 +177,23 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
         self.recycle_planes();
     }
 
+    /// The largest squared distance of a vertex from the local origin, and
+    /// the centre and half-extent of the bounding box.
+    pub fn bounds(&self) -> (f32, Vec3, Vec3) {
+        let mut r = 0.0f32;
+        let mut lo = Vec3::splat(f32::INFINITY);
+        let mut hi = Vec3::splat(f32::NEG_INFINITY);
+        let mut i = 0;
+        while i < (self.n_verts as usize).min(V) {
+            let v = self.verts[i];
+            r = r.max(v.length_squared());
+            lo = lo.min(v);
+            hi = hi.max(v);
+            i += 1;
+        }
+        (r, 0.5 * (lo + hi), 0.5 * (hi - lo))
+    }
+
     /// The largest squared distance of a vertex from the local origin.
     pub fn max_dist2(&self) -> f32 {
         let mut r = 0.0f32;
@@ -182,11 +203,6 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
             i += 1;
         }
         r
-    }
-
-    #[inline]
-    fn outside(&self, i: usize, plane: Vec4) -> bool {
-        self.verts[i].dot(plane.truncate()) > plane.w
     }
 
     /// Frees the planes no vertex uses, renumbering the rest.
@@ -227,11 +243,20 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
 
     /// Like [`Self::clip`], recording `id` as the new plane's maker.
     pub fn clip_as(&mut self, plane: Vec4, id: u32) -> Clip {
-        let n_old = self.n_verts as usize;
+        if self.n_planes as usize == P {
+            self.recycle_planes();
+            if self.n_planes as usize == P {
+                return Clip::Overflow;
+            }
+        }
+        let n_old = (self.n_verts as usize).min(V);
+        let n = plane.truncate();
+        // One test per vertex; the removed ones are flagged in their triple.
         let mut n_out = 0;
         let mut i = 0;
         while i < n_old {
-            if self.outside(i, plane) {
+            if self.verts[i].dot(n) > plane.w {
+                self.tris[i] |= REMOVED;
                 n_out += 1;
             }
             i += 1;
@@ -243,22 +268,15 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
             self.n_verts = 0;
             return Clip::Empty;
         }
-        if self.n_planes as usize == P {
-            self.recycle_planes();
-            if self.n_planes as usize == P {
-                return Clip::Overflow;
-            }
-        }
         let new_plane = self.n_planes;
         self.planes[new_plane as usize] = plane;
         self.ids[new_plane as usize] = id;
-        let n = plane.truncate();
         // The removed vertices, listed once.
         let mut out = [0u32; V];
         let mut r = 0;
         let mut i = 0;
         while i < n_old {
-            if self.outside(i, plane) {
+            if self.tris[i] & REMOVED != 0 {
                 out[r] = i as u32;
                 r += 1;
             }
@@ -284,12 +302,14 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
                 }
                 if b == r {
                     if n_new == V {
+                        self.clear_flags();
                         return Clip::Overflow;
                     }
                     let v_out = self.verts[t];
                     let dir = self.planes[x as usize].truncate().cross(self.planes[y as usize].truncate());
                     let along = n.dot(dir);
                     if along == 0.0 {
+                        self.clear_flags();
                         return Clip::Broken;
                     }
                     let s = (plane.w - n.dot(v_out)) / along;
@@ -301,72 +321,85 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
             }
             a += 1;
         }
-        // Drop the removed vertices (only old ones are tested: new ones lie
-        // on the plane and must stay whatever rounding says).
-        let mut w = 0;
-        let mut i = 0;
-        while i < n_new {
-            if i >= n_old || !self.outside(i, plane) {
-                self.verts[w] = self.verts[i];
-                self.tris[w] = self.tris[i];
-                w += 1;
+        // Fill the removed slots with the last kept or new vertices (highest
+        // removed slot first, so every vertex moved is one to keep).
+        let mut end = n_new;
+        let mut a = r;
+        while a > 0 {
+            a -= 1;
+            let slot = out[a] as usize;
+            end -= 1;
+            if slot != end {
+                self.verts[slot] = self.verts[end];
+                self.tris[slot] = self.tris[end];
             }
-            i += 1;
         }
-        self.n_verts = w as u32;
+        self.n_verts = end as u32;
         self.n_planes += 1;
         Clip::Cut
+    }
+
+    /// Unflags the vertices of a clip that was given up.
+    fn clear_flags(&mut self) {
+        let mut i = 0;
+        while i < (self.n_verts as usize).min(V) {
+            self.tris[i] &= !REMOVED;
+            i += 1;
+        }
     }
 
     /// Volume, first and second moments, from vertex-local pieces only
     /// (no adjacency search): each face is fanned from the foot `c_x` of
     /// the perpendicular from the site to its plane, and each fan triangle
-    /// is split at the foot `m` of the perpendicular to its edge's line, so
-    /// a vertex `v` with edge `x -> y` owns the triangles `(c_x, m, v)` on
-    /// face `x` and `(c_y, v, m)` on face `y`; each triangle is coned to the
-    /// site (signed tets, so the site may lie outside). `|m| <= |v|`, so no
+    /// is split at the foot `f` of the perpendicular to its edge's line, so
+    /// a vertex `v` with edge `x -> y` owns the triangles `(c_x, f, v)` on
+    /// face `x` and `(c_y, v, f)` on face `y`; each triangle is coned to the
+    /// site (signed tets, so the site may lie outside). `|f| <= |v|`, so no
     /// far-away point enters the sums.
     pub fn moments(&self) -> Moments {
-        let mut feet = [Vec3::ZERO; P];
+        // Per plane: the foot c and |c|².
+        let mut feet = [Vec4::ZERO; P];
         let mut p = 0;
-        while p < self.n_planes as usize {
+        while p < (self.n_planes as usize).min(P) {
             let n = self.planes[p].truncate();
-            feet[p] = n * (self.planes[p].w / n.length_squared());
+            let c = n * (self.planes[p].w / n.length_squared());
+            feet[p] = c.extend(c.length_squared());
             p += 1;
         }
         let mut m = Moments::default();
         let mut i = 0;
-        while i < self.n_verts as usize {
+        while i < (self.n_verts as usize).min(V) {
             let v = self.verts[i];
+            let vv = v.length_squared();
             let [a, b, c] = unpack(self.tris[i]);
-            self.add_corner_edge(&mut m, &feet, v, a, b);
-            self.add_corner_edge(&mut m, &feet, v, b, c);
-            self.add_corner_edge(&mut m, &feet, v, c, a);
+            self.add_corner_edge(&mut m, &feet, v, vv, a, b);
+            self.add_corner_edge(&mut m, &feet, v, vv, b, c);
+            self.add_corner_edge(&mut m, &feet, v, vv, c, a);
             i += 1;
         }
         m
     }
 
+    /// The two cones of vertex `v` at its edge `x -> y`. Every point of a
+    /// cone's base triangle lies on the base's plane and `f` is the foot on
+    /// the edge line, so the cross terms of the second moment reduce:
+    /// `c·v = c·f = |c|²` and `f·v = |f|²`.
     #[inline]
-    fn add_corner_edge(&self, m: &mut Moments, feet: &[Vec3; P], v: Vec3, x: u32, y: u32) {
+    fn add_corner_edge(&self, m: &mut Moments, feet: &[Vec4; P], v: Vec3, vv: f32, x: u32, y: u32) {
         let cx = feet[x as usize];
         let cy = feet[y as usize];
         let u = self.planes[x as usize].truncate().cross(self.planes[y as usize].truncate());
         let uu = u.length_squared();
-        let foot = if uu > 0.0 { v - u * (v.dot(u) / uu) } else { v };
-        add_cone(m, cx, foot, v);
-        add_cone(m, cy, v, foot);
+        let f = if uu > 0.0 { v - u * (v.dot(u) / uu) } else { v };
+        let w = f.cross(v);
+        // Signed volumes of (0, c_x, f, v) and (0, c_y, v, f).
+        let vol_x = cx.truncate().dot(w) / 6.0;
+        let vol_y = -cy.truncate().dot(w) / 6.0;
+        let ff = f.length_squared();
+        m.volume += vol_x + vol_y;
+        m.first += ((f + v) * (vol_x + vol_y) + cx.truncate() * vol_x + cy.truncate() * vol_y) / 4.0;
+        m.second += (vol_x * (3.0 * cx.w) + vol_y * (3.0 * cy.w) + (vol_x + vol_y) * (2.0 * ff + vv)) / 10.0;
     }
-}
-
-/// Adds the signed tet `(0, a, b, c)` to the moments.
-#[inline]
-fn add_cone(m: &mut Moments, a: Vec3, b: Vec3, c: Vec3) {
-    let v = a.dot(b.cross(c)) / 6.0;
-    m.volume += v;
-    m.first += (a + b + c) * (v / 4.0);
-    let s = a.length_squared() + b.length_squared() + c.length_squared() + a.dot(b) + b.dot(c) + c.dot(a);
-    m.second += v * s / 10.0;
 }
 
 #[cfg(test)]
