@@ -127,7 +127,7 @@ fn clip_completely<const P: usize, const V: usize>(
     let first = grid.radius_holding(FIRST_BALL).min(complete);
     let mut c = Clipped::default();
     for ball in [first, complete] {
-        *poly = Polyhedron::tetrahedron(tv);
+        poly.set_tetrahedron(tv);
         grid.sorted_within(xj, ball, j as u32, list);
         let last = ball == complete;
         if last {

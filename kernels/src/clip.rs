@@ -460,13 +460,15 @@ pub fn flood<const P: usize, const V: usize, const Q: usize, F, A, C, L>(
     let mut c = Clipped::default();
     let mut total = 0.0f32;
     let mut tet_volume = 0.0f32;
+    // One polyhedron for all the pieces: no storage cleared per piece.
+    let mut poly = Polyhedron::<P, V>::empty();
     while ok && head < len {
         let j = queue[head] as usize;
         let tv = tet_vertices(t, verts, tets, xyz(sites[j]));
         if head == 0 {
             tet_volume = ((tv[1] - tv[0]).cross(tv[2] - tv[0]).dot(tv[3] - tv[0]) / 6.0).abs();
         }
-        let mut poly = Polyhedron::<P, V>::tetrahedron(tv);
+        poly.set_tetrahedron(tv);
         let ci = piece(j, &mut poly);
         c.clips += ci.clips;
         c.security_missed |= ci.security_missed;

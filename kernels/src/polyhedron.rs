@@ -121,6 +121,14 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
     /// The tetrahedron `v` (any orientation), relative to the local origin.
     pub fn tetrahedron(v: [Vec3; 4]) -> Self {
         let mut p = Self::empty();
+        p.set_tetrahedron(v);
+        p
+    }
+
+    /// Makes this polyhedron the tetrahedron `v`, reusing its storage.
+    pub fn set_tetrahedron(&mut self, v: [Vec3; 4]) {
+        let p = self;
+        p.n_verts = 0;
         // Plane i is the face opposite vertex i, facing away from it.
         let mut i = 0;
         while i < 4 {
@@ -132,6 +140,7 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
                 n = -n;
             }
             p.planes[i] = n.extend(n.dot(a));
+            p.ids[i] = NO_ID;
             i += 1;
         }
         p.n_planes = 4;
@@ -141,7 +150,6 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
             p.add_corner((i + 1) % 4, (i + 2) % 4, (i + 3) % 4, v[i as usize]);
             i += 1;
         }
-        p
     }
 
     /// The axis-aligned box `[lo, hi]`, relative to the local origin.
