@@ -263,10 +263,9 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
         let mut n_out = 0;
         let mut i = 0;
         while i < n_old {
-            if self.verts[i].dot(n) > plane.w {
-                self.tris[i] |= REMOVED;
-                n_out += 1;
-            }
+            let outside = (self.verts[i].dot(n) > plane.w) as u32;
+            self.tris[i] |= outside << 31;
+            n_out += outside as usize;
             i += 1;
         }
         if n_out == 0 {
