@@ -70,6 +70,16 @@ struct RunArgs {
 /// The model's mesh: an explicit file, a file of that name in the models
 /// folder, or a built-in model.
 fn load_model(args: &RunArgs) -> cvd::Result<(String, TetMesh)> {
+    let (name, mut mesh) = find_model(args)?;
+    let flipped = mesh.orient_positively();
+    if flipped > 0 {
+        eprintln!("{name}: {flipped} inverted tets, reoriented");
+    }
+    Ok((name, mesh))
+}
+
+/// The model's mesh as found, before any repair.
+fn find_model(args: &RunArgs) -> cvd::Result<(String, TetMesh)> {
     if let Some(path) = &args.mesh {
         return Ok((path.display().to_string(), cvd::io::read_mesh(path)?));
     }
@@ -175,7 +185,7 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
     let c = &cells.counters;
     println!(
         "pairs {} (non-empty {}, dropped before clipping {}), clips {}; unfinished by the kernels: security radius {}, overflows {}, broken {}; \
-         finished by the second pass {}, unresolved {}; duplicate sites {}",
+         finished by the second pass {}, unresolved {}; duplicate sites {}, other empty cells {}",
         c.pairs,
         c.nonempty,
         c.filtered,
@@ -185,7 +195,8 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
         c.broken,
         c.second_pass,
         c.unresolved,
-        c.duplicate_sites
+        c.duplicate_sites,
+        c.empty_cells
     );
     if let Some(path) = &args.output {
         write_cells(path, &sites, &cells)?;

@@ -49,6 +49,21 @@ impl TetMesh {
         signed_volume(a, b, c, d)
     }
 
+    /// Makes every tet positively oriented (swapping two vertices of the
+    /// inverted ones) and returns how many were inverted. The algorithms
+    /// accept either orientation; this is for writers and readers of the
+    /// mesh that expect the usual one.
+    pub fn orient_positively(&mut self) -> usize {
+        let mut flipped = 0;
+        for t in 0..self.tets.len() {
+            if self.tet_volume(t) < 0.0 {
+                self.tets[t].swap(2, 3);
+                flipped += 1;
+            }
+        }
+        flipped
+    }
+
     /// Total volume (sum of the tets' absolute volumes).
     pub fn volume(&self) -> f64 {
         (0..self.tets.len()).map(|t| self.tet_volume(t).abs()).sum()
@@ -123,5 +138,25 @@ impl TetMesh {
         }
         // Unused vertices are harmless: nothing refers to them.
         Self { vertices, tets }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn inverted_tets_are_reoriented_and_counted() {
+        let mut mesh = TetMesh::cube(2);
+        let volume = mesh.volume();
+        for t in (0..mesh.tets.len()).step_by(3) {
+            mesh.tets[t].swap(0, 1);
+        }
+        let inverted = (0..mesh.tets.len()).filter(|&t| mesh.tet_volume(t) < 0.0).count();
+        assert!(inverted > 0);
+        assert_eq!(mesh.orient_positively(), inverted);
+        assert!((0..mesh.tets.len()).all(|t| mesh.tet_volume(t) > 0.0));
+        assert!((mesh.volume() - volume).abs() < 1e-12);
+        assert_eq!(mesh.orient_positively(), 0);
     }
 }

@@ -109,6 +109,9 @@ pub struct Counters {
     pub unresolved: u64,
     /// Sites equal to a lower-indexed site (their cell is empty).
     pub duplicate_sites: u64,
+    /// Other sites whose clipped cell is empty (outside the mesh, or
+    /// crowded out of it).
+    pub empty_cells: u64,
 }
 
 /// Per-site results and totals.
@@ -406,6 +409,7 @@ fn finish(
         overflows: c(counter::OVERFLOWS),
         broken: c(counter::BROKEN),
         duplicate_sites: map.iter().filter(|m| m.is_none()).count() as u64,
+        empty_cells: map.iter().zip(&cells.volume).filter(|(m, &v)| m.is_some() && v <= 0.0).count() as u64,
         second_pass: 0,
         unresolved: 0,
     };

@@ -182,14 +182,20 @@ fn duplicate_sites_lowest_index_owns_the_cell() {
 #[test]
 fn sites_outside_and_very_few_sites() {
     let mesh = mesh(Shape::Ell);
-    for sites in
-        [vec![[0.5f32, 0.5, 0.5]], vec![[0.9, 0.9, 0.5], [0.1, 0.1, 0.1]], vec![[3.0, 3.0, 3.0], [-1.0, 0.2, 0.3]]]
-    {
+    for sites in [
+        vec![[0.5f32, 0.5, 0.5]],
+        vec![[0.9, 0.9, 0.5], [0.1, 0.1, 0.1]],
+        vec![[3.0, 3.0, 3.0], [-1.0, 0.2, 0.3]],
+        // The last one is outside and crowded out by the first.
+        vec![[0.2, 0.2, 0.5], [0.25, 0.25, 0.5], [-2.0, -2.0, 0.5]],
+    ] {
         let (vol, centroid) = clipped_cells(&mesh, &sites);
         for backend in backends() {
             for strategy in [Strategy::TetCell, Strategy::CellTet] {
                 let cells = compute(&mesh, &sites, strategy, backend);
                 assert_cells_match(&format!("{sites:?}"), &cells, &vol, &centroid, 1e-4);
+                let empty = vol.iter().filter(|&&v| v == 0.0).count() as u64;
+                assert_eq!(cells.counters.empty_cells, empty, "{sites:?}");
             }
         }
     }

@@ -274,16 +274,16 @@ fn elements_v41(lex: &mut Lexer, nodes: &Nodes) -> Result<TetList> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::super::tests::{no_panic_on_mutations, parse_err, two_tets};
     use super::*;
 
-    const V22: &str = "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n\
+    pub(in crate::io) const V22: &str = "$MeshFormat\n2.2 0 8\n$EndMeshFormat\n\
         $PhysicalNames\n1\n3 1 \"inside # not a comment\"\n$EndPhysicalNames\n\
         $Nodes\n5\n10 0 0 0\n20 1 0 0\n30 0 1 0\n40 0 0 1\n50 1 1 1\n$EndNodes\n\
         $Elements\n4\n1 15 2 0 1 10\n2 2 2 0 1 10 20 30\n3 4 2 0 1 10 20 30 40\n4 4 3 0 1 2 20 30 40 50\n$EndElements\n";
 
-    const V41: &str = "$MeshFormat\n4.1 0 8\n$EndMeshFormat\n\
+    pub(in crate::io) const V41: &str = "$MeshFormat\n4.1 0 8\n$EndMeshFormat\n\
         $Entities\n0 0 0 1\n1 0 0 0 1 1 1 0 0\n$EndEntities\n\
         $Nodes\n2 5 1 5\n0 1 0 1\n1\n0 0 0\n3 1 1 4\n2 3\n4\n5\n1 0 0 0.5 0.5 0.5\n0 1 0 1 1 1\n0 0 1 2 2 2\n1 1 1 3 3 3\n$EndNodes\n\
         $Elements\n2 3 1 3\n2 1 2 1\n1 1 2 3\n3 1 4 2\n2 1 2 3 4\n3 2 3 4 5\n$EndElements\n";

@@ -113,11 +113,11 @@ pub fn parse_medit(text: &str, path: &str) -> Result<TetMesh> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::super::tests::{no_panic_on_mutations, parse_err, two_tets};
     use super::*;
 
-    const VALID: &str = "MeshVersionFormatted 2\nDimension 3\n\
+    pub(in crate::io) const VALID: &str = "MeshVersionFormatted 2\nDimension 3\n\
         # a comment\nVertices\n5\n0 0 0 1\n1 0 0 1\n0 1 0 1\n0 0 1 1\n1 1 1 2\n\
         Triangles 2\n1 2 3 0\n2 3 4 0\nTetrahedra\n2\n1 2 3 4 1\n2 3 4 5 1\nEnd\n";
 

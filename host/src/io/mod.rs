@@ -14,6 +14,9 @@ mod tet;
 mod tetgen;
 mod xyz;
 
+#[cfg(test)]
+mod fuzz;
+
 pub use gmsh::parse_gmsh;
 pub use medit::parse_medit;
 pub use tet::parse_tet;

@@ -56,11 +56,12 @@ fn header(lex: &mut Lexer, word: &str) -> Result<usize> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::super::tests::{no_panic_on_mutations, parse_err, two_tets};
     use super::*;
 
-    const VALID: &str = "5 vertices\n2 cells\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n1 1 1\n4 0 1 2 3\n4 1 2 3 4\n";
+    pub(in crate::io) const VALID: &str =
+        "5 vertices\n2 cells\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n1 1 1\n4 0 1 2 3\n4 1 2 3 4\n";
 
     #[test]
     fn valid() {
