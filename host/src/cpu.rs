@@ -6,10 +6,11 @@ use crate::error::{Error, Result};
 use crate::knn::{KnnJob, KnnMethod, Neighbors};
 use crate::timing::{timed, Timings};
 use crate::voronoi::{ClipJob, ClipOutput, Pairing, Strategy};
-use cvd_kernels::abi::{counter, QuantPoint, ACCUM_PER_SITE};
+use cvd_kernels::abi::{counter, QuantPoint, RefineParams, ACCUM_PER_SITE};
 use cvd_kernels::buffers::{DeviceSums, OutBuf, PairList, Window};
 use cvd_kernels::clip::{self, CELL_RECORDS};
-use cvd_kernels::{grid, knn, scan};
+use cvd_kernels::glam::Vec3;
+use cvd_kernels::{grid, knn, refine, scan};
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicI64, AtomicU32, Ordering};
 use std::sync::Mutex;
@@ -296,14 +297,39 @@ impl Backend for CpuBackend {
                     timings.push("clip", t);
                 }
             }
+            let mut first = unfinished.into_inner().unwrap_or_else(|e| e.into_inner());
+            first.sort_unstable();
+            let mut still = Vec::new();
+            if !first.is_empty() {
+                let (_, t) = timed(|| {
+                    let g = build_grid(&job.site_knn);
+                    let mut list = vec![first.len() as u32];
+                    list.extend(first.iter().flatten());
+                    let rp = RefineParams { capacity: first.len() as u32, ..job.refine };
+                    let w = refine::GridWalk {
+                        grid: rp.grid,
+                        lo: Vec3::new(rp.grid_lo_x, rp.grid_lo_y, rp.grid_lo_z),
+                        cell_len: rp.cell_len,
+                        margin: rp.margin,
+                        cell_start: &g.cell_start,
+                        cell_count: &g.cell_count,
+                        sorted: &g.sorted,
+                    };
+                    let ignored: Vec<AtomicI64> = (0..counter::COUNT).map(|_| AtomicI64::new(0)).collect();
+                    let again = Mutex::new(Vec::new());
+                    par_indices(first.len(), 1, &sums, &ignored, &again, |e, s, c, u| {
+                        refine::refine_entry(e, &rp, w, sites, verts, tets, &tet_nn.indices, &list, s, c, u)
+                    });
+                    still = again.into_inner().unwrap_or_else(|e| e.into_inner());
+                    still.sort_unstable();
+                });
+                timings.push("second pass", t);
+            }
             Ok(ClipOutput {
                 sums: sums.into_iter().map(AtomicI64::into_inner).collect(),
                 counters: totals.into_iter().map(AtomicI64::into_inner).collect(),
-                unfinished: {
-                    let mut u = unfinished.into_inner().unwrap_or_else(|e| e.into_inner());
-                    u.sort_unstable();
-                    u
-                },
+                refined: (first.len() - still.len()) as u64,
+                unfinished: still,
                 timings,
             })
         })

@@ -44,6 +44,16 @@ impl Quantizer {
         Ok(Self { origin: lo, scale })
     }
 
+    /// The point quantized to 0.
+    pub fn origin(&self) -> [f64; 3] {
+        self.origin
+    }
+
+    /// Quantized units per unit of the points' coordinates.
+    pub fn scale(&self) -> f64 {
+        self.scale
+    }
+
     /// The quantized point for `p`, tagged with `index`.
     pub fn quantize(&self, p: [f32; 3], index: u32) -> QuantPoint {
         let q = |a: usize| ((p[a] as f64 - self.origin[a]) * self.scale).round().clamp(0.0, QUANT_MAX as f64) as u32;

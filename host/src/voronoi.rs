@@ -7,7 +7,7 @@ use crate::knn::{KnnJob, KnnMethod};
 use crate::mesh::TetMesh;
 use crate::points;
 use crate::timing::Timings;
-use cvd_kernels::abi::{counter, ClipParams, ACCUM_PER_SITE};
+use cvd_kernels::abi::{counter, ClipParams, RefineParams, ACCUM_PER_SITE};
 use std::collections::HashMap;
 
 /// How tets and cells are intersected (paper section 6).
@@ -65,6 +65,9 @@ pub struct ClipJob {
     pub tets: Vec<[u32; 4]>,
     /// Kernel parameters.
     pub params: ClipParams,
+    /// Parameters of the second pass (the site grid in the clipping frame;
+    /// `capacity` is set by the backend).
+    pub refine: RefineParams,
     /// Which strategy.
     pub strategy: Strategy,
     /// How tets and sites are paired.
@@ -78,8 +81,12 @@ pub struct ClipOutput {
     pub sums: Vec<i64>,
     /// The kernels' counters (see `cvd_kernels::abi::counter`).
     pub counters: Vec<i64>,
-    /// `(tet, site)` pairs the kernels could not finish, sorted.
+    /// `(tet, site)` entries the kernels could not finish even in their
+    /// second pass, sorted (`site == NO_SITE`: the whole tet).
     pub unfinished: Vec<[u32; 2]>,
+    /// Entries of the first pass's unfinished list the kernels' second
+    /// pass finished.
+    pub refined: u64,
     /// Time per phase.
     pub timings: Timings,
 }
@@ -305,7 +312,23 @@ impl<'a> ClippedVoronoi<'a> {
             box_hi_y: hi[1] + margin,
             box_hi_z: hi[2] + margin,
         };
+        let q = &site_knn.quantizer;
+        let lo = q.origin();
+        // A site lies within a few quantization steps of its cell, plus f32
+        // rounding of coordinates of order 1.
+        let refine = RefineParams {
+            clip: params,
+            grid: site_knn.params.grid,
+            grid_lo_x: lo[0] as f32,
+            grid_lo_y: lo[1] as f32,
+            grid_lo_z: lo[2] as f32,
+            cell_len: (site_knn.params.grid.cell_size as f64 / q.scale()) as f32,
+            margin: (4.0 / q.scale() + 1e-6) as f32,
+            capacity: 0,
+            _pad: [0; 2],
+        };
         let job = ClipJob {
+            refine,
             site_knn,
             tet_knn,
             sites: sites.iter().map(|p| [p[0], p[1], p[2], 0.0]).collect(),
@@ -330,13 +353,14 @@ impl<'a> ClippedVoronoi<'a> {
             }
         };
         let mut out = backend.clip(&job)?;
+        let refined = out.refined;
         let (redone, t) = crate::timing::timed(|| crate::second_pass::run(&job, &mut out));
         let redone = redone?;
         if redone.finished + redone.unresolved > 0 {
-            out.timings.push("second pass", t);
+            out.timings.push("host pass", t);
         }
         let mut cells = finish(self.mesh, self.sites, &job, &map, &frame, out);
-        cells.counters.second_pass = redone.finished;
+        cells.counters.second_pass = refined + redone.finished;
         cells.counters.unresolved = redone.unresolved;
         Ok(cells)
     }

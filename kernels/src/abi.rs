@@ -138,3 +138,29 @@ pub struct ClipParams {
     /// Length of each site's slot in the neighbour list (`k_site`).
     pub list_len: u32,
 }
+
+/// Push constants of the second pass ([`crate::refine`]): the clipping
+/// job's parameters and the site grid in the clipping frame.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct RefineParams {
+    /// The clipping job.
+    pub clip: ClipParams,
+    /// The site grid (built on the quantized sites).
+    pub grid: GridParams,
+    /// Lower corner of grid cell (0, 0, 0) in the clipping frame.
+    pub grid_lo_x: f32,
+    /// See `grid_lo_x`.
+    pub grid_lo_y: f32,
+    /// See `grid_lo_x`.
+    pub grid_lo_z: f32,
+    /// Side of a grid cell in the clipping frame.
+    pub cell_len: f32,
+    /// How far a site may sit outside its cell in the clipping frame
+    /// (quantization and rounding), subtracted from every gap.
+    pub margin: f32,
+    /// Capacity of the entry lists, in entries.
+    pub capacity: u32,
+    /// Padding to a 16-byte multiple.
+    pub _pad: [u32; 2],
+}

@@ -5,9 +5,9 @@
 //! [`thread_index`]). Descriptor set 0 holds storage buffers in the order of
 //! the parameters; push constants hold the `*Params` struct.
 
-use crate::abi::{thread_index, ClipParams, GridBuildParams, KnnParams, QuantPoint};
+use crate::abi::{thread_index, ClipParams, GridBuildParams, KnnParams, QuantPoint, RefineParams};
 use crate::buffers::{DeviceCounters, DeviceList, DeviceSums};
-use crate::{clip, grid, knn, scan};
+use crate::{clip, grid, knn, refine, scan};
 use spirv_std::glam::UVec3;
 use spirv_std::spirv;
 
@@ -214,5 +214,48 @@ pub fn clip_flood(
         &mut DeviceSums(sums),
         &mut DeviceSums(counters),
         &mut DeviceList(unfinished),
+    );
+}
+
+/// Second pass: one thread per entry of the first pass's unfinished list.
+#[spirv(compute(threads(64)))]
+pub fn refine(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(num_workgroups)] groups: UVec3,
+    #[spirv(push_constant)] p: &RefineParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] sites: &[[f32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] verts: &[[f32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] tets: &[[u32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] tet_sites: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] list: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] cell_start: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 6)] cell_count: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 7)] sorted: &[QuantPoint],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] sums: &mut [i64],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] counters: &mut [i64],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] still: &mut [u32],
+) {
+    let e = thread_index(id.x, id.y, groups.x);
+    let w = refine::GridWalk {
+        grid: p.grid,
+        lo: spirv_std::glam::Vec3::new(p.grid_lo_x, p.grid_lo_y, p.grid_lo_z),
+        cell_len: p.cell_len,
+        margin: p.margin,
+        cell_start,
+        cell_count,
+        sorted,
+    };
+    refine::refine_entry(
+        e,
+        p,
+        w,
+        sites,
+        verts,
+        tets,
+        tet_sites,
+        list,
+        &mut DeviceSums(sums),
+        &mut DeviceSums(counters),
+        &mut DeviceList(still),
     );
 }

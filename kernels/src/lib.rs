@@ -25,4 +25,5 @@ pub mod entry;
 pub mod grid;
 pub mod knn;
 pub mod polyhedron;
+pub mod refine;
 pub mod scan;

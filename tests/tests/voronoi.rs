@@ -259,3 +259,21 @@ fn second_pass_finishes_what_the_kernels_could_not() {
     }
     assert_no_vulkan_errors();
 }
+
+#[test]
+fn many_sites_per_tet() {
+    // 600 sites in 6 tets: about 100 cells meet each tet, more than any
+    // flood queue of the kernels holds, so the host finishes those tets.
+    let mesh = TetMesh::cube(1);
+    let sites = sites_in_box(600, 5);
+    let (vol, centroid) = clipped_cells(&mesh, &sites);
+    for backend in backends() {
+        let cells = ClippedVoronoi::new(&mesh, &sites).backend(backend).compute().unwrap();
+        let what = format!("{} 600 sites in 6 tets", backend.name());
+        assert!(cells.counters.second_pass > 0, "{what}: nothing went to the second pass");
+        assert_eq!(cells.counters.unresolved, 0, "{what}");
+        assert!(cells.e_vol < 1e-6, "{what}: E_vol {}", cells.e_vol);
+        assert_cells_match(&what, &cells, &vol, &centroid, 1e-4);
+    }
+    assert_no_vulkan_errors();
+}

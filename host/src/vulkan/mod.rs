@@ -14,7 +14,7 @@ use crate::knn::{KnnJob, KnnMethod, Neighbors};
 use crate::timing::timed;
 use crate::voronoi::{ClipJob, ClipOutput, Pairing, Strategy};
 use context::Context;
-use cvd_kernels::abi::{counter, GridBuildParams, ACCUM_PER_SITE};
+use cvd_kernels::abi::{counter, GridBuildParams, RefineParams, ACCUM_PER_SITE};
 use cvd_kernels::clip::CELL_RECORDS;
 use cvd_kernels::scan;
 use job::{BufId, Job};
@@ -56,7 +56,7 @@ impl Backend for VulkanBackend {
     fn knn(&self, job: &KnnJob) -> Result<Neighbors> {
         let (nq, k) = (job.queries.len() as u64, job.params.k as u64);
         let mut j = Job::new(&self.ctx, &self.pipelines, 8)?;
-        let (nbr, d2) = record_knn(&mut j, job, "knn")?;
+        let KnnBuffers { nbr, d2, .. } = record_knn(&mut j, job, "knn")?;
         let nbr_back = j.download(nbr, nq * k * 4)?;
         let d2_back = j.download(d2, nq * k * 8)?;
         j.mark("download");
@@ -73,7 +73,7 @@ impl Backend for VulkanBackend {
     fn clip(&self, job: &ClipJob) -> Result<ClipOutput> {
         let p = &job.params;
         let (n, n_pairs) = (p.n_sites as u64, p.n_tets as u64 * p.k_tet as u64);
-        let mut j = Job::new(&self.ctx, &self.pipelines, 24)?;
+        let mut j = Job::new(&self.ctx, &self.pipelines, 26)?;
         let sites = j.upload(&job.sites)?;
         let verts = j.upload(&job.verts)?;
         let tets = j.upload(&job.tets)?;
@@ -82,8 +82,9 @@ impl Backend for VulkanBackend {
         // Count, then up to one (tet, site) entry per pair.
         let list_len = 1 + 2 * n_pairs;
         let unfinished = j.zeroed(list_len * 4)?;
-        let (site_nbrs, _) = record_knn(&mut j, &job.site_knn, "site knn")?;
-        let (tet_sites, _) = record_knn(&mut j, &job.tet_knn, "tet knn")?;
+        let site_knn = record_knn(&mut j, &job.site_knn, "site knn")?;
+        let site_nbrs = site_knn.nbr;
+        let tet_sites = record_knn(&mut j, &job.tet_knn, "tet knn")?.nbr;
         match job.strategy {
             Strategy::TetCell if job.pairing == Pairing::Flood => {
                 let args = [sites, verts, tets, tet_sites, site_nbrs, sums, counters, unfinished];
@@ -110,15 +111,34 @@ impl Backend for VulkanBackend {
             }
         }
         j.mark("clip");
+        // The second pass, over as many threads as the list can hold
+        // entries: those past its count return at once. (Without a grid
+        // there is at most one site, and nothing to redo.)
+        let still = match site_knn.grid {
+            Some([start, count, sorted]) => {
+                let still = j.zeroed(list_len * 4)?;
+                let ignored = j.zeroed(counter::COUNT as u64 * 8)?;
+                let rp = RefineParams { capacity: n_pairs as u32, ..job.refine };
+                let args = [sites, verts, tets, tet_sites, unfinished, start, count, sorted, sums, ignored, still];
+                j.dispatch("refine", &args, &rp, n_pairs)?;
+                j.mark("second pass");
+                still
+            }
+            None => unfinished,
+        };
         let sums_back = j.download(sums, n * ACCUM_PER_SITE as u64 * 8)?;
         let counters_back = j.download(counters, counter::COUNT as u64 * 8)?;
-        let unfinished_back = j.download(unfinished, list_len * 4)?;
+        let first_back = j.download(unfinished, 4)?;
+        let still_back = j.download(still, list_len * 4)?;
         j.mark("download");
         let done = j.run()?;
+        let first = done.read::<u32>(first_back, 1)[0] as u64;
+        let still = crate::voronoi::pair_list(&done.read(still_back, list_len as usize));
         Ok(ClipOutput {
             sums: done.read(sums_back, n as usize * ACCUM_PER_SITE),
             counters: done.read(counters_back, counter::COUNT),
-            unfinished: crate::voronoi::pair_list(&done.read(unfinished_back, list_len as usize)),
+            refined: first - still.len() as u64,
+            unfinished: still,
             timings: done.timings,
         })
     }
@@ -126,7 +146,7 @@ impl Backend for VulkanBackend {
 
 /// Records a k-NN job (uploads, grid build, search) ending with the phase
 /// mark `phase`; returns the neighbour and distance buffers.
-fn record_knn(j: &mut Job, job: &KnnJob, phase: &str) -> Result<(BufId, BufId)> {
+fn record_knn(j: &mut Job, job: &KnnJob, phase: &str) -> Result<KnnBuffers> {
     let p = &job.params;
     let (n, nq, k) = (job.sites.len() as u64, job.queries.len() as u64, p.k as u64);
     let sites = j.upload(&job.sites)?;
@@ -134,7 +154,7 @@ fn record_knn(j: &mut Job, job: &KnnJob, phase: &str) -> Result<(BufId, BufId)> 
     let nbr = j.buffer(nq * k * 4)?;
     let d2 = j.buffer(nq * k * 8)?;
     if nq * k == 0 {
-        return Ok((nbr, d2));
+        return Ok(KnnBuffers { nbr, d2, grid: None });
     }
     j.mark("upload");
     match job.method {
@@ -160,11 +180,23 @@ fn record_knn(j: &mut Job, job: &KnnJob, phase: &str) -> Result<(BufId, BufId)> 
             j.dispatch("grid_scatter", &[sites, site_cell, start, cursor, sorted], &bp, n)?;
             j.mark("grid");
             j.dispatch("knn_grid", &[queries, start, count, sorted, nbr, d2], p, nq)?;
+            j.mark(phase);
+            Ok(KnnBuffers { nbr, d2, grid: Some([start, count, sorted]) })
         }
         KnnMethod::Brute => {
             j.dispatch("knn_brute", &[queries, sites, nbr, d2], p, nq)?;
+            j.mark(phase);
+            Ok(KnnBuffers { nbr, d2, grid: None })
         }
     }
-    j.mark(phase);
-    Ok((nbr, d2))
+}
+
+/// What a recorded k-NN job leaves on the device.
+struct KnnBuffers {
+    /// Neighbour indices, `k` per query.
+    nbr: BufId,
+    /// Squared distances, `k` per query.
+    d2: BufId,
+    /// The grid (cell starts, cell counts, sites sorted by cell), if built.
+    grid: Option<[BufId; 3]>,
 }

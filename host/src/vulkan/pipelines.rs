@@ -5,7 +5,7 @@
 use super::context::Context;
 use crate::error::{Error, Result, VkContext};
 use ash::vk;
-use cvd_kernels::abi::{ClipParams, GridBuildParams, KnnParams};
+use cvd_kernels::abi::{ClipParams, GridBuildParams, KnnParams, RefineParams};
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
@@ -38,6 +38,7 @@ pub(crate) const KERNELS: &[KernelSpec] = &[
     spec::<ClipParams>("voronoi_cells", 4),
     spec::<ClipParams>("clip_cell_tet", 8),
     spec::<ClipParams>("clip_flood", 8),
+    spec::<RefineParams>("refine", 11),
 ];
 
 /// A ready compute pipeline.
