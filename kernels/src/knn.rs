@@ -25,7 +25,7 @@ fn diff(a: u32, b: u32) -> u32 {
 /// `max(a - b, 0)`.
 #[inline]
 #[allow(clippy::implicit_saturating_sub)]
-fn sub_floor0(a: u32, b: u32) -> u32 {
+pub(crate) fn sub_floor0(a: u32, b: u32) -> u32 {
     if a > b {
         a - b
     } else {

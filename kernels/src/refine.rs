@@ -16,6 +16,7 @@ use crate::abi::{GridParams, QuantPoint, RefineParams, NO_SITE};
 use crate::buffers::{AtomicSums, PairList};
 use crate::clip::{accumulate, flood, tet_vertices, Clipped};
 use crate::grid::cell_index;
+use crate::knn::sub_floor0;
 use crate::polyhedron::{Cell, Clip, Polyhedron, CELL_PLANES, CELL_VERTS};
 use spirv_std::glam::Vec3;
 
@@ -83,11 +84,11 @@ pub fn clip_by_grid<const P: usize, const V: usize>(
     let (mut r2, mut mid, mut half) = poly.bounds();
     let mut r = 0u32;
     loop {
-        let z0 = if c[2] > r { c[2] - r } else { 0 };
+        let z0 = sub_floor0(c[2], r);
         let z1 = if c[2] + r < dims[2] { c[2] + r } else { dims[2] - 1 };
-        let y0 = if c[1] > r { c[1] - r } else { 0 };
+        let y0 = sub_floor0(c[1], r);
         let y1 = if c[1] + r < dims[1] { c[1] + r } else { dims[1] - 1 };
-        let x0 = if c[0] > r { c[0] - r } else { 0 };
+        let x0 = sub_floor0(c[0], r);
         let x1 = if c[0] + r < dims[0] { c[0] + r } else { dims[0] - 1 };
         let mut z = z0;
         while z <= z1 {
