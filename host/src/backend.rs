@@ -3,6 +3,7 @@
 use crate::cpu::CpuBackend;
 use crate::error::Result;
 use crate::knn::{KnnJob, Neighbors};
+use crate::lloyd::LloydOutput;
 use crate::voronoi::{ClipJob, ClipOutput};
 use crate::vulkan::{VulkanBackend, VulkanOptions};
 
@@ -14,6 +15,9 @@ pub trait Backend: Send + Sync {
     fn knn(&self, job: &KnnJob) -> Result<Neighbors>;
     /// Runs a clipping job: pairing, clipping and accumulation.
     fn clip(&self, job: &ClipJob) -> Result<ClipOutput>;
+    /// Runs `iterations` Lloyd iterations from the job's sites, calling
+    /// `progress` with the number of iterations done so far (in batches).
+    fn lloyd(&self, job: &ClipJob, iterations: usize, progress: &mut dyn FnMut(usize)) -> Result<LloydOutput>;
 }
 
 /// Which backend to use.

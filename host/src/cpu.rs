@@ -4,13 +4,14 @@
 use crate::backend::Backend;
 use crate::error::{Error, Result};
 use crate::knn::{KnnJob, KnnMethod, Neighbors};
+use crate::lloyd::LloydOutput;
 use crate::timing::{timed, Timings};
 use crate::voronoi::{ClipJob, ClipOutput, Pairing, Strategy};
-use cvd_kernels::abi::{counter, QuantPoint, RefineParams, ACCUM_PER_SITE};
+use cvd_kernels::abi::{counter, lloyd_stat, QuantPoint, RefineParams, ACCUM_PER_SITE};
 use cvd_kernels::buffers::{DeviceSums, OutBuf, PairList, Window};
 use cvd_kernels::clip::{self, CELL_RECORDS};
 use cvd_kernels::glam::Vec3;
-use cvd_kernels::{grid, knn, refine, scan};
+use cvd_kernels::{grid, knn, lloyd, refine, scan};
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicI64, AtomicU32, Ordering};
 use std::sync::Mutex;
@@ -333,5 +334,30 @@ impl Backend for CpuBackend {
                 timings,
             })
         })
+    }
+
+    fn lloyd(&self, job: &ClipJob, iterations: usize, progress: &mut dyn FnMut(usize)) -> Result<LloydOutput> {
+        let mut job = job.clone();
+        let mut stats = vec![0i64; iterations * lloyd_stat::COUNT];
+        let mut seconds = Vec::with_capacity(iterations);
+        for it in 0..iterations {
+            let start = std::time::Instant::now();
+            let mut out = self.clip(&job)?;
+            let first = out.refined + out.unfinished.len() as u64;
+            let redone = crate::second_pass::run(&job, &mut out)?;
+            let p = crate::lloyd::params(&job, it);
+            let mut quant = job.site_knn.sites.clone();
+            let (unfinished, still) = ([first as u32], [redone.unresolved as u32]);
+            for i in 0..job.sites.len() {
+                let (sites, q) = (&mut job.sites[..], &mut quant[..]);
+                lloyd::move_site(i, &p, &out.sums, &unfinished, &still, sites, q, &mut DeviceSums(&mut stats));
+            }
+            job.site_knn.queries = quant.clone();
+            job.tet_knn.sites = quant.clone();
+            job.site_knn.sites = quant;
+            seconds.push(start.elapsed().as_secs_f64());
+            progress(it + 1);
+        }
+        Ok(LloydOutput { sites: job.sites, stats, seconds })
     }
 }

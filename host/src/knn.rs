@@ -61,6 +61,25 @@ impl KnnJob {
         Self::build(q.clone(), q, true, k, method, quantizer)
     }
 
+    /// The `k` nearest other sites of every site, quantized in a frame and
+    /// on a grid that also cover `frame` (points the sites may move to).
+    pub fn sites_in_frame(sites: &[[f32; 3]], frame: &[[f32; 3]], k: usize, method: KnnMethod) -> Result<Self> {
+        let quantizer = Quantizer::fit(&[("site", sites), ("frame point", frame)])?;
+        let q = quantizer.quantize_all(sites);
+        let mut job = Self::build(q.clone(), q, true, k, method, quantizer)?;
+        job.params.grid = grid_over(job.sites.iter().chain(&quantizer.quantize_all(frame)), sites.len());
+        Ok(job)
+    }
+
+    /// The `k` nearest sites of every query point, with the sites, frame
+    /// and grid of a site job (the queries must lie in its frame).
+    pub fn points_like(site_job: &KnnJob, queries: &[[f32; 3]], k: usize) -> Result<Self> {
+        let q = site_job.quantizer;
+        let mut job = Self::build(site_job.sites.clone(), q.quantize_all(queries), false, k, site_job.method, q)?;
+        job.params.grid = site_job.params.grid;
+        Ok(job)
+    }
+
     /// The `k` nearest sites of every query point.
     pub fn points(sites: &[[f32; 3]], queries: &[[f32; 3]], k: usize, method: KnnMethod) -> Result<Self> {
         let quantizer = Quantizer::fit(&[("site", sites), ("query point", queries)])?;
@@ -116,9 +135,15 @@ impl KnnJob {
 /// A grid with about [`SITES_PER_CELL`] sites per cell over the sites'
 /// quantized bounding box (from the frame origin).
 pub fn grid_for(sites: &[QuantPoint]) -> GridParams {
-    let n = sites.len().max(1) as f64;
+    grid_over(sites.iter(), sites.len())
+}
+
+/// A grid with about [`SITES_PER_CELL`] of `n_sites` sites per cell over the
+/// quantized bounding box of `points` (from the frame origin).
+fn grid_over<'a>(points: impl Iterator<Item = &'a QuantPoint>, n_sites: usize) -> GridParams {
+    let n = n_sites.max(1) as f64;
     let mut ext = [1u64; 3];
-    for s in sites {
+    for s in points {
         for a in 0..3 {
             ext[a] = ext[a].max(s[a] as u64 + 1);
         }
@@ -137,7 +162,7 @@ pub fn grid_for(sites: &[QuantPoint]) -> GridParams {
         dim_y: d[1] as u32,
         dim_z: d[2] as u32,
         cell_size: cell as u32,
-        n_sites: sites.len() as u32,
+        n_sites: n_sites as u32,
         n_cells: (d[0] * d[1] * d[2]) as u32,
         _pad: [0; 2],
     }

@@ -18,6 +18,7 @@ pub mod cpu;
 pub mod error;
 pub mod io;
 pub mod knn;
+pub mod lloyd;
 pub mod mesh;
 pub mod points;
 pub mod quantize;

@@ -57,6 +57,10 @@ struct RunArgs {
     /// Sites paired with each tet (default: the paper's Eq. 6).
     #[arg(long, short)]
     k: Option<usize>,
+    /// Lloyd iterations before the final diagram (0: the diagram of the
+    /// sites as given). On Vulkan the loop runs on the device.
+    #[arg(long, default_value_t = 0)]
+    iterations: usize,
     /// Neighbours per site for its cell.
     #[arg(long, default_value_t = cvd::voronoi::DEFAULT_K_SITE)]
     k_site: usize,
@@ -149,6 +153,35 @@ fn write_cells(path: &std::path::Path, sites: &[[f32; 3]], cells: &cvd::Cells) -
     out.flush().map_err(io_err)
 }
 
+/// Runs the Lloyd iterations with a progress bar; returns the final sites.
+fn lloyd(args: &RunArgs, mesh: &TetMesh, sites: &[[f32; 3]], backend: &dyn cvd::Backend) -> cvd::Result<Vec<[f32; 3]>> {
+    let bar = indicatif::ProgressBar::new(args.iterations as u64).with_style(
+        indicatif::ProgressStyle::with_template("Lloyd {bar:30} {pos}/{len} iterations, {elapsed} ({per_sec})")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    let cv = ClippedVoronoi::new(mesh, sites).k_site(args.k_site).backend(backend);
+    let run = cv.lloyd(args.iterations, &mut |done| bar.set_position(done as u64))?;
+    bar.finish_and_clear();
+    let total: f64 = run.iterations.iter().map(|i| i.seconds).sum();
+    let (first, last) = (run.iterations[0], run.iterations[run.iterations.len() - 1]);
+    println!(
+        "Lloyd: {} iterations in {:.3} s ({:.2} ms per iteration); energy {:.6e} -> {:.6e}",
+        run.iterations.len(),
+        total,
+        1e3 * total / run.iterations.len() as f64,
+        first.energy,
+        last.energy
+    );
+    let unresolved: u64 = run.iterations.iter().map(|i| i.unresolved).sum();
+    let empty = run.iterations.iter().map(|i| i.empty_cells).max().unwrap_or(0);
+    if unresolved > 0 || empty > 0 {
+        println!(
+            "Lloyd: up to {empty} empty cells in an iteration (their sites stayed); {unresolved} pieces unresolved"
+        );
+    }
+    Ok(run.sites)
+}
+
 fn run(args: &RunArgs) -> cvd::Result<()> {
     let (model, mesh) = load_model(args)?;
     let sites = match &args.sites_file {
@@ -164,6 +197,7 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
         args.strategy,
         backend.name()
     );
+    let sites = if args.iterations > 0 { lloyd(args, &mesh, &sites, backend.as_ref())? } else { sites };
     let mut cv = ClippedVoronoi::new(&mesh, &sites).strategy(args.strategy).k(args.k).k_site(args.k_site);
     if let Some(pairing) = args.pairing {
         cv = cv.pairing(pairing);

@@ -158,13 +158,13 @@ impl Cells {
 /// Builder for a clipped Voronoi computation.
 #[derive(Clone, Copy)]
 pub struct ClippedVoronoi<'a> {
-    mesh: &'a TetMesh,
-    sites: &'a [[f32; 3]],
+    pub(crate) mesh: &'a TetMesh,
+    pub(crate) sites: &'a [[f32; 3]],
     strategy: Strategy,
     pairing: Option<Pairing>,
     k: Option<usize>,
     k_site: usize,
-    backend: Option<&'a dyn Backend>,
+    pub(crate) backend: Option<&'a dyn Backend>,
 }
 
 impl<'a> ClippedVoronoi<'a> {
@@ -280,8 +280,10 @@ impl<'a> ClippedVoronoi<'a> {
             Pairing::Knn => self.k.unwrap_or_else(|| paper_k(n, mesh.tets.len())).min(n),
             Pairing::Flood => 1,
         };
-        let site_knn = KnnJob::sites(&sites, self.k_site, KnnMethod::Grid)?;
-        let tet_knn = KnnJob::points(&sites, &centroids, k, KnnMethod::Grid)?;
+        // One frame and grid for both k-NN jobs, covering the mesh: sites
+        // that move (Lloyd) stay inside it.
+        let site_knn = KnnJob::sites_in_frame(&sites, &local_mesh.vertices, self.k_site, KnnMethod::Grid)?;
+        let tet_knn = KnnJob::points_like(&site_knn, &centroids, k)?;
 
         // Box for Algorithm 1 (mesh and sites, with a margin).
         let mut lo = [f32::INFINITY; 3];
@@ -384,6 +386,10 @@ impl Frame {
 
     fn to_local(self, p: [f32; 3]) -> [f32; 3] {
         [0, 1, 2].map(|a| ((p[a] as f64 - self.origin[a]) / self.scale) as f32)
+    }
+
+    pub(crate) fn to_world(self, p: [f32; 4]) -> [f32; 3] {
+        [0, 1, 2].map(|a| (p[a] as f64 * self.scale + self.origin[a]) as f32)
     }
 }
 

@@ -164,3 +164,41 @@ pub struct RefineParams {
     /// Padding to a 16-byte multiple.
     pub _pad: [u32; 2],
 }
+
+/// Per-iteration statistics of a Lloyd run (`i64` each), by index within
+/// an iteration's block of [`lloyd_stat::COUNT`].
+pub mod lloyd_stat {
+    /// CVT energy `Σ ∫|x - x_i|²` of the diagram, in fixed point.
+    pub const ENERGY: usize = 0;
+    /// Sites whose clipped cell was empty (they stay where they are).
+    pub const EMPTY: usize = 1;
+    /// Entries the first pass left unfinished.
+    pub const UNFINISHED: usize = 2;
+    /// Entries still unfinished after the second pass (their volume is
+    /// missing from that iteration).
+    pub const STILL: usize = 3;
+    /// Statistics per iteration.
+    pub const COUNT: usize = 4;
+}
+
+/// Push constants of the site update of a Lloyd iteration.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct LloydParams {
+    /// Number of sites.
+    pub n_sites: u32,
+    /// Fixed-point scale of the sums (see [`ClipParams::fixed_scale`]).
+    pub fixed_scale: f32,
+    /// Which iteration (its block of statistics).
+    pub iteration: u32,
+    /// Quantized units per unit of the clipping frame (a power of two).
+    pub quant_scale: f32,
+    /// The point of the clipping frame quantized to 0.
+    pub quant_origin_x: f32,
+    /// See `quant_origin_x`.
+    pub quant_origin_y: f32,
+    /// See `quant_origin_x`.
+    pub quant_origin_z: f32,
+    /// Padding to a 16-byte multiple.
+    pub _pad: u32,
+}

@@ -5,9 +5,9 @@
 //! [`thread_index`]). Descriptor set 0 holds storage buffers in the order of
 //! the parameters; push constants hold the `*Params` struct.
 
-use crate::abi::{thread_index, ClipParams, GridBuildParams, KnnParams, QuantPoint, RefineParams};
+use crate::abi::{thread_index, ClipParams, GridBuildParams, KnnParams, LloydParams, QuantPoint, RefineParams};
 use crate::buffers::{DeviceCounters, DeviceList, DeviceSums};
-use crate::{clip, grid, knn, refine, scan};
+use crate::{clip, grid, knn, lloyd, refine, scan};
 use spirv_std::glam::UVec3;
 use spirv_std::spirv;
 
@@ -258,4 +258,21 @@ pub fn refine(
         &mut DeviceSums(counters),
         &mut DeviceList(still),
     );
+}
+
+/// Lloyd: one thread per site moves it to its cell's centroid.
+#[spirv(compute(threads(64)))]
+pub fn move_sites(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(num_workgroups)] groups: UVec3,
+    #[spirv(push_constant)] p: &LloydParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] sums: &[i64],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] unfinished: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] still: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] sites: &mut [[f32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] quant: &mut [QuantPoint],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] stats: &mut [i64],
+) {
+    let i = thread_index(id.x, id.y, groups.x);
+    lloyd::move_site(i, p, sums, unfinished, still, sites, quant, &mut DeviceSums(stats));
 }

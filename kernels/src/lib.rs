@@ -24,6 +24,7 @@ pub mod clip;
 pub mod entry;
 pub mod grid;
 pub mod knn;
+pub mod lloyd;
 pub mod polyhedron;
 pub mod refine;
 pub mod scan;

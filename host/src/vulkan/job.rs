@@ -11,6 +11,8 @@ use cvd_kernels::abi::WORKGROUP_SIZE;
 
 /// Most timestamps one job writes.
 const MAX_MARKS: u32 = 64;
+/// Most storage buffers one kernel binds.
+const MAX_BINDINGS: u32 = 12;
 /// Most workgroups along x in one dispatch (the minimum limit in Vulkan).
 const MAX_GROUPS_X: u64 = 65_535;
 
@@ -71,7 +73,7 @@ impl<'a> Job<'a> {
         job.cmd = unsafe { dev.allocate_command_buffers(&info) }.call("vkAllocateCommandBuffers")?[0];
         let sizes = [vk::DescriptorPoolSize::default()
             .ty(vk::DescriptorType::STORAGE_BUFFER)
-            .descriptor_count(max_dispatches * 8)];
+            .descriptor_count(max_dispatches * MAX_BINDINGS)];
         let info = vk::DescriptorPoolCreateInfo::default().max_sets(max_dispatches).pool_sizes(&sizes);
         job.descriptors = unsafe { dev.create_descriptor_pool(&info, None) }.call("vkCreateDescriptorPool")?;
         let info = vk::QueryPoolCreateInfo::default().query_type(vk::QueryType::TIMESTAMP).query_count(MAX_MARKS);
@@ -149,6 +151,12 @@ impl<'a> Job<'a> {
         Ok(id)
     }
 
+    /// Fills `buf` with zeros at this point of the job.
+    pub(crate) fn fill_zero(&self, buf: BufId) {
+        // SAFETY: recording into our command buffer; whole-size fill.
+        unsafe { self.ctx.device.cmd_fill_buffer(self.cmd, self.buffers[buf.0].buffer, 0, vk::WHOLE_SIZE, 0) };
+    }
+
     /// A device buffer holding `data` from this point of the job.
     pub(crate) fn upload<T: bytemuck::Pod>(&mut self, data: &[T]) -> Result<BufId> {
         let bytes = std::mem::size_of_val(data) as u64;
@@ -187,6 +195,7 @@ impl<'a> Job<'a> {
     ) -> Result<()> {
         let kernel = self.pipelines.get(name)?;
         assert_eq!(buffers.len() as u32, kernel.spec.bindings, "kernel {name}: wrong number of buffers");
+        assert!(kernel.spec.bindings <= MAX_BINDINGS, "kernel {name}: too many buffers for the descriptor pool");
         assert_eq!(std::mem::size_of::<P>() as u32, kernel.spec.push_size, "kernel {name}: wrong push constants");
         if threads == 0 {
             return Ok(());
@@ -232,6 +241,32 @@ impl<'a> Job<'a> {
 
     /// Submits the job, waits for it and returns the per-phase GPU times.
     pub(crate) fn run(mut self) -> Result<Finished> {
+        let timings = self.submit_and_wait()?;
+        Ok(Finished { timings, buffers: std::mem::take(&mut self.buffers) })
+    }
+
+    /// Submits what was recorded so far, waits for it, and starts recording
+    /// again: buffers keep their contents, so a long loop can run in parts
+    /// (descriptor sets and timestamps are recycled). Returns the per-phase
+    /// times of the part submitted.
+    pub(crate) fn submit(&mut self) -> Result<Timings> {
+        let timings = self.submit_and_wait()?;
+        let dev = &self.ctx.device;
+        let begin = vk::CommandBufferBeginInfo::default().flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT);
+        // SAFETY: the submitted work has completed, so the pools are idle.
+        unsafe {
+            dev.reset_command_pool(self.pool, vk::CommandPoolResetFlags::empty()).call("vkResetCommandPool")?;
+            dev.reset_descriptor_pool(self.descriptors, vk::DescriptorPoolResetFlags::empty())
+                .call("vkResetDescriptorPool")?;
+            dev.begin_command_buffer(self.cmd, &begin).call("vkBeginCommandBuffer")?;
+            dev.cmd_reset_query_pool(self.cmd, self.queries, 0, MAX_MARKS);
+        }
+        self.marks.clear();
+        self.mark("start");
+        Ok(timings)
+    }
+
+    fn submit_and_wait(&mut self) -> Result<Timings> {
         let dev = &self.ctx.device;
         // SAFETY: ending and submitting our command buffer, then waiting.
         unsafe {
@@ -263,7 +298,7 @@ impl<'a> Job<'a> {
             let dt = ticks[i].wrapping_sub(ticks[i - 1]) as f64 * self.ctx.timestamp_period * 1e-9;
             timings.push(self.marks[i].clone(), dt);
         }
-        Ok(Finished { timings, buffers: std::mem::take(&mut self.buffers) })
+        Ok(timings)
     }
 }
 

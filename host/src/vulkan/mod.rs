@@ -11,10 +11,11 @@ pub use pipelines::KERNELS_SPV;
 use crate::backend::Backend;
 use crate::error::Result;
 use crate::knn::{KnnJob, KnnMethod, Neighbors};
+use crate::lloyd::LloydOutput;
 use crate::timing::timed;
 use crate::voronoi::{ClipJob, ClipOutput, Pairing, Strategy};
 use context::Context;
-use cvd_kernels::abi::{counter, GridBuildParams, RefineParams, ACCUM_PER_SITE};
+use cvd_kernels::abi::{counter, lloyd_stat, GridBuildParams, RefineParams, ACCUM_PER_SITE};
 use cvd_kernels::clip::CELL_RECORDS;
 use cvd_kernels::scan;
 use job::{BufId, Job};
@@ -68,6 +69,10 @@ impl Backend for VulkanBackend {
             dist2: done.read(d2_back, len),
             timings: done.timings,
         })
+    }
+
+    fn lloyd(&self, job: &ClipJob, iterations: usize, progress: &mut dyn FnMut(usize)) -> Result<LloydOutput> {
+        lloyd_on_device(self, job, iterations, progress)
     }
 
     fn clip(&self, job: &ClipJob) -> Result<ClipOutput> {
@@ -162,22 +167,9 @@ fn record_knn(j: &mut Job, job: &KnnJob, phase: &str) -> Result<KnnBuffers> {
             let n_cells = p.grid.n_cells as u64;
             let n_blocks = scan::block_count(n_cells as usize) as u64;
             let bp = GridBuildParams { grid: p.grid, n_blocks: n_blocks as u32, _pad: [0; 3] };
-            let site_cell = j.buffer(n * 4)?;
-            let count = j.zeroed(n_cells * 4)?;
-            let cursor = j.zeroed(n_cells * 4)?;
-            let start = j.buffer(n_cells * 4)?;
-            let sums = j.buffer(n_blocks * 4)?;
-            let sorted = j.buffer(n * 16)?;
-            j.barrier();
-            j.dispatch("grid_count", &[sites, site_cell, count], &bp, n)?;
-            j.barrier();
-            j.dispatch("scan_blocks", &[count, start, sums], &bp, n_blocks)?;
-            j.barrier();
-            j.dispatch("scan_totals", &[sums], &bp, 1)?;
-            j.barrier();
-            j.dispatch("scan_offsets", &[sums, start], &bp, n_blocks)?;
-            j.barrier();
-            j.dispatch("grid_scatter", &[sites, site_cell, start, cursor, sorted], &bp, n)?;
+            let g = GridBuffers::new(j, n, n_cells, n_blocks)?;
+            g.record(j, &bp, sites)?;
+            let GridBuffers { start, count, sorted, .. } = g;
             j.mark("grid");
             j.dispatch("knn_grid", &[queries, start, count, sorted, nbr, d2], p, nq)?;
             j.mark(phase);
@@ -199,4 +191,121 @@ struct KnnBuffers {
     d2: BufId,
     /// The grid (cell starts, cell counts, sites sorted by cell), if built.
     grid: Option<[BufId; 3]>,
+}
+
+/// The buffers of a site grid (`knn_grid`'s input).
+struct GridBuffers {
+    site_cell: BufId,
+    count: BufId,
+    cursor: BufId,
+    start: BufId,
+    block_sums: BufId,
+    sorted: BufId,
+}
+
+impl GridBuffers {
+    fn new(j: &mut Job, n_sites: u64, n_cells: u64, n_blocks: u64) -> Result<Self> {
+        Ok(Self {
+            site_cell: j.buffer(n_sites.max(1) * 4)?,
+            count: j.buffer(n_cells * 4)?,
+            cursor: j.buffer(n_cells * 4)?,
+            start: j.buffer(n_cells * 4)?,
+            block_sums: j.buffer(n_blocks.max(1) * 4)?,
+            sorted: j.buffer(n_sites.max(1) * 16)?,
+        })
+    }
+
+    /// Records the counting sort of `sites` into the grid.
+    fn record(&self, j: &mut Job, bp: &GridBuildParams, sites: BufId) -> Result<()> {
+        let (n, n_blocks) = (bp.grid.n_sites as u64, bp.n_blocks as u64);
+        j.fill_zero(self.count);
+        j.fill_zero(self.cursor);
+        j.barrier();
+        j.dispatch("grid_count", &[sites, self.site_cell, self.count], bp, n)?;
+        j.barrier();
+        j.dispatch("scan_blocks", &[self.count, self.start, self.block_sums], bp, n_blocks)?;
+        j.barrier();
+        j.dispatch("scan_totals", &[self.block_sums], bp, 1)?;
+        j.barrier();
+        j.dispatch("scan_offsets", &[self.block_sums, self.start], bp, n_blocks)?;
+        j.barrier();
+        j.dispatch("grid_scatter", &[sites, self.site_cell, self.start, self.cursor, self.sorted], bp, n)?;
+        Ok(())
+    }
+}
+
+/// Iterations per submission of a Lloyd loop (progress is reported
+/// between submissions).
+const LLOYD_BATCH: usize = 8;
+
+/// Records and runs a Lloyd loop entirely on the device.
+fn lloyd_on_device(
+    b: &VulkanBackend,
+    job: &ClipJob,
+    iterations: usize,
+    progress: &mut dyn FnMut(usize),
+) -> Result<LloydOutput> {
+    let p = &job.params;
+    let (sk, tk) = (&job.site_knn, &job.tet_knn);
+    let (n, nt, k) = (p.n_sites as u64, p.n_tets as u64, sk.params.k as u64);
+    let grid = sk.params.grid;
+    let n_cells = grid.n_cells as u64;
+    let n_blocks = scan::block_count(n_cells as usize) as u64;
+    let bp = GridBuildParams { grid, n_blocks: n_blocks as u32, _pad: [0; 3] };
+    let mut j = Job::new(&b.ctx, &b.pipelines, LLOYD_BATCH as u32 * 12 + 8)?;
+    let sites = j.upload(&job.sites)?;
+    let verts = j.upload(&job.verts)?;
+    let tets = j.upload(&job.tets)?;
+    let quant = j.upload(&sk.sites)?;
+    let centroids = j.upload(&tk.queries)?;
+    let g = GridBuffers::new(&mut j, n, n_cells, n_blocks)?;
+    let nbr = j.buffer((n * k).max(1) * 4)?;
+    let d2 = j.buffer((n * k).max(1) * 8)?;
+    let tet_sites = j.buffer(nt * 4)?;
+    let tet_d2 = j.buffer(nt * 8)?;
+    let sums = j.buffer(n * ACCUM_PER_SITE as u64 * 8)?;
+    let counters = j.buffer(counter::COUNT as u64 * 8)?;
+    let list_len = 1 + 2 * nt;
+    let unfinished = j.buffer(list_len * 4)?;
+    let still = j.buffer(list_len * 4)?;
+    let ignored = j.buffer(counter::COUNT as u64 * 8)?;
+    let stats = j.zeroed((iterations * lloyd_stat::COUNT).max(1) as u64 * 8)?;
+    j.mark("upload");
+    let rp = RefineParams { capacity: nt as u32, ..job.refine };
+    let mut seconds = Vec::with_capacity(iterations);
+    for it in 0..iterations {
+        for buf in [sums, counters, unfinished, still] {
+            j.fill_zero(buf);
+        }
+        g.record(&mut j, &bp, quant)?;
+        j.barrier();
+        if k > 0 {
+            j.dispatch("knn_grid", &[quant, g.start, g.count, g.sorted, nbr, d2], &sk.params, n)?;
+        }
+        j.dispatch("knn_grid", &[centroids, g.start, g.count, g.sorted, tet_sites, tet_d2], &tk.params, nt)?;
+        j.barrier();
+        j.dispatch("clip_flood", &[sites, verts, tets, tet_sites, nbr, sums, counters, unfinished], p, nt)?;
+        j.barrier();
+        let args = [sites, verts, tets, tet_sites, unfinished, g.start, g.count, g.sorted, sums, ignored, still];
+        j.dispatch("refine", &args, &rp, nt)?;
+        j.barrier();
+        let lp = crate::lloyd::params(job, it);
+        j.dispatch("move_sites", &[sums, unfinished, still, sites, quant, stats], &lp, n.max(1))?;
+        j.mark("iteration");
+        if (it + 1) % LLOYD_BATCH == 0 && it + 1 < iterations {
+            seconds.extend(j.submit()?.phases.iter().filter(|(ph, _)| ph == "iteration").map(|(_, s)| *s));
+            progress(it + 1);
+        }
+    }
+    let sites_back = j.download(sites, n * 16)?;
+    let stats_back = j.download(stats, (iterations * lloyd_stat::COUNT) as u64 * 8)?;
+    j.mark("download");
+    let done = j.run()?;
+    seconds.extend(done.timings.phases.iter().filter(|(ph, _)| ph == "iteration").map(|(_, s)| *s));
+    progress(iterations);
+    Ok(LloydOutput {
+        sites: done.read(sites_back, n as usize),
+        stats: done.read(stats_back, iterations * lloyd_stat::COUNT),
+        seconds,
+    })
 }

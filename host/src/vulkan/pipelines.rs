@@ -5,7 +5,7 @@
 use super::context::Context;
 use crate::error::{Error, Result, VkContext};
 use ash::vk;
-use cvd_kernels::abi::{ClipParams, GridBuildParams, KnnParams, RefineParams};
+use cvd_kernels::abi::{ClipParams, GridBuildParams, KnnParams, LloydParams, RefineParams};
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
@@ -39,6 +39,7 @@ pub(crate) const KERNELS: &[KernelSpec] = &[
     spec::<ClipParams>("clip_cell_tet", 8),
     spec::<ClipParams>("clip_flood", 8),
     spec::<RefineParams>("refine", 11),
+    spec::<LloydParams>("move_sites", 6),
 ];
 
 /// A ready compute pipeline.

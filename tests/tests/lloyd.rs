@@ -1,0 +1,97 @@
+//! Lloyd's iteration on both backends: the energy goes down, a centroidal
+//! tessellation is a fixed point, and the backends agree.
+
+use cvd::cpu::CpuBackend;
+use cvd::lloyd::LloydRun;
+use cvd::{points, Backend, ClippedVoronoi, TetMesh};
+use cvd_tests::{assert_no_validation_errors, vulkan};
+
+fn backends() -> Vec<&'static dyn Backend> {
+    static CPU: std::sync::OnceLock<CpuBackend> = std::sync::OnceLock::new();
+    let mut b: Vec<&'static dyn Backend> = vec![CPU.get_or_init(|| CpuBackend::new(None).unwrap())];
+    if let Some(v) = vulkan() {
+        b.push(v);
+    }
+    b
+}
+
+fn lloyd(mesh: &TetMesh, sites: &[[f32; 3]], iterations: usize, backend: &dyn Backend) -> LloydRun {
+    let mut calls = Vec::new();
+    let run = ClippedVoronoi::new(mesh, sites)
+        .backend(backend)
+        .lloyd(iterations, &mut |done| calls.push(done))
+        .unwrap_or_else(|e| panic!("{}: {e}", backend.name()));
+    assert_eq!(run.iterations.len(), iterations);
+    assert_eq!(calls.last(), Some(&iterations), "{}: progress did not reach the end", backend.name());
+    assert!(calls.windows(2).all(|w| w[0] < w[1]), "{}: progress went backwards: {calls:?}", backend.name());
+    run
+}
+
+#[test]
+fn energy_decreases_and_sites_stay_inside() {
+    let mesh = TetMesh::voxels(4, |i, j, _| i < 2 || j < 2);
+    let sites = points::in_mesh(&mesh, 150, 3);
+    for backend in backends() {
+        let run = lloyd(&mesh, &sites, 12, backend);
+        let e: Vec<f64> = run.iterations.iter().map(|i| i.energy).collect();
+        for w in e.windows(2) {
+            assert!(w[1] <= w[0] * (1.0 + 1e-5), "{}: energy went up: {e:?}", backend.name());
+        }
+        assert!(e[e.len() - 1] < 0.8 * e[0], "{}: energy barely moved: {e:?}", backend.name());
+        for it in &run.iterations {
+            assert_eq!((it.unresolved, it.empty_cells), (0, 0), "{}: {it:?}", backend.name());
+        }
+        // Centroids of cells in the L-shaped mesh lie in its bounding box.
+        assert!(run.sites.iter().all(|p| p.iter().all(|&c| (0.0..=1.0).contains(&c))), "{}", backend.name());
+    }
+    assert_no_validation_errors();
+}
+
+#[test]
+fn a_centroidal_lattice_is_a_fixed_point() {
+    // One site at the centre of each of the 4³ sub-cubes: each cell is its
+    // sub-cube, whose centroid is the site (ties everywhere: a hard case).
+    let n = 4;
+    let mesh = TetMesh::cube(n);
+    let h = 1.0 / n as f32;
+    let mut sites = Vec::new();
+    for k in 0..n {
+        for j in 0..n {
+            for i in 0..n {
+                sites.push([(i as f32 + 0.5) * h, (j as f32 + 0.5) * h, (k as f32 + 0.5) * h]);
+            }
+        }
+    }
+    for backend in backends() {
+        let run = lloyd(&mesh, &sites, 1, backend);
+        for (a, b) in sites.iter().zip(&run.sites) {
+            let d = (0..3).map(|c| (a[c] - b[c]).powi(2)).sum::<f32>().sqrt();
+            assert!(d <= 1e-5 * h, "{}: site {a:?} moved to {b:?}", backend.name());
+        }
+        // E = n³ sub-cubes x h⁵ / 4 (∫|x|² over a cube of side h is h⁵/4).
+        let exact = (n * n * n) as f64 * (h as f64).powi(5) / 4.0;
+        let e = run.iterations[0].energy;
+        assert!((e - exact).abs() <= 1e-5 * exact, "{}: energy {e} vs {exact}", backend.name());
+    }
+    assert_no_validation_errors();
+}
+
+#[test]
+fn backends_give_the_same_iterates() {
+    let mesh = TetMesh::cube(5);
+    let sites = points::uniform(300, 8);
+    let runs: Vec<LloydRun> = backends().into_iter().map(|b| lloyd(&mesh, &sites, 4, b)).collect();
+    if runs.len() < 2 {
+        return;
+    }
+    let (cpu, gpu) = (&runs[0], &runs[1]);
+    for (a, b) in cpu.iterations.iter().zip(&gpu.iterations) {
+        assert!((a.energy - b.energy).abs() <= 1e-5 * a.energy, "energies {} vs {}", a.energy, b.energy);
+    }
+    let spacing = (1.0f32 / 300.0).cbrt();
+    for (a, b) in cpu.sites.iter().zip(&gpu.sites) {
+        let d = (0..3).map(|c| (a[c] - b[c]).powi(2)).sum::<f32>().sqrt();
+        assert!(d <= 1e-4 * spacing, "sites {a:?} vs {b:?}");
+    }
+    assert_no_validation_errors();
+}
