@@ -89,7 +89,9 @@ fn report(input: &[[f32; 3]], job: &ClipJob, map: &[Option<usize>], frame: &Fram
     let inv = 1.0 / job.params.fixed_scale as f64;
     let iterations = out
         .stats
-        .chunks_exact(lloyd_stat::COUNT)
+        .as_chunks::<{ lloyd_stat::COUNT }>()
+        .0
+        .iter()
         .zip(&out.seconds)
         .map(|(s, &seconds)| Iteration {
             energy: s[lloyd_stat::ENERGY] as f64 * inv * l.powi(5),
