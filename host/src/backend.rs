@@ -1,9 +1,9 @@
 //! One small trait over the CPU and Vulkan backends, and how one is chosen.
 
 use crate::cpu::CpuBackend;
+use crate::cvt::LloydOutput;
 use crate::error::Result;
 use crate::knn::{KnnJob, Neighbors};
-use crate::lloyd::LloydOutput;
 use crate::voronoi::{ClipJob, ClipOutput};
 use crate::vulkan::{VulkanBackend, VulkanOptions};
 

@@ -2,9 +2,9 @@
 //! per thread index, in chunks of consecutive indices.
 
 use crate::backend::Backend;
+use crate::cvt::LloydOutput;
 use crate::error::{Error, Result};
 use crate::knn::{KnnJob, KnnMethod, Neighbors};
-use crate::lloyd::LloydOutput;
 use crate::timing::{timed, Timings};
 use crate::voronoi::{ClipJob, ClipOutput, Pairing, Strategy};
 use cvd_kernels::abi::{counter, lloyd_stat, QuantPoint, RefineParams, ACCUM_PER_SITE};
@@ -345,7 +345,7 @@ impl Backend for CpuBackend {
             let mut out = self.clip(&job)?;
             let first = out.refined + out.unfinished.len() as u64;
             let redone = crate::second_pass::run(&job, &mut out)?;
-            let p = crate::lloyd::params(&job, it);
+            let p = crate::cvt::params(&job, it);
             let mut quant = job.site_knn.sites.clone();
             let (unfinished, still) = ([first as u32], [redone.unresolved as u32]);
             for i in 0..job.sites.len() {

@@ -15,10 +15,10 @@
 
 pub mod backend;
 pub mod cpu;
+pub mod cvt;
 pub mod error;
 pub mod io;
 pub mod knn;
-pub mod lloyd;
 pub mod mesh;
 pub mod points;
 pub mod quantize;

@@ -61,6 +61,9 @@ struct RunArgs {
     /// sites as given). On Vulkan the loop runs on the device.
     #[arg(long, default_value_t = 0)]
     iterations: usize,
+    /// How the iterations minimise the CVT energy.
+    #[arg(long, value_enum, default_value_t = Optimizer::Lloyd)]
+    optimizer: Optimizer,
     /// Neighbours per site for its cell.
     #[arg(long, default_value_t = cvd::voronoi::DEFAULT_K_SITE)]
     k_site: usize,
@@ -153,19 +156,34 @@ fn write_cells(path: &std::path::Path, sites: &[[f32; 3]], cells: &cvd::Cells) -
     out.flush().map_err(io_err)
 }
 
-/// Runs the Lloyd iterations with a progress bar; returns the final sites.
+/// CVT optimisers.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+enum Optimizer {
+    /// Lloyd's iteration: every site to its cell's centroid (on Vulkan, the
+    /// whole loop runs on the device).
+    Lloyd,
+    /// L-BFGS (memory 7) with a line search that only accepts decreases.
+    Lbfgs,
+}
+
+/// Runs the CVT iterations with a progress bar; returns the final sites.
 fn lloyd(args: &RunArgs, mesh: &TetMesh, sites: &[[f32; 3]], backend: &dyn cvd::Backend) -> cvd::Result<Vec<[f32; 3]>> {
     let bar = indicatif::ProgressBar::new(args.iterations as u64).with_style(
-        indicatif::ProgressStyle::with_template("Lloyd {bar:30} {pos}/{len} iterations, {elapsed} ({per_sec})")
+        indicatif::ProgressStyle::with_template("{msg} {bar:30} {pos}/{len} iterations, {elapsed} ({per_sec})")
             .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
+    bar.set_message(format!("{:?}", args.optimizer));
     let cv = ClippedVoronoi::new(mesh, sites).k_site(args.k_site).backend(backend);
-    let run = cv.lloyd(args.iterations, &mut |done| bar.set_position(done as u64))?;
+    let run = match args.optimizer {
+        Optimizer::Lloyd => cv.lloyd(args.iterations, &mut |done| bar.set_position(done as u64))?,
+        Optimizer::Lbfgs => cv.lbfgs(args.iterations, &mut |done| bar.set_position(done as u64))?,
+    };
     bar.finish_and_clear();
     let total: f64 = run.iterations.iter().map(|i| i.seconds).sum();
     let (first, last) = (run.iterations[0], run.iterations[run.iterations.len() - 1]);
     println!(
-        "Lloyd: {} iterations in {:.3} s ({:.2} ms per iteration); energy {:.6e} -> {:.6e}",
+        "{:?}: {} iterations in {:.3} s ({:.2} ms per iteration); energy {:.6e} -> {:.6e}",
+        args.optimizer,
         run.iterations.len(),
         total,
         1e3 * total / run.iterations.len() as f64,

@@ -160,10 +160,10 @@ impl Cells {
 pub struct ClippedVoronoi<'a> {
     pub(crate) mesh: &'a TetMesh,
     pub(crate) sites: &'a [[f32; 3]],
-    strategy: Strategy,
-    pairing: Option<Pairing>,
-    k: Option<usize>,
-    k_site: usize,
+    pub(crate) strategy: Strategy,
+    pub(crate) pairing: Option<Pairing>,
+    pub(crate) k: Option<usize>,
+    pub(crate) k_site: usize,
     pub(crate) backend: Option<&'a dyn Backend>,
 }
 

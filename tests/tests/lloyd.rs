@@ -2,7 +2,7 @@
 //! tessellation is a fixed point, and the backends agree.
 
 use cvd::cpu::CpuBackend;
-use cvd::lloyd::LloydRun;
+use cvd::cvt::CvtRun;
 use cvd::{points, Backend, ClippedVoronoi, TetMesh};
 use cvd_tests::{assert_no_validation_errors, vulkan};
 
@@ -15,7 +15,7 @@ fn backends() -> Vec<&'static dyn Backend> {
     b
 }
 
-fn lloyd(mesh: &TetMesh, sites: &[[f32; 3]], iterations: usize, backend: &dyn Backend) -> LloydRun {
+fn lloyd(mesh: &TetMesh, sites: &[[f32; 3]], iterations: usize, backend: &dyn Backend) -> CvtRun {
     let mut calls = Vec::new();
     let run = ClippedVoronoi::new(mesh, sites)
         .backend(backend)
@@ -80,7 +80,7 @@ fn a_centroidal_lattice_is_a_fixed_point() {
 fn backends_give_the_same_iterates() {
     let mesh = TetMesh::cube(5);
     let sites = points::uniform(300, 8);
-    let runs: Vec<LloydRun> = backends().into_iter().map(|b| lloyd(&mesh, &sites, 4, b)).collect();
+    let runs: Vec<CvtRun> = backends().into_iter().map(|b| lloyd(&mesh, &sites, 4, b)).collect();
     if runs.len() < 2 {
         return;
     }
@@ -92,6 +92,26 @@ fn backends_give_the_same_iterates() {
     for (a, b) in cpu.sites.iter().zip(&gpu.sites) {
         let d = (0..3).map(|c| (a[c] - b[c]).powi(2)).sum::<f32>().sqrt();
         assert!(d <= 1e-4 * spacing, "sites {a:?} vs {b:?}");
+    }
+    assert_no_validation_errors();
+}
+
+#[test]
+fn lbfgs_decreases_the_energy_and_ends_no_worse_than_lloyd() {
+    let mesh = TetMesh::cube(6);
+    let sites = points::uniform(500, 21);
+    for backend in backends() {
+        let lloyd = lloyd(&mesh, &sites, 100, backend);
+        let mut calls = 0;
+        let lbfgs = ClippedVoronoi::new(&mesh, &sites).backend(backend).lbfgs(100, &mut |_| calls += 1).unwrap();
+        assert_eq!(calls, lbfgs.iterations.len());
+        let e: Vec<f64> = lbfgs.iterations.iter().map(|i| i.energy).collect();
+        assert!(e.windows(2).all(|w| w[1] < w[0]), "{}: L-BFGS energy did not decrease: {e:?}", backend.name());
+        // Final energies: of the sites each run ends with.
+        let final_energy =
+            |sites: &[[f32; 3]]| ClippedVoronoi::new(&mesh, sites).backend(backend).compute().unwrap().energy_total();
+        let (el, eb) = (final_energy(&lloyd.sites), final_energy(&lbfgs.sites));
+        assert!(eb <= el * 1.005, "{}: L-BFGS {eb} vs Lloyd {el}", backend.name());
     }
     assert_no_validation_errors();
 }

@@ -9,9 +9,9 @@ pub use context::{list_devices, validation_errors, DeviceInfo, VulkanOptions};
 pub use pipelines::KERNELS_SPV;
 
 use crate::backend::Backend;
+use crate::cvt::LloydOutput;
 use crate::error::Result;
 use crate::knn::{KnnJob, KnnMethod, Neighbors};
-use crate::lloyd::LloydOutput;
 use crate::timing::timed;
 use crate::voronoi::{ClipJob, ClipOutput, Pairing, Strategy};
 use context::Context;
@@ -289,7 +289,7 @@ fn lloyd_on_device(
         let args = [sites, verts, tets, tet_sites, unfinished, g.start, g.count, g.sorted, sums, ignored, still];
         j.dispatch("refine", &args, &rp, nt)?;
         j.barrier();
-        let lp = crate::lloyd::params(job, it);
+        let lp = crate::cvt::params(job, it);
         j.dispatch("move_sites", &[sums, unfinished, still, sites, quant, stats], &lp, n.max(1))?;
         j.mark("iteration");
         if (it + 1) % LLOYD_BATCH == 0 && it + 1 < iterations {

@@ -1,0 +1,238 @@
+//! Centroidal Voronoi tessellations: sites that minimise the CVT energy
+//! `F = Σ_i ∫_{Ω_i} |x - x_i|²`, whose gradient is `2 V_i (x_i - C_i)`.
+//!
+//! * Lloyd's iteration moves every site to its cell's centroid
+//!   (`cvd_kernels::lloyd`). On the Vulkan backend the whole loop runs on
+//!   the device — grid, k-NN, clipping, second pass, site update — and
+//!   only a few numbers per iteration come back.
+//! * L-BFGS (as Geogram's Newton iterations, memory 7) takes quasi-Newton
+//!   steps from the same diagrams, preconditioned by `1 / 2V_i` so that its
+//!   first step is Lloyd's, with a backtracking line search that only
+//!   accepts steps that lower the energy.
+
+use crate::backend::Backend;
+use crate::error::{Error, Result};
+use crate::voronoi::{ClipJob, ClippedVoronoi, Frame};
+use cvd_kernels::abi::{lloyd_stat, LloydParams};
+
+/// What a backend returns for a Lloyd run, in the job's frame and order.
+#[derive(Clone, Debug, Default)]
+pub struct LloydOutput {
+    /// The sites after the last iteration (`[x, y, z, 0]`, normalised).
+    pub sites: Vec<[f32; 4]>,
+    /// [`lloyd_stat::COUNT`] statistics per iteration.
+    pub stats: Vec<i64>,
+    /// Seconds per iteration.
+    pub seconds: Vec<f64>,
+}
+
+/// One iteration, as reported.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Iteration {
+    /// CVT energy `Σ ∫|x - x_i|²` of the diagram the iteration started from.
+    pub energy: f64,
+    /// Sites whose cell was empty (they did not move).
+    pub empty_cells: u64,
+    /// Pieces or tets the first pass left unfinished (finished by the
+    /// second pass).
+    pub second_pass: u64,
+    /// Entries not even the second pass could finish: their volume is
+    /// missing from that iteration (0 unless a tet meets very many cells).
+    pub unresolved: u64,
+    /// Seconds the iteration took on the backend.
+    pub seconds: f64,
+}
+
+/// The result of a Lloyd run.
+#[derive(Clone, Debug, Default)]
+pub struct CvtRun {
+    /// The sites after the last iteration, in input order.
+    pub sites: Vec<[f32; 3]>,
+    /// Every iteration.
+    pub iterations: Vec<Iteration>,
+}
+
+/// The site update's parameters for `job` (quantization of moved sites).
+pub(crate) fn params(job: &ClipJob, iteration: usize) -> LloydParams {
+    let q = job.site_knn.quantizer;
+    let o = q.origin();
+    LloydParams {
+        n_sites: job.params.n_sites,
+        fixed_scale: job.params.fixed_scale,
+        iteration: iteration as u32,
+        quant_scale: q.scale() as f32,
+        quant_origin_x: o[0] as f32,
+        quant_origin_y: o[1] as f32,
+        quant_origin_z: o[2] as f32,
+        _pad: 0,
+    }
+}
+
+impl ClippedVoronoi<'_> {
+    /// Runs `iterations` Lloyd iterations (flood pairing, tet-cell), calling
+    /// `progress` with the iterations done so far. Duplicate sites keep
+    /// their place (their cells are empty).
+    pub fn lloyd(&self, iterations: usize, progress: &mut dyn FnMut(usize)) -> Result<CvtRun> {
+        let (job, map, frame) = self.job()?;
+        if job.pairing != crate::voronoi::Pairing::Flood {
+            return Err(Error::InvalidInput("Lloyd iterations use flood pairing (tet-cell)".into()));
+        }
+        let cpu;
+        let backend: &dyn Backend = match self.backend {
+            Some(b) => b,
+            None => {
+                cpu = crate::cpu::CpuBackend::new(None)?;
+                &cpu
+            }
+        };
+        let out = backend.lloyd(&job, iterations, progress)?;
+        Ok(report(self.sites, &job, &map, &frame, &out))
+    }
+}
+
+fn report(input: &[[f32; 3]], job: &ClipJob, map: &[Option<usize>], frame: &Frame, out: &LloydOutput) -> CvtRun {
+    let l = frame.scale;
+    let inv = 1.0 / job.params.fixed_scale as f64;
+    let iterations = out
+        .stats
+        .as_chunks::<{ lloyd_stat::COUNT }>()
+        .0
+        .iter()
+        .zip(&out.seconds)
+        .map(|(s, &seconds)| Iteration {
+            energy: s[lloyd_stat::ENERGY] as f64 * inv * l.powi(5),
+            empty_cells: s[lloyd_stat::EMPTY].max(0) as u64,
+            second_pass: (s[lloyd_stat::UNFINISHED] - s[lloyd_stat::STILL]).max(0) as u64,
+            unresolved: s[lloyd_stat::STILL].max(0) as u64,
+            seconds,
+        })
+        .collect();
+    let sites = map
+        .iter()
+        .zip(input)
+        .map(|(m, &p)| match m {
+            Some(u) => frame.to_world(out.sites[*u]),
+            None => p,
+        })
+        .collect();
+    CvtRun { sites, iterations }
+}
+
+/// Steps remembered by L-BFGS.
+const LBFGS_MEMORY: usize = 7;
+
+/// The energy and its gradient at some sites (world coordinates, input
+/// order), and the preconditioner `1 / 2V_i` (0 for empty cells).
+struct Evaluation {
+    energy: f64,
+    gradient: Vec<f64>,
+    precondition: Vec<f64>,
+    empty: u64,
+    second_pass: u64,
+    unresolved: u64,
+}
+
+impl ClippedVoronoi<'_> {
+    fn evaluate(&self, x: &[f64]) -> Result<(Evaluation, f64)> {
+        let sites: Vec<[f32; 3]> = x.chunks_exact(3).map(|p| [p[0] as f32, p[1] as f32, p[2] as f32]).collect();
+        let start = std::time::Instant::now();
+        let cells = ClippedVoronoi { sites: &sites, ..*self }.compute()?;
+        let seconds = start.elapsed().as_secs_f64();
+        let mut gradient = vec![0.0; x.len()];
+        let mut precondition = vec![0.0; x.len()];
+        for i in 0..sites.len() {
+            let v = cells.volume[i];
+            if v > 0.0 {
+                for a in 0..3 {
+                    // The site as the kernels saw it (f32).
+                    gradient[3 * i + a] = 2.0 * v * (sites[i][a] as f64 - cells.centroid[i][a]);
+                    precondition[3 * i + a] = 1.0 / (2.0 * v);
+                }
+            }
+        }
+        let c = &cells.counters;
+        let eval = Evaluation {
+            energy: cells.energy_total(),
+            gradient,
+            precondition,
+            empty: c.empty_cells,
+            second_pass: c.second_pass,
+            unresolved: c.unresolved,
+        };
+        Ok((eval, seconds))
+    }
+
+    /// Minimises the CVT energy with L-BFGS for `iterations` iterations (see
+    /// the module's documentation), calling `progress` after each. Every
+    /// iteration lowers the energy or stops the run early (at a minimum to
+    /// float precision).
+    pub fn lbfgs(&self, iterations: usize, progress: &mut dyn FnMut(usize)) -> Result<CvtRun> {
+        let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
+        let mut x: Vec<f64> = self.sites.iter().flat_map(|p| p.map(f64::from)).collect();
+        let (mut at, mut seconds) = self.evaluate(&x)?;
+        let mut memory: Vec<(Vec<f64>, Vec<f64>, f64)> = Vec::new();
+        let mut run = CvtRun::default();
+        for it in 0..iterations {
+            // Two-loop recursion with the diagonal preconditioner as H0.
+            let mut d: Vec<f64> = at.gradient.iter().map(|g| -g).collect();
+            let mut alphas = Vec::with_capacity(memory.len());
+            for (s, y, rho) in memory.iter().rev() {
+                let a = rho * dot(s, &d);
+                d.iter_mut().zip(y).for_each(|(di, yi)| *di -= a * yi);
+                alphas.push(a);
+            }
+            d.iter_mut().zip(&at.precondition).for_each(|(di, h)| *di *= h);
+            for ((s, y, rho), a) in memory.iter().zip(alphas.iter().rev()) {
+                let b = rho * dot(y, &d);
+                d.iter_mut().zip(s).for_each(|(di, si)| *di += (a - b) * si);
+            }
+            let mut slope = dot(&at.gradient, &d);
+            if slope >= 0.0 {
+                // Not a descent direction: fall back to the Lloyd step.
+                d = at.gradient.iter().zip(&at.precondition).map(|(g, h)| -g * h).collect();
+                slope = dot(&at.gradient, &d);
+                memory.clear();
+            }
+            let record = Iteration {
+                energy: at.energy,
+                empty_cells: at.empty,
+                second_pass: at.second_pass,
+                unresolved: at.unresolved,
+                seconds,
+            };
+            // Backtracking (Armijo): halve the step until the energy drops.
+            let mut t = 1.0;
+            let mut next = None;
+            for _ in 0..12 {
+                let trial: Vec<f64> = x.iter().zip(&d).map(|(xi, di)| xi + t * di).collect();
+                let (eval, s) = self.evaluate(&trial)?;
+                seconds += s;
+                if eval.energy <= at.energy + 1e-4 * t * slope && eval.energy < at.energy {
+                    next = Some((trial, eval));
+                    break;
+                }
+                t *= 0.5;
+            }
+            run.iterations.push(Iteration { seconds, ..record });
+            progress(it + 1);
+            let Some((trial, eval)) = next else {
+                // No step lowers the energy at float precision: a minimum.
+                break;
+            };
+            let s: Vec<f64> = trial.iter().zip(&x).map(|(a, b)| a - b).collect();
+            let y: Vec<f64> = eval.gradient.iter().zip(&at.gradient).map(|(a, b)| a - b).collect();
+            let sy = dot(&s, &y);
+            if sy > 0.0 {
+                if memory.len() == LBFGS_MEMORY {
+                    memory.remove(0);
+                }
+                memory.push((s, y, 1.0 / sy));
+            }
+            x = trial;
+            at = eval;
+            seconds = 0.0;
+        }
+        run.sites = x.chunks_exact(3).map(|p| [p[0] as f32, p[1] as f32, p[2] as f32]).collect();
+        Ok(run)
+    }
+}
