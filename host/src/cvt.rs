@@ -134,7 +134,7 @@ struct Evaluation {
 
 impl ClippedVoronoi<'_> {
     fn evaluate(&self, x: &[f64]) -> Result<(Evaluation, f64)> {
-        let sites: Vec<[f32; 3]> = x.chunks_exact(3).map(|p| [p[0] as f32, p[1] as f32, p[2] as f32]).collect();
+        let sites = to_points(x);
         let start = std::time::Instant::now();
         let cells = ClippedVoronoi { sites: &sites, ..*self }.compute()?;
         let seconds = start.elapsed().as_secs_f64();
@@ -232,7 +232,12 @@ impl ClippedVoronoi<'_> {
             at = eval;
             seconds = 0.0;
         }
-        run.sites = x.chunks_exact(3).map(|p| [p[0] as f32, p[1] as f32, p[2] as f32]).collect();
+        run.sites = to_points(&x);
         Ok(run)
     }
+}
+
+/// Flat `x, y, z` coordinates as points.
+fn to_points(x: &[f64]) -> Vec<[f32; 3]> {
+    x.as_chunks::<3>().0.iter().map(|p| p.map(|c| c as f32)).collect()
 }
