@@ -409,6 +409,78 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
     }
 }
 
+impl<const P: usize, const V: usize> Polyhedron<P, V> {
+    /// Integrals under the linear density `ρ(x) = rho0 + g·x` (relative to
+    /// the local origin): mass `∫ρ`, first moment `∫ρ x`, second moment
+    /// `∫ρ |x|²`, returned as [`Moments`], and the plain volume. Same cones
+    /// as [`Self::moments`], each integrated in full: over a tet `(0, a, b,
+    /// c)` of volume `v`, with `s = a + b + c` and sums over `p ∈ {a, b,
+    /// c}`, `∫x xᵀ = v/20 (Σ p pᵀ + s sᵀ)` and `∫x |x|² = v/120 (s |s|² +
+    /// s Σ|p|² + 2 Σ p (p·s) + 2 Σ p |p|²)` (moments of a simplex).
+    pub fn moments_linear(&self, rho0: f32, g: Vec3) -> (Moments, f32) {
+        let mut feet = [Vec3::ZERO; P];
+        let mut p = 0;
+        while p < (self.n_planes as usize).min(P) {
+            let n = self.planes[p].truncate();
+            feet[p] = n * (self.planes[p].w / n.length_squared());
+            p += 1;
+        }
+        let mut acc = Linear::default();
+        let mut i = 0;
+        while i < (self.n_verts as usize).min(V) {
+            let v = self.verts[i];
+            let t = unpack(self.tris[i]);
+            let mut e = 0;
+            while e < 3 {
+                let (x, y) = (t[e], t[(e + 1) % 3]);
+                let u = self.planes[x as usize].truncate().cross(self.planes[y as usize].truncate());
+                let uu = u.length_squared();
+                let f = if uu > 0.0 { v - u * (v.dot(u) / uu) } else { v };
+                acc.add_cone(feet[x as usize], f, v, g);
+                acc.add_cone(feet[y as usize], v, f, g);
+                e += 1;
+            }
+            i += 1;
+        }
+        let m = Moments {
+            volume: rho0 * acc.volume + g.dot(acc.first),
+            first: acc.first * rho0 + acc.second_g,
+            second: rho0 * acc.second + acc.third_g,
+        };
+        (m, acc.volume)
+    }
+}
+
+/// Running sums of [`Polyhedron::moments_linear`]: `∫1`, `∫x`, `∫|x|²`,
+/// `∫x (x·g)` and `∫(x·g) |x|²`.
+#[derive(Default)]
+struct Linear {
+    volume: f32,
+    first: Vec3,
+    second: f32,
+    second_g: Vec3,
+    third_g: f32,
+}
+
+impl Linear {
+    /// Adds the signed tet `(0, a, b, c)`.
+    #[inline]
+    fn add_cone(&mut self, a: Vec3, b: Vec3, c: Vec3, g: Vec3) {
+        let v = a.dot(b.cross(c)) / 6.0;
+        let s = a + b + c;
+        let (aa, bb, cc, ss) = (a.length_squared(), b.length_squared(), c.length_squared(), s.length_squared());
+        let (ag, bg, cg, sg) = (a.dot(g), b.dot(g), c.dot(g), s.dot(g));
+        let sum_pp = aa + bb + cc;
+        self.volume += v;
+        self.first += s * (v / 4.0);
+        self.second += v / 20.0 * (sum_pp + ss);
+        self.second_g += (a * ag + b * bg + c * cg + s * sg) * (v / 20.0);
+        let p_ps_g = ag * a.dot(s) + bg * b.dot(s) + cg * c.dot(s);
+        let pp_pg = aa * ag + bb * bg + cc * cg;
+        self.third_g += v / 120.0 * (ss * sg + sum_pp * sg + 2.0 * p_ps_g + 2.0 * pp_pg);
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -437,6 +509,24 @@ mod tests {
             assert!(close(m.volume, vol, 1e-5), "{m:?} vs {vol}");
             assert!((m.first / m.volume - centroid).length() < 1e-5, "{m:?}");
         }
+    }
+
+    #[test]
+    fn linear_density_moments_of_a_cube() {
+        // ρ = 1 + 10x on [0, 1]³: mass 6, ∫ρx = 23/6, ∫ρ y = 3,
+        // ∫ρ|x|² = 1 + 10 (1/4 + 2/6) = 41/6.
+        let p = Cell::cuboid(Vec3::ZERO, Vec3::ONE);
+        let (m, v) = p.moments_linear(1.0, Vec3::new(10.0, 0.0, 0.0));
+        assert!(close(v, 1.0, 1e-6), "{v}");
+        assert!(close(m.volume, 6.0, 1e-6), "{m:?}");
+        assert!(close(m.first.x, 23.0 / 6.0, 1e-6) && close(m.first.y, 3.0, 1e-6), "{m:?}");
+        assert!(close(m.second, 41.0 / 6.0, 1e-6), "{m:?}");
+        // A constant density scales the plain moments; a clipped shape too.
+        let mut q = Cell::cuboid(Vec3::splat(-1.0), Vec3::splat(1.0));
+        q.clip(Vec4::new(1.0, 2.0, 0.5, 0.3));
+        let (plain, (lin, v)) = (q.moments(), q.moments_linear(2.5, Vec3::ZERO));
+        assert!(close(lin.volume, 2.5 * plain.volume, 1e-5) && close(v, plain.volume, 1e-5));
+        assert!((lin.first - plain.first * 2.5).length() < 1e-5 && close(lin.second, 2.5 * plain.second, 1e-5));
     }
 
     #[test]
