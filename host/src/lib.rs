@@ -16,6 +16,7 @@
 pub mod backend;
 pub mod cpu;
 pub mod cvt;
+pub mod density;
 pub mod error;
 pub mod io;
 pub mod knn;
