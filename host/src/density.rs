@@ -6,10 +6,10 @@ use crate::error::{Error, Result};
 use crate::mesh::TetMesh;
 
 /// A parsed density expression.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug)]
 pub struct Expr(Node);
 
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug)]
 enum Node {
     Num(f64),
     Var(usize),
