@@ -61,6 +61,15 @@ struct RunArgs {
     /// sites as given). On Vulkan the loop runs on the device.
     #[arg(long, default_value_t = 0)]
     iterations: usize,
+    /// A density ρ(x, y, z) > 0 weighting volumes, centroids and energies,
+    /// e.g. "1+10*x" (world coordinates; + - * / ^, exp sqrt abs sin cos),
+    /// evaluated at the mesh vertices and linear inside each tet.
+    #[arg(long, conflicts_with = "density_file")]
+    density: Option<String>,
+    /// A density per mesh vertex from a file: one number per line, in the
+    /// mesh's vertex order (`#` comments allowed).
+    #[arg(long)]
+    density_file: Option<PathBuf>,
     /// How the iterations minimise the CVT energy.
     #[arg(long, value_enum, default_value_t = Optimizer::Lloyd)]
     optimizer: Optimizer,
@@ -156,6 +165,24 @@ fn write_cells(path: &std::path::Path, sites: &[[f32; 3]], cells: &cvd::Cells) -
     out.flush().map_err(io_err)
 }
 
+/// The density per mesh vertex the arguments ask for, if any.
+fn density(args: &RunArgs, mesh: &TetMesh) -> cvd::Result<Option<Vec<f32>>> {
+    if let Some(text) = &args.density {
+        return Ok(Some(cvd::density::Expr::parse(text)?.at_vertices(mesh, text)?));
+    }
+    let Some(path) = &args.density_file else { return Ok(None) };
+    let values = cvd::io::read_values(path)?;
+    if values.len() != mesh.vertices.len() {
+        return Err(cvd::Error::InvalidInput(format!(
+            "{}: {} density values for {} mesh vertices",
+            path.display(),
+            values.len(),
+            mesh.vertices.len()
+        )));
+    }
+    Ok(Some(values))
+}
+
 /// CVT optimisers.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 enum Optimizer {
@@ -173,7 +200,8 @@ fn lloyd(args: &RunArgs, mesh: &TetMesh, sites: &[[f32; 3]], backend: &dyn cvd::
             .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
     bar.set_message(format!("{:?}", args.optimizer));
-    let cv = ClippedVoronoi::new(mesh, sites).k_site(args.k_site).backend(backend);
+    let density = density(args, mesh)?;
+    let cv = ClippedVoronoi::new(mesh, sites).k_site(args.k_site).backend(backend).density(density.as_deref());
     let run = match args.optimizer {
         Optimizer::Lloyd => cv.lloyd(args.iterations, &mut |done| bar.set_position(done as u64))?,
         Optimizer::Lbfgs => cv.lbfgs(args.iterations, &mut |done| bar.set_position(done as u64))?,
@@ -216,7 +244,12 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
         backend.name()
     );
     let sites = if args.iterations > 0 { lloyd(args, &mesh, &sites, backend.as_ref())? } else { sites };
-    let mut cv = ClippedVoronoi::new(&mesh, &sites).strategy(args.strategy).k(args.k).k_site(args.k_site);
+    let density = density(args, &mesh)?;
+    let mut cv = ClippedVoronoi::new(&mesh, &sites)
+        .strategy(args.strategy)
+        .k(args.k)
+        .k_site(args.k_site)
+        .density(density.as_deref());
     if let Some(pairing) = args.pairing {
         cv = cv.pairing(pairing);
     }

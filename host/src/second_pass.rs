@@ -20,7 +20,7 @@ use crate::error::Result;
 use crate::site_grid::SiteGrid;
 use crate::voronoi::{ClipJob, ClipOutput};
 use cvd_kernels::abi::{counter, NO_SITE};
-use cvd_kernels::clip::{self, accumulate, clip_by_bisectors, tet_vertices, Clipped};
+use cvd_kernels::clip::{self, accumulate, clip_by_bisectors, piece_moments, tet_vertices, Clipped};
 use cvd_kernels::glam::Vec3;
 use cvd_kernels::polyhedron::{Cell, Polyhedron, CELL_PLANES, CELL_VERTS};
 use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, Ordering};
@@ -89,7 +89,9 @@ pub(crate) fn run(job: &ClipJob, out: &mut ClipOutput) -> Result<Redone> {
             unresolved.fetch_add(1, Ordering::Relaxed);
             ok[entry].store(false, Ordering::Relaxed);
         } else if !poly.is_empty() {
-            accumulate(j, &poly.moments(), job.params.fixed_scale, sums);
+            let s = job.sites[j];
+            let tv = tet_vertices(t, &job.verts, &job.tets, Vec3::new(s[0], s[1], s[2]));
+            accumulate(j, &piece_moments(&poly, t, &job.verts, &job.tets, &tv).0, job.params.fixed_scale, sums);
         }
     });
     redone.finished += ok.iter().filter(|o| o.load(Ordering::Relaxed)).count() as u64;

@@ -165,6 +165,7 @@ pub struct ClippedVoronoi<'a> {
     pub(crate) k: Option<usize>,
     pub(crate) k_site: usize,
     pub(crate) backend: Option<&'a dyn Backend>,
+    pub(crate) density: Option<&'a [f32]>,
 }
 
 impl<'a> ClippedVoronoi<'a> {
@@ -178,6 +179,7 @@ impl<'a> ClippedVoronoi<'a> {
             k: None,
             k_site: DEFAULT_K_SITE,
             backend: None,
+            density: None,
         }
     }
 
@@ -213,6 +215,15 @@ impl<'a> ClippedVoronoi<'a> {
         self
     }
 
+    /// A density `ρ > 0` per mesh vertex, linear inside each tet (default:
+    /// 1). Volumes, centroids and energies become ρ-weighted: `volume` is
+    /// the cell's mass `∫ρ`, `centroid` its centre of mass, `energy`
+    /// `∫ρ|x - x_i|²`, and `mesh_volume` the mesh's mass.
+    pub fn density(mut self, density: Option<&'a [f32]>) -> Self {
+        self.density = density;
+        self
+    }
+
     /// Where to run (default: the CPU backend with all cores).
     pub fn backend(mut self, backend: &'a dyn Backend) -> Self {
         self.backend = Some(backend);
@@ -235,6 +246,21 @@ impl<'a> ClippedVoronoi<'a> {
         let pairing = self.resolved_pairing();
         if pairing == Pairing::Flood && self.strategy != Strategy::TetCell {
             return Err(Error::InvalidInput("flood pairing works with the tet-cell strategy only".into()));
+        }
+        if let Some(rho) = self.density {
+            if rho.len() != mesh.vertices.len() {
+                return Err(Error::InvalidInput(format!(
+                    "{} density values for {} mesh vertices",
+                    rho.len(),
+                    mesh.vertices.len()
+                )));
+            }
+            if let Some(v) = rho.iter().position(|r| !(r.is_finite() && *r > 0.0)) {
+                return Err(Error::InvalidInput(format!(
+                    "the density at vertex {v} is {}; it must be positive",
+                    rho[v]
+                )));
+            }
         }
         if self.k_site == 0 || self.k == Some(0) {
             return Err(Error::InvalidInput("k and k_site must be at least 1".into()));
@@ -296,9 +322,11 @@ impl<'a> ClippedVoronoi<'a> {
         }
         let diag = (0..3).map(|a| ((hi[a] - lo[a]) as f64).powi(2)).sum::<f64>().sqrt();
         let margin = 0.01 * diag.max(1e-3) as f32;
-        // Per-site sums are at most (mesh volume <= 1) x 3 (1 + diag)²: keep
+        // Per-site sums are at most (mesh volume <= 1) x 3 (1 + diag)² x the
+        // largest density: keep
         // them well inside i64 with a power-of-two scale.
-        let bound = 3.0 * (1.0 + diag).powi(2);
+        let rho_max = self.density.map_or(1.0, |rho| rho.iter().fold(1.0f32, |a, &b| a.max(b)) as f64);
+        let bound = 3.0 * (1.0 + diag).powi(2) * rho_max;
         let bits = (62.0 - bound.log2().ceil()).min(48.0);
         let params = ClipParams {
             n_sites: n as u32,
@@ -334,7 +362,13 @@ impl<'a> ClippedVoronoi<'a> {
             site_knn,
             tet_knn,
             sites: sites.iter().map(|p| [p[0], p[1], p[2], 0.0]).collect(),
-            verts: local_mesh.vertices.iter().map(|p| [p[0], p[1], p[2], 0.0]).collect(),
+            // The density rides in each vertex record's w.
+            verts: local_mesh
+                .vertices
+                .iter()
+                .enumerate()
+                .map(|(v, p)| [p[0], p[1], p[2], self.density.map_or(1.0, |rho| rho[v])])
+                .collect(),
             tets: local_mesh.tets,
             params,
             strategy: self.strategy,
@@ -361,7 +395,7 @@ impl<'a> ClippedVoronoi<'a> {
         if redone.finished + redone.unresolved > 0 {
             out.timings.push("host pass", t);
         }
-        let mut cells = finish(self.mesh, self.sites, &job, &map, &frame, out);
+        let mut cells = finish(self.mesh, self.density, self.sites, &job, &map, &frame, out);
         cells.counters.second_pass = refined + redone.finished;
         cells.counters.unresolved = redone.unresolved;
         Ok(cells)
@@ -395,6 +429,7 @@ impl Frame {
 
 fn finish(
     mesh: &TetMesh,
+    density: Option<&[f32]>,
     input: &[[f32; 3]],
     job: &ClipJob,
     map: &[Option<usize>],
@@ -427,7 +462,13 @@ fn finish(
         cells.energy.push(e);
     }
     cells.total_volume = cells.volume.iter().sum();
-    cells.mesh_volume = mesh.volume();
+    cells.mesh_volume = match density {
+        // Linear in each tet: the mass is the volume times the mean.
+        Some(rho) => (0..mesh.tets.len())
+            .map(|t| mesh.tet_volume(t).abs() * mesh.tets[t].iter().map(|&v| rho[v as usize] as f64).sum::<f64>() / 4.0)
+            .sum(),
+        None => mesh.volume(),
+    };
     cells.e_vol = (cells.total_volume - cells.mesh_volume).abs() / cells.mesh_volume;
     let c = |i: usize| out.counters[i].max(0) as u64;
     cells.counters = Counters {

@@ -188,6 +188,34 @@ pub fn accumulate<A: AtomicSums>(j: usize, m: &Moments, scale: f32, sums: &mut A
     sums.add(base + 4, (m.second * scale) as i64);
 }
 
+/// The integrals of a piece of tet `t` (vertices `tv`, relative to the
+/// piece's site) under the mesh's density — the `w` of each vertex record,
+/// linear inside the tet; 1 everywhere without a density — and its plain
+/// volume.
+#[inline]
+pub fn piece_moments<const P: usize, const V: usize>(
+    poly: &Polyhedron<P, V>,
+    t: usize,
+    verts: &[[f32; 4]],
+    tets: &[[u32; 4]],
+    tv: &[Vec3; 4],
+) -> (Moments, f32) {
+    let tet = tets[t];
+    let r =
+        [verts[tet[0] as usize][3], verts[tet[1] as usize][3], verts[tet[2] as usize][3], verts[tet[3] as usize][3]];
+    if r[0] == r[1] && r[1] == r[2] && r[2] == r[3] {
+        let m = poly.moments();
+        let scaled = Moments { volume: m.volume * r[0], first: m.first * r[0], second: m.second * r[0] };
+        return (scaled, m.volume);
+    }
+    // The gradient g with (tv[k] - tv[0])·g = r[k] - r[0], and the density
+    // at the site.
+    let (e1, e2, e3) = (tv[1] - tv[0], tv[2] - tv[0], tv[3] - tv[0]);
+    let det = e1.dot(e2.cross(e3));
+    let g = (e2.cross(e3) * (r[1] - r[0]) + e3.cross(e1) * (r[2] - r[0]) + e1.cross(e2) * (r[3] - r[0])) / det;
+    poly.moments_linear(r[0] - g.dot(tv[0]), g)
+}
+
 #[inline]
 fn count<C: AtomicSums>(counters: &mut C, pieces: i64, nonempty: i64, c: &Clipped) {
     counters.add(counter::PAIRS, pieces);
@@ -263,7 +291,7 @@ pub fn tet_cell_pair<A: AtomicSums, C: AtomicSums, L: PairList>(
     let c = clip_by_bisectors(&mut poly, j, p.n_sites, sites, site_nbrs, j * k, k);
     let nonempty = c.finished() && !poly.is_empty();
     if nonempty {
-        accumulate(j, &poly.moments(), p.fixed_scale, sums);
+        accumulate(j, &piece_moments(&poly, t, verts, tets, &tv).0, p.fixed_scale, sums);
     }
     if !c.finished() {
         unfinished.push(t as u32, j as u32);
@@ -377,7 +405,7 @@ pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums, L: PairList>(
     }
     let nonempty = c.finished() && !poly.is_empty();
     if nonempty {
-        accumulate(j, &poly.moments(), p.fixed_scale, sums);
+        accumulate(j, &piece_moments(&poly, t, verts, tets, &tv).0, p.fixed_scale, sums);
     }
     if !c.finished() {
         unfinished.push(t as u32, j as u32);
@@ -477,8 +505,9 @@ pub fn flood<const P: usize, const V: usize, const Q: usize, F, A, C, L>(
         if !ci.finished() {
             ok = false;
         } else if !poly.is_empty() {
-            found[head] = poly.moments();
-            total += found[head].volume;
+            let (m, volume) = piece_moments(&poly, t, verts, tets, &tv);
+            found[head] = m;
+            total += volume;
             poly.keep_faces_only();
             let mut q = 0;
             while q < poly.n_planes as usize {

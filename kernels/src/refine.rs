@@ -14,7 +14,7 @@
 
 use crate::abi::{GridParams, QuantPoint, RefineParams, NO_SITE};
 use crate::buffers::{AtomicSums, PairList};
-use crate::clip::{accumulate, flood, tet_vertices, Clipped};
+use crate::clip::{accumulate, flood, piece_moments, tet_vertices, Clipped};
 use crate::grid::cell_index;
 use crate::knn::sub_floor0;
 use crate::polyhedron::{Cell, Clip, Polyhedron, CELL_PLANES, CELL_VERTS};
@@ -210,12 +210,13 @@ pub fn refine_entry<A: AtomicSums, C: AtomicSums, L: PairList>(
     } else {
         let j = j as usize;
         let mut poly = Cell::empty();
-        poly.set_tetrahedron(tet_vertices(t, verts, tets, xyz(sites[j])));
+        let tv = tet_vertices(t, verts, tets, xyz(sites[j]));
+        poly.set_tetrahedron(tv);
         let c = clip_by_grid(&mut poly, j, sites, w);
         if !c.finished() {
             still.push(t as u32, j as u32);
         } else if !poly.is_empty() {
-            accumulate(j, &poly.moments(), p.clip.fixed_scale, sums);
+            accumulate(j, &piece_moments(&poly, t, verts, tets, &tv).0, p.clip.fixed_scale, sums);
         }
     }
 }

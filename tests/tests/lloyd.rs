@@ -115,3 +115,32 @@ fn lbfgs_decreases_the_energy_and_ends_no_worse_than_lloyd() {
     }
     assert_no_validation_errors();
 }
+
+#[test]
+fn a_linear_density_weights_cells_as_the_closed_form_says() {
+    // Density 1 + 10x in the unit cube. One site: its cell is the cube,
+    // mass 6, centre of mass x = 23/36, energy about the centre 3/2. Two
+    // sites splitting the cube at x = 1/2: the left half has mass 7/4 and
+    // centre of mass x = (1/8 + 5/12) / (7/4).
+    let mesh = TetMesh::cube(3);
+    let rho: Vec<f32> = mesh.vertices.iter().map(|v| 1.0 + 10.0 * v[0]).collect();
+    for backend in backends() {
+        let one = [[0.5f32, 0.5, 0.5]];
+        let cells = ClippedVoronoi::new(&mesh, &one).density(Some(&rho)).backend(backend).compute().unwrap();
+        let what = backend.name();
+        assert!((cells.volume[0] - 6.0).abs() < 1e-5, "{what}: mass {}", cells.volume[0]);
+        assert!((cells.mesh_volume - 6.0).abs() < 1e-6 && cells.e_vol < 1e-6, "{what}: {cells:?}");
+        let c = cells.centroid[0];
+        assert!((c[0] - 23.0 / 36.0).abs() < 1e-5 && (c[1] - 0.5).abs() < 1e-5, "{what}: {c:?}");
+        assert!((cells.energy[0] - 1.5).abs() < 1e-5, "{what}: energy {}", cells.energy[0]);
+        let two = [[0.25f32, 0.5, 0.5], [0.75, 0.5, 0.5]];
+        let cells = ClippedVoronoi::new(&mesh, &two).density(Some(&rho)).backend(backend).compute().unwrap();
+        assert!((cells.volume[0] - 1.75).abs() < 1e-5, "{what}: {:?}", cells.volume);
+        let cx = (0.125 + 10.0 / 24.0) / 1.75;
+        assert!((cells.centroid[0][0] - cx).abs() < 1e-5, "{what}: {:?}", cells.centroid[0]);
+        // Lloyd moves both sites toward the dense side.
+        let run = ClippedVoronoi::new(&mesh, &two).density(Some(&rho)).backend(backend).lloyd(1, &mut |_| {}).unwrap();
+        assert!((run.sites[0][0] as f64 - cx).abs() < 1e-5, "{what}: {:?}", run.sites);
+    }
+    assert_no_validation_errors();
+}

@@ -16,6 +16,7 @@ fn read_all(text: &str) {
     let _ = parse_tetgen(text, "f.node", super::tetgen::tests::ELE, "f.ele");
     let _ = parse_tetgen(super::tetgen::tests::NODE, "f.node", text, "f.ele");
     let _ = parse_xyz(text, "f.xyz");
+    let _ = super::parse_values(text, "f.txt");
 }
 
 fn valid_files() -> Vec<&'static str> {

@@ -21,7 +21,7 @@ pub use gmsh::parse_gmsh;
 pub use medit::parse_medit;
 pub use tet::parse_tet;
 pub use tetgen::parse_tetgen;
-pub use xyz::parse_xyz;
+pub use xyz::{parse_values, parse_xyz};
 
 use crate::error::{Error, Result};
 use crate::mesh::{signed_volume, TetMesh};
@@ -57,6 +57,11 @@ pub fn read_mesh(path: &Path) -> Result<TetMesh> {
 /// Reads sites from an `.xyz` file (any extension): see [`parse_xyz`].
 pub fn read_sites(path: &Path) -> Result<Vec<[f32; 3]>> {
     parse_xyz(&read_text(path)?, &path.display().to_string())
+}
+
+/// Reads one number per line: see [`parse_values`].
+pub fn read_values(path: &Path) -> Result<Vec<f32>> {
+    parse_values(&read_text(path)?, &path.display().to_string())
 }
 
 /// Writes sites as `.xyz`: a line with the count, then `x y z` per line,

@@ -41,10 +41,34 @@ pub fn parse_xyz(text: &str, path: &str) -> Result<Vec<[f32; 3]>> {
     }
 }
 
+/// Parses one number per line (per-vertex values such as a density); `#`
+/// starts a comment and blank lines are ignored.
+pub fn parse_values(text: &str, path: &str) -> Result<Vec<f32>> {
+    let mut lex = Lexer::new(text, path);
+    let mut values = Vec::new();
+    while let Some(mut line) = lex.line() {
+        let i = values.len() + 1;
+        line.expect_len(1, format_args!("one number (value {i})"))?;
+        values.push(line.f32(format_args!("value {i}"))?);
+    }
+    Ok(values)
+}
+
 #[cfg(test)]
 mod tests {
     use super::super::tests::{no_panic_on_mutations, parse_err};
     use super::*;
+
+    #[test]
+    fn values_one_per_line() {
+        assert_eq!(parse_values("# density\n1\n 2.5 \n\n3e-1\n", "d.txt").unwrap(), vec![1.0, 2.5, 0.3]);
+        let (line, m) = parse_err(parse_values("1\n2 3\n", "d.txt"));
+        assert_eq!(line, 2);
+        assert!(m.contains("one number (value 2)"), "{m}");
+        let (line, m) = parse_err(parse_values("1\nnan\n", "d.txt"));
+        assert_eq!(line, 2);
+        assert!(m.contains("value 2 (a finite number)"), "{m}");
+    }
 
     #[test]
     fn valid_with_and_without_count() {
