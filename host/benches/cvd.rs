@@ -122,7 +122,7 @@ fn main() {
                 let (cells, wall) = best;
                 let t = &cells.timings;
                 let knn = t.get("grid") + t.get("knn") + t.get("site knn") + t.get("tet knn");
-                let clip = t.get("cells") + t.get("clip") + t.get("second pass");
+                let clip = t.get("cells") + t.get("clip") + t.get("second pass") + t.get("host pass");
                 let row = Row {
                     model: name.clone(),
                     tets: mesh.tets.len(),

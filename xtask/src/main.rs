@@ -11,6 +11,7 @@ commands:
   test [ARGS]       the whole test suite, optimised (cargo test ARGS)
   bench knn [ARGS]  the k-NN benchmark (ARGS: --sizes, --ks, --json PATH, ...)
   bench cvd [ARGS]  the clipped Voronoi benchmark (paper Table 1; --models-dir, --json PATH, ...)
+  bench cvt [ARGS]  Lloyd and L-BFGS per model and backend (--iterations N, --only NAME, --json PATH, ...)
   build             build everything, optimised
   lint              cargo fmt --check and cargo clippy -D warnings
 ";
@@ -58,10 +59,10 @@ fn run(args: &[String]) -> Result<(), String> {
         "test" => status(cargo(&["test", "--release", "--workspace"], rest)),
         "build" => status(cargo(&["build", "--release", "--workspace"], rest)),
         "bench" => match rest.split_first() {
-            Some((which, extra)) if which == "knn" || which == "cvd" => {
+            Some((which, extra)) if ["knn", "cvd", "cvt"].contains(&which.as_str()) => {
                 status(cargo(&["bench", "--package", "cvd", "--bench", which, "--"], extra))
             }
-            _ => Err(format!("unknown benchmark; expected: knn or cvd\n\n{USAGE}")),
+            _ => Err(format!("unknown benchmark; expected: knn, cvd or cvt\n\n{USAGE}")),
         },
         "lint" => {
             status(cargo(&["fmt", "--all", "--check"], &[]))?;

@@ -1,0 +1,178 @@
+//! `cargo xtask bench cvt`: centroidal Voronoi tessellations. For each
+//! model — the built-in cube, `torus_8k` and `joint_31k` of the models
+//! folder when present, and the paper's Joint (`paper_joint.tet`) with its
+//! own 3000 sites (`paper_joint_3000.xyz`) — Lloyd and L-BFGS on each
+//! backend: time per iteration and the energy after 5, 20 and the last
+//! iteration (120 by default).
+//!
+//! Options: `--models-dir DIR` (default: `$CVD_MODELS` or `../shared/models`)
+//! `--iterations N` `--threads N` `--device D` `--only NAME` `--json PATH`.
+
+use cvd::cpu::CpuBackend;
+use cvd::cvt::CvtRun;
+use cvd::vulkan::{VulkanBackend, VulkanOptions};
+use cvd::{points, Backend, ClippedVoronoi, TetMesh};
+use std::path::PathBuf;
+
+struct Options {
+    models_dir: PathBuf,
+    iterations: usize,
+    threads: Option<usize>,
+    device: Option<String>,
+    only: Option<String>,
+    json: Option<String>,
+}
+
+fn options() -> Options {
+    let default_dir = std::env::var("CVD_MODELS").unwrap_or_else(|_| {
+        let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..").join("..").join("shared").join("models");
+        root.to_string_lossy().into_owned()
+    });
+    let mut o = Options {
+        models_dir: default_dir.into(),
+        iterations: 120,
+        threads: None,
+        device: None,
+        only: None,
+        json: None,
+    };
+    let mut args = std::env::args().skip(1);
+    while let Some(a) = args.next() {
+        let mut value = || args.next().unwrap_or_else(|| panic!("{a} needs a value"));
+        match a.as_str() {
+            "--models-dir" => o.models_dir = value().into(),
+            "--iterations" => o.iterations = value().parse().expect("--iterations N"),
+            "--threads" => o.threads = Some(value().parse().expect("--threads N")),
+            "--device" => o.device = Some(value()),
+            "--only" => o.only = Some(value()),
+            "--json" => o.json = Some(value()),
+            "--bench" => {}
+            other => panic!("unknown option {other}"),
+        }
+    }
+    o
+}
+
+#[derive(serde::Serialize)]
+struct Row {
+    model: String,
+    tets: usize,
+    sites: usize,
+    backend: String,
+    optimizer: &'static str,
+    iterations: usize,
+    ms_per_iteration: f64,
+    total_s: f64,
+    /// Energy of the diagram each iteration started from.
+    energy: Vec<f64>,
+}
+
+/// The energy after `i` iterations (the last one's when the run stopped
+/// early at a minimum).
+fn energy_after(run: &CvtRun, i: usize) -> f64 {
+    run.iterations.get(i).or(run.iterations.last()).map_or(f64::NAN, |it| it.energy)
+}
+
+fn main() {
+    let o = options();
+    let cpu = CpuBackend::new(o.threads).expect("CPU backend");
+    let vulkan = match VulkanBackend::new(&VulkanOptions { device: o.device.clone(), validation: false }) {
+        Ok(v) => {
+            let compile = v.warm_up().expect("warm-up");
+            println!("Vulkan device: {} (kernel compilation on first use, paid once: {compile:.2} s)", v.device().name);
+            Some(v)
+        }
+        Err(e) => {
+            println!("Vulkan: {e} (Vulkan rows skipped)");
+            None
+        }
+    };
+    let mut models: Vec<(String, TetMesh, Vec<[f32; 3]>)> = Vec::new();
+    let cube = TetMesh::cube(16);
+    let cube_sites = points::in_mesh(&cube, 5000, 2020);
+    models.push(("cube".into(), cube, cube_sites));
+    for (name, n) in [("torus_8k", 5000), ("joint_31k", 35_000)] {
+        let path = o.models_dir.join(format!("{name}.mesh"));
+        match cvd::io::read_mesh(&path) {
+            Ok(mesh) => {
+                let sites = points::in_mesh(&mesh, n, 2020);
+                models.push((name.into(), mesh, sites));
+            }
+            Err(e) => println!("{e}: skipped"),
+        }
+    }
+    let (tet, xyz) = (o.models_dir.join("paper_joint.tet"), o.models_dir.join("paper_joint_3000.xyz"));
+    match (cvd::io::read_mesh(&tet), cvd::io::read_sites(&xyz)) {
+        (Ok(mesh), Ok(sites)) => models.push(("paper_joint".into(), mesh, sites)),
+        (Err(e), _) | (_, Err(e)) => println!("{e}: paper_joint skipped"),
+    }
+    let mut backends: Vec<&dyn Backend> = vec![&cpu];
+    if let Some(v) = &vulkan {
+        backends.push(v);
+    }
+    let n = o.iterations;
+    println!(
+        "{:<12} {:>7} {:>6} {:<30} {:<6} {:>10} {:>9} {:>12} {:>12} {:>12} {:>12}",
+        "model",
+        "|T|",
+        "|X|",
+        "backend",
+        "opt",
+        "ms/iter",
+        "total s",
+        "E(0)",
+        "E(5)",
+        "E(20)",
+        format!("E({n})")
+    );
+    let mut rows = Vec::new();
+    for (name, mesh, sites) in &models {
+        if o.only.as_ref().is_some_and(|only| only != name) {
+            continue;
+        }
+        for backend in &backends {
+            for optimizer in ["lloyd", "lbfgs"] {
+                let cv = ClippedVoronoi::new(mesh, sites).backend(*backend);
+                let start = std::time::Instant::now();
+                let run = match optimizer {
+                    "lloyd" => cv.lloyd(n, &mut |_| {}),
+                    _ => cv.lbfgs(n, &mut |_| {}),
+                }
+                .expect("CVT run");
+                let total = start.elapsed().as_secs_f64();
+                let done = run.iterations.len().max(1);
+                let row = Row {
+                    model: name.clone(),
+                    tets: mesh.tets.len(),
+                    sites: sites.len(),
+                    backend: backend.name(),
+                    optimizer,
+                    iterations: run.iterations.len(),
+                    ms_per_iteration: 1e3 * total / done as f64,
+                    total_s: total,
+                    energy: run.iterations.iter().map(|i| i.energy).collect(),
+                };
+                println!(
+                    "{:<12} {:>7} {:>6} {:<30} {:<6} {:>10.2} {:>9.3} {:>12.6e} {:>12.6e} {:>12.6e} {:>12.6e}",
+                    row.model,
+                    row.tets,
+                    row.sites,
+                    row.backend.chars().take(30).collect::<String>(),
+                    optimizer,
+                    row.ms_per_iteration,
+                    row.total_s,
+                    energy_after(&run, 0),
+                    energy_after(&run, 5),
+                    energy_after(&run, 20),
+                    energy_after(&run, n - 1),
+                );
+                rows.push(row);
+            }
+        }
+    }
+    if let Some(path) = &o.json {
+        std::fs::write(path, serde_json::to_string_pretty(&rows).expect("json"))
+            .unwrap_or_else(|e| panic!("{path}: {e}"));
+        println!("wrote {path}");
+    }
+}
