@@ -315,12 +315,26 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
                     let v_out = self.verts[t];
                     let dir = self.planes[x as usize].truncate().cross(self.planes[y as usize].truncate());
                     let along = n.dot(dir);
-                    if along == 0.0 {
-                        self.clear_flags();
-                        return Clip::Broken;
-                    }
-                    let s = (plane.w - n.dot(v_out)) / along;
-                    self.verts[n_new] = v_out + dir * s;
+                    self.verts[n_new] = if along * along > 1e-12 * n.length_squared() * dir.length_squared() {
+                        v_out + dir * ((plane.w - n.dot(v_out)) / along)
+                    } else {
+                        // The edge is (nearly) parallel to the plane: both
+                        // ends are about as far from it, and the line
+                        // intersection is ill-conditioned. Interpolate
+                        // between the edge's ends by their distances (a
+                        // point of the edge, whatever the rounding).
+                        let mut b = 0;
+                        while b < n_old && !has_edge(self.tris[b], y, x) {
+                            b += 1;
+                        }
+                        if b == n_old {
+                            self.clear_flags();
+                            return Clip::Broken;
+                        }
+                        let v_in = self.verts[b];
+                        let (d_out, d_in) = (n.dot(v_out) - plane.w, n.dot(v_in) - plane.w);
+                        v_out + (v_in - v_out) * (d_out / (d_out - d_in))
+                    };
                     self.tris[n_new] = pack(x, y, new_plane);
                     n_new += 1;
                 }

@@ -41,21 +41,37 @@ impl Poly {
 
     /// Keeps `n·x <= d`.
     fn clip(&mut self, n: P, d: f64) {
-        // A plane that removes nothing (up to rounding) is skipped, so a
-        // repeated plane does not add a second copy of a face.
+        // A plane that removes nothing is skipped, so a repeated plane does
+        // not add a second copy of a face.
+        // Points this close to the plane count as on it: features thinner
+        // than the inputs' f32 precision would only make the cap's angular
+        // order meaningless (and add volume through misordered faces).
         let size = self.faces.iter().flatten().map(|&p| norm(p)).fold(1.0, f64::max);
-        let tol = 1e-12 * norm(n) * size;
-        if self.faces.iter().flatten().all(|&p| dot(n, p) - d <= tol) {
+        let tol = 1e-9 * norm(n) * size;
+        let side = |p: P| {
+            let s = dot(n, p) - d;
+            if s.abs() <= tol {
+                0.0
+            } else {
+                s
+            }
+        };
+        if self.faces.iter().flatten().all(|&p| side(p) <= 0.0) {
             return;
         }
         let mut cap: Vec<P> = Vec::new();
         let mut faces = Vec::with_capacity(self.faces.len() + 1);
         for face in &self.faces {
+            // A face lying in the plane is replaced by the cap.
+            if face.iter().all(|&p| side(p) == 0.0) {
+                cap.extend(face);
+                continue;
+            }
             let mut out = Vec::with_capacity(face.len() + 2);
             for i in 0..face.len() {
                 let a = face[i];
                 let b = face[(i + 1) % face.len()];
-                let (sa, sb) = (dot(n, a) - d, dot(n, b) - d);
+                let (sa, sb) = (side(a), side(b));
                 if sa <= 0.0 {
                     out.push(a);
                 }
@@ -74,8 +90,11 @@ impl Poly {
         if faces.len() >= 3 {
             // The cap: the points on the plane, ordered by angle.
             let c = scale(cap.iter().fold([0.0; 3], |s, &p| add(s, p)), 1.0 / cap.len().max(1) as f64);
-            let u = if n[0].abs() < 0.9 { cross(n, [1.0, 0.0, 0.0]) } else { cross(n, [0.0, 1.0, 0.0]) };
-            let w = cross(n, u);
+            // A basis of the plane (from the unit normal: any axis not
+            // nearly parallel to it).
+            let unit = scale(n, 1.0 / norm(n));
+            let u = if unit[0].abs() < 0.9 { cross(unit, [1.0, 0.0, 0.0]) } else { cross(unit, [0.0, 1.0, 0.0]) };
+            let w = cross(unit, u);
             let mut pts: Vec<(f64, P)> = cap
                 .iter()
                 .map(|&p| {
