@@ -29,6 +29,7 @@ pub enum Pairing {
     /// the paper's heuristic, kept for comparison.
     Knn,
     #[default]
+    #[value(alias = "exact")]
     /// From the site nearest the centroid, visit the sites whose bisectors
     /// are faces of the pieces found so far: exactly the sites that own
     /// part of the tet (tet-cell only).
