@@ -135,8 +135,8 @@ fn main() {
                 let cv = ClippedVoronoi::new(mesh, sites).backend(*backend);
                 let start = std::time::Instant::now();
                 let run = match optimizer {
-                    "lloyd" => cv.lloyd(n, &mut |_| {}),
-                    _ => cv.lbfgs(n, &mut |_| {}),
+                    "lloyd" => cv.lloyd(n, &mut |_, _| {}),
+                    _ => cv.lbfgs(n, &mut |_, _| {}),
                 }
                 .expect("CVT run");
                 let total = start.elapsed().as_secs_f64();

@@ -16,8 +16,9 @@ pub trait Backend: Send + Sync {
     /// Runs a clipping job: pairing, clipping and accumulation.
     fn clip(&self, job: &ClipJob) -> Result<ClipOutput>;
     /// Runs `iterations` Lloyd iterations from the job's sites, calling
-    /// `progress` with the number of iterations done so far (in batches).
-    fn lloyd(&self, job: &ClipJob, iterations: usize, progress: &mut dyn FnMut(usize)) -> Result<LloydOutput>;
+    /// `progress` with the number of iterations done so far (in batches)
+    /// and the last one's energy (fixed point, as in the statistics).
+    fn lloyd(&self, job: &ClipJob, iterations: usize, progress: &mut dyn FnMut(usize, i64)) -> Result<LloydOutput>;
 }
 
 /// Which backend to use.

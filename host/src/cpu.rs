@@ -336,7 +336,7 @@ impl Backend for CpuBackend {
         })
     }
 
-    fn lloyd(&self, job: &ClipJob, iterations: usize, progress: &mut dyn FnMut(usize)) -> Result<LloydOutput> {
+    fn lloyd(&self, job: &ClipJob, iterations: usize, progress: &mut dyn FnMut(usize, i64)) -> Result<LloydOutput> {
         let mut job = job.clone();
         let mut stats = vec![0i64; iterations * lloyd_stat::COUNT];
         let mut seconds = Vec::with_capacity(iterations);
@@ -356,7 +356,7 @@ impl Backend for CpuBackend {
             job.tet_knn.sites = quant.clone();
             job.site_knn.sites = quant;
             seconds.push(start.elapsed().as_secs_f64());
-            progress(it + 1);
+            progress(it + 1, stats[it * lloyd_stat::COUNT + lloyd_stat::ENERGY]);
         }
         Ok(LloydOutput { sites: job.sites, stats, seconds })
     }

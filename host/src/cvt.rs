@@ -70,9 +70,10 @@ pub(crate) fn params(job: &ClipJob, iteration: usize) -> LloydParams {
 
 impl ClippedVoronoi<'_> {
     /// Runs `iterations` Lloyd iterations (flood pairing, tet-cell), calling
-    /// `progress` with the iterations done so far. Duplicate sites keep
-    /// their place (their cells are empty).
-    pub fn lloyd(&self, iterations: usize, progress: &mut dyn FnMut(usize)) -> Result<CvtRun> {
+    /// `progress` with the iterations done so far and the energy the last
+    /// one started from (on Vulkan, once per batch of iterations).
+    /// Duplicate sites keep their place (their cells are empty).
+    pub fn lloyd(&self, iterations: usize, progress: &mut dyn FnMut(usize, f64)) -> Result<CvtRun> {
         let (job, map, frame) = self.job()?;
         if job.pairing != crate::voronoi::Pairing::Flood {
             return Err(Error::InvalidInput("Lloyd iterations use flood pairing (tet-cell)".into()));
@@ -85,14 +86,19 @@ impl ClippedVoronoi<'_> {
                 &cpu
             }
         };
-        let out = backend.lloyd(&job, iterations, progress)?;
+        let to_energy = energy_scale(&job, &frame);
+        let out = backend.lloyd(&job, iterations, &mut |done, e| progress(done, e as f64 * to_energy))?;
         Ok(report(self.sites, &job, &map, &frame, &out))
     }
 }
 
+/// World energy per unit of a fixed-point energy sum.
+fn energy_scale(job: &ClipJob, frame: &Frame) -> f64 {
+    frame.scale.powi(5) / job.params.fixed_scale as f64
+}
+
 fn report(input: &[[f32; 3]], job: &ClipJob, map: &[Option<usize>], frame: &Frame, out: &LloydOutput) -> CvtRun {
-    let l = frame.scale;
-    let inv = 1.0 / job.params.fixed_scale as f64;
+    let to_energy = energy_scale(job, frame);
     let iterations = out
         .stats
         .as_chunks::<{ lloyd_stat::COUNT }>()
@@ -100,7 +106,7 @@ fn report(input: &[[f32; 3]], job: &ClipJob, map: &[Option<usize>], frame: &Fram
         .iter()
         .zip(&out.seconds)
         .map(|(s, &seconds)| Iteration {
-            energy: s[lloyd_stat::ENERGY] as f64 * inv * l.powi(5),
+            energy: s[lloyd_stat::ENERGY] as f64 * to_energy,
             empty_cells: s[lloyd_stat::EMPTY].max(0) as u64,
             second_pass: (s[lloyd_stat::UNFINISHED] - s[lloyd_stat::STILL]).max(0) as u64,
             unresolved: s[lloyd_stat::STILL].max(0) as u64,
@@ -166,7 +172,7 @@ impl ClippedVoronoi<'_> {
     /// the module's documentation), calling `progress` after each. Every
     /// iteration lowers the energy or stops the run early (at a minimum to
     /// float precision).
-    pub fn lbfgs(&self, iterations: usize, progress: &mut dyn FnMut(usize)) -> Result<CvtRun> {
+    pub fn lbfgs(&self, iterations: usize, progress: &mut dyn FnMut(usize, f64)) -> Result<CvtRun> {
         let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
         let mut x: Vec<f64> = self.sites.iter().flat_map(|p| p.map(f64::from)).collect();
         let (mut at, mut seconds) = self.evaluate(&x)?;
@@ -214,7 +220,7 @@ impl ClippedVoronoi<'_> {
                 t *= 0.5;
             }
             run.iterations.push(Iteration { seconds, ..record });
-            progress(it + 1);
+            progress(it + 1, record.energy);
             let Some((trial, eval)) = next else {
                 // No step lowers the energy at float precision: a minimum.
                 break;

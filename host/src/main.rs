@@ -202,9 +202,13 @@ fn lloyd(args: &RunArgs, mesh: &TetMesh, sites: &[[f32; 3]], backend: &dyn cvd::
     bar.set_message(format!("{:?}", args.optimizer));
     let density = density(args, mesh)?;
     let cv = ClippedVoronoi::new(mesh, sites).k_site(args.k_site).backend(backend).density(density.as_deref());
+    let show = |done: usize, energy: f64| {
+        bar.set_position(done as u64);
+        bar.set_message(format!("{:?}, energy {energy:.6e}", args.optimizer));
+    };
     let run = match args.optimizer {
-        Optimizer::Lloyd => cv.lloyd(args.iterations, &mut |done| bar.set_position(done as u64))?,
-        Optimizer::Lbfgs => cv.lbfgs(args.iterations, &mut |done| bar.set_position(done as u64))?,
+        Optimizer::Lloyd => cv.lloyd(args.iterations, &mut |done, energy| show(done, energy))?,
+        Optimizer::Lbfgs => cv.lbfgs(args.iterations, &mut |done, energy| show(done, energy))?,
     };
     bar.finish_and_clear();
     let total: f64 = run.iterations.iter().map(|i| i.seconds).sum();

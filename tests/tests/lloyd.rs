@@ -19,11 +19,12 @@ fn lloyd(mesh: &TetMesh, sites: &[[f32; 3]], iterations: usize, backend: &dyn Ba
     let mut calls = Vec::new();
     let run = ClippedVoronoi::new(mesh, sites)
         .backend(backend)
-        .lloyd(iterations, &mut |done| calls.push(done))
+        .lloyd(iterations, &mut |done, energy| calls.push((done, energy)))
         .unwrap_or_else(|e| panic!("{}: {e}", backend.name()));
     assert_eq!(run.iterations.len(), iterations);
-    assert_eq!(calls.last(), Some(&iterations), "{}: progress did not reach the end", backend.name());
-    assert!(calls.windows(2).all(|w| w[0] < w[1]), "{}: progress went backwards: {calls:?}", backend.name());
+    let last = calls.last().copied().unwrap_or_default();
+    assert_eq!(last, (iterations, run.iterations[iterations - 1].energy), "{}: progress", backend.name());
+    assert!(calls.windows(2).all(|w| w[0].0 < w[1].0), "{}: progress went backwards: {calls:?}", backend.name());
     run
 }
 
@@ -103,7 +104,7 @@ fn lbfgs_decreases_the_energy_and_ends_no_worse_than_lloyd() {
     for backend in backends() {
         let lloyd = lloyd(&mesh, &sites, 100, backend);
         let mut calls = 0;
-        let lbfgs = ClippedVoronoi::new(&mesh, &sites).backend(backend).lbfgs(100, &mut |_| calls += 1).unwrap();
+        let lbfgs = ClippedVoronoi::new(&mesh, &sites).backend(backend).lbfgs(100, &mut |_, _| calls += 1).unwrap();
         assert_eq!(calls, lbfgs.iterations.len());
         let e: Vec<f64> = lbfgs.iterations.iter().map(|i| i.energy).collect();
         assert!(e.windows(2).all(|w| w[1] < w[0]), "{}: L-BFGS energy did not decrease: {e:?}", backend.name());
@@ -139,7 +140,8 @@ fn a_linear_density_weights_cells_as_the_closed_form_says() {
         let cx = (0.125 + 10.0 / 24.0) / 1.75;
         assert!((cells.centroid[0][0] - cx).abs() < 1e-5, "{what}: {:?}", cells.centroid[0]);
         // Lloyd moves both sites toward the dense side.
-        let run = ClippedVoronoi::new(&mesh, &two).density(Some(&rho)).backend(backend).lloyd(1, &mut |_| {}).unwrap();
+        let run =
+            ClippedVoronoi::new(&mesh, &two).density(Some(&rho)).backend(backend).lloyd(1, &mut |_, _| {}).unwrap();
         assert!((run.sites[0][0] as f64 - cx).abs() < 1e-5, "{what}: {:?}", run.sites);
     }
     assert_no_validation_errors();

@@ -178,6 +178,23 @@ impl<'a> Job<'a> {
         Ok(Readback(staging))
     }
 
+    /// Copies `bytes` of `buf` from `offset` to the host at this point of
+    /// the job.
+    pub(crate) fn download_at(&mut self, buf: BufId, offset: u64, bytes: u64) -> Result<Readback> {
+        let staging = self.add(bytes, Location::Readback)?;
+        let region = [vk::BufferCopy::default().src_offset(offset).size(bytes)];
+        let (from, to) = (self.buffers[buf.0].buffer, self.buffers[staging.0].buffer);
+        // SAFETY: recording a copy between live buffers of sufficient size.
+        unsafe { self.ctx.device.cmd_copy_buffer(self.cmd, from, to, &region) };
+        Ok(Readback(staging))
+    }
+
+    /// The contents of a read-back buffer, once the part of the job that
+    /// filled it has been submitted.
+    pub(crate) fn read<T: bytemuck::Pod>(&self, r: Readback, len: usize) -> Vec<T> {
+        self.buffers[r.0 .0].read(len)
+    }
+
     fn copy(&self, from: BufId, to: BufId, bytes: u64) {
         let region = [vk::BufferCopy::default().size(bytes)];
         let (from, to) = (self.buffers[from.0].buffer, self.buffers[to.0].buffer);

@@ -71,7 +71,7 @@ impl Backend for VulkanBackend {
         })
     }
 
-    fn lloyd(&self, job: &ClipJob, iterations: usize, progress: &mut dyn FnMut(usize)) -> Result<LloydOutput> {
+    fn lloyd(&self, job: &ClipJob, iterations: usize, progress: &mut dyn FnMut(usize, i64)) -> Result<LloydOutput> {
         lloyd_on_device(self, job, iterations, progress)
     }
 
@@ -243,7 +243,7 @@ fn lloyd_on_device(
     b: &VulkanBackend,
     job: &ClipJob,
     iterations: usize,
-    progress: &mut dyn FnMut(usize),
+    progress: &mut dyn FnMut(usize, i64),
 ) -> Result<LloydOutput> {
     let p = &job.params;
     let (sk, tk) = (&job.site_knn, &job.tet_knn);
@@ -293,8 +293,9 @@ fn lloyd_on_device(
         j.dispatch("move_sites", &[sums, unfinished, still, sites, quant, stats], &lp, n.max(1))?;
         j.mark("iteration");
         if (it + 1) % LLOYD_BATCH == 0 && it + 1 < iterations {
+            let energy = j.download_at(stats, (it * lloyd_stat::COUNT + lloyd_stat::ENERGY) as u64 * 8, 8)?;
             seconds.extend(j.submit()?.phases.iter().filter(|(ph, _)| ph == "iteration").map(|(_, s)| *s));
-            progress(it + 1);
+            progress(it + 1, j.read::<i64>(energy, 1)[0]);
         }
     }
     let sites_back = j.download(sites, n * 16)?;
@@ -302,10 +303,7 @@ fn lloyd_on_device(
     j.mark("download");
     let done = j.run()?;
     seconds.extend(done.timings.phases.iter().filter(|(ph, _)| ph == "iteration").map(|(_, s)| *s));
-    progress(iterations);
-    Ok(LloydOutput {
-        sites: done.read(sites_back, n as usize),
-        stats: done.read(stats_back, iterations * lloyd_stat::COUNT),
-        seconds,
-    })
+    let stats = done.read(stats_back, iterations * lloyd_stat::COUNT);
+    progress(iterations, stats.len().checked_sub(lloyd_stat::COUNT).map_or(0, |last| stats[last + lloyd_stat::ENERGY]));
+    Ok(LloydOutput { sites: done.read(sites_back, n as usize), stats, seconds })
 }
