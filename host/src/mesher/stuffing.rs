@@ -412,7 +412,13 @@ fn fill(lattice: &Lattice, tet: [u32; 4], value: &[f64], emit: &mut impl FnMut([
     let mut groups = [([0u32; 4], 0usize); 3];
     for v in tet {
         let f = value[v as usize];
-        let g = if f < 0.0 { 0 } else if f > 0.0 { 2 } else { 1 };
+        let g = if f < 0.0 {
+            0
+        } else if f > 0.0 {
+            2
+        } else {
+            1
+        };
         groups[g].0[groups[g].1] = v;
         groups[g].1 += 1;
     }
