@@ -56,7 +56,8 @@ fn model(name: &str) -> Result<&'static Model> {
 /// tets turned positive), isosurface stuffing of [`shape`] for the others.
 ///
 /// Errors: an unknown name, a resolution of 0 or above [`MAX_RESOLUTION`],
-/// or one too coarse to leave any tet.
+/// one too coarse to leave any tet, or one whose lattice would exceed
+/// [`stuffing::MAX_LATTICE_VERTICES`] (the sphere stops near 200).
 pub fn builtin(name: &str, resolution: Option<u32>) -> Result<TetMesh> {
     let model = model(name)?;
     let resolution = resolution.unwrap_or(model.resolution);
@@ -78,7 +79,10 @@ pub fn builtin(name: &str, resolution: Option<u32>) -> Result<TetMesh> {
     let shape = shape(name)?;
     let (lo, hi) = shape.bounds();
     let longest = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
-    stuffing::stuff(&shape, &Params::new(longest / resolution as f64))
+    stuffing::stuff(&shape, &Params::new(longest / resolution as f64)).map_err(|e| match e {
+        Error::InvalidInput(why) => Error::InvalidInput(format!("model '{name}' at resolution {resolution}: {why}")),
+        other => other,
+    })
 }
 
 /// The model's default resolution.
@@ -237,5 +241,7 @@ mod tests {
             assert!(builtin("torus", Some(bad)).is_err());
             assert!(builtin("cube", Some(bad)).is_err());
         }
+        let err = builtin("sphere", Some(MAX_RESOLUTION)).unwrap_err().to_string();
+        assert!(err.contains("model 'sphere' at resolution 256") && err.contains("lattice vertices"), "{err}");
     }
 }
