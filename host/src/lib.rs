@@ -21,6 +21,7 @@ pub mod error;
 pub mod io;
 pub mod knn;
 pub mod mesh;
+pub mod mesher;
 pub mod points;
 pub mod quantize;
 pub mod second_pass;
