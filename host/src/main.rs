@@ -2,6 +2,7 @@
 
 use clap::{Args, Parser, Subcommand};
 use cvd::backend::{self, BackendKind, BackendOptions};
+use cvd::mesher::models;
 use cvd::vulkan::{self, VulkanOptions};
 use cvd::{points, ClippedVoronoi, KnnJob, KnnMethod, Pairing, Strategy, TetMesh};
 use std::path::PathBuf;
@@ -26,8 +27,9 @@ enum Command {
 
 #[derive(Args)]
 struct RunArgs {
-    /// Model: built-in `cube`, or NAME.mesh / NAME_*.mesh / NAME.tet in the models folder.
-    #[arg(long, default_value = "cube")]
+    /// Model: built-in `joint`, `torus`, `sphere` or `cube` (meshed on the
+    /// fly), or NAME.mesh / NAME_*.mesh / NAME.tet in the models folder.
+    #[arg(long, default_value = "joint")]
     model: String,
     /// Folder of model files (default: $CVD_MODELS); its files win over built-in models.
     #[arg(long)]
@@ -35,12 +37,14 @@ struct RunArgs {
     /// A tet mesh file (.mesh, .node/.ele, .tet, .msh) instead of --model.
     #[arg(long)]
     mesh: Option<PathBuf>,
-    /// Built-in model resolution (cube: sub-cubes per side).
-    #[arg(long, default_value_t = 16)]
-    resolution: usize,
-    /// Number of sites, uniform inside the mesh.
-    #[arg(long, default_value_t = 5000)]
-    sites: usize,
+    /// Built-in model resolution: lattice cells along the longest side
+    /// (cube: sub-cubes per side; default: joint 37, others 16).
+    #[arg(long)]
+    resolution: Option<u32>,
+    /// Number of sites, uniform inside the mesh (default: joint 35000, as
+    /// in the paper's Table 1; others 5000).
+    #[arg(long)]
+    sites: Option<usize>,
     /// Sites from a file (.xyz: x y z per line, optional count line).
     #[arg(long)]
     sites_file: Option<PathBuf>,
@@ -119,12 +123,17 @@ fn find_model(args: &RunArgs) -> cvd::Result<(String, TetMesh)> {
             return Ok((path.display().to_string(), cvd::io::read_mesh(&path)?));
         }
     }
-    match args.model.as_str() {
-        "cube" => Ok(("cube".into(), TetMesh::cube(args.resolution))),
-        other => Err(cvd::Error::InvalidInput(format!(
-            "unknown model '{other}': built-in models: cube; or give --mesh PATH, or --models-dir DIR holding {other}.mesh"
-        ))),
+    let name = args.model.as_str();
+    if !models::NAMES.contains(&name) {
+        return Err(cvd::Error::InvalidInput(format!(
+            "unknown model '{name}': built-in models: {}; or give --mesh PATH, or --models-dir DIR holding {name}.mesh",
+            models::NAMES.join(", ")
+        )));
     }
+    let mesh = models::builtin(name, args.resolution)?;
+    let resolution = args.resolution.map_or_else(|| models::default_resolution(name), Ok)?;
+    println!("{name} (built-in, resolution {resolution}): {}", cvd::mesher::quality::Quality::of(&mesh));
+    Ok((name.to_string(), mesh))
 }
 
 /// A sort key in which runs of digits compare by value.
@@ -236,7 +245,13 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
     let (model, mesh) = load_model(args)?;
     let sites = match &args.sites_file {
         Some(path) => cvd::io::read_sites(path)?,
-        None => points::in_mesh(&mesh, args.sites, args.seed),
+        None => {
+            let n = match args.sites {
+                Some(n) => n,
+                None => models::default_sites(&args.model).unwrap_or(5000),
+            };
+            points::in_mesh(&mesh, n, args.seed)
+        }
     };
     let backend = backend::open(&args.backend.options())?;
     println!(
