@@ -1,5 +1,5 @@
 //! `cargo xtask bench cvd`: the paper's Table 1 layout. For the built-in
-//! cube and each model of the models folder that is present (torus_8k,
+//! cube, torus and joint and each model of the models folder that is present (torus_8k,
 //! bunny_10k, fandisk_26k, joint_31k with the paper's 5k, 10k, 15k, 35k
 //! sites, uniform inside the mesh, fixed seed): k, k-NN time, clip time and
 //! total for tet-cell and cell-tet, on the CPU and on Vulkan, E_vol and the
@@ -78,7 +78,11 @@ fn main() {
             None
         }
     };
-    let mut models: Vec<(String, TetMesh, usize)> = vec![("cube".into(), TetMesh::cube(16), 5000)];
+    let mut models: Vec<(String, TetMesh, usize)> = Vec::new();
+    for name in ["cube", "torus", "joint"] {
+        let mesh = cvd::mesher::models::builtin(name, None).expect("built-in model");
+        models.push((name.into(), mesh, cvd::mesher::models::default_sites(name).expect("built-in model")));
+    }
     for (name, sites) in [("torus_8k", 5000), ("bunny_10k", 10_000), ("fandisk_26k", 15_000), ("joint_31k", 35_000)] {
         let path = o.models_dir.join(format!("{name}.mesh"));
         if !path.exists() {

@@ -1,5 +1,5 @@
 //! `cargo xtask bench cvt`: centroidal Voronoi tessellations. For each
-//! model — the built-in cube, `torus_8k` and `joint_31k` of the models
+//! model — the built-in torus and joint, `torus_8k` and `joint_31k` of the models
 //! folder when present, and the paper's Joint (`paper_joint.tet`) with its
 //! own 3000 sites (`paper_joint_3000.xyz`) — Lloyd and L-BFGS on each
 //! backend: time per iteration and the energy after 5, 20 and the last
@@ -88,9 +88,11 @@ fn main() {
         }
     };
     let mut models: Vec<(String, TetMesh, Vec<[f32; 3]>)> = Vec::new();
-    let cube = TetMesh::cube(16);
-    let cube_sites = points::in_mesh(&cube, 5000, 2020);
-    models.push(("cube".into(), cube, cube_sites));
+    for name in ["torus", "joint"] {
+        let mesh = cvd::mesher::models::builtin(name, None).expect("built-in model");
+        let sites = points::in_mesh(&mesh, cvd::mesher::models::default_sites(name).expect("built-in model"), 2020);
+        models.push((name.into(), mesh, sites));
+    }
     for (name, n) in [("torus_8k", 5000), ("joint_31k", 35_000)] {
         let path = o.models_dir.join(format!("{name}.mesh"));
         match cvd::io::read_mesh(&path) {
