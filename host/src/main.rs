@@ -20,7 +20,7 @@ enum Command {
     /// List the Vulkan devices (the index or a part of the name picks one with --device).
     Devices,
     /// The clipped Voronoi diagram of random sites in a model.
-    Run(RunArgs),
+    Run(Box<RunArgs>),
     /// k nearest neighbours of random sites; checks the backend against the CPU.
     Knn(KnnArgs),
 }
