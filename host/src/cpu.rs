@@ -8,7 +8,7 @@ use crate::timing::{timed, Timings};
 use crate::voronoi::{ClipJob, ClipOutput, Pairing, Strategy};
 use cvd_kernels::abi::{counter, QuantPoint, ACCUM_PER_SITE};
 use cvd_kernels::buffers::{DeviceSums, OutBuf, PairList, Window};
-use cvd_kernels::clip::{self, CELL_RECORDS};
+use cvd_kernels::clip::{self, NoPieces, PieceSink, CELL_RECORDS};
 use cvd_kernels::{grid, knn, scan};
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicI64, AtomicU32, Ordering};
@@ -38,6 +38,81 @@ impl CpuBackend {
     /// Number of worker threads.
     pub fn threads(&self) -> usize {
         self.pool.current_num_threads()
+    }
+
+    /// Runs a clipping job like [`Backend::clip`], handing every piece
+    /// the kernels finish to the tasks' sinks, which end up in `sinks`.
+    pub(crate) fn clip_into<S: TaskSink>(&self, job: &ClipJob, sinks: &Mutex<Vec<S>>) -> Result<ClipOutput> {
+        let site_nn = job.site_knn.run(self)?;
+        let tet_nn = job.tet_knn.run(self)?;
+        self.pool.install(|| {
+            let p = &job.params;
+            let mut timings = Timings::default();
+            timings.push("knn", site_nn.timings.total() + tet_nn.timings.total());
+            let sums: Vec<AtomicI64> = (0..p.n_sites as usize * ACCUM_PER_SITE).map(|_| AtomicI64::new(0)).collect();
+            let totals: Vec<AtomicI64> = (0..counter::COUNT).map(|_| AtomicI64::new(0)).collect();
+            let unfinished = Mutex::new(Vec::new());
+            let n_pairs = p.n_tets as usize * p.k_tet as usize;
+            let (sites, verts, tets) = (&job.sites, &job.verts, &job.tets);
+            match job.strategy {
+                Strategy::TetCell if job.pairing == Pairing::Flood => {
+                    let (_, t) = timed(|| {
+                        par_indices(
+                            p.n_tets as usize,
+                            CHUNK / 16,
+                            &sums,
+                            &totals,
+                            &unfinished,
+                            sinks,
+                            |t, s, c, u, k| {
+                                clip::flood_tet(t, p, sites, verts, tets, &tet_nn.indices, &site_nn.indices, s, c, u, k)
+                            },
+                        )
+                    });
+                    timings.push("clip", t);
+                }
+                Strategy::TetCell => {
+                    let (_, t) = timed(|| {
+                        par_indices(n_pairs, CHUNK / 4, &sums, &totals, &unfinished, sinks, |pair, s, c, u, k| {
+                            let nbrs = &site_nn.indices;
+                            clip::tet_cell_pair(pair, p, sites, verts, tets, &tet_nn.indices, nbrs, s, c, u, k)
+                        })
+                    });
+                    timings.push("clip", t);
+                }
+                Strategy::CellTet => {
+                    let (cells, t) = timed(|| {
+                        let mut cells = vec![[0f32; 4]; p.n_sites as usize * CELL_RECORDS];
+                        cells.par_chunks_mut(CELL_RECORDS).enumerate().for_each(|(i, data)| {
+                            let mut local = [0i64; counter::COUNT];
+                            let mut out = Window { start: i * CELL_RECORDS, data };
+                            clip::voronoi_cell(i, p, sites, &site_nn.indices, &mut out, &mut DeviceSums(&mut local));
+                            for (t, &v) in totals.iter().zip(&local) {
+                                t.fetch_add(v, Ordering::Relaxed);
+                            }
+                        });
+                        cells
+                    });
+                    timings.push("cells", t);
+                    let (_, t) = timed(|| {
+                        par_indices(n_pairs, CHUNK / 4, &sums, &totals, &unfinished, sinks, |pair, s, c, u, k| {
+                            clip::cell_tet_pair(pair, p, sites, verts, tets, &tet_nn.indices, &cells, s, c, u, k)
+                        })
+                    });
+                    timings.push("clip", t);
+                }
+            }
+            Ok(ClipOutput {
+                sums: sums.into_iter().map(AtomicI64::into_inner).collect(),
+                counters: totals.into_iter().map(AtomicI64::into_inner).collect(),
+                unfinished: {
+                    let mut u = unfinished.into_inner().unwrap_or_else(|e| e.into_inner());
+                    u.sort_unstable();
+                    u
+                },
+                timings,
+            })
+        })
     }
 }
 
@@ -105,25 +180,39 @@ where
     });
 }
 
+/// A rayon task's piece sink: each task fills its own, and hands it over
+/// when done.
+pub(crate) trait TaskSink: PieceSink + Default + Send {
+    /// Adds this task's pieces to `all` (nothing to do for [`NoPieces`]).
+    fn hand_over(self, all: &Mutex<Vec<Self>>);
+}
+
+impl TaskSink for NoPieces {
+    fn hand_over(self, _all: &Mutex<Vec<Self>>) {}
+}
+
 /// Calls `body` for every index in `0..n` over rayon, in chunks whose
-/// counters and unfinished pairs are kept privately and merged once.
-pub(crate) fn par_indices<F>(
+/// counters, unfinished pairs and pieces are kept privately and merged once.
+pub(crate) fn par_indices<S, F>(
     n: usize,
     chunk: usize,
     sums: &[AtomicI64],
     totals: &[AtomicI64],
     unfinished: &Mutex<Vec<[u32; 2]>>,
+    sinks: &Mutex<Vec<S>>,
     body: F,
 ) where
-    F: Fn(usize, &mut &[AtomicI64], &mut DeviceSums<'_>, &mut LocalPairs) + Sync,
+    S: TaskSink,
+    F: Fn(usize, &mut &[AtomicI64], &mut DeviceSums<'_>, &mut LocalPairs, &mut S) + Sync,
 {
     (0..n).into_par_iter().chunks(chunk).for_each(|indices| {
         let mut local = [0i64; counter::COUNT];
         let mut pairs = LocalPairs::default();
+        let mut sink = S::default();
         let mut s = sums;
         let mut counters = DeviceSums(&mut local);
         for i in indices {
-            body(i, &mut s, &mut counters, &mut pairs);
+            body(i, &mut s, &mut counters, &mut pairs, &mut sink);
         }
         for (t, &v) in totals.iter().zip(&local) {
             t.fetch_add(v, Ordering::Relaxed);
@@ -131,6 +220,7 @@ pub(crate) fn par_indices<F>(
         if !pairs.0.is_empty() {
             unfinished.lock().unwrap_or_else(|e| e.into_inner()).extend(pairs.0);
         }
+        sink.hand_over(sinks);
     });
 }
 
@@ -198,8 +288,12 @@ fn build_grid(job: &KnnJob) -> CpuGrid {
 }
 
 impl Backend for CpuBackend {
-    fn name(&self) -> String {
-        format!("cpu ({} threads)", self.threads())
+    fn kind(&self) -> &'static str {
+        "cpu"
+    }
+
+    fn device(&self) -> String {
+        format!("{} threads", self.threads())
     }
 
     fn knn(&self, job: &KnnJob) -> Result<Neighbors> {
@@ -246,66 +340,6 @@ impl Backend for CpuBackend {
         })
     }
     fn clip(&self, job: &ClipJob) -> Result<ClipOutput> {
-        let site_nn = job.site_knn.run(self)?;
-        let tet_nn = job.tet_knn.run(self)?;
-        self.pool.install(|| {
-            let p = &job.params;
-            let mut timings = Timings::default();
-            timings.push("knn", site_nn.timings.total() + tet_nn.timings.total());
-            let sums: Vec<AtomicI64> = (0..p.n_sites as usize * ACCUM_PER_SITE).map(|_| AtomicI64::new(0)).collect();
-            let totals: Vec<AtomicI64> = (0..counter::COUNT).map(|_| AtomicI64::new(0)).collect();
-            let unfinished = Mutex::new(Vec::new());
-            let n_pairs = p.n_tets as usize * p.k_tet as usize;
-            let (sites, verts, tets) = (&job.sites, &job.verts, &job.tets);
-            match job.strategy {
-                Strategy::TetCell if job.pairing == Pairing::Flood => {
-                    let (_, t) = timed(|| {
-                        par_indices(p.n_tets as usize, CHUNK / 16, &sums, &totals, &unfinished, |t, s, c, u| {
-                            clip::flood_tet(t, p, sites, verts, tets, &tet_nn.indices, &site_nn.indices, s, c, u)
-                        })
-                    });
-                    timings.push("clip", t);
-                }
-                Strategy::TetCell => {
-                    let (_, t) = timed(|| {
-                        par_indices(n_pairs, CHUNK / 4, &sums, &totals, &unfinished, |pair, s, c, u| {
-                            clip::tet_cell_pair(pair, p, sites, verts, tets, &tet_nn.indices, &site_nn.indices, s, c, u)
-                        })
-                    });
-                    timings.push("clip", t);
-                }
-                Strategy::CellTet => {
-                    let (cells, t) = timed(|| {
-                        let mut cells = vec![[0f32; 4]; p.n_sites as usize * CELL_RECORDS];
-                        cells.par_chunks_mut(CELL_RECORDS).enumerate().for_each(|(i, data)| {
-                            let mut local = [0i64; counter::COUNT];
-                            let mut out = Window { start: i * CELL_RECORDS, data };
-                            clip::voronoi_cell(i, p, sites, &site_nn.indices, &mut out, &mut DeviceSums(&mut local));
-                            for (t, &v) in totals.iter().zip(&local) {
-                                t.fetch_add(v, Ordering::Relaxed);
-                            }
-                        });
-                        cells
-                    });
-                    timings.push("cells", t);
-                    let (_, t) = timed(|| {
-                        par_indices(n_pairs, CHUNK / 4, &sums, &totals, &unfinished, |pair, s, c, u| {
-                            clip::cell_tet_pair(pair, p, sites, verts, tets, &tet_nn.indices, &cells, s, c, u)
-                        })
-                    });
-                    timings.push("clip", t);
-                }
-            }
-            Ok(ClipOutput {
-                sums: sums.into_iter().map(AtomicI64::into_inner).collect(),
-                counters: totals.into_iter().map(AtomicI64::into_inner).collect(),
-                unfinished: {
-                    let mut u = unfinished.into_inner().unwrap_or_else(|e| e.into_inner());
-                    u.sort_unstable();
-                    u
-                },
-                timings,
-            })
-        })
+        self.clip_into(job, &Mutex::new(Vec::<NoPieces>::new()))
     }
 }
