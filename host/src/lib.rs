@@ -19,6 +19,7 @@ pub mod error;
 pub mod io;
 pub mod knn;
 pub mod mesh;
+pub mod output;
 pub mod pieces;
 pub mod points;
 pub mod quantize;
