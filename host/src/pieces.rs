@@ -67,6 +67,10 @@ pub(crate) struct PieceCollector(Vec<Piece>);
 
 impl PieceSink for PieceCollector {
     fn piece<const P: usize, const V: usize>(&mut self, tet: u32, site: u32, poly: &Polyhedron<P, V>) {
+        // As in the sums: a piece of no volume is no piece.
+        if poly.moments().volume == 0.0 {
+            return;
+        }
         let mut piece = Piece { site, tet, ..Piece::default() };
         face_loops(poly, &mut piece);
         self.0.push(piece);

@@ -181,9 +181,10 @@ fn may_meet(tv: &[Vec3; 4], j: usize, list: usize, p: &ClipParams, sites: &[[f32
 }
 
 /// Where the bodies hand their finished pieces: every non-empty piece
-/// added to a site's sums is also given here, so that the host can export
-/// the diagram computed by the very code that measured it. The GPU entry
-/// points pass [`NoPieces`], which compiles to nothing.
+/// added to a site's sums is also given here (a sink drops those of zero
+/// volume, which add nothing), so that the host can export the diagram
+/// computed by the very code that measured it. The GPU entry points pass
+/// [`NoPieces`], which compiles to nothing.
 pub trait PieceSink {
     /// Site `site`'s non-empty piece of tet `tet`, relative to the site.
     fn piece<const P: usize, const V: usize>(&mut self, tet: u32, site: u32, poly: &Polyhedron<P, V>);
@@ -515,10 +516,8 @@ pub fn flood<const P: usize, const V: usize, const Q: usize, F, A, C, L, S>(
             found[head] = poly.moments();
             total += found[head].volume;
             poly.keep_faces_only();
-            if found[head].volume != 0.0 {
-                // Given now, while the piece exists; taken back if the flood fails.
-                sink.piece(t as u32, j as u32, &poly);
-            }
+            // Given now, while the piece exists; taken back if the flood fails.
+            sink.piece(t as u32, j as u32, &poly);
             let mut q = 0;
             while q < poly.n_planes as usize {
                 let id = poly.ids[q];
