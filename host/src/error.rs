@@ -53,6 +53,9 @@ pub enum Error {
         /// The underlying error.
         source: std::io::Error,
     },
+    /// A check of the library's own results failed.
+    #[error("internal error: {0}")]
+    Internal(String),
     /// An output file or folder could not be written.
     #[error("cannot write {path}: {source}")]
     Write {

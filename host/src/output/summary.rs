@@ -7,7 +7,6 @@ use crate::io::write_file;
 use crate::mesh::TetMesh;
 use crate::timing::Timings;
 use crate::voronoi::{Cells, Counters};
-use std::collections::BTreeMap;
 use std::fmt;
 use std::path::Path;
 
@@ -59,8 +58,14 @@ pub struct Times {
     pub clip_s: f64,
     /// Every phase, transfers included.
     pub total_s: f64,
-    /// Each phase as the backend names it.
-    pub phases: BTreeMap<String, f64>,
+    /// Each phase as the backend names it, in order (a JSON object).
+    #[serde(serialize_with = "in_order")]
+    pub phases: Vec<(String, f64)>,
+}
+
+/// `(name, value)` pairs as a JSON object that keeps their order.
+fn in_order<S: serde::Serializer>(pairs: &[(String, f64)], s: S) -> std::result::Result<S::Ok, S::Error> {
+    s.collect_map(pairs.iter().map(|(k, v)| (k, v)))
 }
 
 impl Times {
@@ -73,8 +78,8 @@ impl Times {
             } else if matches!(phase.as_str(), "cells" | "clip" | "second pass") {
                 times.clip_s += s;
             }
-            *times.phases.entry(phase.clone()).or_default() += s;
         }
+        times.phases = t.phases.clone();
         times
     }
 }
