@@ -128,14 +128,9 @@ fn assert_pieces(what: &str, mesh: &TetMesh, sites: &[[f32; 3]], cells: &Cells, 
         assert!((v - tet).abs() <= 1e-4 * tet, "{what}: tet {t}'s pieces add up to {v:e}, the tet is {tet:e}");
     }
     let typical = mesh.volume() / n as f64;
-    for i in 0..n {
-        let d = (per_site[i] - cells.volume[i]).abs();
-        assert!(
-            d <= 1e-5 * cells.volume[i].max(typical),
-            "{what}: site {i}: pieces {:e}, cell {:e}",
-            per_site[i],
-            cells.volume[i]
-        );
+    for (i, (&got, &cell)) in per_site.iter().zip(&cells.volume).enumerate() {
+        let d = (got - cell).abs();
+        assert!(d <= 1e-5 * cell.max(typical), "{what}: site {i}: pieces {got:e}, cell {cell:e}");
     }
 }
 
