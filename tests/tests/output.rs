@@ -124,6 +124,69 @@ fn summary_json_has_the_keys() {
     }
 }
 
+/// The numbers of the `DataArray` named `name` in an ASCII VTU file.
+fn data_array(vtu: &str, name: &str) -> Vec<f64> {
+    let tag = format!("Name=\"{name}\"");
+    let at = vtu.find(&tag).unwrap_or_else(|| panic!("no DataArray {name}"));
+    let start = at + vtu[at..].find('>').unwrap() + 1;
+    let end = start + vtu[start..].find("</DataArray>").unwrap();
+    vtu[start..end].split_whitespace().map(|t| t.parse().unwrap_or_else(|_| panic!("{name}: {t:?}"))).collect()
+}
+
+/// Reads `pieces.vtu` back here, by the VTK layout alone: the polyhedra's
+/// faces use only their own points, and their volumes (divergence
+/// theorem over the faces) add up to each site's cell and to the mesh.
+#[test]
+fn vtu_polyhedra_add_up_to_the_cells() {
+    let mesh = moved_ell();
+    let sites = points::in_mesh(&mesh, 100, 3);
+    let (cells, pieces) = diagram(&mesh, &sites);
+    let path = temp_dir("vtu-here").join("pieces.vtu");
+    output::write_pieces_vtu(&path, &pieces, &mut |_, _| {}).unwrap();
+    let vtu = std::fs::read_to_string(&path).unwrap();
+    assert!(vtu.contains(&format!("NumberOfCells=\"{}\"", pieces.len())));
+    let points: Vec<[f64; 3]> = data_array(&vtu, "Points").chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
+    let as_usize = |name: &str| data_array(&vtu, name).into_iter().map(|x| x as usize).collect::<Vec<_>>();
+    let (connectivity, offsets, types) = (as_usize("connectivity"), as_usize("offsets"), as_usize("types"));
+    let (faces, faceoffsets, site) = (as_usize("faces"), as_usize("faceoffsets"), as_usize("site"));
+    let n = pieces.len();
+    assert!(offsets.len() == n && types.len() == n && faceoffsets.len() == n && site.len() == n);
+    assert!(types.iter().all(|&t| t == 42), "not all polyhedra");
+    assert_eq!((offsets[n - 1], faceoffsets[n - 1]), (connectivity.len(), faces.len()));
+    let mut per_site = vec![0.0; sites.len()];
+    let (mut point_start, mut face_start) = (0, 0);
+    for c in 0..n {
+        let own = &connectivity[point_start..offsets[c]];
+        let mut at = face_start;
+        let mut six = 0.0;
+        for _ in 0..faces[at] {
+            let len = faces[at + 1];
+            let loop_ = &faces[at + 2..at + 2 + len];
+            assert!(
+                len >= 3 && loop_.iter().all(|v| own.contains(v)),
+                "cell {c}: a face {loop_:?} off its points {own:?}"
+            );
+            let p = |k: usize| points[loop_[k]];
+            for k in 1..len - 1 {
+                let (a, b, d) = (p(0), p(k), p(k + 1));
+                six += a[0] * (b[1] * d[2] - b[2] * d[1])
+                    + a[1] * (b[2] * d[0] - b[0] * d[2])
+                    + a[2] * (b[0] * d[1] - b[1] * d[0]);
+            }
+            at += 1 + len;
+        }
+        assert_eq!(at + 1, faceoffsets[c], "cell {c}: faceoffsets");
+        per_site[site[c]] += six / 6.0;
+        (point_start, face_start) = (offsets[c], faceoffsets[c]);
+    }
+    let total: f64 = per_site.iter().sum();
+    assert!((total - mesh.volume()).abs() <= 1e-5 * mesh.volume(), "{total} vs {}", mesh.volume());
+    let typical = mesh.volume() / sites.len() as f64;
+    for (i, (&got, &cell)) in per_site.iter().zip(&cells.volume).enumerate() {
+        assert!((got - cell).abs() <= 1e-5 * cell.max(typical), "site {i}: {got:e} vs {cell:e}");
+    }
+}
+
 /// Whether `python3` with meshio and numpy runs here. Without them the
 /// test is skipped, saying so — except under `CI=true`, where it fails.
 fn python_with_meshio() -> bool {
