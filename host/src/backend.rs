@@ -9,8 +9,14 @@ use crate::vulkan::{VulkanBackend, VulkanOptions};
 
 /// Something that runs the kernels.
 pub trait Backend: Send + Sync {
-    /// A human-readable name: backend, device, threads.
-    fn name(&self) -> String;
+    /// `cpu` or `vulkan`.
+    fn kind(&self) -> &'static str;
+    /// What it runs on: the GPU's name, or the CPU threads.
+    fn device(&self) -> String;
+    /// A human-readable name: backend and device.
+    fn name(&self) -> String {
+        format!("{} ({})", self.kind(), self.device())
+    }
     /// Runs a k-NN job.
     fn knn(&self, job: &KnnJob) -> Result<Neighbors>;
     /// Runs a clipping job: pairing, clipping and accumulation.

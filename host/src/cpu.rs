@@ -9,7 +9,7 @@ use crate::timing::{timed, Timings};
 use crate::voronoi::{ClipJob, ClipOutput, Pairing, Strategy};
 use cvd_kernels::abi::{counter, lloyd_stat, QuantPoint, RefineParams, ACCUM_PER_SITE};
 use cvd_kernels::buffers::{DeviceSums, OutBuf, PairList, Window};
-use cvd_kernels::clip::{self, CELL_RECORDS};
+use cvd_kernels::clip::{self, NoPieces, PieceSink, CELL_RECORDS};
 use cvd_kernels::glam::Vec3;
 use cvd_kernels::{grid, knn, lloyd, refine, scan};
 use rayon::prelude::*;
@@ -40,6 +40,106 @@ impl CpuBackend {
     /// Number of worker threads.
     pub fn threads(&self) -> usize {
         self.pool.current_num_threads()
+    }
+
+    /// Runs a clipping job like [`Backend::clip`], handing every piece
+    /// the kernels finish to the tasks' sinks, which end up in `sinks`.
+    pub(crate) fn clip_into<S: TaskSink>(&self, job: &ClipJob, sinks: &Mutex<Vec<S>>) -> Result<ClipOutput> {
+        let site_nn = job.site_knn.run(self)?;
+        let tet_nn = job.tet_knn.run(self)?;
+        self.pool.install(|| {
+            let p = &job.params;
+            let mut timings = Timings::default();
+            timings.push("knn", site_nn.timings.total() + tet_nn.timings.total());
+            let sums: Vec<AtomicI64> = (0..p.n_sites as usize * ACCUM_PER_SITE).map(|_| AtomicI64::new(0)).collect();
+            let totals: Vec<AtomicI64> = (0..counter::COUNT).map(|_| AtomicI64::new(0)).collect();
+            let unfinished = Mutex::new(Vec::new());
+            let n_pairs = p.n_tets as usize * p.k_tet as usize;
+            let (sites, verts, tets) = (&job.sites, &job.verts, &job.tets);
+            match job.strategy {
+                Strategy::TetCell if job.pairing == Pairing::Flood => {
+                    let (_, t) = timed(|| {
+                        par_indices(
+                            p.n_tets as usize,
+                            CHUNK / 16,
+                            &sums,
+                            &totals,
+                            &unfinished,
+                            sinks,
+                            |t, s, c, u, k| {
+                                clip::flood_tet(t, p, sites, verts, tets, &tet_nn.indices, &site_nn.indices, s, c, u, k)
+                            },
+                        )
+                    });
+                    timings.push("clip", t);
+                }
+                Strategy::TetCell => {
+                    let (_, t) = timed(|| {
+                        par_indices(n_pairs, CHUNK / 4, &sums, &totals, &unfinished, sinks, |pair, s, c, u, k| {
+                            let nbrs = &site_nn.indices;
+                            clip::tet_cell_pair(pair, p, sites, verts, tets, &tet_nn.indices, nbrs, s, c, u, k)
+                        })
+                    });
+                    timings.push("clip", t);
+                }
+                Strategy::CellTet => {
+                    let (cells, t) = timed(|| {
+                        let mut cells = vec![[0f32; 4]; p.n_sites as usize * CELL_RECORDS];
+                        cells.par_chunks_mut(CELL_RECORDS).enumerate().for_each(|(i, data)| {
+                            let mut local = [0i64; counter::COUNT];
+                            let mut out = Window { start: i * CELL_RECORDS, data };
+                            clip::voronoi_cell(i, p, sites, &site_nn.indices, &mut out, &mut DeviceSums(&mut local));
+                            for (t, &v) in totals.iter().zip(&local) {
+                                t.fetch_add(v, Ordering::Relaxed);
+                            }
+                        });
+                        cells
+                    });
+                    timings.push("cells", t);
+                    let (_, t) = timed(|| {
+                        par_indices(n_pairs, CHUNK / 4, &sums, &totals, &unfinished, sinks, |pair, s, c, u, k| {
+                            clip::cell_tet_pair(pair, p, sites, verts, tets, &tet_nn.indices, &cells, s, c, u, k)
+                        })
+                    });
+                    timings.push("clip", t);
+                }
+            }
+            let mut first = unfinished.into_inner().unwrap_or_else(|e| e.into_inner());
+            first.sort_unstable();
+            let mut still = Vec::new();
+            if !first.is_empty() {
+                let (_, t) = timed(|| {
+                    let g = build_grid(&job.site_knn);
+                    let mut list = vec![first.len() as u32];
+                    list.extend(first.iter().flatten());
+                    let rp = RefineParams { capacity: first.len() as u32, ..job.refine };
+                    let w = refine::GridWalk {
+                        grid: rp.grid,
+                        lo: Vec3::new(rp.grid_lo_x, rp.grid_lo_y, rp.grid_lo_z),
+                        cell_len: rp.cell_len,
+                        margin: rp.margin,
+                        cell_start: &g.cell_start,
+                        cell_count: &g.cell_count,
+                        sorted: &g.sorted,
+                    };
+                    let ignored: Vec<AtomicI64> = (0..counter::COUNT).map(|_| AtomicI64::new(0)).collect();
+                    let again = Mutex::new(Vec::new());
+                    par_indices(first.len(), 1, &sums, &ignored, &again, sinks, |e, s, c, u, k| {
+                        refine::refine_entry(e, &rp, w, sites, verts, tets, &tet_nn.indices, &list, s, c, u, k)
+                    });
+                    still = again.into_inner().unwrap_or_else(|e| e.into_inner());
+                    still.sort_unstable();
+                });
+                timings.push("second pass", t);
+            }
+            Ok(ClipOutput {
+                sums: sums.into_iter().map(AtomicI64::into_inner).collect(),
+                counters: totals.into_iter().map(AtomicI64::into_inner).collect(),
+                refined: (first.len() - still.len()) as u64,
+                unfinished: still,
+                timings,
+            })
+        })
     }
 }
 
@@ -107,25 +207,39 @@ where
     });
 }
 
+/// A rayon task's piece sink: each task fills its own, and hands it over
+/// when done.
+pub(crate) trait TaskSink: PieceSink + Default + Send {
+    /// Adds this task's pieces to `all` (nothing to do for [`NoPieces`]).
+    fn hand_over(self, all: &Mutex<Vec<Self>>);
+}
+
+impl TaskSink for NoPieces {
+    fn hand_over(self, _all: &Mutex<Vec<Self>>) {}
+}
+
 /// Calls `body` for every index in `0..n` over rayon, in chunks whose
-/// counters and unfinished pairs are kept privately and merged once.
-pub(crate) fn par_indices<F>(
+/// counters, unfinished pairs and pieces are kept privately and merged once.
+pub(crate) fn par_indices<S, F>(
     n: usize,
     chunk: usize,
     sums: &[AtomicI64],
     totals: &[AtomicI64],
     unfinished: &Mutex<Vec<[u32; 2]>>,
+    sinks: &Mutex<Vec<S>>,
     body: F,
 ) where
-    F: Fn(usize, &mut &[AtomicI64], &mut DeviceSums<'_>, &mut LocalPairs) + Sync,
+    S: TaskSink,
+    F: Fn(usize, &mut &[AtomicI64], &mut DeviceSums<'_>, &mut LocalPairs, &mut S) + Sync,
 {
     (0..n).into_par_iter().chunks(chunk).for_each(|indices| {
         let mut local = [0i64; counter::COUNT];
         let mut pairs = LocalPairs::default();
+        let mut sink = S::default();
         let mut s = sums;
         let mut counters = DeviceSums(&mut local);
         for i in indices {
-            body(i, &mut s, &mut counters, &mut pairs);
+            body(i, &mut s, &mut counters, &mut pairs, &mut sink);
         }
         for (t, &v) in totals.iter().zip(&local) {
             t.fetch_add(v, Ordering::Relaxed);
@@ -133,6 +247,7 @@ pub(crate) fn par_indices<F>(
         if !pairs.0.is_empty() {
             unfinished.lock().unwrap_or_else(|e| e.into_inner()).extend(pairs.0);
         }
+        sink.hand_over(sinks);
     });
 }
 
@@ -200,8 +315,12 @@ fn build_grid(job: &KnnJob) -> CpuGrid {
 }
 
 impl Backend for CpuBackend {
-    fn name(&self) -> String {
-        format!("cpu ({} threads)", self.threads())
+    fn kind(&self) -> &'static str {
+        "cpu"
+    }
+
+    fn device(&self) -> String {
+        format!("{} threads", self.threads())
     }
 
     fn knn(&self, job: &KnnJob) -> Result<Neighbors> {
@@ -248,92 +367,7 @@ impl Backend for CpuBackend {
         })
     }
     fn clip(&self, job: &ClipJob) -> Result<ClipOutput> {
-        let site_nn = job.site_knn.run(self)?;
-        let tet_nn = job.tet_knn.run(self)?;
-        self.pool.install(|| {
-            let p = &job.params;
-            let mut timings = Timings::default();
-            timings.push("knn", site_nn.timings.total() + tet_nn.timings.total());
-            let sums: Vec<AtomicI64> = (0..p.n_sites as usize * ACCUM_PER_SITE).map(|_| AtomicI64::new(0)).collect();
-            let totals: Vec<AtomicI64> = (0..counter::COUNT).map(|_| AtomicI64::new(0)).collect();
-            let unfinished = Mutex::new(Vec::new());
-            let n_pairs = p.n_tets as usize * p.k_tet as usize;
-            let (sites, verts, tets) = (&job.sites, &job.verts, &job.tets);
-            match job.strategy {
-                Strategy::TetCell if job.pairing == Pairing::Flood => {
-                    let (_, t) = timed(|| {
-                        par_indices(p.n_tets as usize, CHUNK / 16, &sums, &totals, &unfinished, |t, s, c, u| {
-                            clip::flood_tet(t, p, sites, verts, tets, &tet_nn.indices, &site_nn.indices, s, c, u)
-                        })
-                    });
-                    timings.push("clip", t);
-                }
-                Strategy::TetCell => {
-                    let (_, t) = timed(|| {
-                        par_indices(n_pairs, CHUNK / 4, &sums, &totals, &unfinished, |pair, s, c, u| {
-                            clip::tet_cell_pair(pair, p, sites, verts, tets, &tet_nn.indices, &site_nn.indices, s, c, u)
-                        })
-                    });
-                    timings.push("clip", t);
-                }
-                Strategy::CellTet => {
-                    let (cells, t) = timed(|| {
-                        let mut cells = vec![[0f32; 4]; p.n_sites as usize * CELL_RECORDS];
-                        cells.par_chunks_mut(CELL_RECORDS).enumerate().for_each(|(i, data)| {
-                            let mut local = [0i64; counter::COUNT];
-                            let mut out = Window { start: i * CELL_RECORDS, data };
-                            clip::voronoi_cell(i, p, sites, &site_nn.indices, &mut out, &mut DeviceSums(&mut local));
-                            for (t, &v) in totals.iter().zip(&local) {
-                                t.fetch_add(v, Ordering::Relaxed);
-                            }
-                        });
-                        cells
-                    });
-                    timings.push("cells", t);
-                    let (_, t) = timed(|| {
-                        par_indices(n_pairs, CHUNK / 4, &sums, &totals, &unfinished, |pair, s, c, u| {
-                            clip::cell_tet_pair(pair, p, sites, verts, tets, &tet_nn.indices, &cells, s, c, u)
-                        })
-                    });
-                    timings.push("clip", t);
-                }
-            }
-            let mut first = unfinished.into_inner().unwrap_or_else(|e| e.into_inner());
-            first.sort_unstable();
-            let mut still = Vec::new();
-            if !first.is_empty() {
-                let (_, t) = timed(|| {
-                    let g = build_grid(&job.site_knn);
-                    let mut list = vec![first.len() as u32];
-                    list.extend(first.iter().flatten());
-                    let rp = RefineParams { capacity: first.len() as u32, ..job.refine };
-                    let w = refine::GridWalk {
-                        grid: rp.grid,
-                        lo: Vec3::new(rp.grid_lo_x, rp.grid_lo_y, rp.grid_lo_z),
-                        cell_len: rp.cell_len,
-                        margin: rp.margin,
-                        cell_start: &g.cell_start,
-                        cell_count: &g.cell_count,
-                        sorted: &g.sorted,
-                    };
-                    let ignored: Vec<AtomicI64> = (0..counter::COUNT).map(|_| AtomicI64::new(0)).collect();
-                    let again = Mutex::new(Vec::new());
-                    par_indices(first.len(), 1, &sums, &ignored, &again, |e, s, c, u| {
-                        refine::refine_entry(e, &rp, w, sites, verts, tets, &tet_nn.indices, &list, s, c, u)
-                    });
-                    still = again.into_inner().unwrap_or_else(|e| e.into_inner());
-                    still.sort_unstable();
-                });
-                timings.push("second pass", t);
-            }
-            Ok(ClipOutput {
-                sums: sums.into_iter().map(AtomicI64::into_inner).collect(),
-                counters: totals.into_iter().map(AtomicI64::into_inner).collect(),
-                refined: (first.len() - still.len()) as u64,
-                unfinished: still,
-                timings,
-            })
-        })
+        self.clip_into(job, &Mutex::new(Vec::<NoPieces>::new()))
     }
 
     fn lloyd(&self, job: &ClipJob, iterations: usize, progress: &mut dyn FnMut(usize, i64)) -> Result<LloydOutput> {
@@ -344,7 +378,7 @@ impl Backend for CpuBackend {
             let start = std::time::Instant::now();
             let mut out = self.clip(&job)?;
             let first = out.refined + out.unfinished.len() as u64;
-            let redone = crate::second_pass::run(&job, &mut out)?;
+            let redone = crate::second_pass::run(&job, &mut out, &Mutex::new(Vec::<NoPieces>::new()))?;
             let p = crate::cvt::params(&job, it);
             let mut quant = job.site_knn.sites.clone();
             let (unfinished, still) = ([first as u32], [redone.unresolved as u32]);

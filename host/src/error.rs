@@ -45,7 +45,7 @@ pub enum Error {
         /// What was expected.
         message: String,
     },
-    /// An I/O error, with the path it concerns.
+    /// A file could not be read, with the path it concerns.
     #[error("{path}: {source}")]
     Io {
         /// The file.
@@ -53,6 +53,25 @@ pub enum Error {
         /// The underlying error.
         source: std::io::Error,
     },
+    /// A check of the library's own results failed.
+    #[error("internal error: {0}")]
+    Internal(String),
+    /// An output file or folder could not be written.
+    #[error("cannot write {path}: {source}")]
+    Write {
+        /// The file or folder.
+        path: String,
+        /// The underlying error.
+        source: std::io::Error,
+    },
+}
+
+impl Error {
+    /// Whether the error lies in what the caller gave (arguments, input
+    /// files, a device name) rather than in the machine or the library.
+    pub fn is_input_error(&self) -> bool {
+        matches!(self, Error::InvalidInput(_) | Error::Parse { .. } | Error::Io { .. } | Error::NoSuchDevice { .. })
+    }
 }
 
 /// Shorthand for results of this crate.

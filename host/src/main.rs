@@ -2,11 +2,15 @@
 
 use clap::{Args, Parser, Subcommand};
 use cvd::backend::{self, BackendKind, BackendOptions};
+use cvd::cpu::CpuBackend;
 use cvd::mesher::models;
+use cvd::output::{self, Section, Summary};
 use cvd::vulkan::{self, VulkanOptions};
 use cvd::{points, ClippedVoronoi, KnnJob, KnnMethod, Pairing, Strategy, TetMesh};
-use std::path::PathBuf;
+use indicatif::{ProgressBar, ProgressStyle};
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+use std::time::Duration;
 
 #[derive(Parser)]
 #[command(name = "cvd", version, about = "Clipped Voronoi diagrams on Vulkan GPUs and CPU cores")]
@@ -80,9 +84,23 @@ struct RunArgs {
     /// Neighbours per site for its cell.
     #[arg(long, default_value_t = cvd::voronoi::DEFAULT_K_SITE)]
     k_site: usize,
-    /// Write per-site results as CSV (index, site, volume, centroid, energy).
+    /// Output folder [default: out/<model or mesh file name>/].
     #[arg(long)]
+    out: Option<PathBuf>,
+    /// Also write cells.csv (site, volume, centroid, energy) to PATH.
+    #[arg(long, value_name = "PATH")]
     output: Option<PathBuf>,
+    /// Also write summary.json to PATH.
+    #[arg(long, value_name = "PATH")]
+    json: Option<PathBuf>,
+    /// Skip pieces.vtu and picture.png. The pieces (each site's cell inside
+    /// each tet) take one more run on the CPU and are large: several per tet,
+    /// most of a kilobyte each in pieces.vtu, all held in memory first.
+    #[arg(long)]
+    no_pieces: bool,
+    /// Skip picture.png (the cells cut by the plane through the middle of the mesh).
+    #[arg(long)]
+    no_picture: bool,
     #[command(flatten)]
     backend: BackendArgs,
 }
@@ -157,21 +175,42 @@ fn natural_key(s: &str) -> Vec<(String, u64)> {
     key
 }
 
-fn write_cells(path: &std::path::Path, sites: &[[f32; 3]], cells: &cvd::Cells) -> cvd::Result<()> {
-    use std::io::Write;
-    let io_err = |source| cvd::Error::Io { path: path.display().to_string(), source };
-    let mut out = std::io::BufWriter::new(std::fs::File::create(path).map_err(io_err)?);
-    writeln!(out, "index,x,y,z,volume,cx,cy,cz,energy").map_err(io_err)?;
-    for (i, s) in sites.iter().enumerate() {
-        let c = cells.centroid[i];
-        writeln!(
-            out,
-            "{i},{},{},{},{:e},{},{},{},{:e}",
-            s[0], s[1], s[2], cells.volume[i], c[0], c[1], c[2], cells.energy[i]
-        )
-        .map_err(io_err)?;
-    }
-    out.flush().map_err(io_err)
+/// `out/<name>`: the model's name, or the mesh file's name without extension.
+fn default_out_dir(model: &str) -> PathBuf {
+    let stem = Path::new(model).file_stem().map(|s| s.to_string_lossy().into_owned());
+    Path::new("out").join(stem.filter(|s| !s.is_empty()).unwrap_or_else(|| "model".into()))
+}
+
+/// Runs `f` under a spinner saying `what` (shown only on a terminal).
+fn with_spinner<T>(what: &str, f: impl FnOnce() -> T) -> T {
+    let spinner = ProgressBar::new_spinner().with_message(what.to_string());
+    spinner.set_style(
+        ProgressStyle::with_template("{spinner} {msg} {elapsed}").unwrap_or_else(|_| ProgressStyle::default_spinner()),
+    );
+    spinner.enable_steady_tick(Duration::from_millis(100));
+    let out = f();
+    spinner.finish_and_clear();
+    out
+}
+
+/// Runs `f` with a progress bar saying `what`, fed through `f`'s progress
+/// callback (shown only on a terminal).
+fn with_bar<T>(what: &str, f: impl FnOnce(&mut dyn FnMut(u64, u64)) -> T) -> T {
+    let bar = ProgressBar::new(1).with_message(what.to_string());
+    bar.set_style(
+        ProgressStyle::with_template("{msg:<24} [{bar:40}] {percent:>3}% {elapsed}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    let out = f(&mut |done, total| {
+        bar.set_length(total.max(1));
+        bar.set_position(done);
+    });
+    bar.finish_and_clear();
+    out
+}
+
+fn create_dir(dir: &Path) -> cvd::Result<()> {
+    std::fs::create_dir_all(dir).map_err(|source| cvd::Error::Write { path: dir.display().to_string(), source })
 }
 
 /// The density per mesh vertex the arguments ask for, if any.
@@ -253,15 +292,11 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
             points::in_mesh(&mesh, n, args.seed)
         }
     };
+    let dir = args.out.clone().unwrap_or_else(|| default_out_dir(&model));
+    // Before the long part: a folder that cannot be made fails now.
+    create_dir(&dir)?;
     let backend = backend::open(&args.backend.options())?;
-    println!(
-        "{model}: {} tets (volume {:.6}), {} sites, {:?}, on {}",
-        mesh.tets.len(),
-        mesh.volume(),
-        sites.len(),
-        args.strategy,
-        backend.name()
-    );
+    println!("{model}: {} tets, {} sites, {:?} on {}", mesh.tets.len(), sites.len(), args.strategy, backend.name());
     let sites = if args.iterations > 0 { lloyd(args, &mesh, &sites, backend.as_ref())? } else { sites };
     let density = density(args, &mesh)?;
     let mut cv = ClippedVoronoi::new(&mesh, &sites)
@@ -272,42 +307,50 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
     if let Some(pairing) = args.pairing {
         cv = cv.pairing(pairing);
     }
-    let first = cv.backend(backend.as_ref()).compute()?;
-    println!("first run: {} (total {:.1} ms)", first.timings, first.timings.total() * 1e3);
-    let cells = cv.backend(backend.as_ref()).compute()?;
-    println!("second run: {} (total {:.1} ms)", cells.timings, cells.timings.total() * 1e3);
-    println!(
-        "{:?} pairing, k = {}, k_site = {}; volume {:.6} of {:.6}, E_vol = {:.2e}; energy {:.6e}",
-        cells.pairing,
-        cells.k,
-        cells.k_site,
-        cells.total_volume,
-        cells.mesh_volume,
-        cells.e_vol,
-        cells.energy_total()
-    );
-    let c = &cells.counters;
-    println!(
-        "pairs {} (non-empty {}, dropped before clipping {}), clips {}; unfinished by the kernels: security radius {}, overflows {}, broken {}; \
-         finished by the second pass {}, unresolved {}; duplicate sites {}, other empty cells {}",
-        c.pairs,
-        c.nonempty,
-        c.filtered,
-        c.clips,
-        c.security_missed,
-        c.overflows,
-        c.broken,
-        c.second_pass,
-        c.unresolved,
-        c.duplicate_sites,
-        c.empty_cells
-    );
+    let cv = cv.backend(backend.as_ref());
+    // The first run warms up (pipelines, caches); the second is timed.
+    let first = with_spinner("first run", || cv.compute())?;
+    println!("first run: {:.1} ms (warm-up); the table shows the second", first.timings.total() * 1e3);
+    let cells = with_spinner("second run", || cv.compute())?;
+    let mut summary = Summary::new(&model, &mesh, sites.len(), args.strategy, backend.as_ref(), &cells);
+
+    let mut written = Vec::new();
+    let mut file = |name: &str| {
+        written.push(name.to_string());
+        dir.join(name)
+    };
+    output::write_cells_csv(&file("cells.csv"), &cells)?;
+    cvd::io::write_sites_xyz(&file("sites.xyz"), &sites)?;
+    if !args.no_pieces {
+        let cpu = CpuBackend::new(args.backend.threads)?;
+        let (_, pieces) = with_spinner("pieces, on the CPU", || cv.compute_with_pieces(&cpu))?;
+        summary.pieces = Some(pieces.len());
+        let path = file("pieces.vtu");
+        with_bar("writing pieces.vtu", |progress| output::write_pieces_vtu(&path, &pieces, progress))?;
+        if !args.no_picture {
+            let path = file("picture.png");
+            let section = Section::middle(&mesh);
+            with_bar("drawing picture.png", |progress| {
+                output::write_section_png(&path, &mesh, &pieces, section, PICTURE_SIZE, progress)
+            })?;
+        }
+    }
+    summary.write_json(&file("summary.json"))?;
+    print!("{summary}");
+    println!("wrote {}: {}", dir.display(), written.join(", "));
     if let Some(path) = &args.output {
-        write_cells(path, &sites, &cells)?;
-        println!("wrote {}", path.display());
+        output::write_cells_csv(path, &cells)?;
+        println!("wrote {} (cells.csv)", path.display());
+    }
+    if let Some(path) = &args.json {
+        summary.write_json(path)?;
+        println!("wrote {} (summary.json)", path.display());
     }
     Ok(())
 }
+
+/// Pixels along the longer side of picture.png.
+const PICTURE_SIZE: usize = 1024;
 
 #[derive(Args, Clone)]
 struct BackendArgs {
@@ -366,7 +409,7 @@ fn knn(args: &KnnArgs) -> cvd::Result<()> {
     let same = reference.indices == again.indices && reference.dist2 == again.dist2;
     println!("same neighbours as the CPU backend: {}", if same { "yes" } else { "NO" });
     if !same {
-        return Err(cvd::Error::InvalidInput("the backend disagrees with the CPU backend".into()));
+        return Err(cvd::Error::Internal("the backend disagrees with the CPU backend".into()));
     }
     Ok(())
 }
@@ -392,7 +435,8 @@ fn main() -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("cvd: {e}");
-            ExitCode::FAILURE
+            // Like clap's own errors: 2 for what the user gave, 1 for the rest.
+            ExitCode::from(if e.is_input_error() { 2 } else { 1 })
         }
     }
 }

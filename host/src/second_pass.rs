@@ -15,7 +15,7 @@
 //!   (a radius bound, filtered), and each pair is done as below.
 //! * A `(tet, site)` pair (knn pairing, cell-tet) is clipped directly.
 
-use crate::cpu::par_indices;
+use crate::cpu::{par_indices, TaskSink};
 use crate::error::Result;
 use crate::site_grid::SiteGrid;
 use crate::voronoi::{ClipJob, ClipOutput};
@@ -39,8 +39,9 @@ pub struct Redone {
     pub unresolved: u64,
 }
 
-/// Finishes `out.unfinished`, adding the pieces to `out.sums`.
-pub(crate) fn run(job: &ClipJob, out: &mut ClipOutput) -> Result<Redone> {
+/// Finishes `out.unfinished`, adding the pieces to `out.sums` and handing
+/// them to the tasks' sinks, which end up in `sinks`.
+pub(crate) fn run<S: TaskSink>(job: &ClipJob, out: &mut ClipOutput, sinks: &Mutex<Vec<S>>) -> Result<Redone> {
     if out.unfinished.is_empty() {
         return Ok(Redone::default());
     }
@@ -52,12 +53,12 @@ pub(crate) fn run(job: &ClipJob, out: &mut ClipOutput) -> Result<Redone> {
     // Whole tets: flood again.
     let failed = Mutex::new(Vec::new());
     let ignored: Vec<AtomicI64> = (0..counter::COUNT).map(|_| AtomicI64::new(0)).collect();
-    par_indices(tets.len(), 16, &sums, &ignored, &failed, |e, sums, counters, failed| {
+    par_indices(tets.len(), 16, &sums, &ignored, &failed, sinks, |e, sums, counters, failed, sink| {
         let t = tets[e][0] as usize;
         let centroid = centroid(job, t);
         let (start, _) = grid.nearest(centroid);
         let mut list = Vec::new();
-        clip::flood::<CELL_PLANES, CELL_VERTS, QUEUE, _, _, _, _>(
+        clip::flood::<CELL_PLANES, CELL_VERTS, QUEUE, _, _, _, _, _>(
             t,
             start,
             job.params.fixed_scale,
@@ -68,6 +69,7 @@ pub(crate) fn run(job: &ClipJob, out: &mut ClipOutput) -> Result<Redone> {
             sums,
             counters,
             failed,
+            sink,
         );
     });
     let failed = failed.into_inner().unwrap_or_else(|e| e.into_inner());
@@ -80,7 +82,7 @@ pub(crate) fn run(job: &ClipJob, out: &mut ClipOutput) -> Result<Redone> {
     work.extend(candidate_pairs(job, &grid, &failed).into_iter().map(|(p, e)| (p, pairs.len() + e)));
     let ok: Vec<AtomicBool> = entries.iter().map(|_| AtomicBool::new(true)).collect();
     let unresolved = AtomicU64::new(0);
-    par_indices(work.len(), 16, &sums, &ignored, &Mutex::new(Vec::new()), |w, sums, _, _| {
+    par_indices(work.len(), 16, &sums, &ignored, &Mutex::new(Vec::new()), sinks, |w, sums, _, _, sink| {
         let ([t, j], entry) = work[w];
         let (t, j) = (t as usize, j as usize);
         let mut poly = Cell::empty();
@@ -92,6 +94,7 @@ pub(crate) fn run(job: &ClipJob, out: &mut ClipOutput) -> Result<Redone> {
             let s = job.sites[j];
             let tv = tet_vertices(t, &job.verts, &job.tets, Vec3::new(s[0], s[1], s[2]));
             accumulate(j, &piece_moments(&poly, t, &job.verts, &job.tets, &tv).0, job.params.fixed_scale, sums);
+            sink.piece(t as u32, j as u32, &poly);
         }
     });
     redone.finished += ok.iter().filter(|o| o.load(Ordering::Relaxed)).count() as u64;

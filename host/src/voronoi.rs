@@ -2,13 +2,17 @@
 //! backends.
 
 use crate::backend::Backend;
+use crate::cpu::TaskSink;
 use crate::error::{Error, Result};
 use crate::knn::{KnnJob, KnnMethod};
 use crate::mesh::TetMesh;
+use crate::pieces::{Piece, PieceCollector};
 use crate::points;
 use crate::timing::Timings;
 use cvd_kernels::abi::{counter, ClipParams, RefineParams, ACCUM_PER_SITE};
+use cvd_kernels::clip::NoPieces;
 use std::collections::HashMap;
+use std::sync::Mutex;
 
 /// How tets and cells are intersected (paper section 6).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, clap::ValueEnum, serde::Serialize)]
@@ -64,6 +68,8 @@ pub struct ClipJob {
     pub verts: Vec<[f32; 4]>,
     /// Tets.
     pub tets: Vec<[u32; 4]>,
+    /// The mesh's index of each tet (they are in Morton order).
+    pub tet_order: Vec<u32>,
     /// Kernel parameters.
     pub params: ClipParams,
     /// Parameters of the second pass (the site grid in the clipping frame;
@@ -371,6 +377,7 @@ impl<'a> ClippedVoronoi<'a> {
                 .map(|(v, p)| [p[0], p[1], p[2], self.density.map_or(1.0, |rho| rho[v])])
                 .collect(),
             tets: local_mesh.tets,
+            tet_order,
             params,
             strategy: self.strategy,
             pairing,
@@ -389,14 +396,39 @@ impl<'a> ClippedVoronoi<'a> {
                 &cpu
             }
         };
-        let mut out = backend.clip(&job)?;
-        let refined = out.refined;
-        let (redone, t) = crate::timing::timed(|| crate::second_pass::run(&job, &mut out));
+        let out = backend.clip(&job)?;
+        self.finish_job(&job, &map, &frame, out, &Mutex::new(Vec::<NoPieces>::new()))
+    }
+
+    /// Computes the clipped cells on the CPU backend `cpu` (whatever
+    /// [`Self::backend`] says) and also returns every non-empty piece — a
+    /// site's cell inside one tet — in world coordinates, sorted by site
+    /// and tet. The cells are those [`Self::compute`] returns on `cpu`.
+    pub fn compute_with_pieces(&self, cpu: &crate::cpu::CpuBackend) -> Result<(Cells, Vec<Piece>)> {
+        let (job, map, frame) = self.job()?;
+        let sinks = Mutex::new(Vec::new());
+        let out = cpu.clip_into::<PieceCollector>(&job, &sinks)?;
+        let cells = self.finish_job(&job, &map, &frame, out, &sinks)?;
+        let collected = sinks.into_inner().unwrap_or_else(|e| e.into_inner());
+        Ok((cells, crate::pieces::to_world(collected, &job, &map, &frame, self.sites)))
+    }
+
+    /// The second pass, then the per-site results.
+    fn finish_job<S: TaskSink>(
+        &self,
+        job: &ClipJob,
+        map: &[Option<usize>],
+        frame: &Frame,
+        mut out: ClipOutput,
+        sinks: &Mutex<Vec<S>>,
+    ) -> Result<Cells> {
+        let (redone, t) = crate::timing::timed(|| crate::second_pass::run(job, &mut out, sinks));
         let redone = redone?;
         if redone.finished + redone.unresolved > 0 {
             out.timings.push("host pass", t);
         }
-        let mut cells = finish(self.mesh, self.density, self.sites, &job, &map, &frame, out);
+        let refined = out.refined;
+        let mut cells = finish(self.mesh, self.density, self.sites, job, map, frame, out);
         cells.counters.second_pass = refined + redone.finished;
         cells.counters.unresolved = redone.unresolved;
         Ok(cells)

@@ -12,6 +12,9 @@
 //! nothing and is listed in `unfinished`, for a second pass with more
 //! neighbours and more capacity ([`clip_by_bisectors`] with a [`Cell`]).
 //!
+//! Each piece added to a site's sums is also handed to a [`PieceSink`]:
+//! nothing on the GPU, the host's piece export on the CPU.
+//!
 //! Everything is computed relative to the site (the bisector of `x_i` and
 //! `x_j` is `n·x <= |n|²/2` with `n = x_j - x_i`), in f32.
 
@@ -177,6 +180,31 @@ fn may_meet(tv: &[Vec3; 4], j: usize, list: usize, p: &ClipParams, sites: &[[f32
     true
 }
 
+/// Where the bodies hand their finished pieces: every non-empty piece
+/// added to a site's sums is also given here (a sink drops those of zero
+/// volume, which add nothing), so that the host can export the diagram
+/// computed by the very code that measured it. The GPU entry points pass
+/// [`NoPieces`], which compiles to nothing.
+pub trait PieceSink {
+    /// Site `site`'s non-empty piece of tet `tet`, relative to the site.
+    fn piece<const P: usize, const V: usize>(&mut self, tet: u32, site: u32, poly: &Polyhedron<P, V>);
+    /// Forgets the pieces of tet `tet` given so far: its flood failed and
+    /// the tet is redone whole (by the second pass, through a sink too).
+    fn discard_tet(&mut self, tet: u32);
+}
+
+/// A sink that keeps nothing (the GPU's, and the CPU's when no pieces are
+/// wanted).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct NoPieces;
+
+impl PieceSink for NoPieces {
+    #[inline]
+    fn piece<const P: usize, const V: usize>(&mut self, _tet: u32, _site: u32, _poly: &Polyhedron<P, V>) {}
+    #[inline]
+    fn discard_tet(&mut self, _tet: u32) {}
+}
+
 /// Adds a piece's integrals to site `j`'s sums, in fixed point.
 #[inline]
 pub fn accumulate<A: AtomicSums>(j: usize, m: &Moments, scale: f32, sums: &mut A) {
@@ -269,7 +297,7 @@ fn open_pair<C: AtomicSums>(
 /// Thread `pair` of the tet-cell strategy (Algorithm 4): pair
 /// `(pair / k_tet, pair % k_tet)` of tet and paired site.
 #[inline]
-pub fn tet_cell_pair<A: AtomicSums, C: AtomicSums, L: PairList>(
+pub fn tet_cell_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     pair: usize,
     p: &ClipParams,
     sites: &[[f32; 4]],
@@ -280,6 +308,7 @@ pub fn tet_cell_pair<A: AtomicSums, C: AtomicSums, L: PairList>(
     sums: &mut A,
     counters: &mut C,
     unfinished: &mut L,
+    sink: &mut S,
 ) {
     let mut tv = [Vec3::ZERO; 4];
     let (t, j) = open_pair(pair, p, sites, verts, tets, tet_sites, &mut tv, counters);
@@ -292,6 +321,7 @@ pub fn tet_cell_pair<A: AtomicSums, C: AtomicSums, L: PairList>(
     let nonempty = c.finished() && !poly.is_empty();
     if nonempty {
         accumulate(j, &piece_moments(&poly, t, verts, tets, &tv).0, p.fixed_scale, sums);
+        sink.piece(t as u32, j as u32, &poly);
     }
     if !c.finished() {
         unfinished.push(t as u32, j as u32);
@@ -346,7 +376,7 @@ pub fn voronoi_cell<O: OutBuf<[f32; 4]> + ?Sized, C: AtomicSums>(
 /// Thread `pair` of the cell-tet strategy (Algorithm 2): site `j`'s stored
 /// cell clipped by the 4 faces of tet `pair / k_tet`.
 #[inline]
-pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums, L: PairList>(
+pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     pair: usize,
     p: &ClipParams,
     sites: &[[f32; 4]],
@@ -357,6 +387,7 @@ pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums, L: PairList>(
     sums: &mut A,
     counters: &mut C,
     unfinished: &mut L,
+    sink: &mut S,
 ) {
     let mut tv = [Vec3::ZERO; 4];
     let (t, j) = open_pair(pair, p, sites, verts, tets, tet_sites, &mut tv, counters);
@@ -406,6 +437,7 @@ pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums, L: PairList>(
     let nonempty = c.finished() && !poly.is_empty();
     if nonempty {
         accumulate(j, &piece_moments(&poly, t, verts, tets, &tv).0, p.fixed_scale, sums);
+        sink.piece(t as u32, j as u32, &poly);
     }
     if !c.finished() {
         unfinished.push(t as u32, j as u32);
@@ -421,7 +453,7 @@ pub const FLOOD_CAP: usize = 32;
 /// the tet's centroid (`tet_sites[t]`, a 1-NN list), each piece clipped by
 /// the bisectors of its site's `list_len` nearest neighbours.
 #[inline]
-pub fn flood_tet<A: AtomicSums, C: AtomicSums, L: PairList>(
+pub fn flood_tet<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     t: usize,
     p: &ClipParams,
     sites: &[[f32; 4]],
@@ -432,13 +464,14 @@ pub fn flood_tet<A: AtomicSums, C: AtomicSums, L: PairList>(
     sums: &mut A,
     counters: &mut C,
     unfinished: &mut L,
+    sink: &mut S,
 ) {
     if t >= p.n_tets as usize {
         return;
     }
     let k = p.list_len as usize;
     let n_sites = p.n_sites;
-    flood::<32, 64, FLOOD_CAP, _, _, _, _>(
+    flood::<32, 64, FLOOD_CAP, _, _, _, _, _>(
         t,
         tet_sites[t],
         p.fixed_scale,
@@ -449,6 +482,7 @@ pub fn flood_tet<A: AtomicSums, C: AtomicSums, L: PairList>(
         sums,
         counters,
         unfinished,
+        sink,
     );
 }
 
@@ -459,10 +493,10 @@ pub fn flood_tet<A: AtomicSums, C: AtomicSums, L: PairList>(
 /// no k, no empty pairs. `piece(j, poly)` clips `poly`, the tet relative to
 /// site `j`, into `j`'s piece. Certificate: the pieces' volumes must add up
 /// to the tet's. A tet whose flood fails (a piece unfinished, more than `Q`
-/// sites, the certificate off) adds nothing and is listed whole, as
-/// `(tet, NO_SITE)`.
+/// sites, the certificate off) adds nothing, has the pieces it gave `sink`
+/// discarded, and is listed whole, as `(tet, NO_SITE)`.
 #[inline]
-pub fn flood<const P: usize, const V: usize, const Q: usize, F, A, C, L>(
+pub fn flood<const P: usize, const V: usize, const Q: usize, F, A, C, L, S>(
     t: usize,
     start: u32,
     fixed_scale: f32,
@@ -473,11 +507,13 @@ pub fn flood<const P: usize, const V: usize, const Q: usize, F, A, C, L>(
     sums: &mut A,
     counters: &mut C,
     unfinished: &mut L,
+    sink: &mut S,
 ) where
     F: FnMut(usize, &mut Polyhedron<P, V>) -> Clipped,
     A: AtomicSums,
     C: AtomicSums,
     L: PairList,
+    S: PieceSink,
 {
     let mut queue = [0u32; Q];
     let mut found = [Moments::default(); Q];
@@ -509,6 +545,8 @@ pub fn flood<const P: usize, const V: usize, const Q: usize, F, A, C, L>(
             found[head] = m;
             total += volume;
             poly.keep_faces_only();
+            // Given now, while the piece exists; taken back if the flood fails.
+            sink.piece(t as u32, j as u32, &poly);
             let mut q = 0;
             while q < poly.n_planes as usize {
                 let id = poly.ids[q];
@@ -548,6 +586,7 @@ pub fn flood<const P: usize, const V: usize, const Q: usize, F, A, C, L>(
             i += 1;
         }
     } else {
+        sink.discard_tet(t as u32);
         unfinished.push(t as u32, NO_SITE);
     }
     count(counters, head as i64, nonempty, &c);

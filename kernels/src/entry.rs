@@ -7,6 +7,7 @@
 
 use crate::abi::{thread_index, ClipParams, GridBuildParams, KnnParams, LloydParams, QuantPoint, RefineParams};
 use crate::buffers::{DeviceCounters, DeviceList, DeviceSums};
+use crate::clip::NoPieces;
 use crate::{clip, grid, knn, lloyd, refine, scan};
 use spirv_std::glam::UVec3;
 use spirv_std::spirv;
@@ -139,6 +140,7 @@ pub fn clip_tet_cell(
         &mut DeviceSums(sums),
         &mut DeviceSums(counters),
         &mut DeviceList(unfinished),
+        &mut NoPieces,
     );
 }
 
@@ -184,6 +186,7 @@ pub fn clip_cell_tet(
         &mut DeviceSums(sums),
         &mut DeviceSums(counters),
         &mut DeviceList(unfinished),
+        &mut NoPieces,
     );
 }
 
@@ -214,6 +217,7 @@ pub fn clip_flood(
         &mut DeviceSums(sums),
         &mut DeviceSums(counters),
         &mut DeviceList(unfinished),
+        &mut NoPieces,
     );
 }
 
@@ -257,6 +261,7 @@ pub fn refine(
         &mut DeviceSums(sums),
         &mut DeviceSums(counters),
         &mut DeviceList(still),
+        &mut NoPieces,
     );
 }
 

@@ -100,6 +100,15 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
         Self { planes: [Vec4::ZERO; P], ids: [NO_ID; P], verts: [Vec3::ZERO; V], tris: [0; V], n_planes: 0, n_verts: 0 }
     }
 
+    /// The planes meeting at vertex `v`, ordered so that `det(n_a, n_b,
+    /// n_c) > 0`: seen from outside face `a`, the next vertex
+    /// counter-clockwise around it is the one whose triple, rotated to start
+    /// with `a`, is `(a, c, _)` (the two share the edge where `a` and `c` meet).
+    #[inline]
+    pub fn vertex_planes(&self, v: usize) -> [u32; 3] {
+        unpack(self.tris[v])
+    }
+
     /// Whether nothing is left.
     #[inline]
     pub fn is_empty(&self) -> bool {

@@ -14,7 +14,7 @@
 
 use crate::abi::{GridParams, QuantPoint, RefineParams, NO_SITE};
 use crate::buffers::{AtomicSums, PairList};
-use crate::clip::{accumulate, flood, piece_moments, tet_vertices, Clipped};
+use crate::clip::{accumulate, flood, piece_moments, tet_vertices, Clipped, PieceSink};
 use crate::grid::cell_index;
 use crate::knn::sub_floor0;
 use crate::polyhedron::{Cell, Clip, Polyhedron, CELL_PLANES, CELL_VERTS};
@@ -175,7 +175,7 @@ pub fn clip_by_grid<const P: usize, const V: usize>(
 /// nearest its centroid (`tet_sites[tet]`); a pair's piece is clipped on
 /// its own. What fails again goes to `still`.
 #[inline]
-pub fn refine_entry<A: AtomicSums, C: AtomicSums, L: PairList>(
+pub fn refine_entry<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     e: usize,
     p: &RefineParams,
     w: GridWalk,
@@ -187,6 +187,7 @@ pub fn refine_entry<A: AtomicSums, C: AtomicSums, L: PairList>(
     sums: &mut A,
     counters: &mut C,
     still: &mut L,
+    sink: &mut S,
 ) {
     if e >= list[0] as usize || e >= p.capacity as usize {
         return;
@@ -195,7 +196,7 @@ pub fn refine_entry<A: AtomicSums, C: AtomicSums, L: PairList>(
     let j = list[2 + 2 * e];
     if j == NO_SITE {
         let start = tet_sites[t * p.clip.k_tet as usize];
-        flood::<CELL_PLANES, CELL_VERTS, REFINE_QUEUE, _, _, _, _>(
+        flood::<CELL_PLANES, CELL_VERTS, REFINE_QUEUE, _, _, _, _, _>(
             t,
             start,
             p.clip.fixed_scale,
@@ -206,6 +207,7 @@ pub fn refine_entry<A: AtomicSums, C: AtomicSums, L: PairList>(
             sums,
             counters,
             still,
+            sink,
         );
     } else {
         let j = j as usize;
@@ -217,6 +219,7 @@ pub fn refine_entry<A: AtomicSums, C: AtomicSums, L: PairList>(
             still.push(t as u32, j as u32);
         } else if !poly.is_empty() {
             accumulate(j, &piece_moments(&poly, t, verts, tets, &tv).0, p.clip.fixed_scale, sums);
+            sink.piece(t as u32, j as u32, &poly);
         }
     }
 }

@@ -101,8 +101,9 @@ fn read_text(path: &Path) -> Result<String> {
     Ok(String::from_utf8(bytes).unwrap_or_else(|e| String::from_utf8_lossy(e.as_bytes()).into_owned()))
 }
 
-fn write_file(path: &Path, body: impl FnOnce(&mut dyn Write) -> std::io::Result<()>) -> Result<()> {
-    let io = |source| Error::Io { path: path.display().to_string(), source };
+/// Writes a file through a buffer; errors name the file.
+pub(crate) fn write_file(path: &Path, body: impl FnOnce(&mut dyn Write) -> std::io::Result<()>) -> Result<()> {
+    let io = |source| Error::Write { path: path.display().to_string(), source };
     let mut w = std::io::BufWriter::new(std::fs::File::create(path).map_err(io)?);
     body(&mut w).map_err(io)?;
     w.flush().map_err(io)

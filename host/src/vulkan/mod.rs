@@ -50,8 +50,12 @@ impl VulkanBackend {
 }
 
 impl Backend for VulkanBackend {
-    fn name(&self) -> String {
-        format!("vulkan ({})", self.ctx.info().name)
+    fn kind(&self) -> &'static str {
+        "vulkan"
+    }
+
+    fn device(&self) -> String {
+        self.ctx.info().name.clone()
     }
 
     fn knn(&self, job: &KnnJob) -> Result<Neighbors> {

@@ -1,0 +1,183 @@
+//! `summary.json` and the terminal table: what was computed, where, how
+//! fast, and how well (`E_vol`, counters).
+
+use crate::backend::Backend;
+use crate::error::Result;
+use crate::io::write_file;
+use crate::mesh::TetMesh;
+use crate::timing::Timings;
+use crate::voronoi::{Cells, Counters};
+use std::fmt;
+use std::path::Path;
+
+/// A run in numbers; serialised as `summary.json`, shown as a table by
+/// `Display`.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct Summary {
+    /// The model's name or mesh file.
+    pub model: String,
+    /// Tets in the mesh.
+    pub tets: usize,
+    /// Input sites (duplicates included).
+    pub sites: usize,
+    /// `cpu` or `vulkan`.
+    pub backend: String,
+    /// The GPU's name, or the CPU and its threads.
+    pub device: String,
+    /// `tet-cell` or `cell-tet`.
+    pub strategy: String,
+    /// `flood` or `knn`.
+    pub pairing: String,
+    /// Sites paired with each tet (1 for flood pairing: its first site).
+    pub k: usize,
+    /// Neighbours per site.
+    pub k_site: usize,
+    /// The mesh's volume.
+    pub mesh_volume: f64,
+    /// The sum of the cells' volumes.
+    pub volume_sum: f64,
+    /// `|volume_sum - mesh_volume| / mesh_volume`.
+    pub e_vol: f64,
+    /// The CVT energy `Σ_i ∫ |x - x_i|²`.
+    pub energy: f64,
+    /// Times, in seconds.
+    pub times: Times,
+    /// What the kernels and the second pass counted.
+    pub counters: Counters,
+    /// Pieces exported (absent when they were not).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub pieces: Option<usize>,
+}
+
+/// Times of a run, in seconds.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct Times {
+    /// Neighbour search: site grid and k-NN of the sites and tets.
+    pub knn_s: f64,
+    /// Clipping: cells (cell-tet), pieces, second pass.
+    pub clip_s: f64,
+    /// Every phase, transfers included.
+    pub total_s: f64,
+    /// Each phase as the backend names it, in order (a JSON object).
+    #[serde(serialize_with = "in_order")]
+    pub phases: Vec<(String, f64)>,
+}
+
+/// `(name, value)` pairs as a JSON object that keeps their order.
+fn in_order<S: serde::Serializer>(pairs: &[(String, f64)], s: S) -> std::result::Result<S::Ok, S::Error> {
+    s.collect_map(pairs.iter().map(|(k, v)| (k, v)))
+}
+
+impl Times {
+    /// Sorts a backend's phases into k-NN, clipping and total.
+    pub fn of(t: &Timings) -> Self {
+        let mut times = Self { total_s: t.total(), ..Self::default() };
+        for (phase, s) in &t.phases {
+            if phase == "grid" || phase.contains("knn") {
+                times.knn_s += s;
+            } else if matches!(phase.as_str(), "cells" | "clip" | "second pass") {
+                times.clip_s += s;
+            }
+        }
+        times.phases = t.phases.clone();
+        times
+    }
+}
+
+/// The name clap shows for a value (`tet-cell`, `flood`).
+fn value_name<T: clap::ValueEnum>(value: &T) -> String {
+    value.to_possible_value().map(|v| v.get_name().to_string()).unwrap_or_default()
+}
+
+impl Summary {
+    /// The summary of `cells`, computed for `model` with `n_sites` sites on
+    /// `backend`.
+    pub fn new(
+        model: &str,
+        mesh: &TetMesh,
+        n_sites: usize,
+        strategy: crate::Strategy,
+        backend: &dyn Backend,
+        cells: &Cells,
+    ) -> Self {
+        Self {
+            model: model.to_string(),
+            tets: mesh.tets.len(),
+            sites: n_sites,
+            backend: backend.kind().to_string(),
+            device: backend.device(),
+            strategy: value_name(&strategy),
+            pairing: value_name(&cells.pairing),
+            k: cells.k,
+            k_site: cells.k_site,
+            mesh_volume: cells.mesh_volume,
+            volume_sum: cells.total_volume,
+            e_vol: cells.e_vol,
+            energy: cells.energy_total(),
+            times: Times::of(&cells.timings),
+            counters: cells.counters,
+            pieces: None,
+        }
+    }
+
+    /// Writes the summary as pretty-printed JSON.
+    pub fn write_json(&self, path: &Path) -> Result<()> {
+        write_file(path, |w| {
+            serde_json::to_writer_pretty(&mut *w, self).map_err(std::io::Error::other)?;
+            writeln!(w)
+        })
+    }
+}
+
+fn ms(s: f64) -> String {
+    format!("{:.1} ms", s * 1e3)
+}
+
+impl fmt::Display for Summary {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let c = &self.counters;
+        let phases: Vec<String> = self.times.phases.iter().map(|(p, s)| format!("{p} {}", ms(*s))).collect();
+        let rows = [
+            ("model", format!("{} ({} tets, volume {:.6})", self.model, self.tets, self.mesh_volume)),
+            ("sites", format!("{} ({} duplicates)", self.sites, c.duplicate_sites)),
+            ("backend", format!("{} on {}", self.backend, self.device)),
+            (
+                "strategy",
+                format!("{}, {} pairing, k = {}, k_site = {}", self.strategy, self.pairing, self.k, self.k_site),
+            ),
+            (
+                "time",
+                format!(
+                    "k-NN {}, clip {}, total {} ({})",
+                    ms(self.times.knn_s),
+                    ms(self.times.clip_s),
+                    ms(self.times.total_s),
+                    phases.join(", ")
+                ),
+            ),
+            ("E_vol", format!("{:.2e} (volume {:.6} of {:.6})", self.e_vol, self.volume_sum, self.mesh_volume)),
+            ("energy", format!("{:.6e}", self.energy)),
+            (
+                "pairs",
+                format!(
+                    "{} tried, {} non-empty, {} dropped before clipping; {} clips",
+                    c.pairs, c.nonempty, c.filtered, c.clips
+                ),
+            ),
+            (
+                "unfinished",
+                format!(
+                    "security radius {}, overflows {}, broken {}; second pass finished {}, unresolved {}",
+                    c.security_missed, c.overflows, c.broken, c.second_pass, c.unresolved
+                ),
+            ),
+        ];
+        for (key, value) in rows {
+            writeln!(f, "  {key:<11}{value}")?;
+        }
+        if let Some(n) = self.pieces {
+            writeln!(f, "  {:<11}{n}", "pieces")?;
+        }
+        Ok(())
+    }
+}

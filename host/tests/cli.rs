@@ -1,0 +1,113 @@
+//! `cvd run` as a user runs it: the files it writes, and its exit codes
+//! (0 success, 2 bad input or arguments, 1 anything else).
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+/// A fresh folder in the temporary directory.
+fn temp_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("cvd-cli-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// `cvd run` on the CPU with `args`, in folder `cwd`.
+fn cvd_run(cwd: &Path, args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_cvd"))
+        .current_dir(cwd)
+        .args(["run", "--backend", "cpu", "--threads", "2"])
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn text(bytes: &[u8]) -> String {
+    String::from_utf8_lossy(bytes).into_owned()
+}
+
+#[test]
+fn run_writes_every_output() {
+    let dir = temp_dir("all");
+    let json = dir.join("copy.json");
+    let out = cvd_run(&dir, &["--sites", "150", "--resolution", "3", "--json", json.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let folder = dir.join("out").join("cube");
+    for file in ["cells.csv", "sites.xyz", "pieces.vtu", "picture.png", "summary.json"] {
+        assert!(folder.join(file).is_file(), "{file} missing");
+    }
+    let rows = cvd::output::read_cells_csv(&folder.join("cells.csv")).unwrap();
+    assert_eq!(rows.len(), 150);
+    let sites = cvd::io::read_sites(&folder.join("sites.xyz")).unwrap();
+    assert_eq!(sites, cvd::points::in_mesh(&cvd::TetMesh::cube(3), 150, 1), "sites.xyz holds the sites used");
+    let summary = std::fs::read_to_string(folder.join("summary.json")).unwrap();
+    assert_eq!(std::fs::read_to_string(&json).unwrap(), summary, "--json writes the same summary");
+    let stdout = text(&out.stdout);
+    for part in ["E_vol", "k-NN", "cpu on 2 threads", "tet-cell", "pieces", "wrote"] {
+        assert!(stdout.contains(part), "the table lacks {part}:\n{stdout}");
+    }
+}
+
+#[test]
+fn no_pieces_skips_the_pieces_and_the_picture() {
+    let dir = temp_dir("no-pieces");
+    let out = cvd_run(&dir, &["--sites", "50", "--resolution", "2", "--out", "here", "--no-pieces"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let folder = dir.join("here");
+    assert!(folder.join("cells.csv").is_file() && folder.join("summary.json").is_file());
+    assert!(!folder.join("pieces.vtu").exists() && !folder.join("picture.png").exists());
+    let out = cvd_run(&dir, &["--sites", "50", "--resolution", "2", "--out", "there", "--no-picture"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert!(dir.join("there/pieces.vtu").is_file() && !dir.join("there/picture.png").exists());
+}
+
+#[test]
+fn the_mesh_file_names_the_output_folder() {
+    let dir = temp_dir("mesh-name");
+    cvd::io::write_medit(&dir.join("block.mesh"), &cvd::TetMesh::cube(2)).unwrap();
+    let out = cvd_run(&dir, &["--mesh", "block.mesh", "--sites", "20", "--no-pieces"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert!(dir.join("out/block/cells.csv").is_file());
+}
+
+#[test]
+fn bad_input_exits_2_naming_the_file() {
+    let dir = temp_dir("bad-input");
+    std::fs::write(dir.join("broken.mesh"), "MeshVersionFormatted 1\nDimension 3\nVertices\nx\n").unwrap();
+    std::fs::write(dir.join("sites.xyz"), "0 0\n").unwrap();
+    let cases: [&[&str]; 5] = [
+        &["--mesh", "missing.mesh"],
+        &["--mesh", "broken.mesh"],
+        &["--sites-file", "sites.xyz"],
+        &["--model", "no-such-model"],
+        &["--sites", "0"],
+    ];
+    for args in cases {
+        let out = cvd_run(&dir, args);
+        let stderr = text(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {stderr}");
+        assert!(stderr.starts_with("cvd: "), "{args:?}: {stderr}");
+        if let Some(file) = args.get(1).filter(|a| a.contains('.')) {
+            assert!(stderr.contains(file), "{args:?}: the error does not name {file}: {stderr}");
+        }
+    }
+}
+
+#[test]
+fn bad_arguments_exit_2() {
+    let dir = temp_dir("bad-args");
+    for args in [&["--strategy", "sideways"][..], &["--no-such-option"], &["--sites", "many"]] {
+        let out = cvd_run(&dir, args);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {}", text(&out.stderr));
+    }
+}
+
+#[test]
+fn an_unwritable_output_exits_1() {
+    let dir = temp_dir("unwritable");
+    std::fs::write(dir.join("file"), "").unwrap();
+    let out = cvd_run(&dir, &["--sites", "20", "--resolution", "2", "--out", "file/sub"]);
+    let stderr = text(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("cannot write file/sub"), "{stderr}");
+}
