@@ -12,11 +12,14 @@ fn temp_dir(name: &str) -> PathBuf {
     dir
 }
 
-/// `cvd run` on the CPU with `args`, in folder `cwd`.
+/// `cvd run` on the CPU with `args` (the built-in cube unless they name a
+/// model or a mesh), in folder `cwd`.
 fn cvd_run(cwd: &Path, args: &[&str]) -> Output {
+    let model: &[&str] = if args.iter().any(|a| *a == "--model" || *a == "--mesh") { &[] } else { &["--model", "cube"] };
     Command::new(env!("CARGO_BIN_EXE_cvd"))
         .current_dir(cwd)
         .args(["run", "--backend", "cpu", "--threads", "2"])
+        .args(model)
         .args(args)
         .output()
         .unwrap()
@@ -39,7 +42,8 @@ fn run_writes_every_output() {
     let rows = cvd::output::read_cells_csv(&folder.join("cells.csv")).unwrap();
     assert_eq!(rows.len(), 150);
     let sites = cvd::io::read_sites(&folder.join("sites.xyz")).unwrap();
-    assert_eq!(sites, cvd::points::in_mesh(&cvd::TetMesh::cube(3), 150, 1), "sites.xyz holds the sites used");
+    let cube = cvd::mesher::models::builtin("cube", Some(3)).unwrap();
+    assert_eq!(sites, cvd::points::in_mesh(&cube, 150, 1), "sites.xyz holds the sites used");
     let summary = std::fs::read_to_string(folder.join("summary.json")).unwrap();
     assert_eq!(std::fs::read_to_string(&json).unwrap(), summary, "--json writes the same summary");
     let stdout = text(&out.stdout);
