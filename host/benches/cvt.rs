@@ -5,11 +5,16 @@
 //! backend: time per iteration and the energy after 5, 20 and the last
 //! iteration (120 by default).
 //!
+//! Writes a chart of the energy against the iteration for both optimisers
+//! per model and backend into `--plots DIR` (default `bench-results/`).
+//!
 //! Options: `--models-dir DIR` (default: `$CVD_MODELS` or `../shared/models`)
-//! `--iterations N` `--threads N` `--device D` `--only NAME` `--json PATH`.
+//! `--iterations N` `--threads N` `--device D` `--only NAME` `--json PATH`
+//! `--plots DIR`.
 
 use cvd::cpu::CpuBackend;
 use cvd::cvt::CvtRun;
+use cvd::output::Series;
 use cvd::vulkan::{VulkanBackend, VulkanOptions};
 use cvd::{points, Backend, ClippedVoronoi, TetMesh};
 use std::path::PathBuf;
@@ -21,6 +26,7 @@ struct Options {
     device: Option<String>,
     only: Option<String>,
     json: Option<String>,
+    plots: PathBuf,
 }
 
 fn options() -> Options {
@@ -35,6 +41,7 @@ fn options() -> Options {
         device: None,
         only: None,
         json: None,
+        plots: PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..").join("bench-results"),
     };
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
@@ -46,6 +53,7 @@ fn options() -> Options {
             "--device" => o.device = Some(value()),
             "--only" => o.only = Some(value()),
             "--json" => o.json = Some(value()),
+            "--plots" => o.plots = value().into(),
             "--bench" => {}
             other => panic!("unknown option {other}"),
         }
@@ -133,6 +141,7 @@ fn main() {
             continue;
         }
         for backend in &backends {
+            let mut curves = Vec::new();
             for optimizer in ["lloyd", "lbfgs"] {
                 let cv = ClippedVoronoi::new(mesh, sites).backend(*backend);
                 let start = std::time::Instant::now();
@@ -168,7 +177,20 @@ fn main() {
                     energy_after(&run, 20),
                     energy_after(&run, n - 1),
                 );
+                curves.push((optimizer, row.energy.clone()));
                 rows.push(row);
+            }
+            // Energy against iteration, both optimisers: bench-results/.
+            let colours = [[200, 40, 40], [40, 80, 200]];
+            let series: Vec<Series> =
+                curves.iter().zip(colours).map(|((name, values), rgb)| Series { name, values, rgb }).collect();
+            let kind = if backend.name().starts_with("cpu") { "cpu" } else { "vulkan" };
+            let path = o.plots.join(format!("cvt_{name}_{kind}.png"));
+            match std::fs::create_dir_all(&o.plots).map_err(|e| e.to_string()).and_then(|_| {
+                cvd::output::write_line_chart_png(&path, "cvt energy", &series).map_err(|e| e.to_string())
+            }) {
+                Ok(()) => println!("wrote {}", path.display()),
+                Err(e) => println!("{}: {e}", path.display()),
             }
         }
     }

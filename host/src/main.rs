@@ -242,7 +242,14 @@ enum Optimizer {
 }
 
 /// Runs the CVT iterations with a progress bar; returns the final sites.
-fn lloyd(args: &RunArgs, mesh: &TetMesh, sites: &[[f32; 3]], backend: &dyn cvd::Backend) -> cvd::Result<Vec<[f32; 3]>> {
+/// Also writes `energy.png`, the energy against the iteration, into `dir`.
+fn lloyd(
+    args: &RunArgs,
+    mesh: &TetMesh,
+    sites: &[[f32; 3]],
+    backend: &dyn cvd::Backend,
+    dir: &std::path::Path,
+) -> cvd::Result<Vec<[f32; 3]>> {
     let bar = indicatif::ProgressBar::new(args.iterations as u64).with_style(
         indicatif::ProgressStyle::with_template("{msg} {bar:30} {pos}/{len} iterations, {elapsed} ({per_sec})")
             .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
@@ -277,6 +284,10 @@ fn lloyd(args: &RunArgs, mesh: &TetMesh, sites: &[[f32; 3]], backend: &dyn cvd::
             "Lloyd: up to {empty} empty cells in an iteration (their sites stayed); {unresolved} pieces unresolved"
         );
     }
+    let energy: Vec<f64> = run.iterations.iter().map(|i| i.energy).collect();
+    let name = format!("{:?}", args.optimizer).to_lowercase();
+    let series = [output::Series { name: &name, values: &energy, rgb: [200, 40, 40] }];
+    output::write_line_chart_png(&dir.join("energy.png"), "cvt energy", &series)?;
     Ok(run.sites)
 }
 
@@ -297,7 +308,7 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
     create_dir(&dir)?;
     let backend = backend::open(&args.backend.options())?;
     println!("{model}: {} tets, {} sites, {:?} on {}", mesh.tets.len(), sites.len(), args.strategy, backend.name());
-    let sites = if args.iterations > 0 { lloyd(args, &mesh, &sites, backend.as_ref())? } else { sites };
+    let sites = if args.iterations > 0 { lloyd(args, &mesh, &sites, backend.as_ref(), &dir)? } else { sites };
     let density = density(args, &mesh)?;
     let mut cv = ClippedVoronoi::new(&mesh, &sites)
         .strategy(args.strategy)

@@ -15,7 +15,8 @@ fn temp_dir(name: &str) -> PathBuf {
 /// `cvd run` on the CPU with `args` (the built-in cube unless they name a
 /// model or a mesh), in folder `cwd`.
 fn cvd_run(cwd: &Path, args: &[&str]) -> Output {
-    let model: &[&str] = if args.iter().any(|a| *a == "--model" || *a == "--mesh") { &[] } else { &["--model", "cube"] };
+    let model: &[&str] =
+        if args.iter().any(|a| *a == "--model" || *a == "--mesh") { &[] } else { &["--model", "cube"] };
     Command::new(env!("CARGO_BIN_EXE_cvd"))
         .current_dir(cwd)
         .args(["run", "--backend", "cpu", "--threads", "2"])

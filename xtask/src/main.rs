@@ -18,7 +18,8 @@ commands:
 
 /// Paths given after these options are made absolute: cargo runs benches
 /// from the package's folder, not from where the user typed the command.
-const PATH_OPTIONS: &[&str] = &["--json", "--models-dir", "--mesh", "--sites-file", "--output", "--out"];
+const PATH_OPTIONS: &[&str] =
+    &["--json", "--models-dir", "--mesh", "--sites-file", "--output", "--out", "--plots", "--density-file"];
 
 fn absolute_paths(args: &[String]) -> Vec<String> {
     let cwd = std::env::current_dir().unwrap_or_default();

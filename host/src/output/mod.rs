@@ -11,11 +11,13 @@
 
 pub mod cells_csv;
 pub mod picture;
+pub mod plot;
 pub mod summary;
 pub mod vtu;
 
 pub use cells_csv::{read_cells_csv, write_cells_csv, CellRow};
 pub use picture::{write_section_png, Section};
+pub use plot::{write_line_chart_png, Series};
 pub use summary::{Summary, Times};
 pub use vtu::write_pieces_vtu;
 

@@ -1,0 +1,239 @@
+//! A line chart of values against iterations (the CVT energy), written as a
+//! PNG with its axes, tick labels and legend in a small built-in font.
+
+use crate::error::{Error, Result};
+use std::path::Path;
+
+/// One line of the chart.
+pub struct Series<'a> {
+    /// Name in the legend (lowercase letters, digits and `-+.e()`).
+    pub name: &'a str,
+    /// Values, one per iteration from 0.
+    pub values: &'a [f64],
+    /// Line colour.
+    pub rgb: [u8; 3],
+}
+
+const WIDTH: usize = 800;
+const HEIGHT: usize = 500;
+const LEFT: usize = 90;
+const RIGHT: usize = 20;
+const TOP: usize = 20;
+const BOTTOM: usize = 50;
+/// Pixels per font dot.
+const DOT: usize = 2;
+
+struct Canvas {
+    rgb: Vec<u8>,
+}
+
+impl Canvas {
+    fn new() -> Self {
+        Self { rgb: vec![255; WIDTH * HEIGHT * 3] }
+    }
+
+    fn set(&mut self, x: i64, y: i64, c: [u8; 3]) {
+        if x >= 0 && y >= 0 && (x as usize) < WIDTH && (y as usize) < HEIGHT {
+            let i = (y as usize * WIDTH + x as usize) * 3;
+            self.rgb[i..i + 3].copy_from_slice(&c);
+        }
+    }
+
+    fn rect(&mut self, x: i64, y: i64, w: i64, h: i64, c: [u8; 3]) {
+        for yy in y..y + h {
+            for xx in x..x + w {
+                self.set(xx, yy, c);
+            }
+        }
+    }
+
+    /// A line two pixels wide (Bresenham).
+    fn line(&mut self, (x0, y0): (i64, i64), (x1, y1): (i64, i64), c: [u8; 3]) {
+        let (dx, dy) = ((x1 - x0).abs(), -(y1 - y0).abs());
+        let (sx, sy) = (if x0 < x1 { 1 } else { -1 }, if y0 < y1 { 1 } else { -1 });
+        let (mut x, mut y, mut err) = (x0, y0, dx + dy);
+        loop {
+            self.rect(x, y, 2, 2, c);
+            if x == x1 && y == y1 {
+                break;
+            }
+            let e2 = 2 * err;
+            if e2 >= dy {
+                err += dy;
+                x += sx;
+            }
+            if e2 <= dx {
+                err += dx;
+                y += sy;
+            }
+        }
+    }
+
+    /// Text with its top-left corner at `(x, y)`.
+    fn text(&mut self, x: i64, y: i64, s: &str, c: [u8; 3]) {
+        for (k, ch) in s.chars().enumerate() {
+            let rows = glyph(ch);
+            for (r, bits) in rows.iter().enumerate() {
+                for col in 0..3 {
+                    if bits & (0b100 >> col) != 0 {
+                        let px = x + ((k * 4 + col) * DOT) as i64;
+                        self.rect(px, y + (r * DOT) as i64, DOT as i64, DOT as i64, c);
+                    }
+                }
+            }
+        }
+    }
+}
+
+fn text_width(s: &str) -> i64 {
+    (s.chars().count() * 4 * DOT) as i64
+}
+
+/// 3x5 dots per character, one row of 3 bits per entry.
+fn glyph(c: char) -> [u8; 5] {
+    match c {
+        '0' => [7, 5, 5, 5, 7],
+        '1' => [2, 6, 2, 2, 7],
+        '2' => [7, 1, 7, 4, 7],
+        '3' => [7, 1, 7, 1, 7],
+        '4' => [5, 5, 7, 1, 1],
+        '5' => [7, 4, 7, 1, 7],
+        '6' => [7, 4, 7, 5, 7],
+        '7' => [7, 1, 1, 2, 2],
+        '8' => [7, 5, 7, 5, 7],
+        '9' => [7, 5, 7, 1, 7],
+        '.' => [0, 0, 0, 0, 2],
+        '-' => [0, 0, 7, 0, 0],
+        '+' => [0, 2, 7, 2, 0],
+        '(' => [1, 2, 2, 2, 1],
+        ')' => [4, 2, 2, 2, 4],
+        'a' => [0, 7, 1, 7, 7],
+        'b' => [4, 4, 7, 5, 7],
+        'c' => [0, 7, 4, 4, 7],
+        'd' => [1, 1, 7, 5, 7],
+        'e' => [0, 7, 7, 4, 7],
+        'f' => [3, 4, 7, 4, 4],
+        'g' => [0, 7, 5, 7, 1],
+        'h' => [4, 4, 7, 5, 5],
+        'i' => [2, 0, 2, 2, 2],
+        'k' => [4, 5, 6, 5, 5],
+        'l' => [6, 2, 2, 2, 7],
+        'm' => [0, 7, 7, 5, 5],
+        'n' => [0, 6, 5, 5, 5],
+        'o' => [0, 7, 5, 5, 7],
+        'p' => [7, 5, 7, 4, 4],
+        'r' => [0, 7, 4, 4, 4],
+        's' => [7, 4, 7, 1, 7],
+        't' => [2, 7, 2, 2, 3],
+        'u' => [0, 5, 5, 5, 7],
+        'v' => [0, 5, 5, 5, 2],
+        'w' => [0, 5, 5, 7, 7],
+        'x' => [0, 5, 2, 2, 5],
+        'y' => [5, 5, 7, 1, 7],
+        _ => [0; 5],
+    }
+}
+
+/// `v` in three significant digits and a short exponent: `4.41e-4`.
+fn label(v: f64) -> String {
+    if v == 0.0 {
+        return "0".into();
+    }
+    let e = v.abs().log10().floor() as i32;
+    format!("{:.2}e{e}", v / 10f64.powi(e))
+}
+
+/// Writes the chart of `series` to `path` (`y_name` labels the vertical
+/// axis; the horizontal one counts iterations).
+pub fn write_line_chart_png(path: &Path, y_name: &str, series: &[Series]) -> Result<()> {
+    let n = series.iter().map(|s| s.values.len()).max().unwrap_or(0).max(2);
+    let finite = series.iter().flat_map(|s| s.values.iter().copied()).filter(|v| v.is_finite());
+    let (mut lo, mut hi) = finite.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
+    if !lo.is_finite() {
+        (lo, hi) = (0.0, 1.0);
+    }
+    if hi - lo <= 1e-12 * hi.abs().max(1e-300) {
+        (lo, hi) = (lo - 0.5 * lo.abs().max(1e-12), hi + 0.5 * hi.abs().max(1e-12));
+    }
+    let pad = 0.05 * (hi - lo);
+    let (lo, hi) = (lo - pad, hi + pad);
+    let (x0, x1) = (LEFT as i64, (WIDTH - RIGHT) as i64);
+    let (y0, y1) = (TOP as i64, (HEIGHT - BOTTOM) as i64);
+    let px = |i: f64| x0 + ((i / (n - 1) as f64) * (x1 - x0) as f64).round() as i64;
+    let py = |v: f64| y1 - (((v - lo) / (hi - lo)) * (y1 - y0) as f64).round() as i64;
+
+    let mut c = Canvas::new();
+    const GRID: [u8; 3] = [225, 225, 225];
+    const INK: [u8; 3] = [40, 40, 40];
+    for k in 0..=5 {
+        let v = lo + (hi - lo) * k as f64 / 5.0;
+        let y = py(v);
+        c.line((x0, y), (x1, y), GRID);
+        let t = label(v);
+        c.text(x0 - 8 - text_width(&t), y - 5, &t, INK);
+        let i = ((n - 1) as f64 * k as f64 / 5.0).round();
+        let x = px(i);
+        c.line((x, y0), (x, y1), GRID);
+        let t = format!("{}", i as usize);
+        c.text(x - text_width(&t) / 2, y1 + 8, &t, INK);
+    }
+    c.line((x0, y0), (x0, y1), INK);
+    c.line((x0, y1), (x1, y1), INK);
+    c.text((x0 + x1) / 2 - text_width("iteration") / 2, y1 + 26, "iteration", INK);
+    c.text(4, y0 - 14, y_name, INK);
+    for (k, s) in series.iter().enumerate() {
+        let points: Vec<(i64, i64)> =
+            s.values.iter().enumerate().filter(|(_, v)| v.is_finite()).map(|(i, &v)| (px(i as f64), py(v))).collect();
+        for w in points.windows(2) {
+            c.line(w[0], w[1], s.rgb);
+        }
+        // Legend, top right.
+        let y = y0 + 6 + 16 * k as i64;
+        let x = x1 - 20 - text_width(s.name) - 24;
+        c.rect(x, y + 2, 16, 6, s.rgb);
+        c.text(x + 22, y, s.name, INK);
+    }
+
+    let io = |source| Error::Write { path: path.display().to_string(), source };
+    let file = std::fs::File::create(path).map_err(io)?;
+    let mut encoder = png::Encoder::new(std::io::BufWriter::new(file), WIDTH as u32, HEIGHT as u32);
+    encoder.set_color(png::ColorType::Rgb);
+    encoder.set_depth(png::BitDepth::Eight);
+    let png_error = |e: png::EncodingError| match e {
+        png::EncodingError::IoError(source) => io(source),
+        other => io(std::io::Error::other(other)),
+    };
+    let mut writer = encoder.write_header().map_err(png_error)?;
+    writer.write_image_data(&c.rgb).map_err(png_error)?;
+    writer.finish().map_err(png_error)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn chart_draws_lines_where_the_values_are() {
+        let path = std::env::temp_dir().join(format!("cvd-plot-{}.png", std::process::id()));
+        let down: Vec<f64> = (0..50).map(|i| 4.4e-4 - 1e-6 * i as f64).collect();
+        let flat = vec![4.0e-4; 50];
+        let series = [
+            Series { name: "lloyd", values: &down, rgb: [200, 30, 30] },
+            Series { name: "lbfgs", values: &flat, rgb: [30, 30, 200] },
+        ];
+        write_line_chart_png(&path, "energy", &series).unwrap();
+        let decoder = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&path).unwrap()));
+        let mut reader = decoder.read_info().unwrap();
+        let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+        reader.next_frame(&mut buf).unwrap();
+        let at = |x: usize, y: usize| &buf[(y * WIDTH + x) * 3..(y * WIDTH + x) * 3 + 3];
+        // The flat series is a horizontal line in the middle of the plot
+        // area's columns; the falling one starts at the top left.
+        let column = (LEFT + WIDTH - RIGHT) / 2;
+        let blue = (TOP..HEIGHT - BOTTOM).filter(|&y| at(column, y) == [30, 30, 200]).count();
+        assert!(blue >= 2, "no flat line in column {column}");
+        let red_top_left = (TOP..TOP + 60).any(|y| at(LEFT + 1, y) == [200, 30, 30]);
+        assert!(red_top_left, "the falling line does not start at the top left");
+        let _ = std::fs::remove_file(path);
+    }
+}
