@@ -18,7 +18,7 @@ const WIDTH: usize = 800;
 const HEIGHT: usize = 500;
 const LEFT: usize = 90;
 const RIGHT: usize = 20;
-const TOP: usize = 20;
+const TOP: usize = 36;
 const BOTTOM: usize = 50;
 /// Pixels per font dot.
 const DOT: usize = 2;
@@ -180,7 +180,7 @@ pub fn write_line_chart_png(path: &Path, y_name: &str, series: &[Series]) -> Res
     c.line((x0, y0), (x0, y1), INK);
     c.line((x0, y1), (x1, y1), INK);
     c.text((x0 + x1) / 2 - text_width("iteration") / 2, y1 + 26, "iteration", INK);
-    c.text(4, y0 - 14, y_name, INK);
+    c.text(4, y0 - 30, y_name, INK);
     for (k, s) in series.iter().enumerate() {
         let points: Vec<(i64, i64)> =
             s.values.iter().enumerate().filter(|(_, v)| v.is_finite()).map(|(i, &v)| (px(i as f64), py(v))).collect();
