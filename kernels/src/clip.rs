@@ -63,6 +63,71 @@ impl Clipped {
     }
 }
 
+/// A run of bisector clips on one polyhedron: how it went, and the
+/// polyhedron's farthest vertex and bounding box, which decide cheaply
+/// which bisectors can still cut it.
+pub struct BisectorRun {
+    /// How the run went so far.
+    pub out: Clipped,
+    /// Largest squared distance of a vertex from the site.
+    pub r2: f32,
+    mid: Vec3,
+    half: Vec3,
+}
+
+impl BisectorRun {
+    /// A run on `poly`, with the security radius not yet reached.
+    #[inline]
+    pub fn new<const P: usize, const V: usize>(poly: &Polyhedron<P, V>) -> Self {
+        let (r2, mid, half) = poly.bounds();
+        Self { out: Clipped { clips: 0, security_missed: true, overflow: false, broken: false }, r2, mid, half }
+    }
+
+    /// Whether the bisector with the site at `n` (`d2 = |n|²`) clears the
+    /// bounding box — then it cannot cut. The margin keeps this test from
+    /// deciding what rounding could flip.
+    #[inline]
+    pub fn clears(&self, n: Vec3, d2: f32) -> bool {
+        let inward = n.dot(self.mid);
+        let spread = n.abs().dot(self.half);
+        inward + spread + 1e-5 * (inward.abs() + spread) < 0.5 * d2
+    }
+
+    /// Clips `poly` by the bisector with the site at `n` (made by site
+    /// `id`); returns whether the run must stop (nothing left, or a
+    /// failure, recorded in `out`).
+    #[inline]
+    pub fn clip<const P: usize, const V: usize>(
+        &mut self,
+        poly: &mut Polyhedron<P, V>,
+        n: Vec3,
+        d2: f32,
+        id: u32,
+    ) -> bool {
+        match poly.clip_as(n.extend(0.5 * d2), id) {
+            Clip::Cut => {
+                self.out.clips += 1;
+                (self.r2, self.mid, self.half) = poly.bounds();
+                false
+            }
+            Clip::Unchanged => false,
+            Clip::Empty => {
+                self.out.clips += 1;
+                self.out.security_missed = false;
+                true
+            }
+            Clip::Overflow => {
+                self.out.overflow = true;
+                true
+            }
+            Clip::Broken => {
+                self.out.broken = true;
+                true
+            }
+        }
+    }
+}
+
 /// Clips `poly` (relative to site `i`) by the bisectors of `i` and its
 /// neighbours `site_nbrs[base..base + k]`, nearest first, until the next
 /// neighbour is farther than twice the farthest vertex (the security
@@ -78,57 +143,31 @@ pub fn clip_by_bisectors<const P: usize, const V: usize>(
     k: usize,
 ) -> Clipped {
     let xi = xyz(sites[i]);
-    let mut out = Clipped { clips: 0, security_missed: true, overflow: false, broken: false };
-    let (mut r2, mut mid, mut half) = poly.bounds();
+    let mut run = BisectorRun::new(poly);
     let mut s = 0;
     while s < k {
         let nb = site_nbrs[base + s];
         if nb == NO_SITE {
             // Every other site has been used: the cell is exact.
-            out.security_missed = false;
+            run.out.security_missed = false;
             break;
         }
         let n = xyz(sites[nb as usize]) - xi;
         let d2 = n.length_squared();
-        if d2 > 4.0 * r2 {
-            out.security_missed = false;
+        if d2 > 4.0 * run.r2 {
+            run.out.security_missed = false;
             break;
         }
-        // The bounding box's support in direction n bounds the vertices':
-        // a plane that clears the box leaves the polyhedron unchanged (the
-        // margin keeps this test from deciding what rounding could flip).
-        let support = n.dot(mid) + n.abs().dot(half);
-        if support + 1e-5 * (n.dot(mid).abs() + n.abs().dot(half)) < 0.5 * d2 {
-            s += 1;
-            continue;
-        }
-        match poly.clip_as(n.extend(0.5 * d2), nb) {
-            Clip::Cut => {
-                out.clips += 1;
-                (r2, mid, half) = poly.bounds();
-            }
-            Clip::Unchanged => {}
-            Clip::Empty => {
-                out.clips += 1;
-                out.security_missed = false;
-                break;
-            }
-            Clip::Overflow => {
-                out.overflow = true;
-                break;
-            }
-            Clip::Broken => {
-                out.broken = true;
-                break;
-            }
+        if !run.clears(n, d2) && run.clip(poly, n, d2, nb) {
+            break;
         }
         s += 1;
     }
     if s == k && k as u32 + 1 >= n_sites {
         // The list held every other site.
-        out.security_missed = false;
+        run.out.security_missed = false;
     }
-    out
+    run.out
 }
 
 /// The vertices of tet `t`, relative to `origin`.

@@ -14,10 +14,10 @@
 
 use crate::abi::{GridParams, QuantPoint, RefineParams, NO_SITE};
 use crate::buffers::{AtomicSums, PairList};
-use crate::clip::{accumulate, flood, piece_moments, tet_vertices, Clipped, PieceSink};
+use crate::clip::{accumulate, flood, piece_moments, tet_vertices, BisectorRun, Clipped, PieceSink};
 use crate::grid::cell_index;
 use crate::knn::sub_floor0;
-use crate::polyhedron::{Cell, Clip, Polyhedron, CELL_PLANES, CELL_VERTS};
+use crate::polyhedron::{Cell, Polyhedron, CELL_PLANES, CELL_VERTS};
 use spirv_std::glam::Vec3;
 
 /// Most sites a tet's flood may visit in the second pass.
@@ -80,8 +80,9 @@ pub fn clip_by_grid<const P: usize, const V: usize>(
     ];
     let x = [xi.x, xi.y, xi.z];
     let lo = [w.lo.x, w.lo.y, w.lo.z];
-    let mut out = Clipped::default();
-    let (mut r2, mut mid, mut half) = poly.bounds();
+    let mut run = BisectorRun::new(poly);
+    // A ring walk meets every site: no security radius to miss.
+    run.out.security_missed = false;
     let mut r = 0u32;
     loop {
         let z0 = sub_floor0(c[2], r);
@@ -113,29 +114,11 @@ pub fn clip_by_grid<const P: usize, const V: usize>(
                             let d2 = n.length_squared();
                             // Beyond twice the farthest vertex, or clear of
                             // the bounding box: the bisector cannot cut.
-                            let support = n.dot(mid) + n.abs().dot(half);
-                            let slack = 1e-5 * (n.dot(mid).abs() + n.abs().dot(half));
-                            if d2 > 4.0 * r2 || support + slack < 0.5 * d2 {
+                            if d2 > 4.0 * run.r2 || run.clears(n, d2) {
                                 continue;
                             }
-                            match poly.clip_as(n.extend(0.5 * d2), s) {
-                                Clip::Cut => {
-                                    out.clips += 1;
-                                    (r2, mid, half) = poly.bounds();
-                                }
-                                Clip::Unchanged => {}
-                                Clip::Empty => {
-                                    out.clips += 1;
-                                    return out;
-                                }
-                                Clip::Overflow => {
-                                    out.overflow = true;
-                                    return out;
-                                }
-                                Clip::Broken => {
-                                    out.broken = true;
-                                    return out;
-                                }
+                            if run.clip(poly, n, d2, s) {
+                                return run.out;
                             }
                         }
                     }
@@ -159,11 +142,11 @@ pub fn clip_by_grid<const P: usize, const V: usize>(
         }
         if gap == f32::INFINITY {
             // The rings cover the grid: every site was met.
-            return out;
+            return run.out;
         }
         let gap = gap - w.margin;
-        if gap > 0.0 && gap * gap > 4.0 * r2 * (1.0 + 1e-5) {
-            return out;
+        if gap > 0.0 && gap * gap > 4.0 * run.r2 * (1.0 + 1e-5) {
+            return run.out;
         }
         r += 1;
     }

@@ -3,8 +3,9 @@
 
 pub mod reference;
 
+use cvd::cpu::CpuBackend;
 use cvd::vulkan::{validation_errors, VulkanBackend, VulkanOptions};
-use cvd::KnnJob;
+use cvd::{Backend, KnnJob};
 use std::sync::OnceLock;
 
 /// The Vulkan backend shared by all tests of one test binary (pipelines are
@@ -26,6 +27,17 @@ pub fn vulkan() -> Option<&'static VulkanBackend> {
             None
         }
     }
+}
+
+/// The CPU backend (all cores) and, when a device exists, the shared
+/// Vulkan backend.
+pub fn backends() -> Vec<&'static dyn Backend> {
+    static CPU: OnceLock<CpuBackend> = OnceLock::new();
+    let mut b: Vec<&'static dyn Backend> = vec![CPU.get_or_init(|| CpuBackend::new(None).expect("CPU backend"))];
+    if let Some(v) = vulkan() {
+        b.push(v);
+    }
+    b
 }
 
 /// Fails the test if the validation layer has reported any error so far.

@@ -5,19 +5,9 @@
 //! matches the exact f64 reference (all bisectors) to 1e-5 of
 //! max(V_i, V_M / n).
 
-use cvd::cpu::CpuBackend;
-use cvd::{points, Backend, Cells, ClippedVoronoi, TetMesh};
+use cvd::{points, Cells, ClippedVoronoi, TetMesh};
 use cvd_tests::reference::clipped_cells;
-use cvd_tests::{assert_no_validation_errors, vulkan};
-
-fn backends() -> Vec<&'static dyn Backend> {
-    static CPU: std::sync::OnceLock<CpuBackend> = std::sync::OnceLock::new();
-    let mut b: Vec<&'static dyn Backend> = vec![CPU.get_or_init(|| CpuBackend::new(None).unwrap())];
-    if let Some(v) = vulkan() {
-        b.push(v);
-    }
-    b
-}
+use cvd_tests::{assert_no_validation_errors, backends};
 
 /// Default settings (flood pairing), every backend, against the reference.
 fn check(what: &str, mesh: &TetMesh, sites: &[[f32; 3]]) {

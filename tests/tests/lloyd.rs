@@ -1,19 +1,9 @@
 //! Lloyd's iteration on both backends: the energy goes down, a centroidal
 //! tessellation is a fixed point, and the backends agree.
 
-use cvd::cpu::CpuBackend;
 use cvd::cvt::CvtRun;
 use cvd::{points, Backend, ClippedVoronoi, TetMesh};
-use cvd_tests::{assert_no_validation_errors, vulkan};
-
-fn backends() -> Vec<&'static dyn Backend> {
-    static CPU: std::sync::OnceLock<CpuBackend> = std::sync::OnceLock::new();
-    let mut b: Vec<&'static dyn Backend> = vec![CPU.get_or_init(|| CpuBackend::new(None).unwrap())];
-    if let Some(v) = vulkan() {
-        b.push(v);
-    }
-    b
-}
+use cvd_tests::{assert_no_validation_errors, backends};
 
 fn lloyd(mesh: &TetMesh, sites: &[[f32; 3]], iterations: usize, backend: &dyn Backend) -> CvtRun {
     let mut calls = Vec::new();

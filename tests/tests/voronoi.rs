@@ -4,7 +4,7 @@
 use cvd::cpu::CpuBackend;
 use cvd::{points, Backend, Cells, ClippedVoronoi, Pairing, Strategy, TetMesh};
 use cvd_tests::reference::clipped_cells;
-use cvd_tests::{assert_no_validation_errors, vulkan};
+use cvd_tests::{assert_no_validation_errors, backends, vulkan};
 use proptest::prelude::*;
 
 #[derive(Clone, Copy, Debug)]
@@ -22,15 +22,6 @@ fn mesh(shape: Shape) -> TetMesh {
         Shape::Ell => TetMesh::voxels(4, |i, j, _| i < 2 || j < 2),
         Shape::Holed => TetMesh::voxels(5, |i, j, _| !(i == 2 && j == 2)),
     }
-}
-
-fn backends() -> Vec<&'static dyn Backend> {
-    static CPU: std::sync::OnceLock<CpuBackend> = std::sync::OnceLock::new();
-    let mut b: Vec<&'static dyn Backend> = vec![CPU.get_or_init(|| CpuBackend::new(None).unwrap())];
-    if let Some(v) = vulkan() {
-        b.push(v);
-    }
-    b
 }
 
 fn compute(mesh: &TetMesh, sites: &[[f32; 3]], strategy: Strategy, backend: &dyn Backend) -> Cells {

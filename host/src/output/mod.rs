@@ -23,3 +23,19 @@ pub use vtu::write_pieces_vtu;
 
 /// A progress report: `(done, total)`, in units the writer chooses.
 pub type Progress<'a> = &'a mut dyn FnMut(u64, u64);
+
+/// Writes 8-bit RGB `pixels` (`width` x `height`) as a PNG.
+pub(crate) fn write_png(path: &std::path::Path, width: usize, height: usize, pixels: &[u8]) -> crate::Result<()> {
+    let io = |source| crate::Error::Write { path: path.display().to_string(), source };
+    let file = std::fs::File::create(path).map_err(io)?;
+    let mut encoder = png::Encoder::new(std::io::BufWriter::new(file), width as u32, height as u32);
+    encoder.set_color(png::ColorType::Rgb);
+    encoder.set_depth(png::BitDepth::Eight);
+    let png_error = |e: png::EncodingError| match e {
+        png::EncodingError::IoError(source) => io(source),
+        other => io(std::io::Error::other(other)),
+    };
+    let mut writer = encoder.write_header().map_err(png_error)?;
+    writer.write_image_data(pixels).map_err(png_error)?;
+    writer.finish().map_err(png_error)
+}

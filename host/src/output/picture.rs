@@ -5,7 +5,7 @@
 //! black (the mesh's cross-section outline).
 
 use super::Progress;
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::mesh::TetMesh;
 use crate::pieces::Piece;
 use std::path::Path;
@@ -177,19 +177,7 @@ pub fn write_section_png(
         }
     }
     progress(total, total);
-    let pixels = paint(&raster);
-    let io = |source| Error::Write { path: path.display().to_string(), source };
-    let file = std::fs::File::create(path).map_err(io)?;
-    let mut encoder = png::Encoder::new(std::io::BufWriter::new(file), raster.width as u32, raster.height as u32);
-    encoder.set_color(png::ColorType::Rgb);
-    encoder.set_depth(png::BitDepth::Eight);
-    let png_error = |e: png::EncodingError| match e {
-        png::EncodingError::IoError(source) => io(source),
-        other => io(std::io::Error::other(other)),
-    };
-    let mut writer = encoder.write_header().map_err(png_error)?;
-    writer.write_image_data(&pixels).map_err(png_error)?;
-    writer.finish().map_err(png_error)
+    super::write_png(path, raster.width, raster.height, &paint(&raster))
 }
 
 /// RGB pixels: white outside, site colours inside, walls dark grey, the

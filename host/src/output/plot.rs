@@ -1,7 +1,7 @@
 //! A line chart of values against iterations (the CVT energy), written as a
 //! PNG with its axes, tick labels and legend in a small built-in font.
 
-use crate::error::{Error, Result};
+use crate::error::Result;
 use std::path::Path;
 
 /// One line of the chart.
@@ -194,18 +194,7 @@ pub fn write_line_chart_png(path: &Path, y_name: &str, series: &[Series]) -> Res
         c.text(x + 22, y, s.name, INK);
     }
 
-    let io = |source| Error::Write { path: path.display().to_string(), source };
-    let file = std::fs::File::create(path).map_err(io)?;
-    let mut encoder = png::Encoder::new(std::io::BufWriter::new(file), WIDTH as u32, HEIGHT as u32);
-    encoder.set_color(png::ColorType::Rgb);
-    encoder.set_depth(png::BitDepth::Eight);
-    let png_error = |e: png::EncodingError| match e {
-        png::EncodingError::IoError(source) => io(source),
-        other => io(std::io::Error::other(other)),
-    };
-    let mut writer = encoder.write_header().map_err(png_error)?;
-    writer.write_image_data(&c.rgb).map_err(png_error)?;
-    writer.finish().map_err(png_error)
+    super::write_png(path, WIDTH, HEIGHT, &c.rgb)
 }
 
 #[cfg(test)]
