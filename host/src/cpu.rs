@@ -311,6 +311,14 @@ fn build_grid(job: &KnnJob) -> CpuGrid {
         }
     });
     debug_assert!(cursor.iter().zip(&cell_count).all(|(c, &n)| c.load(Ordering::Relaxed) == n));
+    // Each cell's slots belong to one task.
+    let slots = SharedSlots::new(&mut sorted);
+    (0..n_cells).into_par_iter().chunks(CHUNK).for_each(|chunk| {
+        let mut out = slots.share();
+        for c in chunk {
+            grid::sort_cell(c, g, &cell_start, &cell_count, &mut out);
+        }
+    });
     CpuGrid { cell_start, cell_count, sorted }
 }
 

@@ -26,6 +26,20 @@ pub fn grid_count(
     grid::count_site(i, &p.grid, sites, site_cell, &mut DeviceCounters(cell_count));
 }
 
+/// Orders each cell's sites by index (after the scatter).
+#[spirv(compute(threads(64)))]
+pub fn grid_sort(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(num_workgroups)] groups: UVec3,
+    #[spirv(push_constant)] p: &GridBuildParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] cell_start: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] cell_count: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] sorted: &mut [QuantPoint],
+) {
+    let c = thread_index(id.x, id.y, groups.x);
+    grid::sort_cell(c, &p.grid, cell_start, cell_count, sorted);
+}
+
 /// Prefix sum, step 1: scans each block of cell counts.
 #[spirv(compute(threads(64)))]
 pub fn scan_blocks(

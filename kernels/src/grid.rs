@@ -1,8 +1,10 @@
 //! A uniform grid over the sites (paper section 5.2), built by a counting
 //! sort: [`count_site`] bins each site and counts the bins, a prefix sum
 //! ([`crate::scan`]) turns counts into bin starts, and [`scatter_site`] moves
-//! each site to its bin. The order of sites inside a bin depends on thread
-//! timing; nothing downstream depends on it (k-NN ties break by index).
+//! each site to its bin. The scatter's order inside a bin depends on thread
+//! timing, so [`sort_cell`] then orders each bin by site index: walks over
+//! the grid (the second pass clips in the order it meets sites) give the
+//! same bits run after run.
 
 use crate::abi::{GridParams, QuantPoint};
 use crate::buffers::{AtomicCounters, OutBuf};
@@ -60,4 +62,33 @@ pub fn scatter_site<A, S>(
     let cell = site_cell[i] as usize;
     let slot = cell_start[cell] + cursor.fetch_add(cell, 1);
     sorted.write(slot as usize, sites[i]);
+}
+
+/// Thread `c`: sorts the sites of cell `c` by index (insertion sort: a cell
+/// holds a few sites).
+#[inline]
+pub fn sort_cell<S>(c: usize, g: &GridParams, cell_start: &[u32], cell_count: &[u32], sorted: &mut S)
+where
+    S: OutBuf<QuantPoint> + ?Sized,
+{
+    if c >= g.n_cells as usize {
+        return;
+    }
+    let start = cell_start[c] as usize;
+    let n = cell_count[c] as usize;
+    let mut i = 1;
+    while i < n {
+        let x = sorted.read(start + i);
+        let mut j = i;
+        while j > 0 {
+            let y = sorted.read(start + j - 1);
+            if y[3] <= x[3] {
+                break;
+            }
+            sorted.write(start + j, y);
+            j -= 1;
+        }
+        sorted.write(start + j, x);
+        i += 1;
+    }
 }

@@ -234,6 +234,8 @@ impl GridBuffers {
         j.dispatch("scan_offsets", &[self.block_sums, self.start], bp, n_blocks)?;
         j.barrier();
         j.dispatch("grid_scatter", &[sites, self.site_cell, self.start, self.cursor, self.sorted], bp, n)?;
+        j.barrier();
+        j.dispatch("grid_sort", &[self.start, self.count, self.sorted], bp, bp.grid.n_cells as u64)?;
         Ok(())
     }
 }

@@ -32,6 +32,7 @@ pub(crate) const KERNELS: &[KernelSpec] = &[
     spec::<GridBuildParams>("scan_totals", 1),
     spec::<GridBuildParams>("scan_offsets", 2),
     spec::<GridBuildParams>("grid_scatter", 5),
+    spec::<GridBuildParams>("grid_sort", 3),
     spec::<KnnParams>("knn_grid", 6),
     spec::<KnnParams>("knn_brute", 4),
     spec::<ClipParams>("clip_tet_cell", 8),
