@@ -51,7 +51,10 @@ impl CpuBackend {
             let p = &job.params;
             let mut timings = Timings::default();
             timings.push("knn", site_nn.timings.total() + tet_nn.timings.total());
-            let sums: Vec<AtomicI64> = (0..p.n_sites as usize * ACCUM_PER_SITE).map(|_| AtomicI64::new(0)).collect();
+            // The sites' sums, then one volume sum per tet (knn pairing's
+            // certificate).
+            let n_sums = p.n_sites as usize * ACCUM_PER_SITE + p.n_tets as usize;
+            let sums: Vec<AtomicI64> = (0..n_sums).map(|_| AtomicI64::new(0)).collect();
             let totals: Vec<AtomicI64> = (0..counter::COUNT).map(|_| AtomicI64::new(0)).collect();
             let unfinished = Mutex::new(Vec::new());
             let n_pairs = p.n_tets as usize * p.k_tet as usize;
@@ -132,8 +135,11 @@ impl CpuBackend {
                 });
                 timings.push("second pass", t);
             }
+            let mut sums: Vec<i64> = sums.into_iter().map(AtomicI64::into_inner).collect();
+            let tet_volumes = sums.split_off(p.n_sites as usize * ACCUM_PER_SITE);
             Ok(ClipOutput {
-                sums: sums.into_iter().map(AtomicI64::into_inner).collect(),
+                sums,
+                tet_volumes,
                 counters: totals.into_iter().map(AtomicI64::into_inner).collect(),
                 refined: (first.len() - still.len()) as u64,
                 unfinished: still,

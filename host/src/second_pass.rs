@@ -37,12 +37,17 @@ pub struct Redone {
     /// Pieces that could not be finished even here (more faces than a
     /// [`Cell`] holds): their volume is missing, and counted.
     pub unresolved: u64,
+    /// Knn pairing: tets whose paired sites' pieces did not add up to the
+    /// tet (a site owning part of it was not among its k nearest), whose
+    /// missing pieces were added here.
+    pub missed_tets: u64,
 }
 
 /// Finishes `out.unfinished`, adding the pieces to `out.sums` and handing
 /// them to the tasks' sinks, which end up in `sinks`.
 pub(crate) fn run<S: TaskSink>(job: &ClipJob, out: &mut ClipOutput, sinks: &Mutex<Vec<S>>) -> Result<Redone> {
-    if out.unfinished.is_empty() {
+    let knn = job.pairing == crate::voronoi::Pairing::Knn;
+    if out.unfinished.is_empty() && !knn {
         return Ok(Redone::default());
     }
     let grid = SiteGrid::new(&job.sites);
@@ -82,22 +87,64 @@ pub(crate) fn run<S: TaskSink>(job: &ClipJob, out: &mut ClipOutput, sinks: &Mute
     work.extend(candidate_pairs(job, &grid, &failed).into_iter().map(|(p, e)| (p, pairs.len() + e)));
     let ok: Vec<AtomicBool> = entries.iter().map(|_| AtomicBool::new(true)).collect();
     let unresolved = AtomicU64::new(0);
-    par_indices(work.len(), 16, &sums, &ignored, &Mutex::new(Vec::new()), sinks, |w, sums, _, _, sink| {
-        let ([t, j], entry) = work[w];
-        let (t, j) = (t as usize, j as usize);
-        let mut poly = Cell::empty();
-        let c = clip_completely(job, &grid, t, j, &mut poly, &mut Vec::new());
-        if !c.finished() {
-            unresolved.fetch_add(1, Ordering::Relaxed);
-            ok[entry].store(false, Ordering::Relaxed);
-        } else if !poly.is_empty() {
-            let s = job.sites[j];
-            let tv = tet_vertices(t, &job.verts, &job.tets, Vec3::new(s[0], s[1], s[2]));
-            accumulate(j, &piece_moments(&poly, t, &job.verts, &job.tets, &tv).0, job.params.fixed_scale, sums);
-            sink.piece(t as u32, j as u32, &poly);
-        }
-    });
+    let tet_sums: Vec<AtomicI64> = out.tet_volumes.iter().map(|&v| AtomicI64::new(v)).collect();
+    let pair_work = |work: &[([u32; 2], usize)], ok: &[AtomicBool]| {
+        par_indices(work.len(), 16, &sums, &ignored, &Mutex::new(Vec::new()), sinks, |w, sums, _, _, sink| {
+            let ([t, j], entry) = work[w];
+            let (t, j) = (t as usize, j as usize);
+            let mut poly = Cell::empty();
+            let c = clip_completely(job, &grid, t, j, &mut poly, &mut Vec::new());
+            if !c.finished() {
+                unresolved.fetch_add(1, Ordering::Relaxed);
+                ok[entry].store(false, Ordering::Relaxed);
+            } else if !poly.is_empty() {
+                let s = job.sites[j];
+                let tv = tet_vertices(t, &job.verts, &job.tets, Vec3::new(s[0], s[1], s[2]));
+                let (m, volume) = piece_moments(&poly, t, &job.verts, &job.tets, &tv);
+                accumulate(j, &m, job.params.fixed_scale, sums);
+                if let Some(v) = tet_sums.get(t) {
+                    v.fetch_add((volume * job.params.fixed_scale) as i64, Ordering::Relaxed);
+                }
+                sink.piece(t as u32, j as u32, &poly);
+            }
+        });
+    };
+    pair_work(&work, &ok);
     redone.finished += ok.iter().filter(|o| o.load(Ordering::Relaxed)).count() as u64;
+
+    if knn && !tet_sums.is_empty() {
+        // The certificate: each tet's pieces must add up to the tet.
+        let inv = 1.0 / job.params.fixed_scale as f64;
+        let missed: Vec<[u32; 2]> = (0..job.tets.len())
+            .filter(|&t| {
+                let v = job.tets[t].map(|i| {
+                    let p = job.verts[i as usize];
+                    [p[0], p[1], p[2]]
+                });
+                let vol = crate::mesh::signed_volume(v[0], v[1], v[2], v[3]).abs();
+                let found = tet_sums[t].load(Ordering::Relaxed) as f64 * inv;
+                (found - vol).abs() > 2e-6 * vol
+            })
+            .map(|t| [t as u32, NO_SITE])
+            .collect();
+        redone.missed_tets = missed.len() as u64;
+        if !missed.is_empty() {
+            // Their paired sites' pieces are exact and already counted: add
+            // the pieces of the sites that may own part of the tet but were
+            // not paired with it (the same k-NN, redone for these tets).
+            let centroids: Vec<[f32; 3]> =
+                missed.iter().map(|&[t, _]| centroid(job, t as usize).map(|c| c as f32)).collect();
+            let cpu = crate::cpu::CpuBackend::new(None)?;
+            let k = job.params.k_tet as usize;
+            let nn = crate::knn::KnnJob::points_like(&job.site_knn, &centroids, k)?.run(&cpu)?;
+            let fill: Vec<([u32; 2], usize)> = candidate_pairs(job, &grid, &missed)
+                .into_iter()
+                .filter(|&([_, j], e)| !nn.of(e).contains(&j))
+                .collect();
+            let ok: Vec<AtomicBool> = missed.iter().map(|_| AtomicBool::new(true)).collect();
+            pair_work(&fill, &ok);
+        }
+    }
     redone.unresolved = unresolved.into_inner();
     out.sums = sums.into_iter().map(AtomicI64::into_inner).collect();
     Ok(redone)

@@ -28,9 +28,11 @@ pub enum Strategy {
 /// flood for the tet-cell strategy, knn for cell-tet.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, clap::ValueEnum, serde::Serialize)]
 pub enum Pairing {
-    /// The k nearest sites of each tet's centroid (paper Eq. 6). A site
-    /// owning part of a tet but not among its k nearest is missed, silently:
-    /// the paper's heuristic, kept for comparison.
+    /// The k nearest sites of each tet's centroid (paper Eq. 6), the
+    /// paper's heuristic. A site owning part of a tet but not among its k
+    /// nearest would be missed: each tet's pieces are summed, and a tet whose
+    /// pieces do not add up to it gets its missing pieces from the host
+    /// (counted in `missed_tets`).
     Knn,
     #[default]
     #[value(alias = "exact")]
@@ -86,6 +88,9 @@ pub struct ClipJob {
 pub struct ClipOutput {
     /// Fixed-point sums, [`ACCUM_PER_SITE`] per unique site.
     pub sums: Vec<i64>,
+    /// Fixed-point volume of the pieces found in each tet (knn pairing;
+    /// zero with flood pairing, whose certificate is in the kernel).
+    pub tet_volumes: Vec<i64>,
     /// The kernels' counters (see `cvd_kernels::abi::counter`).
     pub counters: Vec<i64>,
     /// `(tet, site)` entries the kernels could not finish even in their
@@ -126,6 +131,10 @@ pub struct Counters {
     /// Other sites whose clipped cell is empty (outside the mesh, or
     /// crowded out of it).
     pub empty_cells: u64,
+    /// Knn pairing: tets whose pieces did not add up to the tet (a site
+    /// owning part of it was not among its k nearest); the host added the
+    /// missing pieces.
+    pub missed_tets: u64,
 }
 
 /// Per-site results and totals.
@@ -424,13 +433,14 @@ impl<'a> ClippedVoronoi<'a> {
     ) -> Result<Cells> {
         let (redone, t) = crate::timing::timed(|| crate::second_pass::run(job, &mut out, sinks));
         let redone = redone?;
-        if redone.finished + redone.unresolved > 0 {
+        if redone.finished + redone.unresolved + redone.missed_tets > 0 {
             out.timings.push("host pass", t);
         }
         let refined = out.refined;
         let mut cells = finish(self.mesh, self.density, self.sites, job, map, frame, out);
         cells.counters.second_pass = refined + redone.finished;
         cells.counters.unresolved = redone.unresolved;
+        cells.counters.missed_tets = redone.missed_tets;
         Ok(cells)
     }
 }
@@ -516,6 +526,7 @@ fn finish(
         empty_cells: map.iter().zip(&cells.volume).filter(|(m, &v)| m.is_some() && v <= 0.0).count() as u64,
         second_pass: 0,
         unresolved: 0,
+        missed_tets: 0,
     };
     cells.timings = out.timings;
     cells

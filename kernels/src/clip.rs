@@ -255,6 +255,16 @@ pub fn accumulate<A: AtomicSums>(j: usize, m: &Moments, scale: f32, sums: &mut A
     sums.add(base + 4, (m.second * scale) as i64);
 }
 
+/// Adds a piece's plain volume to its tet's sum, kept after the sites'
+/// sums (at `n_sites * ACCUM_PER_SITE + t`): knn pairing's certificate.
+/// The pieces of the sites paired with a tet are exact; if they do not add
+/// up to the tet, a site that owns part of it was not paired, and the host
+/// adds the missing pieces.
+#[inline]
+pub fn add_tet_volume<A: AtomicSums>(t: usize, n_sites: u32, volume: f32, scale: f32, sums: &mut A) {
+    sums.add(n_sites as usize * ACCUM_PER_SITE + t, (volume * scale) as i64);
+}
+
 /// The integrals of a piece of tet `t` (vertices `tv`, relative to the
 /// piece's site) under the mesh's density — the `w` of each vertex record,
 /// linear inside the tet; 1 everywhere without a density — and its plain
@@ -359,7 +369,9 @@ pub fn tet_cell_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     let c = clip_by_bisectors(&mut poly, j, p.n_sites, sites, site_nbrs, j * k, k);
     let nonempty = c.finished() && !poly.is_empty();
     if nonempty {
-        accumulate(j, &piece_moments(&poly, t, verts, tets, &tv).0, p.fixed_scale, sums);
+        let (m, volume) = piece_moments(&poly, t, verts, tets, &tv);
+        accumulate(j, &m, p.fixed_scale, sums);
+        add_tet_volume(t, p.n_sites, volume, p.fixed_scale, sums);
         sink.piece(t as u32, j as u32, &poly);
     }
     if !c.finished() {
@@ -475,7 +487,9 @@ pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     }
     let nonempty = c.finished() && !poly.is_empty();
     if nonempty {
-        accumulate(j, &piece_moments(&poly, t, verts, tets, &tv).0, p.fixed_scale, sums);
+        let (m, volume) = piece_moments(&poly, t, verts, tets, &tv);
+        accumulate(j, &m, p.fixed_scale, sums);
+        add_tet_volume(t, p.n_sites, volume, p.fixed_scale, sums);
         sink.piece(t as u32, j as u32, &poly);
     }
     if !c.finished() {

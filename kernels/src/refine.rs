@@ -14,7 +14,7 @@
 
 use crate::abi::{GridParams, QuantPoint, RefineParams, NO_SITE};
 use crate::buffers::{AtomicSums, PairList};
-use crate::clip::{accumulate, flood, piece_moments, tet_vertices, BisectorRun, Clipped, PieceSink};
+use crate::clip::{accumulate, add_tet_volume, flood, piece_moments, tet_vertices, BisectorRun, Clipped, PieceSink};
 use crate::grid::cell_index;
 use crate::knn::sub_floor0;
 use crate::polyhedron::{Cell, Polyhedron, CELL_PLANES, CELL_VERTS};
@@ -201,7 +201,9 @@ pub fn refine_entry<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
         if !c.finished() {
             still.push(t as u32, j as u32);
         } else if !poly.is_empty() {
-            accumulate(j, &piece_moments(&poly, t, verts, tets, &tv).0, p.clip.fixed_scale, sums);
+            let (m, volume) = piece_moments(&poly, t, verts, tets, &tv);
+            accumulate(j, &m, p.clip.fixed_scale, sums);
+            add_tet_volume(t, p.clip.n_sites, volume, p.clip.fixed_scale, sums);
             sink.piece(t as u32, j as u32, &poly);
         }
     }

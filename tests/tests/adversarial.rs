@@ -147,3 +147,30 @@ fn min_dihedral_degrees(mesh: &TetMesh) -> f64 {
     }
     min
 }
+
+#[test]
+fn knn_pairing_with_too_few_sites_per_tet_is_completed() {
+    // k = 2 sites per tet misses owners of most tets: the certificate
+    // (each tet's pieces add up to it) finds them and the host adds the
+    // missing pieces; the paired ones were exact already.
+    let mesh = TetMesh::voxels(4, |i, j, _| i < 2 || j < 2);
+    let sites = points::in_mesh(&mesh, 250, 4);
+    let (vol, centroid) = clipped_cells(&mesh, &sites);
+    for backend in backends() {
+        for strategy in [cvd::Strategy::TetCell, cvd::Strategy::CellTet] {
+            let cells = ClippedVoronoi::new(&mesh, &sites)
+                .strategy(strategy)
+                .pairing(cvd::Pairing::Knn)
+                .k(Some(2))
+                .backend(backend)
+                .compute()
+                .unwrap();
+            let what = format!("knn pairing, k = 2, {strategy:?} on {}", backend.name());
+            assert!(cells.counters.missed_tets > 0, "{what}: the certificate found nothing to complete");
+            assert_eq!(cells.counters.unresolved, 0, "{what}");
+            assert!(cells.e_vol <= 1e-6, "{what}: E_vol {:e}", cells.e_vol);
+            assert_matches(&what, &cells, &vol, &centroid);
+        }
+    }
+    assert_no_validation_errors();
+}

@@ -115,7 +115,14 @@ proptest! {
             for s in [Strategy::TetCell, Strategy::CellTet] {
                 let gpu = run(v, s);
                 assert_cells_match(&format!("vulkan {s:?} vs cpu"), &gpu, &base.volume, &base.centroid, 1e-5);
-                prop_assert_eq!(gpu.counters, if s == Strategy::TetCell { base.counters } else { other.counters });
+                // Counters agree, but for the certificate's count of tets
+                // completed on the host: a tet within rounding of its
+                // threshold may go either way on either backend.
+                let cpu_counters = if s == Strategy::TetCell { base.counters } else { other.counters };
+                prop_assert_eq!(
+                    cvd::Counters { missed_tets: 0, ..gpu.counters },
+                    cvd::Counters { missed_tets: 0, ..cpu_counters }
+                );
             }
             assert_no_vulkan_errors();
         }

@@ -171,6 +171,13 @@ impl fmt::Display for Summary {
                     c.security_missed, c.overflows, c.broken, c.second_pass, c.unresolved
                 ),
             ),
+            (
+                "empty",
+                format!(
+                    "{} cells besides duplicates; knn pairing: {} tets whose pieces did not add up, completed",
+                    c.empty_cells, c.missed_tets
+                ),
+            ),
         ];
         for (key, value) in rows {
             writeln!(f, "  {key:<11}{value}")?;

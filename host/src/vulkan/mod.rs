@@ -86,7 +86,10 @@ impl Backend for VulkanBackend {
         let sites = j.upload(&job.sites)?;
         let verts = j.upload(&job.verts)?;
         let tets = j.upload(&job.tets)?;
-        let sums = j.zeroed(n * ACCUM_PER_SITE as u64 * 8)?;
+        // The sites' sums, then one volume sum per tet (knn pairing's
+        // certificate).
+        let n_sums = n * ACCUM_PER_SITE as u64 + p.n_tets as u64;
+        let sums = j.zeroed(n_sums * 8)?;
         let counters = j.zeroed(counter::COUNT as u64 * 8)?;
         // Count, then up to one (tet, site) entry per pair.
         let list_len = 1 + 2 * n_pairs;
@@ -135,7 +138,7 @@ impl Backend for VulkanBackend {
             }
             None => unfinished,
         };
-        let sums_back = j.download(sums, n * ACCUM_PER_SITE as u64 * 8)?;
+        let sums_back = j.download(sums, n_sums * 8)?;
         let counters_back = j.download(counters, counter::COUNT as u64 * 8)?;
         let first_back = j.download(unfinished, 4)?;
         let still_back = j.download(still, list_len * 4)?;
@@ -143,8 +146,11 @@ impl Backend for VulkanBackend {
         let done = j.run()?;
         let first = done.read::<u32>(first_back, 1)[0] as u64;
         let still = crate::voronoi::pair_list(&done.read(still_back, list_len as usize));
+        let mut sums: Vec<i64> = done.read(sums_back, n_sums as usize);
+        let tet_volumes = sums.split_off(n as usize * ACCUM_PER_SITE);
         Ok(ClipOutput {
-            sums: done.read(sums_back, n as usize * ACCUM_PER_SITE),
+            sums,
+            tet_volumes,
             counters: done.read(counters_back, counter::COUNT),
             refined: first - still.len() as u64,
             unfinished: still,
