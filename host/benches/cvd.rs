@@ -8,9 +8,10 @@
 //! Options: `--models-dir DIR` (default: `$CVD_MODELS` or `../shared/models`)
 //! `--threads N` `--device D` `--repeat R` `--only NAME` `--json PATH`.
 
+mod common;
+
 use cvd::cpu::CpuBackend;
 use cvd::timing::timed;
-use cvd::vulkan::{VulkanBackend, VulkanOptions};
 use cvd::{points, Backend, ClippedVoronoi, Pairing, Strategy, TetMesh};
 use std::path::PathBuf;
 
@@ -24,12 +25,14 @@ struct Options {
 }
 
 fn options() -> Options {
-    let default_dir = std::env::var("CVD_MODELS").unwrap_or_else(|_| {
-        let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..").join("..").join("shared").join("models");
-        root.to_string_lossy().into_owned()
-    });
-    let mut o =
-        Options { models_dir: default_dir.into(), threads: None, device: None, repeat: 3, only: None, json: None };
+    let mut o = Options {
+        models_dir: common::default_models_dir(),
+        threads: None,
+        device: None,
+        repeat: 3,
+        only: None,
+        json: None,
+    };
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
         let mut value = || args.next().unwrap_or_else(|| panic!("{a} needs a value"));
@@ -67,17 +70,7 @@ struct Row {
 fn main() {
     let o = options();
     let cpu = CpuBackend::new(o.threads).expect("CPU backend");
-    let vulkan = match VulkanBackend::new(&VulkanOptions { device: o.device.clone(), validation: false }) {
-        Ok(v) => {
-            let compile = v.warm_up().expect("warm-up");
-            println!("Vulkan device: {} (kernel compilation on first use, paid once: {compile:.2} s)", v.device().name);
-            Some(v)
-        }
-        Err(e) => {
-            println!("Vulkan: {e} (Vulkan rows skipped)");
-            None
-        }
-    };
+    let vulkan = common::warm_vulkan(o.device.clone());
     let mut models: Vec<(String, TetMesh, usize)> = Vec::new();
     for name in ["cube", "torus", "joint"] {
         let mesh = cvd::mesher::models::builtin(name, None).expect("built-in model");

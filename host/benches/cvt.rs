@@ -12,10 +12,11 @@
 //! `--iterations N` `--threads N` `--device D` `--only NAME` `--json PATH`
 //! `--plots DIR`.
 
+mod common;
+
 use cvd::cpu::CpuBackend;
 use cvd::cvt::CvtRun;
 use cvd::output::Series;
-use cvd::vulkan::{VulkanBackend, VulkanOptions};
 use cvd::{points, Backend, ClippedVoronoi, TetMesh};
 use std::path::PathBuf;
 
@@ -30,12 +31,8 @@ struct Options {
 }
 
 fn options() -> Options {
-    let default_dir = std::env::var("CVD_MODELS").unwrap_or_else(|_| {
-        let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..").join("..").join("shared").join("models");
-        root.to_string_lossy().into_owned()
-    });
     let mut o = Options {
-        models_dir: default_dir.into(),
+        models_dir: common::default_models_dir(),
         iterations: 120,
         threads: None,
         device: None,
@@ -84,17 +81,7 @@ fn energy_after(run: &CvtRun, i: usize) -> f64 {
 fn main() {
     let o = options();
     let cpu = CpuBackend::new(o.threads).expect("CPU backend");
-    let vulkan = match VulkanBackend::new(&VulkanOptions { device: o.device.clone(), validation: false }) {
-        Ok(v) => {
-            let compile = v.warm_up().expect("warm-up");
-            println!("Vulkan device: {} (kernel compilation on first use, paid once: {compile:.2} s)", v.device().name);
-            Some(v)
-        }
-        Err(e) => {
-            println!("Vulkan: {e} (Vulkan rows skipped)");
-            None
-        }
-    };
+    let vulkan = common::warm_vulkan(o.device.clone());
     let mut models: Vec<(String, TetMesh, Vec<[f32; 3]>)> = Vec::new();
     for name in ["torus", "joint"] {
         let mesh = cvd::mesher::models::builtin(name, None).expect("built-in model");

@@ -72,3 +72,25 @@ pub fn reference_knn(job: &KnnJob) -> (Vec<u32>, Vec<u64>) {
     }
     (indices, dist2)
 }
+
+/// Small test domains: convex, non-convex, and with a hole through it.
+#[derive(Clone, Copy, Debug)]
+pub enum Shape {
+    /// The unit cube in `n`³ sub-cubes.
+    Cube(usize),
+    /// The letter L: the cube without one quarter column (non-convex).
+    Ell,
+    /// A cube with a square hole through it.
+    Holed,
+}
+
+impl Shape {
+    /// The shape's tet mesh.
+    pub fn mesh(self) -> cvd::TetMesh {
+        match self {
+            Shape::Cube(n) => cvd::TetMesh::cube(n),
+            Shape::Ell => cvd::TetMesh::voxels(4, |i, j, _| i < 2 || j < 2),
+            Shape::Holed => cvd::TetMesh::voxels(5, |i, j, _| !(i == 2 && j == 2)),
+        }
+    }
+}

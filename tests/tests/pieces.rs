@@ -5,6 +5,7 @@
 
 use cvd::cpu::CpuBackend;
 use cvd::{points, Cells, ClippedVoronoi, Pairing, Piece, Strategy, TetMesh};
+use cvd_tests::Shape;
 use proptest::prelude::*;
 use std::collections::{HashMap, HashSet};
 
@@ -139,21 +140,8 @@ fn cpu() -> &'static CpuBackend {
     CPU.get_or_init(|| CpuBackend::new(None).unwrap())
 }
 
-#[derive(Clone, Copy, Debug)]
-enum Shape {
-    Cube,
-    /// Non-convex: the cube without a quarter column.
-    Ell,
-    /// A cube with a square hole through it.
-    Holed,
-}
-
 fn mesh(shape: Shape) -> TetMesh {
-    match shape {
-        Shape::Cube => TetMesh::cube(3),
-        Shape::Ell => TetMesh::voxels(4, |i, j, _| i < 2 || j < 2),
-        Shape::Holed => TetMesh::voxels(5, |i, j, _| !(i == 2 && j == 2)),
-    }
+    shape.mesh()
 }
 
 /// The diagram with its pieces, checked against the plain computation.
@@ -172,7 +160,7 @@ proptest! {
     /// Every strategy and pairing, convex and non-convex meshes.
     #[test]
     fn pieces_tile_the_mesh_and_each_cell(
-        shape in prop_oneof![Just(Shape::Cube), Just(Shape::Ell), Just(Shape::Holed)],
+        shape in prop_oneof![Just(Shape::Cube(3)), Just(Shape::Ell), Just(Shape::Holed)],
         n in 1usize..=120,
         seed in any::<u64>(),
     ) {

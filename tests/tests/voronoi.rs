@@ -4,24 +4,12 @@
 use cvd::cpu::CpuBackend;
 use cvd::{points, Backend, Cells, ClippedVoronoi, Pairing, Strategy, TetMesh};
 use cvd_tests::reference::clipped_cells;
+use cvd_tests::Shape;
 use cvd_tests::{assert_no_validation_errors, backends, vulkan};
 use proptest::prelude::*;
 
-#[derive(Clone, Copy, Debug)]
-enum Shape {
-    Cube,
-    /// The letter L: the cube without one quarter column (non-convex).
-    Ell,
-    /// A cube with a square hole through it.
-    Holed,
-}
-
 fn mesh(shape: Shape) -> TetMesh {
-    match shape {
-        Shape::Cube => TetMesh::cube(4),
-        Shape::Ell => TetMesh::voxels(4, |i, j, _| i < 2 || j < 2),
-        Shape::Holed => TetMesh::voxels(5, |i, j, _| !(i == 2 && j == 2)),
-    }
+    shape.mesh()
 }
 
 fn compute(mesh: &TetMesh, sites: &[[f32; 3]], strategy: Strategy, backend: &dyn Backend) -> Cells {
@@ -62,7 +50,7 @@ proptest! {
     /// Both strategies, both backends, against the exact reference.
     #[test]
     fn cells_match_the_exact_reference(
-        shape in prop_oneof![Just(Shape::Cube), Just(Shape::Ell), Just(Shape::Holed)],
+        shape in prop_oneof![Just(Shape::Cube(4)), Just(Shape::Ell), Just(Shape::Holed)],
         n in 1usize..=150,
         seed in any::<u64>(),
     ) {
