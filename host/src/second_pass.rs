@@ -27,7 +27,7 @@ use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, Ordering};
 use std::sync::Mutex;
 
 /// Most sites a tet's flood may visit in the second pass.
-const QUEUE: usize = 256;
+const QUEUE: usize = 1024;
 
 /// What the second pass did.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -228,4 +228,45 @@ fn candidate_pairs(job: &ClipJob, grid: &SiteGrid, tets: &[[u32; 2]]) -> Vec<([u
         })
         .collect();
     per_tet.into_iter().flatten().collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{points, ClippedVoronoi, TetMesh};
+    use cvd_kernels::abi::ACCUM_PER_SITE;
+    use cvd_kernels::clip::NoPieces;
+
+    /// The host pass alone, given every tet as unfinished — half of them
+    /// whole (flooded), half as all their pairs (each clipped on its own) —
+    /// rebuilds the diagram the kernels compute.
+    #[test]
+    fn host_pass_alone_rebuilds_the_diagram() {
+        let mesh = TetMesh::voxels(4, |i, j, _| i < 2 || j < 2);
+        let sites = points::in_mesh(&mesh, 120, 3);
+        let cv = ClippedVoronoi::new(&mesh, &sites);
+        let cells = cv.compute().unwrap();
+        let (job, map, frame) = cv.job().unwrap();
+        let (n, n_tets) = (job.sites.len(), job.tets.len());
+        let mut unfinished: Vec<[u32; 2]> = (0..n_tets as u32 / 2).map(|t| [t, NO_SITE]).collect();
+        for t in n_tets as u32 / 2..n_tets as u32 {
+            unfinished.extend((0..n as u32).map(|j| [t, j]));
+        }
+        let mut out = ClipOutput {
+            sums: vec![0; n * ACCUM_PER_SITE],
+            tet_volumes: vec![0; n_tets],
+            unfinished,
+            ..Default::default()
+        };
+        let redone = run(&job, &mut out, &Mutex::new(Vec::<NoPieces>::new())).unwrap();
+        assert_eq!(redone.unresolved, 0);
+        assert_eq!(redone.finished as usize, n_tets / 2 + (n_tets - n_tets / 2) * n);
+        let scale = frame.scale.powi(3) / job.params.fixed_scale as f64;
+        for (i, m) in map.iter().enumerate() {
+            let u = m.unwrap();
+            let v = out.sums[u * ACCUM_PER_SITE] as f64 * scale;
+            let want = cells.volume[i];
+            assert!((v - want).abs() <= 1e-5 * want.max(cells.mesh_volume / n as f64), "site {i}: {v} vs {want}");
+        }
+    }
 }

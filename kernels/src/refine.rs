@@ -21,7 +21,7 @@ use crate::polyhedron::{Cell, Polyhedron, CELL_PLANES, CELL_VERTS};
 use spirv_std::glam::Vec3;
 
 /// Most sites a tet's flood may visit in the second pass.
-pub const REFINE_QUEUE: usize = 64;
+pub const REFINE_QUEUE: usize = 256;
 
 /// The site grid as a walk sees it: cells, their sites, and where cell
 /// (0, 0, 0) lies in the clipping frame.
