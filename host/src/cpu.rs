@@ -10,7 +10,6 @@ use crate::voronoi::{ClipJob, ClipOutput, Pairing, Strategy};
 use cvd_kernels::abi::{counter, lloyd_stat, QuantPoint, RefineParams, ACCUM_PER_SITE};
 use cvd_kernels::buffers::{DeviceSums, OutBuf, PairList, Window};
 use cvd_kernels::clip::{self, NoPieces, PieceSink, CELL_RECORDS};
-use cvd_kernels::glam::Vec3;
 use cvd_kernels::{grid, knn, lloyd, refine, scan};
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicI64, AtomicU32, Ordering};
@@ -116,15 +115,7 @@ impl CpuBackend {
                     let mut list = vec![first.len() as u32];
                     list.extend(first.iter().flatten());
                     let rp = RefineParams { capacity: first.len() as u32, ..job.refine };
-                    let w = refine::GridWalk {
-                        grid: rp.grid,
-                        lo: Vec3::new(rp.grid_lo_x, rp.grid_lo_y, rp.grid_lo_z),
-                        cell_len: rp.cell_len,
-                        margin: rp.margin,
-                        cell_start: &g.cell_start,
-                        cell_count: &g.cell_count,
-                        sorted: &g.sorted,
-                    };
+                    let w = refine::GridWalk::new(&rp, &g.cell_start, &g.cell_count, &g.sorted);
                     let ignored: Vec<AtomicI64> = (0..counter::COUNT).map(|_| AtomicI64::new(0)).collect();
                     let again = Mutex::new(Vec::new());
                     par_indices(first.len(), 1, &sums, &ignored, &again, sinks, |e, s, c, u, k| {
@@ -188,7 +179,7 @@ impl<T: Copy> OutBuf<T> for SharedSlots<'_, T> {
 
 /// A task's list of unfinished pairs, merged after the task.
 #[derive(Default)]
-pub(crate) struct LocalPairs(Vec<[u32; 2]>);
+pub(crate) struct LocalPairs(pub(crate) Vec<[u32; 2]>);
 
 impl PairList for LocalPairs {
     fn push(&mut self, tet: u32, site: u32) {
@@ -272,7 +263,7 @@ pub(crate) struct CpuGrid {
     pub sorted: Vec<QuantPoint>,
 }
 
-fn build_grid(job: &KnnJob) -> CpuGrid {
+pub(crate) fn build_grid(job: &KnnJob) -> CpuGrid {
     let g = &job.params.grid;
     let n = g.n_sites as usize;
     let n_cells = g.n_cells as usize;

@@ -1,28 +1,24 @@
-//! The second pass: finishes on the host, with the kernels' own bodies,
-//! everything the kernels listed as unfinished, so that no volume is lost.
+//! The host pass: finishes, with the kernels' own bodies, what even the
+//! kernels' second pass left unfinished (a tet met by more cells than its
+//! flood queue holds, a piece with more faces than a `Cell` holds), so
+//! that no volume is lost; and, for knn pairing, checks each tet's pieces
+//! add up to the tet.
 //!
-//! The kernels clip a piece by its site's `k_site` nearest neighbours; here
-//! each piece gets a *complete* list instead: every site within twice the
-//! distance from its site to the farthest tet vertex, nearest first. The
-//! piece lies in the tet, so that ball holds every bisector that can cut
-//! it, and the list ending means the piece is exact. Pieces are built in a
-//! [`Cell`], which has room for far more faces than a kernel's piece.
-//!
-//! * A whole tet (flood pairing) is flooded again from its nearest site,
-//!   with a longer queue.
-//! * A tet whose flood still fails (more owners than the queue holds, or a
-//!   certificate off) is paired with every site that may own part of it
-//!   (a radius bound, filtered), and each pair is done as below.
-//! * A `(tet, site)` pair (knn pairing, cell-tet) is clipped directly.
+//! * A whole tet is flooded again (`refine::refine_tet`, the grid walk of
+//!   the second pass) with a longer queue, from the site nearest its
+//!   centroid.
+//! * A tet whose flood still fails is paired with every site that may own
+//!   part of it (a radius bound, filtered), and each pair is done as below.
+//! * A `(tet, site)` pair is clipped on its own (`refine::refine_pair`).
+//! * Knn pairing: a tet whose pieces do not add up to it gets the pieces of
+//!   the sites that may own part of it but were not among its k nearest.
 
-use crate::cpu::{par_indices, TaskSink};
+use crate::cpu::{build_grid, par_indices, LocalPairs, TaskSink};
 use crate::error::Result;
 use crate::site_grid::SiteGrid;
 use crate::voronoi::{ClipJob, ClipOutput};
 use cvd_kernels::abi::{counter, NO_SITE};
-use cvd_kernels::clip::{self, accumulate, clip_by_bisectors, piece_moments, tet_vertices, Clipped};
-use cvd_kernels::glam::Vec3;
-use cvd_kernels::polyhedron::{Cell, Polyhedron, CELL_PLANES, CELL_VERTS};
+use cvd_kernels::refine::{self, GridWalk};
 use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, Ordering};
 use std::sync::Mutex;
 
@@ -35,7 +31,7 @@ pub struct Redone {
     /// Unfinished entries (whole tets or pairs) finished here.
     pub finished: u64,
     /// Pieces that could not be finished even here (more faces than a
-    /// [`Cell`] holds): their volume is missing, and counted.
+    /// `Cell` holds): their volume is missing, and counted.
     pub unresolved: u64,
     /// Knn pairing: tets whose paired sites' pieces did not add up to the
     /// tet (a site owning part of it was not among its k nearest), whose
@@ -50,27 +46,32 @@ pub(crate) fn run<S: TaskSink>(job: &ClipJob, out: &mut ClipOutput, sinks: &Mute
     if out.unfinished.is_empty() && !knn {
         return Ok(Redone::default());
     }
+    // The kernels' grid walk, over the kernels' grid; the host grid answers
+    // nearest-site and radius queries.
+    let g = build_grid(&job.site_knn);
+    let walk = GridWalk::new(&job.refine, &g.cell_start, &g.cell_count, &g.sorted);
     let grid = SiteGrid::new(&job.sites);
-    let sums: Vec<AtomicI64> = out.sums.iter().map(|&s| AtomicI64::new(s)).collect();
+    // The sites' sums, then the tets' volumes, as the kernels lay them out.
+    let n_site_sums = out.sums.len();
+    let sums: Vec<AtomicI64> = out.sums.iter().chain(&out.tet_volumes).map(|&s| AtomicI64::new(s)).collect();
     let (tets, pairs): (Vec<[u32; 2]>, Vec<[u32; 2]>) = out.unfinished.iter().partition(|e| e[1] == NO_SITE);
     let mut redone = Redone::default();
 
-    // Whole tets: flood again.
+    // Whole tets: flood again, with a longer queue.
     let failed = Mutex::new(Vec::new());
     let ignored: Vec<AtomicI64> = (0..counter::COUNT).map(|_| AtomicI64::new(0)).collect();
     par_indices(tets.len(), 16, &sums, &ignored, &failed, sinks, |e, sums, counters, failed, sink| {
         let t = tets[e][0] as usize;
-        let centroid = centroid(job, t);
-        let (start, _) = grid.nearest(centroid);
-        let mut list = Vec::new();
-        clip::flood::<CELL_PLANES, CELL_VERTS, QUEUE, _, _, _, _, _>(
+        let (start, _) = grid.nearest(centroid(job, t));
+        let (sites, verts, tets) = (&job.sites, &job.verts, &job.tets);
+        refine::refine_tet::<QUEUE, _, _, _, _>(
             t,
             start,
-            job.params.fixed_scale,
-            &job.sites,
-            &job.verts,
-            &job.tets,
-            |j: usize, poly: &mut Cell| clip_completely(job, &grid, t, j, poly, &mut list),
+            &job.refine,
+            walk,
+            sites,
+            verts,
+            tets,
             sums,
             counters,
             failed,
@@ -87,32 +88,22 @@ pub(crate) fn run<S: TaskSink>(job: &ClipJob, out: &mut ClipOutput, sinks: &Mute
     work.extend(candidate_pairs(job, &grid, &failed).into_iter().map(|(p, e)| (p, pairs.len() + e)));
     let ok: Vec<AtomicBool> = entries.iter().map(|_| AtomicBool::new(true)).collect();
     let unresolved = AtomicU64::new(0);
-    let tet_sums: Vec<AtomicI64> = out.tet_volumes.iter().map(|&v| AtomicI64::new(v)).collect();
     let pair_work = |work: &[([u32; 2], usize)], ok: &[AtomicBool]| {
         par_indices(work.len(), 16, &sums, &ignored, &Mutex::new(Vec::new()), sinks, |w, sums, _, _, sink| {
             let ([t, j], entry) = work[w];
-            let (t, j) = (t as usize, j as usize);
-            let mut poly = Cell::empty();
-            let c = clip_completely(job, &grid, t, j, &mut poly, &mut Vec::new());
-            if !c.finished() {
+            let mut again = LocalPairs::default();
+            let (sites, verts, tets) = (&job.sites, &job.verts, &job.tets);
+            refine::refine_pair(t as usize, j as usize, &job.refine, walk, sites, verts, tets, sums, &mut again, sink);
+            if !again.0.is_empty() {
                 unresolved.fetch_add(1, Ordering::Relaxed);
                 ok[entry].store(false, Ordering::Relaxed);
-            } else if !poly.is_empty() {
-                let s = job.sites[j];
-                let tv = tet_vertices(t, &job.verts, &job.tets, Vec3::new(s[0], s[1], s[2]));
-                let (m, volume) = piece_moments(&poly, t, &job.verts, &job.tets, &tv);
-                accumulate(j, &m, job.params.fixed_scale, sums);
-                if let Some(v) = tet_sums.get(t) {
-                    v.fetch_add((volume * job.params.fixed_scale) as i64, Ordering::Relaxed);
-                }
-                sink.piece(t as u32, j as u32, &poly);
             }
         });
     };
     pair_work(&work, &ok);
     redone.finished += ok.iter().filter(|o| o.load(Ordering::Relaxed)).count() as u64;
 
-    if knn && !tet_sums.is_empty() {
+    if knn {
         // The certificate: each tet's pieces must add up to the tet.
         let inv = 1.0 / job.params.fixed_scale as f64;
         let missed: Vec<[u32; 2]> = (0..job.tets.len())
@@ -122,7 +113,7 @@ pub(crate) fn run<S: TaskSink>(job: &ClipJob, out: &mut ClipOutput, sinks: &Mute
                     [p[0], p[1], p[2]]
                 });
                 let vol = crate::mesh::signed_volume(v[0], v[1], v[2], v[3]).abs();
-                let found = tet_sums[t].load(Ordering::Relaxed) as f64 * inv;
+                let found = sums[n_site_sums + t].load(Ordering::Relaxed) as f64 * inv;
                 (found - vol).abs() > 2e-6 * vol
             })
             .map(|t| [t as u32, NO_SITE])
@@ -146,55 +137,15 @@ pub(crate) fn run<S: TaskSink>(job: &ClipJob, out: &mut ClipOutput, sinks: &Mute
         }
     }
     redone.unresolved = unresolved.into_inner();
-    out.sums = sums.into_iter().map(AtomicI64::into_inner).collect();
+    let mut all: Vec<i64> = sums.into_iter().map(AtomicI64::into_inner).collect();
+    out.tet_volumes = all.split_off(n_site_sums);
+    out.sums = all;
     Ok(redone)
 }
 
 fn centroid(job: &ClipJob, t: usize) -> [f64; 3] {
     let v = job.tets[t].map(|i| job.verts[i as usize]);
     [0, 1, 2].map(|a| v.iter().map(|p| p[a] as f64).sum::<f64>() / 4.0)
-}
-
-/// Sites in the first ball [`clip_completely`] tries: most pieces are
-/// finished within it.
-const FIRST_BALL: f64 = 64.0;
-
-/// Builds site `j`'s piece of tet `t` in `poly` (replacing what it held)
-/// with a complete neighbour list (see the module's documentation). A
-/// smaller ball is tried first: once every site in a ball of radius `b`
-/// is clipped, the piece is exact if its farthest vertex is within `b / 2`.
-fn clip_completely<const P: usize, const V: usize>(
-    job: &ClipJob,
-    grid: &SiteGrid,
-    t: usize,
-    j: usize,
-    poly: &mut Polyhedron<P, V>,
-    list: &mut Vec<u32>,
-) -> Clipped {
-    let s = job.sites[j];
-    let xj = [s[0], s[1], s[2]].map(f64::from);
-    let tv = tet_vertices(t, &job.verts, &job.tets, Vec3::new(s[0], s[1], s[2]));
-    let reach = tv.iter().map(|v| (v.as_dvec3()).length()).fold(0.0, f64::max);
-    let complete = 2.0 * reach * (1.0 + 1e-5) + 1e-9;
-    let first = grid.radius_holding(FIRST_BALL).min(complete);
-    let mut c = Clipped::default();
-    for ball in [first, complete] {
-        poly.set_tetrahedron(tv);
-        grid.sorted_within(xj, ball, j as u32, list);
-        let last = ball == complete;
-        if last {
-            list.push(NO_SITE);
-        }
-        c = clip_by_bisectors(poly, j, job.params.n_sites, &job.sites, list, 0, list.len());
-        if c.security_missed && !c.overflow && !c.broken && 4.0 * poly.max_dist2() as f64 * (1.0 + 1e-5) <= ball * ball
-        {
-            c.security_missed = false;
-        }
-        if !c.security_missed || last {
-            break;
-        }
-    }
-    c
 }
 
 /// The pairs of each tet `(t, NO_SITE)` with every site that may own part

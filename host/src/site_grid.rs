@@ -1,5 +1,5 @@
 //! A uniform grid over the sites for the host's ball and nearest queries
-//! (the second pass). The kernels' grid answers k-nearest queries; these
+//! (the host pass). The kernels' grid answers k-nearest queries; these
 //! ask for every site within a radius, which a k cannot bound.
 
 /// Sites binned into cubic cells.
@@ -8,8 +8,6 @@ pub struct SiteGrid<'a> {
     lo: [f64; 3],
     cell: f64,
     dims: [usize; 3],
-    /// Sites per unit volume of the bounding box.
-    density: f64,
     /// Cell `c` holds `ids[start[c]..start[c + 1]]`.
     start: Vec<u32>,
     ids: Vec<u32>,
@@ -38,16 +36,8 @@ impl<'a> SiteGrid<'a> {
             cell *= 2.0;
         }
         let dims = dims_for(cell);
-        let density = sites.len() as f64 / volume;
-        let mut grid = Self {
-            sites,
-            lo,
-            cell,
-            dims,
-            density,
-            start: vec![0; dims.iter().product::<usize>() + 1],
-            ids: Vec::new(),
-        };
+        let mut grid =
+            Self { sites, lo, cell, dims, start: vec![0; dims.iter().product::<usize>() + 1], ids: Vec::new() };
         let cells: Vec<usize> =
             sites.iter().map(|s| grid.index(grid.coords([s[0], s[1], s[2]].map(f64::from)))).collect();
         for &c in &cells {
@@ -92,25 +82,6 @@ impl<'a> SiteGrid<'a> {
                 out.extend(self.ids[a..b].iter().copied().filter(|&i| self.dist2(i, p) <= r2));
             }
         }
-    }
-
-    /// The radius of a ball that holds about `n` sites at the average
-    /// density.
-    pub fn radius_holding(&self, n: f64) -> f64 {
-        (3.0 * n / (4.0 * std::f64::consts::PI * self.density)).cbrt()
-    }
-
-    /// Sets `out` to the sites within `radius` of `p` but `skip`, nearest
-    /// first (ties by index).
-    pub fn sorted_within(&self, p: [f64; 3], radius: f64, skip: u32, out: &mut Vec<u32>) {
-        out.clear();
-        self.within(p, radius, out);
-        // Non-negative f64s order as their bits.
-        let mut keyed: Vec<(u64, u32)> =
-            out.iter().filter(|&&i| i != skip).map(|&i| (self.dist2(i, p).to_bits(), i)).collect();
-        keyed.sort_unstable();
-        out.clear();
-        out.extend(keyed.iter().map(|&(_, i)| i));
     }
 
     /// The site nearest `p` (lowest index on ties) and its distance.

@@ -255,6 +255,40 @@ pub fn accumulate<A: AtomicSums>(j: usize, m: &Moments, scale: f32, sums: &mut A
     sums.add(base + 4, (m.second * scale) as i64);
 }
 
+/// Ends a pair (tet `t`, site `j`, tet vertices `tv` relative to the site)
+/// whose clipping went as `c` says: a finished non-empty piece is added to
+/// its site's sums and its tet's volume and handed to `sink`; an
+/// unfinished one is listed in `unfinished`. Returns whether a piece was
+/// added.
+#[inline]
+pub fn finish_pair<const P: usize, const V: usize, A: AtomicSums, L: PairList, S: PieceSink>(
+    t: usize,
+    j: usize,
+    poly: &Polyhedron<P, V>,
+    tv: &[Vec3; 4],
+    c: &Clipped,
+    n_sites: u32,
+    fixed_scale: f32,
+    verts: &[[f32; 4]],
+    tets: &[[u32; 4]],
+    sums: &mut A,
+    unfinished: &mut L,
+    sink: &mut S,
+) -> bool {
+    if !c.finished() {
+        unfinished.push(t as u32, j as u32);
+        return false;
+    }
+    if poly.is_empty() {
+        return false;
+    }
+    let (m, volume) = piece_moments(poly, t, verts, tets, tv);
+    accumulate(j, &m, fixed_scale, sums);
+    add_tet_volume(t, n_sites, volume, fixed_scale, sums);
+    sink.piece(t as u32, j as u32, poly);
+    true
+}
+
 /// Adds a piece's plain volume to its tet's sum, kept after the sites'
 /// sums (at `n_sites * ACCUM_PER_SITE + t`): knn pairing's certificate.
 /// The pieces of the sites paired with a tet are exact; if they do not add
@@ -367,16 +401,7 @@ pub fn tet_cell_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     let mut poly = Piece::tetrahedron(tv);
     let k = p.k_site as usize;
     let c = clip_by_bisectors(&mut poly, j, p.n_sites, sites, site_nbrs, j * k, k);
-    let nonempty = c.finished() && !poly.is_empty();
-    if nonempty {
-        let (m, volume) = piece_moments(&poly, t, verts, tets, &tv);
-        accumulate(j, &m, p.fixed_scale, sums);
-        add_tet_volume(t, p.n_sites, volume, p.fixed_scale, sums);
-        sink.piece(t as u32, j as u32, &poly);
-    }
-    if !c.finished() {
-        unfinished.push(t as u32, j as u32);
-    }
+    let nonempty = finish_pair(t, j, &poly, &tv, &c, p.n_sites, p.fixed_scale, verts, tets, sums, unfinished, sink);
     count(counters, 1, nonempty as i64, &c);
 }
 
@@ -485,16 +510,7 @@ pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
         }
         f += 1;
     }
-    let nonempty = c.finished() && !poly.is_empty();
-    if nonempty {
-        let (m, volume) = piece_moments(&poly, t, verts, tets, &tv);
-        accumulate(j, &m, p.fixed_scale, sums);
-        add_tet_volume(t, p.n_sites, volume, p.fixed_scale, sums);
-        sink.piece(t as u32, j as u32, &poly);
-    }
-    if !c.finished() {
-        unfinished.push(t as u32, j as u32);
-    }
+    let nonempty = finish_pair(t, j, &poly, &tv, &c, p.n_sites, p.fixed_scale, verts, tets, sums, unfinished, sink);
     count(counters, 1, nonempty as i64, &c);
 }
 

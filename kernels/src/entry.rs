@@ -254,15 +254,7 @@ pub fn refine(
     #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] still: &mut [u32],
 ) {
     let e = thread_index(id.x, id.y, groups.x);
-    let w = refine::GridWalk {
-        grid: p.grid,
-        lo: spirv_std::glam::Vec3::new(p.grid_lo_x, p.grid_lo_y, p.grid_lo_z),
-        cell_len: p.cell_len,
-        margin: p.margin,
-        cell_start,
-        cell_count,
-        sorted,
-    };
+    let w = refine::GridWalk::new(p, cell_start, cell_count, sorted);
     refine::refine_entry(
         e,
         p,

@@ -211,17 +211,6 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
         (r, 0.5 * (lo + hi), 0.5 * (hi - lo))
     }
 
-    /// The largest squared distance of a vertex from the local origin.
-    pub fn max_dist2(&self) -> f32 {
-        let mut r = 0.0f32;
-        let mut i = 0;
-        while i < self.n_verts as usize {
-            r = r.max(self.verts[i].length_squared());
-            i += 1;
-        }
-        r
-    }
-
     /// Frees the planes no vertex uses, renumbering the rest.
     fn recycle_planes(&mut self) {
         let mut remap = [0xffu32; P];

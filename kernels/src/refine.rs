@@ -14,7 +14,7 @@
 
 use crate::abi::{GridParams, QuantPoint, RefineParams, NO_SITE};
 use crate::buffers::{AtomicSums, PairList};
-use crate::clip::{accumulate, add_tet_volume, flood, piece_moments, tet_vertices, BisectorRun, Clipped, PieceSink};
+use crate::clip::{finish_pair, flood, tet_vertices, BisectorRun, Clipped, PieceSink};
 use crate::grid::cell_index;
 use crate::knn::sub_floor0;
 use crate::polyhedron::{Cell, Polyhedron, CELL_PLANES, CELL_VERTS};
@@ -41,6 +41,23 @@ pub struct GridWalk<'a> {
     pub cell_count: &'a [u32],
     /// Sites sorted by cell (index in `[3]`).
     pub sorted: &'a [QuantPoint],
+}
+
+impl<'a> GridWalk<'a> {
+    /// The walk over the grid `cell_start`, `cell_count`, `sorted` that
+    /// `p` describes.
+    #[inline]
+    pub fn new(p: &RefineParams, cell_start: &'a [u32], cell_count: &'a [u32], sorted: &'a [QuantPoint]) -> Self {
+        Self {
+            grid: p.grid,
+            lo: Vec3::new(p.grid_lo_x, p.grid_lo_y, p.grid_lo_z),
+            cell_len: p.cell_len,
+            margin: p.margin,
+            cell_start,
+            cell_count,
+            sorted,
+        }
+    }
 }
 
 #[inline]
@@ -155,8 +172,8 @@ pub fn clip_by_grid<const P: usize, const V: usize>(
 /// Thread `e` of the second pass over the first pass's unfinished list
 /// (`list[0]` entries `(tet, site)` from `list[1]`): a whole tet
 /// (`site == NO_SITE`, a failed flood) is flooded again from the site
-/// nearest its centroid (`tet_sites[tet]`); a pair's piece is clipped on
-/// its own. What fails again goes to `still`.
+/// nearest its centroid (`tet_sites[tet * k_tet]`); a pair's piece is
+/// clipped on its own. What fails again goes to `still`.
 #[inline]
 pub fn refine_entry<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     e: usize,
@@ -179,32 +196,62 @@ pub fn refine_entry<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     let j = list[2 + 2 * e];
     if j == NO_SITE {
         let start = tet_sites[t * p.clip.k_tet as usize];
-        flood::<CELL_PLANES, CELL_VERTS, REFINE_QUEUE, _, _, _, _, _>(
-            t,
-            start,
-            p.clip.fixed_scale,
-            sites,
-            verts,
-            tets,
-            move |j: usize, poly: &mut Cell| clip_by_grid(poly, j, sites, w),
-            sums,
-            counters,
-            still,
-            sink,
-        );
+        refine_tet::<REFINE_QUEUE, _, _, _, _>(t, start, p, w, sites, verts, tets, sums, counters, still, sink);
     } else {
-        let j = j as usize;
-        let mut poly = Cell::empty();
-        let tv = tet_vertices(t, verts, tets, xyz(sites[j]));
-        poly.set_tetrahedron(tv);
-        let c = clip_by_grid(&mut poly, j, sites, w);
-        if !c.finished() {
-            still.push(t as u32, j as u32);
-        } else if !poly.is_empty() {
-            let (m, volume) = piece_moments(&poly, t, verts, tets, &tv);
-            accumulate(j, &m, p.clip.fixed_scale, sums);
-            add_tet_volume(t, p.clip.n_sites, volume, p.clip.fixed_scale, sums);
-            sink.piece(t as u32, j as u32, &poly);
-        }
+        refine_pair(t, j as usize, p, w, sites, verts, tets, sums, still, sink);
     }
+}
+
+/// Tet `t` flooded again from site `start`, each piece clipped by a grid
+/// walk in a [`Cell`], with room for `Q` sites; listed whole in `still`
+/// if even that fails.
+#[inline]
+pub fn refine_tet<const Q: usize, A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
+    t: usize,
+    start: u32,
+    p: &RefineParams,
+    w: GridWalk,
+    sites: &[[f32; 4]],
+    verts: &[[f32; 4]],
+    tets: &[[u32; 4]],
+    sums: &mut A,
+    counters: &mut C,
+    still: &mut L,
+    sink: &mut S,
+) {
+    flood::<CELL_PLANES, CELL_VERTS, Q, _, _, _, _, _>(
+        t,
+        start,
+        p.clip.fixed_scale,
+        sites,
+        verts,
+        tets,
+        move |j: usize, poly: &mut Cell| clip_by_grid(poly, j, sites, w),
+        sums,
+        counters,
+        still,
+        sink,
+    );
+}
+
+/// Site `j`'s piece of tet `t`, clipped by a grid walk in a [`Cell`];
+/// listed in `still` if even that fails.
+#[inline]
+pub fn refine_pair<A: AtomicSums, L: PairList, S: PieceSink>(
+    t: usize,
+    j: usize,
+    p: &RefineParams,
+    w: GridWalk,
+    sites: &[[f32; 4]],
+    verts: &[[f32; 4]],
+    tets: &[[u32; 4]],
+    sums: &mut A,
+    still: &mut L,
+    sink: &mut S,
+) {
+    let mut poly = Cell::empty();
+    let tv = tet_vertices(t, verts, tets, xyz(sites[j]));
+    poly.set_tetrahedron(tv);
+    let c = clip_by_grid(&mut poly, j, sites, w);
+    finish_pair(t, j, &poly, &tv, &c, p.clip.n_sites, p.clip.fixed_scale, verts, tets, sums, still, sink);
 }
