@@ -170,7 +170,7 @@ fn main() {
             // Energy against iteration, both optimisers: bench-results/.
             let colours = [[200, 40, 40], [40, 80, 200]];
             let series: Vec<Series> =
-                curves.iter().zip(colours).map(|((name, values), rgb)| Series { name, values, rgb }).collect();
+                curves.iter().zip(colours).map(|((name, values), rgb)| Series { name, values, x: &[], rgb }).collect();
             let kind = if backend.name().starts_with("cpu") { "cpu" } else { "vulkan" };
             let path = o.plots.join(format!("cvt_{name}_{kind}.png"));
             match std::fs::create_dir_all(&o.plots).map_err(|e| e.to_string()).and_then(|_| {

@@ -133,6 +133,7 @@ impl CpuBackend {
                 tet_volumes,
                 counters: totals.into_iter().map(AtomicI64::into_inner).collect(),
                 refined: (first.len() - still.len()) as u64,
+                chunks: 1,
                 unfinished: still,
                 timings,
             })

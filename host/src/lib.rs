@@ -14,6 +14,7 @@
 //! ```
 
 pub mod backend;
+pub mod bench;
 pub mod cpu;
 pub mod cvt;
 pub mod density;

@@ -286,7 +286,7 @@ fn lloyd(
     }
     let energy: Vec<f64> = run.iterations.iter().map(|i| i.energy).collect();
     let name = format!("{:?}", args.optimizer).to_lowercase();
-    let series = [output::Series { name: &name, values: &energy, rgb: [200, 40, 40] }];
+    let series = [output::Series { name: &name, values: &energy, x: &[], rgb: [200, 40, 40] }];
     output::write_line_chart_png(&dir.join("energy.png"), "cvt energy", &series)?;
     Ok(run.sites)
 }

@@ -99,6 +99,9 @@ pub struct ClipOutput {
     /// Entries of the first pass's unfinished list the kernels' second
     /// pass finished.
     pub refined: u64,
+    /// Parts the backend split the job into to stay under its memory
+    /// budget (1: none).
+    pub chunks: u64,
     /// Time per phase.
     pub timings: Timings,
 }
@@ -152,6 +155,8 @@ pub struct Cells {
     pub mesh_volume: f64,
     /// `|total - mesh| / mesh`.
     pub e_vol: f64,
+    /// How tets and cells were intersected.
+    pub strategy: Strategy,
     /// How tets were paired with sites.
     pub pairing: Pairing,
     /// Sites paired with each tet (1 for flood: its starting site).
@@ -160,6 +165,8 @@ pub struct Cells {
     pub k_site: usize,
     /// Counters.
     pub counters: Counters,
+    /// Parts the backend split the job into (see [`ClipOutput::chunks`]).
+    pub chunks: u64,
     /// Time per phase.
     pub timings: Timings,
 }
@@ -482,7 +489,9 @@ fn finish(
     let inv = 1.0 / job.params.fixed_scale as f64;
     let l = frame.scale;
     let mut cells = Cells {
+        strategy: job.strategy,
         pairing: job.pairing,
+        chunks: out.chunks,
         k: job.params.k_tet as usize,
         k_site: job.params.k_site as usize,
         ..Default::default()

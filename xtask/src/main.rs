@@ -9,9 +9,12 @@ usage: cargo xtask <command> [args...]
 commands:
   run [ARGS]        the main job: a clipped Voronoi diagram (cvd run ARGS, release build)
   test [ARGS]       the whole test suite, optimised (cargo test ARGS)
-  bench knn [ARGS]  the k-NN benchmark (ARGS: --sizes, --ks, --json PATH, ...)
-  bench cvd [ARGS]  the clipped Voronoi benchmark (paper Table 1; --models-dir, --json PATH, ...)
-  bench cvt [ARGS]  Lloyd and L-BFGS per model and backend (--iterations N, --only NAME, --json PATH, ...)
+  bench paper [ARGS]  the paper's evaluation: Table 1, Figs. 7, 8, 12, 13 and scale runs, CPU and
+                    Vulkan; tables, JSON and charts in bench-results/paper (--sections LIST,
+                    --quick, --cpu-only, --repeat R, --scale-max N, --models-dir DIR, --out DIR, ...)
+  bench cvd [ARGS]    Table 1 alone (bench paper --sections table1 ARGS)
+  bench knn [ARGS]    the k-NN benchmark (ARGS: --sizes, --ks, --json PATH, ...)
+  bench cvt [ARGS]    Lloyd and L-BFGS per model and backend (--iterations N, --only NAME, --json PATH, ...)
   build             build everything, optimised
   lint              cargo fmt --check and cargo clippy -D warnings
 ";
@@ -60,10 +63,13 @@ fn run(args: &[String]) -> Result<(), String> {
         "test" => status(cargo(&["test", "--release", "--workspace"], rest)),
         "build" => status(cargo(&["build", "--release", "--workspace"], rest)),
         "bench" => match rest.split_first() {
-            Some((which, extra)) if ["knn", "cvd", "cvt"].contains(&which.as_str()) => {
+            Some((which, extra)) if ["knn", "paper", "cvt"].contains(&which.as_str()) => {
                 status(cargo(&["bench", "--package", "cvd", "--bench", which, "--"], extra))
             }
-            _ => Err(format!("unknown benchmark; expected: knn, cvd or cvt\n\n{USAGE}")),
+            Some((cvd, extra)) if cvd == "cvd" => {
+                status(cargo(&["bench", "--package", "cvd", "--bench", "paper", "--", "--sections", "table1"], extra))
+            }
+            _ => Err(format!("unknown benchmark; expected: paper, cvd, knn or cvt\n\n{USAGE}")),
         },
         "lint" => {
             status(cargo(&["fmt", "--all", "--check"], &[]))?;

@@ -1,5 +1,6 @@
-//! A line chart of values against iterations (the CVT energy), written as a
-//! PNG with its axes, tick labels and legend in a small built-in font.
+//! Line charts (the CVT energy against iterations, benchmark times against
+//! sizes), written as PNGs with axes, tick labels and a legend in a small
+//! built-in font.
 
 use crate::error::Result;
 use std::path::Path;
@@ -8,8 +9,10 @@ use std::path::Path;
 pub struct Series<'a> {
     /// Name in the legend (lowercase letters, digits and `-+.e()`).
     pub name: &'a str,
-    /// Values, one per iteration from 0.
+    /// Values, one per point.
     pub values: &'a [f64],
+    /// Where each value lies on the horizontal axis; empty: 0, 1, 2, ...
+    pub x: &'a [f64],
     /// Line colour.
     pub rgb: [u8; 3],
 }
@@ -116,12 +119,14 @@ fn glyph(c: char) -> [u8; 5] {
         'g' => [0, 7, 5, 7, 1],
         'h' => [4, 4, 7, 5, 5],
         'i' => [2, 0, 2, 2, 2],
+        'j' => [1, 0, 1, 5, 7],
         'k' => [4, 5, 6, 5, 5],
         'l' => [6, 2, 2, 2, 7],
         'm' => [0, 7, 7, 5, 5],
         'n' => [0, 6, 5, 5, 5],
         'o' => [0, 7, 5, 5, 7],
         'p' => [7, 5, 7, 4, 4],
+        'q' => [7, 5, 7, 1, 1],
         'r' => [0, 7, 4, 4, 4],
         's' => [7, 4, 7, 1, 7],
         't' => [2, 7, 2, 2, 3],
@@ -130,6 +135,10 @@ fn glyph(c: char) -> [u8; 5] {
         'w' => [0, 5, 5, 7, 7],
         'x' => [0, 5, 2, 2, 5],
         'y' => [5, 5, 7, 1, 7],
+        'z' => [0, 7, 1, 4, 7],
+        '/' => [1, 1, 2, 4, 4],
+        '_' => [0, 0, 0, 0, 7],
+        ':' => [0, 2, 0, 2, 0],
         _ => [0; 5],
     }
 }
@@ -143,49 +152,95 @@ fn label(v: f64) -> String {
     format!("{:.2}e{e}", v / 10f64.powi(e))
 }
 
-/// Writes the chart of `series` to `path` (`y_name` labels the vertical
-/// axis; the horizontal one counts iterations).
+/// What a chart's axes show.
+pub struct Axes<'a> {
+    /// Label of the horizontal axis.
+    pub x_name: &'a str,
+    /// Label of the vertical axis.
+    pub y_name: &'a str,
+    /// A logarithmic vertical axis (values <= 0 are left out).
+    pub log_y: bool,
+}
+
+/// Writes the chart of `series` against iterations to `path` (`y_name`
+/// labels the vertical axis).
 pub fn write_line_chart_png(path: &Path, y_name: &str, series: &[Series]) -> Result<()> {
-    let n = series.iter().map(|s| s.values.len()).max().unwrap_or(0).max(2);
-    let finite = series.iter().flat_map(|s| s.values.iter().copied()).filter(|v| v.is_finite());
-    let (mut lo, mut hi) = finite.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
-    if !lo.is_finite() {
-        (lo, hi) = (0.0, 1.0);
-    }
-    if hi - lo <= 1e-12 * hi.abs().max(1e-300) {
-        (lo, hi) = (lo - 0.5 * lo.abs().max(1e-12), hi + 0.5 * hi.abs().max(1e-12));
-    }
+    write_chart_png(path, &Axes { x_name: "iteration", y_name, log_y: false }, series)
+}
+
+/// Writes the chart of `series` to `path`.
+pub fn write_chart_png(path: &Path, axes: &Axes, series: &[Series]) -> Result<()> {
+    let fy = |v: f64| {
+        if axes.log_y {
+            if v > 0.0 {
+                v.log10()
+            } else {
+                f64::NAN
+            }
+        } else {
+            v
+        }
+    };
+    let points: Vec<Vec<(f64, f64)>> = series
+        .iter()
+        .map(|s| {
+            let x = |i: usize| s.x.get(i).copied().unwrap_or(i as f64);
+            (0..s.values.len())
+                .map(|i| (x(i), fy(s.values[i])))
+                .filter(|(x, y)| x.is_finite() && y.is_finite())
+                .collect()
+        })
+        .collect();
+    let range = |vals: &mut dyn Iterator<Item = f64>| {
+        let (lo, hi) = vals.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
+        match (lo.is_finite(), hi - lo <= 1e-12 * hi.abs().max(1e-300)) {
+            (false, _) => (0.0, 1.0),
+            (true, true) => (lo - 0.5 * lo.abs().max(1e-12), hi + 0.5 * hi.abs().max(1e-12)),
+            (true, false) => (lo, hi),
+        }
+    };
+    let (xlo, xhi) = range(&mut points.iter().flatten().map(|p| p.0));
+    let (lo, hi) = range(&mut points.iter().flatten().map(|p| p.1));
     let pad = 0.05 * (hi - lo);
     let (lo, hi) = (lo - pad, hi + pad);
     let (x0, x1) = (LEFT as i64, (WIDTH - RIGHT) as i64);
     let (y0, y1) = (TOP as i64, (HEIGHT - BOTTOM) as i64);
-    let px = |i: f64| x0 + ((i / (n - 1) as f64) * (x1 - x0) as f64).round() as i64;
+    let px = |x: f64| x0 + (((x - xlo) / (xhi - xlo)) * (x1 - x0) as f64).round() as i64;
     let py = |v: f64| y1 - (((v - lo) / (hi - lo)) * (y1 - y0) as f64).round() as i64;
 
     let mut c = Canvas::new();
     const GRID: [u8; 3] = [225, 225, 225];
     const INK: [u8; 3] = [40, 40, 40];
+    let integral_x = points.iter().flatten().all(|p| p.0.fract() == 0.0);
     for k in 0..=5 {
         let v = lo + (hi - lo) * k as f64 / 5.0;
         let y = py(v);
         c.line((x0, y), (x1, y), GRID);
-        let t = label(v);
+        let t = label(if axes.log_y { 10f64.powf(v) } else { v });
         c.text(x0 - 8 - text_width(&t), y - 5, &t, INK);
-        let i = ((n - 1) as f64 * k as f64 / 5.0).round();
-        let x = px(i);
+        let mut xv = xlo + (xhi - xlo) * k as f64 / 5.0;
+        if integral_x {
+            xv = xv.round();
+        }
+        let x = px(xv);
         c.line((x, y0), (x, y1), GRID);
-        let t = format!("{}", i as usize);
+        let t = if integral_x && xv.abs() < 1e7 { format!("{}", xv as i64) } else { label(xv) };
         c.text(x - text_width(&t) / 2, y1 + 8, &t, INK);
     }
     c.line((x0, y0), (x0, y1), INK);
     c.line((x0, y1), (x1, y1), INK);
-    c.text((x0 + x1) / 2 - text_width("iteration") / 2, y1 + 26, "iteration", INK);
-    c.text(4, y0 - 30, y_name, INK);
-    for (k, s) in series.iter().enumerate() {
-        let points: Vec<(i64, i64)> =
-            s.values.iter().enumerate().filter(|(_, v)| v.is_finite()).map(|(i, &v)| (px(i as f64), py(v))).collect();
-        for w in points.windows(2) {
+    c.text((x0 + x1) / 2 - text_width(axes.x_name) / 2, y1 + 26, axes.x_name, INK);
+    let y_name = if axes.log_y { format!("{} (log)", axes.y_name) } else { axes.y_name.to_string() };
+    c.text(4, y0 - 30, &y_name, INK);
+    for (k, (s, pts)) in series.iter().zip(&points).enumerate() {
+        let pts: Vec<(i64, i64)> = pts.iter().map(|&(x, y)| (px(x), py(y))).collect();
+        for w in pts.windows(2) {
             c.line(w[0], w[1], s.rgb);
+        }
+        if !s.x.is_empty() {
+            for &(x, y) in &pts {
+                c.rect(x - 2, y - 2, 6, 6, s.rgb);
+            }
         }
         // Legend, top right.
         let y = y0 + 6 + 16 * k as i64;
@@ -207,8 +262,8 @@ mod tests {
         let down: Vec<f64> = (0..50).map(|i| 4.4e-4 - 1e-6 * i as f64).collect();
         let flat = vec![4.0e-4; 50];
         let series = [
-            Series { name: "lloyd", values: &down, rgb: [200, 30, 30] },
-            Series { name: "lbfgs", values: &flat, rgb: [30, 30, 200] },
+            Series { name: "lloyd", values: &down, x: &[], rgb: [200, 30, 30] },
+            Series { name: "lbfgs", values: &flat, x: &[], rgb: [30, 30, 200] },
         ];
         write_line_chart_png(&path, "energy", &series).unwrap();
         let decoder = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&path).unwrap()));

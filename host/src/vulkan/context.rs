@@ -71,6 +71,8 @@ pub struct Context {
     /// Nanoseconds per timestamp tick.
     pub(crate) timestamp_period: f64,
     pub(crate) info: DeviceInfo,
+    /// Device-local memory held by the buffers.
+    pub(crate) usage: std::sync::Arc<super::memory::MemoryUsage>,
 }
 
 fn load_entry() -> Result<ash::Entry> {
@@ -249,6 +251,7 @@ impl Context {
             limits: props.limits,
             timestamp_period: props.limits.timestamp_period as f64,
             info,
+            usage: Default::default(),
         })
     }
 

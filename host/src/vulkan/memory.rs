@@ -3,10 +3,43 @@
 use super::context::Context;
 use crate::error::{Error, Result, VkContext};
 use ash::vk;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+
+/// Bytes of device-local memory held by live buffers, and the most held
+/// at once since the last reset.
+#[derive(Default)]
+pub(crate) struct MemoryUsage {
+    live: AtomicU64,
+    peak: AtomicU64,
+}
+
+impl MemoryUsage {
+    fn add(&self, bytes: u64) {
+        let live = self.live.fetch_add(bytes, Ordering::Relaxed) + bytes;
+        self.peak.fetch_max(live, Ordering::Relaxed);
+    }
+
+    fn sub(&self, bytes: u64) {
+        self.live.fetch_sub(bytes, Ordering::Relaxed);
+    }
+
+    pub(crate) fn peak(&self) -> u64 {
+        self.peak.load(Ordering::Relaxed)
+    }
+
+    /// Starts a new peak from what is held now.
+    pub(crate) fn reset_peak(&self) {
+        self.peak.store(self.live.load(Ordering::Relaxed), Ordering::Relaxed);
+    }
+}
 
 /// A buffer with its own memory allocation.
 pub(crate) struct Buffer {
     device: ash::Device,
+    /// Where the allocation's device-local bytes are counted (`None` for
+    /// staging buffers).
+    usage: Option<(Arc<MemoryUsage>, u64)>,
     pub(crate) buffer: vk::Buffer,
     memory: vk::DeviceMemory,
     /// Size in bytes.
@@ -83,7 +116,11 @@ impl Buffer {
                 return Err(Error::Vulkan { call: "vkAllocateMemory", result: e });
             }
         };
-        let mut out = Self { device: dev.clone(), buffer, memory, size, mapped: std::ptr::null_mut() };
+        let usage = (location == Location::Device).then(|| (ctx.usage.clone(), req.size));
+        if let Some((u, bytes)) = &usage {
+            u.add(*bytes);
+        }
+        let mut out = Self { device: dev.clone(), usage, buffer, memory, size, mapped: std::ptr::null_mut() };
         // SAFETY: memory matches the buffer's requirements.
         unsafe { dev.bind_buffer_memory(buffer, memory, 0) }.call("vkBindBufferMemory")?;
         if location != Location::Device {
@@ -120,6 +157,9 @@ impl Drop for Buffer {
         unsafe {
             self.device.destroy_buffer(self.buffer, None);
             self.device.free_memory(self.memory, None);
+        }
+        if let Some((u, bytes)) = &self.usage {
+            u.sub(*bytes);
         }
     }
 }

@@ -41,6 +41,18 @@ impl VulkanBackend {
         self.ctx.info()
     }
 
+    /// The most device-local memory the backend's buffers held at once
+    /// since the last [`Self::reset_peak_memory`] (or since it opened), in
+    /// bytes.
+    pub fn peak_memory(&self) -> u64 {
+        self.ctx.usage.peak()
+    }
+
+    /// Starts measuring [`Self::peak_memory`] afresh.
+    pub fn reset_peak_memory(&self) {
+        self.ctx.usage.reset_peak();
+    }
+
     /// Creates every pipeline now (drivers may compile for seconds) and
     /// returns the time that took.
     pub fn warm_up(&self) -> Result<f64> {
@@ -153,6 +165,7 @@ impl Backend for VulkanBackend {
             tet_volumes,
             counters: done.read(counters_back, counter::COUNT),
             refined: first - still.len() as u64,
+            chunks: 1,
             unfinished: still,
             timings: done.timings,
         })
