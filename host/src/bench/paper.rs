@@ -114,6 +114,10 @@ pub fn run(config: &Config) -> Result<Report> {
     Ok(s.report)
 }
 
+/// What one measurement computes: section, model name, mesh, sites.
+#[derive(Clone, Copy)]
+struct Case<'m>(&'static str, &'m str, &'m TetMesh, &'m [[f32; 3]]);
+
 struct Suite<'a> {
     config: &'a Config,
     backends: &'a Backends,
@@ -153,15 +157,13 @@ impl<'a> Suite<'a> {
 
     /// Measures one diagram on `backend`: the fastest of `repeat` runs.
     fn measure(
-        &mut self,
-        section: &'static str,
-        model: &str,
-        mesh: &TetMesh,
-        sites: &[[f32; 3]],
+        &self,
+        case: Case,
         backend: (&dyn Backend, Option<&VulkanBackend>),
         method: (Strategy, Pairing),
         k: Option<usize>,
     ) -> Result<(Row, Cells)> {
+        let Case(section, model, mesh, sites) = case;
         let cv = ClippedVoronoi::new(mesh, sites).strategy(method.0).pairing(method.1).k(k).backend(backend.0);
         let mut best: Option<(Row, Cells)> = None;
         for _ in 0..self.config.repeat.max(1) {
@@ -239,7 +241,7 @@ impl<'a> Suite<'a> {
             let sites = points::in_mesh(&m.mesh, m.sites, SEED);
             for b in self.each_backend() {
                 for method in METHODS {
-                    let row = self.measure("table1", &m.name, &m.mesh, &sites, b, method, None)?.0;
+                    let row = self.measure(Case("table1", &m.name, &m.mesh, &sites), b, method, None)?.0;
                     self.keep(row);
                 }
             }
@@ -258,7 +260,7 @@ impl<'a> Suite<'a> {
                 let sites = points::in_mesh(&m.mesh, n, SEED);
                 for b in self.each_backend() {
                     for method in METHODS {
-                        let row = self.measure("fig7", &m.name, &m.mesh, &sites, b, method, None)?.0;
+                        let row = self.measure(Case("fig7", &m.name, &m.mesh, &sites), b, method, None)?.0;
                         rows.push(self.keep(row));
                     }
                 }
@@ -288,7 +290,7 @@ impl<'a> Suite<'a> {
                 let sites = points::in_mesh(&m.mesh, n, SEED);
                 for b in self.each_backend() {
                     for method in METHODS {
-                        let row = self.measure("fig8", name, &m.mesh, &sites, b, method, None)?.0;
+                        let row = self.measure(Case("fig8", name, &m.mesh, &sites), b, method, None)?.0;
                         rows.push(self.keep(row));
                     }
                 }
@@ -311,7 +313,7 @@ impl<'a> Suite<'a> {
             for &k in &ks {
                 for b in self.each_backend() {
                     for method in [METHODS[1], METHODS[2]] {
-                        let row = self.measure("fig12", &m.name, &m.mesh, &sites, b, method, Some(k))?.0;
+                        let row = self.measure(Case("fig12", &m.name, &m.mesh, &sites), b, method, Some(k))?.0;
                         rows.push(self.keep(row));
                     }
                 }
@@ -364,7 +366,7 @@ impl<'a> Suite<'a> {
                     let mut sites = points::in_mesh(&m.mesh, n, SEED);
                     for it in 0..self.config.iterations {
                         let k = (method.1 == Pairing::Knn).then_some(50);
-                        let (mut row, cells) = self.measure("fig13", &m.name, &m.mesh, &sites, b, method, k)?;
+                        let (mut row, cells) = self.measure(Case("fig13", &m.name, &m.mesh, &sites), b, method, k)?;
                         row.iteration = Some(it);
                         rows.push(self.keep(row));
                         // Lloyd's step: every site to its cell's centroid.
@@ -410,7 +412,7 @@ impl<'a> Suite<'a> {
             let m = Model::builtin("cube", Some(r))?;
             let sites = points::in_mesh(&m.mesh, n, SEED);
             for b in self.each_backend() {
-                let row = self.measure("scale", "cube", &m.mesh, &sites, b, METHODS[0], None)?.0;
+                let row = self.measure(Case("scale", "cube", &m.mesh, &sites), b, METHODS[0], None)?.0;
                 rows.push(self.keep(row));
             }
         }
