@@ -81,7 +81,7 @@ fn best_of<T>(repeat: usize, mut f: impl FnMut() -> (T, f64)) -> (T, f64) {
 fn main() {
     let o = options();
     let cpu = CpuBackend::new(o.threads).expect("CPU backend");
-    let vulkan = match VulkanBackend::new(&VulkanOptions { device: o.device.clone(), validation: false }) {
+    let vulkan = match VulkanBackend::new(&VulkanOptions { device: o.device.clone(), ..Default::default() }) {
         Ok(v) => {
             let compile = v.warm_up().expect("pipelines");
             println!(

@@ -118,7 +118,9 @@ impl KnnJob {
             n_queries: queries.len() as u32,
             k: k as u32,
             exclude_self: exclude_self as u32,
-            _pad: 0,
+            query_base: 0,
+            d2_scratch: 0,
+            _pad: [0; 2],
         };
         Ok(Self { sites, queries, params, method, quantizer })
     }

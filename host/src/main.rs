@@ -377,6 +377,10 @@ struct BackendArgs {
     /// Enable the Vulkan validation layer.
     #[arg(long)]
     validation: bool,
+    /// Most device memory a job may hold, in MiB (default: 80 % of the
+    /// device's memory); larger jobs run in chunks.
+    #[arg(long, value_name = "MIB")]
+    memory_budget: Option<u64>,
 }
 
 impl BackendArgs {
@@ -384,7 +388,11 @@ impl BackendArgs {
         BackendOptions {
             kind: self.backend,
             threads: self.threads,
-            vulkan: VulkanOptions { device: self.device.clone(), validation: self.validation },
+            vulkan: VulkanOptions {
+                device: self.device.clone(),
+                validation: self.validation,
+                memory_budget: self.memory_budget.map(|mib| mib << 20),
+            },
         }
     }
 }

@@ -71,8 +71,14 @@ pub struct KnnParams {
     pub k: u32,
     /// 1: query `i` is site `i` and excludes itself; 0: plain points.
     pub exclude_self: u32,
+    /// First query of this dispatch: thread `i` answers query
+    /// `query_base + i` (a job split into parts; 0 otherwise).
+    pub query_base: u32,
+    /// 1: the distance list is scratch for this dispatch's queries only
+    /// (thread `i` at slot `i`), not read afterwards.
+    pub d2_scratch: u32,
     /// Padding to a 16-byte multiple.
-    pub _pad: u32,
+    pub _pad: [u32; 2],
 }
 
 /// The thread index of a 1D job dispatched as a 2D grid of workgroups
@@ -115,7 +121,8 @@ pub mod counter {
 pub struct ClipParams {
     /// Number of sites.
     pub n_sites: u32,
-    /// Number of tets.
+    /// End of the tets this dispatch covers: tets `tet_base..n_tets` (the
+    /// number of tets when the job is not split into chunks).
     pub n_tets: u32,
     /// Neighbours per site used for its cell (Algorithm 1).
     pub k_site: u32,
@@ -137,6 +144,10 @@ pub struct ClipParams {
     pub box_hi_z: f32,
     /// Length of each site's slot in the neighbour list (`k_site`).
     pub list_len: u32,
+    /// First tet this dispatch covers: thread `i` works on tet pair
+    /// `tet_base * k_tet + i`, whose paired sites are at `tet_sites[i]`
+    /// (the lists hold the chunk's tets only). 0 when not chunked.
+    pub tet_base: u32,
 }
 
 /// Push constants of the second pass ([`crate::refine`]): the clipping

@@ -349,7 +349,7 @@ fn count<C: AtomicSums>(counters: &mut C, pieces: i64, nonempty: i64, c: &Clippe
 /// — by the half-space test).
 #[inline]
 fn open_pair<C: AtomicSums>(
-    pair: usize,
+    i: usize,
     p: &ClipParams,
     sites: &[[f32; 4]],
     verts: &[[f32; 4]],
@@ -359,17 +359,19 @@ fn open_pair<C: AtomicSums>(
     counters: &mut C,
 ) -> (usize, usize) {
     let none = (0, NO_SITE as usize);
-    if pair >= p.n_tets as usize * p.k_tet as usize {
+    let k = p.k_tet as usize;
+    let pair = p.tet_base as usize * k + i;
+    if pair >= p.n_tets as usize * k {
         return none;
     }
-    let t = pair / p.k_tet as usize;
-    let j = tet_sites[pair];
+    let t = pair / k;
+    let j = tet_sites[i];
     if j == NO_SITE {
         return none;
     }
     let j = j as usize;
     *tv = tet_vertices(t, verts, tets, xyz(sites[j]));
-    if !may_meet(tv, j, t * p.k_tet as usize, p, sites, tet_sites) {
+    if !may_meet(tv, j, i - i % k, p, sites, tet_sites) {
         counters.add(counter::PAIRS, 1);
         counters.add(counter::FILTERED, 1);
         return none;
@@ -377,11 +379,11 @@ fn open_pair<C: AtomicSums>(
     (t, j)
 }
 
-/// Thread `pair` of the tet-cell strategy (Algorithm 4): pair
-/// `(pair / k_tet, pair % k_tet)` of tet and paired site.
+/// Thread `i` of the tet-cell strategy (Algorithm 4): pair `tet_base *
+/// k_tet + i`, of tet `pair / k_tet` and its paired site `pair % k_tet`.
 #[inline]
 pub fn tet_cell_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
-    pair: usize,
+    i: usize,
     p: &ClipParams,
     sites: &[[f32; 4]],
     verts: &[[f32; 4]],
@@ -394,7 +396,7 @@ pub fn tet_cell_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     sink: &mut S,
 ) {
     let mut tv = [Vec3::ZERO; 4];
-    let (t, j) = open_pair(pair, p, sites, verts, tets, tet_sites, &mut tv, counters);
+    let (t, j) = open_pair(i, p, sites, verts, tets, tet_sites, &mut tv, counters);
     if j == NO_SITE as usize {
         return;
     }
@@ -449,11 +451,11 @@ pub fn voronoi_cell<O: OutBuf<[f32; 4]> + ?Sized, C: AtomicSums>(
     count(counters, 0, 0, &c);
 }
 
-/// Thread `pair` of the cell-tet strategy (Algorithm 2): site `j`'s stored
-/// cell clipped by the 4 faces of tet `pair / k_tet`.
+/// Thread `i` of the cell-tet strategy (Algorithm 2): pair `tet_base *
+/// k_tet + i`, site `j`'s stored cell clipped by the 4 faces of its tet.
 #[inline]
 pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
-    pair: usize,
+    i: usize,
     p: &ClipParams,
     sites: &[[f32; 4]],
     verts: &[[f32; 4]],
@@ -466,7 +468,7 @@ pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     sink: &mut S,
 ) {
     let mut tv = [Vec3::ZERO; 4];
-    let (t, j) = open_pair(pair, p, sites, verts, tets, tet_sites, &mut tv, counters);
+    let (t, j) = open_pair(i, p, sites, verts, tets, tet_sites, &mut tv, counters);
     if j == NO_SITE as usize {
         return;
     }
@@ -518,12 +520,12 @@ pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
 /// to the second pass.
 pub const FLOOD_CAP: usize = 32;
 
-/// Thread `t` of flood pairing (tet-cell): [`flood`] from the site nearest
-/// the tet's centroid (`tet_sites[t]`, a 1-NN list), each piece clipped by
+/// Thread `i` of flood pairing (tet-cell): tet `t = tet_base + i`,
+/// [`flood`] from the site nearest its centroid (`tet_sites[i]`, a 1-NN list), each piece clipped by
 /// the bisectors of its site's `list_len` nearest neighbours.
 #[inline]
 pub fn flood_tet<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
-    t: usize,
+    i: usize,
     p: &ClipParams,
     sites: &[[f32; 4]],
     verts: &[[f32; 4]],
@@ -535,6 +537,7 @@ pub fn flood_tet<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     unfinished: &mut L,
     sink: &mut S,
 ) {
+    let t = p.tet_base as usize + i;
     if t >= p.n_tets as usize {
         return;
     }
@@ -542,7 +545,7 @@ pub fn flood_tet<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     let n_sites = p.n_sites;
     flood::<32, 64, FLOOD_CAP, _, _, _, _, _>(
         t,
-        tet_sites[t],
+        tet_sites[i],
         p.fixed_scale,
         sites,
         verts,

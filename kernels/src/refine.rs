@@ -172,7 +172,7 @@ pub fn clip_by_grid<const P: usize, const V: usize>(
 /// Thread `e` of the second pass over the first pass's unfinished list
 /// (`list[0]` entries `(tet, site)` from `list[1]`): a whole tet
 /// (`site == NO_SITE`, a failed flood) is flooded again from the site
-/// nearest its centroid (`tet_sites[tet * k_tet]`); a pair's piece is
+/// nearest its centroid (`tet_sites[(tet - tet_base) * k_tet]`); a pair's piece is
 /// clipped on its own. What fails again goes to `still`.
 #[inline]
 pub fn refine_entry<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
@@ -195,7 +195,7 @@ pub fn refine_entry<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     let t = list[1 + 2 * e] as usize;
     let j = list[2 + 2 * e];
     if j == NO_SITE {
-        let start = tet_sites[t * p.clip.k_tet as usize];
+        let start = tet_sites[(t - p.clip.tet_base as usize) * p.clip.k_tet as usize];
         refine_tet::<REFINE_QUEUE, _, _, _, _>(t, start, p, w, sites, verts, tets, sums, counters, still, sink);
     } else {
         refine_pair(t, j as usize, p, w, sites, verts, tets, sums, still, sink);

@@ -14,7 +14,8 @@ use std::sync::OnceLock;
 pub fn vulkan() -> Option<&'static VulkanBackend> {
     static BACKEND: OnceLock<Result<VulkanBackend, String>> = OnceLock::new();
     let backend = BACKEND.get_or_init(|| {
-        let options = VulkanOptions { device: std::env::var("CVD_TEST_DEVICE").ok(), validation: true };
+        let options =
+            VulkanOptions { device: std::env::var("CVD_TEST_DEVICE").ok(), validation: true, ..Default::default() };
         VulkanBackend::new(&options).map_err(|e| e.to_string())
     });
     match backend {

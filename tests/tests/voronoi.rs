@@ -268,3 +268,64 @@ fn many_sites_per_tet() {
     }
     assert_no_vulkan_errors();
 }
+
+/// Sets `backend`'s memory budget to the smallest (to 64 KiB) that `cv`
+/// fits, so that it runs in several parts; returns that budget.
+fn tighten(backend: &cvd::vulkan::VulkanBackend, cv: ClippedVoronoi) -> u64 {
+    let fits = |budget: u64| {
+        backend.set_memory_budget(budget);
+        match cv.backend(backend).compute() {
+            Ok(_) => true,
+            // Too small a budget is an error that says so, never a crash.
+            Err(e) => {
+                assert!(e.to_string().contains("budget"), "{e}");
+                false
+            }
+        }
+    };
+    let (mut lo, mut hi) = (1u64, 1u64 << 9);
+    assert!(!fits(lo << 16) && fits(hi << 16));
+    while hi - lo > 1 {
+        let mid = (lo + hi) / 2;
+        if fits(mid << 16) {
+            hi = mid;
+        } else {
+            lo = mid;
+        }
+    }
+    backend.set_memory_budget(hi << 16);
+    hi << 16
+}
+
+#[test]
+fn a_memory_budget_splits_the_job_and_changes_nothing() {
+    let Some(roomy) = vulkan() else { return };
+    let options = cvd::vulkan::VulkanOptions { device: std::env::var("CVD_TEST_DEVICE").ok(), ..Default::default() };
+    let tight = cvd::vulkan::VulkanBackend::new(&options).unwrap();
+    let mesh = TetMesh::cube(10);
+    let sites = sites_in_box(1500, 21);
+    let runs = [
+        (Strategy::TetCell, Pairing::Flood, 90),
+        (Strategy::TetCell, Pairing::Knn, 12),
+        (Strategy::CellTet, Pairing::Knn, 90),
+    ];
+    let mut budgets = Vec::new();
+    for (strategy, pairing, k_site) in runs {
+        let cv = ClippedVoronoi::new(&mesh, &sites).strategy(strategy).pairing(pairing).k_site(k_site);
+        let budget = tighten(&tight, cv);
+        budgets.push(budget);
+        let (whole, parts) = (cv.backend(roomy).compute().unwrap(), cv.backend(&tight).compute().unwrap());
+        let what = format!("{strategy:?} {pairing:?} k_site {k_site}, budget {budget}");
+        assert_eq!(whole.chunks, 1, "{what}");
+        assert!(parts.chunks > 1, "{what}: not split");
+        assert_eq!(whole.volume, parts.volume, "{what}");
+        assert_eq!(whole.centroid, parts.centroid, "{what}");
+        assert_eq!(whole.counters, parts.counters, "{what}");
+        assert!(parts.e_vol <= 1e-5, "{what}: E_vol {}", parts.e_vol);
+    }
+    // The Lloyd loop on the device needs the whole job: it says so.
+    tight.set_memory_budget(budgets[0]);
+    let e = ClippedVoronoi::new(&mesh, &sites).backend(&tight).lloyd(2, &mut |_, _| {}).unwrap_err().to_string();
+    assert!(e.contains("memory budget"), "{e}");
+    assert_no_vulkan_errors();
+}

@@ -8,7 +8,7 @@ pub use cvd::bench::default_models_dir;
 /// The Vulkan backend with every pipeline created (drivers may compile
 /// for seconds on first use), or `None` — said on stdout — without one.
 pub fn warm_vulkan(device: Option<String>) -> Option<VulkanBackend> {
-    match VulkanBackend::new(&VulkanOptions { device, validation: false }) {
+    match VulkanBackend::new(&VulkanOptions { device, ..Default::default() }) {
         Ok(v) => {
             let compile = v.warm_up().expect("warm-up");
             println!("Vulkan device: {} (kernel compilation on first use, paid once: {compile:.2} s)", v.device().name);

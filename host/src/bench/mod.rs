@@ -94,7 +94,7 @@ impl Backends {
         if !config.vulkan {
             return Ok(Self { cpu, vulkan: None, compile_s: None, no_vulkan: Some("not asked for".into()) });
         }
-        match VulkanBackend::new(&VulkanOptions { device: config.device.clone(), validation: false }) {
+        match VulkanBackend::new(&VulkanOptions { device: config.device.clone(), ..Default::default() }) {
             Ok(v) => {
                 let compile = v.warm_up()?;
                 Ok(Self { cpu, vulkan: Some(v), compile_s: Some(compile), no_vulkan: None })

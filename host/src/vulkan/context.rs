@@ -13,6 +13,9 @@ pub struct VulkanOptions {
     pub device: Option<String>,
     /// Enable the Khronos validation layer (also with `CVD_VALIDATION=1`).
     pub validation: bool,
+    /// Most device memory a job may hold, in bytes (default: 80 % of the
+    /// device's largest device-local heap). Larger jobs run in chunks.
+    pub memory_budget: Option<u64>,
 }
 
 const VALIDATION_LAYER: &CStr = c"VK_LAYER_KHRONOS_validation";
@@ -73,6 +76,8 @@ pub struct Context {
     pub(crate) info: DeviceInfo,
     /// Device-local memory held by the buffers.
     pub(crate) usage: std::sync::Arc<super::memory::MemoryUsage>,
+    /// Most device memory one job may hold, in bytes.
+    pub(crate) memory_budget: std::sync::atomic::AtomicU64,
 }
 
 fn load_entry() -> Result<ash::Entry> {
@@ -239,6 +244,12 @@ impl Context {
         let memory = unsafe { instance.get_physical_device_memory_properties(physical) };
         // SAFETY: valid physical device.
         let props = unsafe { instance.get_physical_device_properties(physical) };
+        let largest_heap = (0..memory.memory_heap_count as usize)
+            .map(|h| memory.memory_heaps[h])
+            .filter(|h| h.flags.contains(vk::MemoryHeapFlags::DEVICE_LOCAL))
+            .map(|h| h.size)
+            .max()
+            .unwrap_or(1 << 30);
         Ok(Self {
             _entry: entry,
             instance,
@@ -252,6 +263,7 @@ impl Context {
             timestamp_period: props.limits.timestamp_period as f64,
             info,
             usage: Default::default(),
+            memory_budget: options.memory_budget.unwrap_or(largest_heap / 5 * 4).into(),
         })
     }
 

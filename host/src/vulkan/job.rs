@@ -178,6 +178,19 @@ impl<'a> Job<'a> {
         Ok(Readback(staging))
     }
 
+    /// A host buffer of `bytes` for [`Self::download_into`].
+    pub(crate) fn readback(&mut self, bytes: u64) -> Result<Readback> {
+        Ok(Readback(self.add(bytes, Location::Readback)?))
+    }
+
+    /// Copies the first `bytes` of `buf` into `to` at this point of the
+    /// job (a part's results, read after each [`Self::submit`]).
+    pub(crate) fn download_into(&mut self, buf: BufId, to: Readback, bytes: u64) {
+        if bytes > 0 {
+            self.copy(buf, to.0, bytes);
+        }
+    }
+
     /// Copies `bytes` of `buf` from `offset` to the host at this point of
     /// the job.
     pub(crate) fn download_at(&mut self, buf: BufId, offset: u64, bytes: u64) -> Result<Readback> {

@@ -4,22 +4,25 @@ mod context;
 mod job;
 mod memory;
 mod pipelines;
+mod plan;
 
 pub use context::{list_devices, validation_errors, DeviceInfo, VulkanOptions};
 pub use pipelines::KERNELS_SPV;
 
 use crate::backend::Backend;
 use crate::cvt::LloydOutput;
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::knn::{KnnJob, KnnMethod, Neighbors};
 use crate::timing::timed;
+use crate::timing::Timings;
 use crate::voronoi::{ClipJob, ClipOutput, Pairing, Strategy};
 use context::Context;
-use cvd_kernels::abi::{counter, lloyd_stat, GridBuildParams, RefineParams, ACCUM_PER_SITE};
+use cvd_kernels::abi::{counter, lloyd_stat, ClipParams, GridBuildParams, KnnParams, RefineParams, ACCUM_PER_SITE};
 use cvd_kernels::clip::CELL_RECORDS;
 use cvd_kernels::scan;
 use job::{BufId, Job};
 use pipelines::{Pipelines, KERNELS};
+use plan::Plan;
 
 /// Runs the kernels on a Vulkan device.
 pub struct VulkanBackend {
@@ -46,6 +49,17 @@ impl VulkanBackend {
     /// bytes.
     pub fn peak_memory(&self) -> u64 {
         self.ctx.usage.peak()
+    }
+
+    /// The most device memory one job may hold, in bytes: larger clipping
+    /// jobs run in parts (see [`VulkanOptions::memory_budget`]).
+    pub fn memory_budget(&self) -> u64 {
+        self.ctx.memory_budget.load(std::sync::atomic::Ordering::Relaxed)
+    }
+
+    /// Sets [`Self::memory_budget`] for the jobs that follow.
+    pub fn set_memory_budget(&self, bytes: u64) {
+        self.ctx.memory_budget.store(bytes, std::sync::atomic::Ordering::Relaxed);
     }
 
     /// Starts measuring [`Self::peak_memory`] afresh.
@@ -92,82 +106,119 @@ impl Backend for VulkanBackend {
     }
 
     fn clip(&self, job: &ClipJob) -> Result<ClipOutput> {
+        let plan = Plan::clip(&self.ctx, job)?;
         let p = &job.params;
-        let (n, n_pairs) = (p.n_sites as u64, p.n_tets as u64 * p.k_tet as u64);
-        let mut j = Job::new(&self.ctx, &self.pipelines, 26)?;
+        let (sk, tk) = (&job.site_knn, &job.tet_knn);
+        let (n, nt) = (p.n_sites as u64, p.n_tets as u64);
+        let (ks, kt) = (sk.params.k as u64, p.k_tet as u64);
+        let site_parts = n.div_ceil(plan.site_chunk);
+        let mut j = Job::new(&self.ctx, &self.pipelines, 16 + site_parts as u32 + 4 * plan.tet_parts as u32)?;
         let sites = j.upload(&job.sites)?;
         let verts = j.upload(&job.verts)?;
         let tets = j.upload(&job.tets)?;
+        let quant = j.upload(&sk.sites)?;
+        let centroids = j.upload(&tk.queries)?;
         // The sites' sums, then one volume sum per tet (knn pairing's
         // certificate).
-        let n_sums = n * ACCUM_PER_SITE as u64 + p.n_tets as u64;
+        let n_sums = n * ACCUM_PER_SITE as u64 + nt;
         let sums = j.zeroed(n_sums * 8)?;
         let counters = j.zeroed(counter::COUNT as u64 * 8)?;
-        // Count, then up to one (tet, site) entry per pair.
-        let list_len = 1 + 2 * n_pairs;
-        let unfinished = j.zeroed(list_len * 4)?;
-        let site_knn = record_knn(&mut j, &job.site_knn, "site knn")?;
-        let site_nbrs = site_knn.nbr;
-        let tet_sites = record_knn(&mut j, &job.tet_knn, "tet knn")?.nbr;
-        match job.strategy {
-            Strategy::TetCell if job.pairing == Pairing::Flood => {
-                let args = [sites, verts, tets, tet_sites, site_nbrs, sums, counters, unfinished];
-                j.dispatch("clip_flood", &args, p, p.n_tets as u64)?;
-            }
-            Strategy::TetCell => {
-                j.dispatch(
-                    "clip_tet_cell",
-                    &[sites, verts, tets, tet_sites, site_nbrs, sums, counters, unfinished],
-                    p,
-                    n_pairs,
-                )?;
-            }
-            Strategy::CellTet => {
-                let cells = j.buffer(n * CELL_RECORDS as u64 * 16)?;
-                j.dispatch("voronoi_cells", &[sites, site_nbrs, cells, counters], p, n)?;
-                j.mark("cells");
-                j.dispatch(
-                    "clip_cell_tet",
-                    &[sites, verts, tets, tet_sites, cells, sums, counters, unfinished],
-                    p,
-                    n_pairs,
-                )?;
+        let site_nbrs = j.buffer((n * ks).max(1) * 4)?;
+        j.mark("upload");
+
+        // One grid of the sites answers both k-NN searches.
+        let grid = sk.params.grid;
+        let n_blocks = scan::block_count(grid.n_cells as usize) as u64;
+        let bp = GridBuildParams { grid, n_blocks: n_blocks as u32, _pad: [0; 3] };
+        let g = GridBuffers::new(&mut j, n, grid.n_cells as u64, n_blocks)?;
+        g.record(&mut j, &bp, quant)?;
+        j.mark("grid");
+        if ks > 0 {
+            let scratch = j.buffer(plan.site_chunk * ks * 8)?;
+            for first in (0..n).step_by(plan.site_chunk as usize) {
+                let count = plan.site_chunk.min(n - first);
+                let kp = KnnParams { n_queries: count as u32, query_base: first as u32, d2_scratch: 1, ..sk.params };
+                j.dispatch("knn_grid", &[quant, g.start, g.count, g.sorted, site_nbrs, scratch], &kp, count)?;
+                j.barrier();
             }
         }
-        j.mark("clip");
-        // The second pass, over as many threads as the list can hold
-        // entries: those past its count return at once. (Without a grid
-        // there is at most one site, and nothing to redo.)
-        let still = match site_knn.grid {
-            Some([start, count, sorted]) => {
-                let still = j.zeroed(list_len * 4)?;
-                let ignored = j.zeroed(counter::COUNT as u64 * 8)?;
-                let rp = RefineParams { capacity: n_pairs as u32, ..job.refine };
-                let args = [sites, verts, tets, tet_sites, unfinished, start, count, sorted, sums, ignored, still];
-                j.dispatch("refine", &args, &rp, n_pairs)?;
-                j.mark("second pass");
-                still
-            }
-            None => unfinished,
+        j.mark("site knn");
+        let cells = if job.strategy == Strategy::CellTet {
+            let cells = j.buffer(n * CELL_RECORDS as u64 * 16)?;
+            j.dispatch("voronoi_cells", &[sites, site_nbrs, cells, counters], p, n)?;
+            j.mark("cells");
+            Some(cells)
+        } else {
+            None
         };
+
+        // The tets, part by part: k-NN pairing, clipping, second pass.
+        let c = plan.tet_chunk;
+        let tet_sites = j.buffer(c * kt * 4)?;
+        let tet_d2 = j.buffer(c * kt * 8)?;
+        let list_len = 1 + 2 * c * kt;
+        let unfinished = j.buffer(list_len * 4)?;
+        let still = j.buffer(list_len * 4)?;
+        let ignored = j.buffer(counter::COUNT as u64 * 8)?;
+        let first_back = j.readback(4)?;
+        let still_back = j.readback(list_len * 4)?;
+        let (mut refined, mut left, mut timings) = (0, Vec::new(), Timings::default());
+        for t0 in (0..nt).step_by(c as usize) {
+            let count = c.min(nt - t0);
+            let cp = ClipParams { tet_base: t0 as u32, n_tets: (t0 + count) as u32, ..*p };
+            let kp = KnnParams { n_queries: count as u32, query_base: t0 as u32, d2_scratch: 1, ..tk.params };
+            j.fill_zero(unfinished);
+            j.fill_zero(still);
+            j.dispatch("knn_grid", &[centroids, g.start, g.count, g.sorted, tet_sites, tet_d2], &kp, count)?;
+            j.mark("tet knn");
+            let pairs = count * kt;
+            match (job.strategy, job.pairing, cells) {
+                (Strategy::TetCell, Pairing::Flood, _) => {
+                    let args = [sites, verts, tets, tet_sites, site_nbrs, sums, counters, unfinished];
+                    j.dispatch("clip_flood", &args, &cp, count)?;
+                }
+                (Strategy::TetCell, Pairing::Knn, _) => {
+                    let args = [sites, verts, tets, tet_sites, site_nbrs, sums, counters, unfinished];
+                    j.dispatch("clip_tet_cell", &args, &cp, pairs)?;
+                }
+                (Strategy::CellTet, _, Some(cells)) => {
+                    let args = [sites, verts, tets, tet_sites, cells, sums, counters, unfinished];
+                    j.dispatch("clip_cell_tet", &args, &cp, pairs)?;
+                }
+                (Strategy::CellTet, _, None) => unreachable!("cell-tet builds its cells first"),
+            }
+            j.mark("clip");
+            // The second pass, over as many threads as the list can hold
+            // entries: those past its count return at once.
+            let rp = RefineParams { clip: cp, capacity: pairs as u32, ..job.refine };
+            let args = [sites, verts, tets, tet_sites, unfinished, g.start, g.count, g.sorted, sums, ignored, still];
+            j.dispatch("refine", &args, &rp, pairs)?;
+            j.mark("second pass");
+            j.download_into(unfinished, first_back, 4);
+            j.download_into(still, still_back, list_len * 4);
+            j.mark("download");
+            timings.phases.extend(j.submit()?.phases);
+            let first = j.read::<u32>(first_back, 1)[0] as u64;
+            let still = crate::voronoi::pair_list(&j.read(still_back, list_len as usize));
+            refined += first - still.len() as u64;
+            left.extend(still);
+        }
         let sums_back = j.download(sums, n_sums * 8)?;
         let counters_back = j.download(counters, counter::COUNT as u64 * 8)?;
-        let first_back = j.download(unfinished, 4)?;
-        let still_back = j.download(still, list_len * 4)?;
         j.mark("download");
         let done = j.run()?;
-        let first = done.read::<u32>(first_back, 1)[0] as u64;
-        let still = crate::voronoi::pair_list(&done.read(still_back, list_len as usize));
+        timings.phases.extend(done.timings.phases.iter().cloned());
         let mut sums: Vec<i64> = done.read(sums_back, n_sums as usize);
         let tet_volumes = sums.split_off(n as usize * ACCUM_PER_SITE);
+        left.sort_unstable();
         Ok(ClipOutput {
             sums,
             tet_volumes,
             counters: done.read(counters_back, counter::COUNT),
-            refined: first - still.len() as u64,
-            chunks: 1,
-            unfinished: still,
-            timings: done.timings,
+            refined,
+            chunks: plan.tet_parts,
+            unfinished: left,
+            timings,
         })
     }
 }
@@ -182,7 +233,7 @@ fn record_knn(j: &mut Job, job: &KnnJob, phase: &str) -> Result<KnnBuffers> {
     let nbr = j.buffer(nq * k * 4)?;
     let d2 = j.buffer(nq * k * 8)?;
     if nq * k == 0 {
-        return Ok(KnnBuffers { nbr, d2, grid: None });
+        return Ok(KnnBuffers { nbr, d2 });
     }
     j.mark("upload");
     match job.method {
@@ -196,12 +247,12 @@ fn record_knn(j: &mut Job, job: &KnnJob, phase: &str) -> Result<KnnBuffers> {
             j.mark("grid");
             j.dispatch("knn_grid", &[queries, start, count, sorted, nbr, d2], p, nq)?;
             j.mark(phase);
-            Ok(KnnBuffers { nbr, d2, grid: Some([start, count, sorted]) })
+            Ok(KnnBuffers { nbr, d2 })
         }
         KnnMethod::Brute => {
             j.dispatch("knn_brute", &[queries, sites, nbr, d2], p, nq)?;
             j.mark(phase);
-            Ok(KnnBuffers { nbr, d2, grid: None })
+            Ok(KnnBuffers { nbr, d2 })
         }
     }
 }
@@ -212,8 +263,6 @@ struct KnnBuffers {
     nbr: BufId,
     /// Squared distances, `k` per query.
     d2: BufId,
-    /// The grid (cell starts, cell counts, sites sorted by cell), if built.
-    grid: Option<[BufId; 3]>,
 }
 
 /// The buffers of a site grid (`knn_grid`'s input).
@@ -270,6 +319,15 @@ fn lloyd_on_device(
     iterations: usize,
     progress: &mut dyn FnMut(usize, i64),
 ) -> Result<LloydOutput> {
+    let plan = Plan::clip(&b.ctx, job)?;
+    if plan.tet_parts > 1 || plan.site_chunk < job.params.n_sites as u64 {
+        return Err(Error::InvalidInput(format!(
+            "the Lloyd loop on the device keeps the whole job resident, which does not fit the memory budget of '{}' \
+             (a single diagram would run in {} parts); use the CPU backend or a larger --memory-budget",
+            b.ctx.info().name,
+            plan.tet_parts
+        )));
+    }
     let p = &job.params;
     let (sk, tk) = (&job.site_knn, &job.tet_knn);
     let (n, nt, k) = (p.n_sites as u64, p.n_tets as u64, sk.params.k as u64);
