@@ -121,8 +121,8 @@ mod tests {
         let j = job(2000);
         let resident: u64 = resident_bytes(&j).iter().map(|r| r.1).sum();
         let plan = Plan::new(&j, resident + 300 * 1024, 1 << 30, "test").unwrap();
-        assert!(plan.site_chunk < 2000 && plan.site_chunk % 64 == 0, "{plan:?}");
-        assert!(plan.tet_parts > 1 && plan.tet_chunk % 64 == 0, "{plan:?}");
+        assert!(plan.site_chunk < 2000 && plan.site_chunk.is_multiple_of(64), "{plan:?}");
+        assert!(plan.tet_parts > 1 && plan.tet_chunk.is_multiple_of(64), "{plan:?}");
         assert_eq!(plan.tet_parts, (j.params.n_tets as u64).div_ceil(plan.tet_chunk));
     }
 
