@@ -108,6 +108,21 @@ fn bad_arguments_exit_2() {
 }
 
 #[test]
+fn an_unknown_device_is_named_not_a_crash() {
+    let dir = temp_dir("no-device");
+    let out = Command::new(env!("CARGO_BIN_EXE_cvd"))
+        .current_dir(&dir)
+        .args(["run", "--model", "cube", "--resolution", "2", "--sites", "20", "--backend", "vulkan"])
+        .args(["--device", "no-such-gpu"])
+        .output()
+        .unwrap();
+    let stderr = text(&out.stderr);
+    // Exit 2 naming the device where Vulkan exists; exit 1 without a loader.
+    assert!(matches!(out.status.code(), Some(1 | 2)), "{:?}: {stderr}", out.status);
+    assert!(stderr.contains("no-such-gpu") || stderr.contains("Vulkan is not available"), "{stderr}");
+}
+
+#[test]
 fn an_unwritable_output_exits_1() {
     let dir = temp_dir("unwritable");
     std::fs::write(dir.join("file"), "").unwrap();

@@ -412,8 +412,12 @@ impl<'a> Suite<'a> {
             let m = Model::builtin("cube", Some(r))?;
             let sites = points::in_mesh(&m.mesh, n, SEED);
             for b in self.each_backend() {
-                let row = self.measure(Case("scale", "cube", &m.mesh, &sites), b, METHODS[0], None)?.0;
-                rows.push(self.keep(row));
+                match self.measure(Case("scale", "cube", &m.mesh, &sites), b, METHODS[0], None) {
+                    Ok((row, _)) => rows.push(self.keep(row)),
+                    // A job the device cannot hold is reported, not fatal.
+                    Err(e @ Error::InvalidInput(_)) => self.note(format!("scale, {n} sites on {}: {e}", b.0.name())),
+                    Err(e) => return Err(e),
+                }
             }
         }
         let chart = Chart {

@@ -163,11 +163,14 @@ impl Context {
         let validation = options.validation || std::env::var("CVD_VALIDATION").is_ok_and(|v| v == "1");
         let entry = load_entry()?;
         let instance = create_instance(&entry, validation)?;
-        match Self::open(entry, instance.clone(), validation, options) {
+        // `open` takes a handle on the loader; this one keeps the library
+        // loaded until the instance is destroyed if opening fails.
+        match Self::open(entry.clone(), instance.clone(), validation, options) {
             Ok(ctx) => Ok(ctx),
             Err(e) => {
-                // SAFETY: nothing else holds the instance.
+                // SAFETY: nothing else holds the instance; the loader is loaded.
                 unsafe { instance.destroy_instance(None) };
+                drop(entry);
                 Err(e)
             }
         }

@@ -120,7 +120,7 @@ mod tests {
     fn a_small_budget_splits_sites_and_tets_into_workgroup_multiples() {
         let j = job(2000);
         let resident: u64 = resident_bytes(&j).iter().map(|r| r.1).sum();
-        let plan = Plan::new(&j, resident + 300 * 1024, 1 << 30, "test").unwrap();
+        let plan = Plan::new(&j, resident + 60 * 1024, 1 << 30, "test").unwrap();
         assert!(plan.site_chunk < 2000 && plan.site_chunk.is_multiple_of(64), "{plan:?}");
         assert!(plan.tet_parts > 1 && plan.tet_chunk.is_multiple_of(64), "{plan:?}");
         assert_eq!(plan.tet_parts, (j.params.n_tets as u64).div_ceil(plan.tet_chunk));
@@ -129,7 +129,7 @@ mod tests {
     #[test]
     fn what_cannot_fit_is_an_error_naming_the_sizes() {
         let j = job(2000);
-        let e = Plan::new(&j, 1 << 20, 1 << 30, "test").unwrap_err().to_string();
+        let e = Plan::new(&j, 1 << 19, 1 << 30, "test").unwrap_err().to_string();
         assert!(e.contains("resident") && e.contains("budget"), "{e}");
         let e = Plan::new(&j, 1 << 30, 100_000, "test").unwrap_err().to_string();
         assert!(e.contains("neighbour lists") && e.contains("maxStorageBufferRange"), "{e}");
