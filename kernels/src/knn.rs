@@ -63,23 +63,16 @@ pub struct Slots {
     pub d2: usize,
 }
 
-/// A query's best `k` candidates so far, by `(distance, index)`, kept in
-/// `nbr`/`d2` at its [`Slots`] as a max-heap (the worst on top, so a
-/// better candidate costs `log k` moves, not `k`), sorted by
-/// [`Best::finish`]. The worst entry is mirrored in locals so that most
-/// candidates are rejected without touching memory.
+/// A query's sorted list of the best `k` candidates, kept in `nbr`/`d2` at
+/// its [`Slots`], ordered by `(distance, index)`; the current k-th
+/// entry is mirrored in locals so that most candidates are rejected
+/// without touching memory.
 struct Best {
     k: u32,
     at: Slots,
     found: u32,
     worst_d: u64,
     worst_i: u32,
-}
-
-/// `(d, i)` after `(e, j)`.
-#[inline]
-fn after(d: u64, i: u32, e: u64, j: u32) -> bool {
-    d > e || (d == e && i > j)
 }
 
 impl Best {
@@ -94,84 +87,33 @@ impl Best {
         N: OutBuf<u32> + ?Sized,
         D: OutBuf<u64> + ?Sized,
     {
-        let (bn, bd) = (self.at.nbr, self.at.d2);
-        if self.found < self.k {
-            // Sift up from the new leaf.
-            let mut pos = self.found as usize;
-            self.found += 1;
-            while pos > 0 {
-                let parent = (pos - 1) / 2;
-                let (pd, pi) = (d2.read(bd + parent), nbr.read(bn + parent));
-                if !after(d, idx, pd, pi) {
-                    break;
-                }
-                d2.write(bd + pos, pd);
-                nbr.write(bn + pos, pi);
-                pos = parent;
-            }
-            d2.write(bd + pos, d);
-            nbr.write(bn + pos, idx);
-        } else {
-            if !after(self.worst_d, self.worst_i, d, idx) {
-                return;
-            }
-            self.sift_down(0, self.k as usize, d, idx, nbr, d2);
+        if self.found == self.k && (d > self.worst_d || (d == self.worst_d && idx > self.worst_i)) {
+            return;
         }
+        let (bn, bd) = (self.at.nbr, self.at.d2);
+        let mut pos = self.found as usize;
         if self.found == self.k {
-            self.worst_d = d2.read(bd);
-            self.worst_i = nbr.read(bn);
+            pos -= 1;
+        } else {
+            self.found += 1;
         }
-    }
-
-    /// Puts `(d, idx)` at heap position `pos` of a heap of `len` entries
-    /// and moves it down to where it belongs.
-    #[inline]
-    fn sift_down<N, D>(&self, mut pos: usize, len: usize, d: u64, idx: u32, nbr: &mut N, d2: &mut D)
-    where
-        N: OutBuf<u32> + ?Sized,
-        D: OutBuf<u64> + ?Sized,
-    {
-        let (bn, bd) = (self.at.nbr, self.at.d2);
-        loop {
-            let left = 2 * pos + 1;
-            if left >= len {
+        // Shift larger entries up one slot, then insert.
+        while pos > 0 {
+            let pd = d2.read(bd + pos - 1);
+            let pi = nbr.read(bn + pos - 1);
+            if pd < d || (pd == d && pi < idx) {
                 break;
             }
-            let (mut c, mut cd, mut ci) = (left, d2.read(bd + left), nbr.read(bn + left));
-            if left + 1 < len {
-                let (rd, ri) = (d2.read(bd + left + 1), nbr.read(bn + left + 1));
-                if after(rd, ri, cd, ci) {
-                    (c, cd, ci) = (left + 1, rd, ri);
-                }
-            }
-            if !after(cd, ci, d, idx) {
-                break;
-            }
-            d2.write(bd + pos, cd);
-            nbr.write(bn + pos, ci);
-            pos = c;
+            d2.write(bd + pos, pd);
+            nbr.write(bn + pos, pi);
+            pos -= 1;
         }
         d2.write(bd + pos, d);
         nbr.write(bn + pos, idx);
-    }
-
-    /// Sorts the heap's entries in place, nearest first (heapsort).
-    #[inline]
-    fn finish<N, D>(&self, nbr: &mut N, d2: &mut D)
-    where
-        N: OutBuf<u32> + ?Sized,
-        D: OutBuf<u64> + ?Sized,
-    {
-        let (bn, bd) = (self.at.nbr, self.at.d2);
-        let mut len = self.found as usize;
-        while len > 1 {
-            len -= 1;
-            // The worst of the first `len + 1` goes to slot `len`.
-            let (top_d, top_i) = (d2.read(bd), nbr.read(bn));
-            let (d, idx) = (d2.read(bd + len), nbr.read(bn + len));
-            d2.write(bd + len, top_d);
-            nbr.write(bn + len, top_i);
-            self.sift_down(0, len, d, idx, nbr, d2);
+        if self.found == self.k {
+            let last = self.k as usize - 1;
+            self.worst_d = d2.read(bd + last);
+            self.worst_i = nbr.read(bn + last);
         }
     }
 }
@@ -215,7 +157,6 @@ pub fn brute_query<N, D>(
         }
         j += 1;
     }
-    best.finish(nbr, d2);
     pad(best.found, k, at, nbr, d2);
 }
 
@@ -356,7 +297,6 @@ pub fn grid_query<N, D>(
         }
         r += 1;
     }
-    best.finish(nbr, d2);
     pad(best.found, k, at, nbr, d2);
 }
 
