@@ -1,6 +1,6 @@
 //! The sections of the suite: what each measures, on which inputs.
 
-use super::report::{cpu_name, Chart, Report, Row};
+use super::report::{cpu_name, Axis, Chart, Report, Row};
 use super::{Backends, Config, Model};
 use crate::error::{Error, Result};
 use crate::timing::timed;
@@ -267,9 +267,8 @@ impl<'a> Suite<'a> {
                     }
                 }
             }
-            let file = format!("fig7_{}.png", m.name);
             let chart =
-                Chart { file, x_name: "sites", y_name: "ms", log_y: false, x: |r| r.sites as f64, y: |r| r.total_ms };
+                Chart::new(format!("fig7_{}.png", m.name), ("sites", |r| r.sites as f64), ("ms", |r| r.total_ms));
             self.chart(chart, &rows)?;
         }
         Ok(())
@@ -297,9 +296,7 @@ impl<'a> Suite<'a> {
                     }
                 }
             }
-            let file = format!("fig8_{name}.png");
-            let chart =
-                Chart { file, x_name: "tets", y_name: "ms", log_y: false, x: |r| r.tets as f64, y: |r| r.total_ms };
+            let chart = Chart::new(format!("fig8_{name}.png"), ("tets", |r| r.tets as f64), ("ms", |r| r.total_ms));
             self.chart(chart, &rows)?;
         }
         Ok(())
@@ -321,32 +318,12 @@ impl<'a> Suite<'a> {
                 }
             }
             let name = &m.name;
-            let k = |r: &Row| r.k as f64;
+            let k: Axis = ("k", |r| r.k as f64);
+            let missed: Axis = ("tets completed by the certificate", |r| r.counters.missed_tets as f64);
             let charts = [
-                Chart {
-                    file: format!("fig12_{name}_time.png"),
-                    x_name: "k",
-                    y_name: "ms",
-                    log_y: false,
-                    x: k,
-                    y: |r| r.total_ms,
-                },
-                Chart {
-                    file: format!("fig12_{name}_missed.png"),
-                    x_name: "k",
-                    y_name: "tets completed by the certificate",
-                    log_y: false,
-                    x: k,
-                    y: |r| r.counters.missed_tets as f64,
-                },
-                Chart {
-                    file: format!("fig12_{name}_evol.png"),
-                    x_name: "k",
-                    y_name: "e_vol",
-                    log_y: true,
-                    x: k,
-                    y: |r| r.e_vol,
-                },
+                Chart::new(format!("fig12_{name}_time.png"), k, ("ms", |r| r.total_ms)),
+                Chart::new(format!("fig12_{name}_missed.png"), k, missed),
+                Chart::new(format!("fig12_{name}_evol.png"), k, ("e_vol", |r| r.e_vol)).log_y(),
             ];
             for c in charts {
                 self.chart(c, &rows)?;
@@ -376,23 +353,10 @@ impl<'a> Suite<'a> {
                     }
                 }
             }
+            let it: Axis = ("iteration", |r| r.iteration.unwrap_or(0) as f64);
             let charts = [
-                Chart {
-                    file: format!("fig13_{n}_time.png"),
-                    x_name: "iteration",
-                    y_name: "ms",
-                    log_y: false,
-                    x: |r| r.iteration.unwrap_or(0) as f64,
-                    y: |r| r.total_ms,
-                },
-                Chart {
-                    file: format!("fig13_{n}_clips.png"),
-                    x_name: "iteration",
-                    y_name: "clips",
-                    log_y: false,
-                    x: |r| r.iteration.unwrap_or(0) as f64,
-                    y: |r| r.counters.clips as f64,
-                },
+                Chart::new(format!("fig13_{n}_time.png"), it, ("ms", |r| r.total_ms)),
+                Chart::new(format!("fig13_{n}_clips.png"), it, ("clips", |r| r.counters.clips as f64)),
             ];
             for c in charts {
                 self.chart(c, &rows)?;
@@ -422,14 +386,8 @@ impl<'a> Suite<'a> {
                 }
             }
         }
-        let chart = Chart {
-            file: "scale_sites_per_s.png".into(),
-            x_name: "sites",
-            y_name: "sites per second",
-            log_y: true,
-            x: |r| r.sites as f64,
-            y: |r| r.sites_per_s(),
-        };
+        let per_s: Axis = ("sites per second", |r| r.sites_per_s());
+        let chart = Chart::new("scale_sites_per_s.png".into(), ("sites", |r| r.sites as f64), per_s).log_y();
         self.chart(chart, &rows)
     }
 }

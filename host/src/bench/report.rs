@@ -227,7 +227,20 @@ const COLOURS: [[u8; 3]; 8] = [
     [180, 60, 130],
 ];
 
+/// An axis: its label and the value of a row on it.
+pub type Axis = (&'static str, fn(&Row) -> f64);
+
 impl Chart {
+    /// A chart of `y` against `x`, both linear.
+    pub fn new(file: String, x: Axis, y: Axis) -> Self {
+        Self { file, x_name: x.0, y_name: y.0, log_y: false, x: x.1, y: y.1 }
+    }
+
+    /// The same with a logarithmic vertical axis.
+    pub fn log_y(self) -> Self {
+        Self { log_y: true, ..self }
+    }
+
     /// Draws the chart of `rows` into `dir`.
     pub fn write(&self, dir: &Path, rows: &[&Row]) -> Result<PathBuf> {
         let mut lines: BTreeMap<String, (Vec<f64>, Vec<f64>)> = BTreeMap::new();
