@@ -202,7 +202,9 @@ pub fn write_chart_png(path: &Path, axes: &Axes, series: &[Series]) -> Result<()
     let (xlo, xhi) = range(&mut points.iter().flatten().map(|p| p.0));
     let (lo, hi) = range(&mut points.iter().flatten().map(|p| p.1));
     let pad = 0.05 * (hi - lo);
-    let (lo, hi) = (lo - pad, hi + pad);
+    // Times and counts start from zero; energies and logarithms do not.
+    let from_zero = !axes.log_y && lo >= 0.0 && lo < 0.5 * hi && !series.iter().all(|s| s.x.is_empty());
+    let (lo, hi) = (if from_zero { 0.0 } else { lo - pad }, hi + pad);
     let (x0, x1) = (LEFT as i64, (WIDTH - RIGHT) as i64);
     let (y0, y1) = (TOP as i64, (HEIGHT - BOTTOM) as i64);
     let px = |x: f64| x0 + (((x - xlo) / (xhi - xlo)) * (x1 - x0) as f64).round() as i64;
