@@ -91,8 +91,8 @@ mod op {
 /// and no barrier. Returns the words, the capabilities kept and the
 /// extensions, by name.
 fn trim_capabilities(bytes: &[u8]) -> (Vec<u32>, Vec<String>, Vec<String>) {
-    assert!(bytes.len() % 4 == 0 && bytes.len() >= 20, "a SPIR-V module is a sequence of words");
-    let words: Vec<u32> = bytes.chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+    assert!(bytes.len().is_multiple_of(4) && bytes.len() >= 20, "a SPIR-V module is a sequence of words");
+    let words: Vec<u32> = bytes.as_chunks::<4>().0.iter().map(|c| u32::from_le_bytes(*c)).collect();
     assert_eq!(words[0], 0x0723_0203, "SPIR-V magic number");
     let words = &words[..];
     let instructions = || {
@@ -129,7 +129,7 @@ fn trim_capabilities(bytes: &[u8]) -> (Vec<u32>, Vec<String>, Vec<String>) {
             _ => {}
         }
     }
-    let atomic_int64 = atomic_store && !int64_types.is_empty() || atomics.iter().any(|t| int64_types.contains(t));
+    let atomic_int64 = (atomic_store && !int64_types.is_empty()) || atomics.iter().any(|t| int64_types.contains(t));
     let any_atomic = atomic_store || !atomics.is_empty();
     let needed = |cap: Capability| match cap {
         Capability::Int8 => int_widths.contains(&8),

@@ -148,11 +148,14 @@ structure!(LloydParams {
     _pad: u32,
 });
 
+/// A visitor of scalars: `(path, array index, offset, the scalar's layout)`.
+pub type ScalarVisitor<'a> = dyn FnMut(&[&str], Option<usize>, usize, &TypeLayout) + 'a;
+
 impl TypeLayout {
     /// Calls `f(path, offset, layout)` for every scalar inside this type,
     /// in memory order; `path` names it from this type (`grid.dim_x`,
     /// `_pad[1]`), `offset` is from this type's start.
-    pub fn for_each_scalar(&self, f: &mut dyn FnMut(&[&str], Option<usize>, usize, &TypeLayout)) {
+    pub fn for_each_scalar(&self, f: &mut ScalarVisitor) {
         self.walk(&mut [""; 8], 0, None, 0, f);
     }
 
@@ -162,7 +165,7 @@ impl TypeLayout {
         depth: usize,
         index: Option<usize>,
         offset: usize,
-        f: &mut dyn FnMut(&[&str], Option<usize>, usize, &TypeLayout),
+        f: &mut ScalarVisitor,
     ) {
         match self.kind {
             Kind::Scalar => f(&path[..depth], index, offset, self),

@@ -14,17 +14,20 @@ use std::path::{Path, PathBuf};
 /// A scalar at an offset: `(offset, "u32")`.
 type Leaves = Vec<(u64, String)>;
 
+/// Decorations by target id and member: `(decoration, extra operands)`.
+type Decorations = HashMap<(u32, Option<u32>), Vec<(Decoration, Vec<Operand>)>>;
+
 struct Reflected {
     module: Module,
     defs: HashMap<u32, Instruction>,
-    decorations: HashMap<(u32, Option<u32>), Vec<(Decoration, Vec<Operand>)>>,
+    decorations: Decorations,
 }
 
 impl Reflected {
     fn new(bytes: &[u8]) -> Self {
         let module = rspirv::dr::load_bytes(bytes).expect("a parsable SPIR-V module");
         let defs = module.types_global_values.iter().filter_map(|i| i.result_id.map(|id| (id, i.clone()))).collect();
-        let mut decorations: HashMap<_, Vec<_>> = HashMap::new();
+        let mut decorations = Decorations::new();
         for a in &module.annotations {
             match a.class.opcode {
                 Op::Decorate => decorations

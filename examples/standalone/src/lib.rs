@@ -159,6 +159,9 @@ struct Buf {
     size: usize,
 }
 
+/// A module's shader module, set layout, pipeline layout and pipeline.
+type Pipeline = (vk::ShaderModule, vk::DescriptorSetLayout, vk::PipelineLayout, vk::Pipeline);
+
 /// The device, its queue and what the job made on it.
 struct Gpu {
     instance: ash::Instance,
@@ -166,7 +169,7 @@ struct Gpu {
     queue: vk::Queue,
     memory: vk::PhysicalDeviceMemoryProperties,
     buffers: Vec<Buf>,
-    pipelines: HashMap<String, (vk::ShaderModule, vk::DescriptorSetLayout, vk::PipelineLayout, vk::Pipeline)>,
+    pipelines: HashMap<String, Pipeline>,
     pool: vk::CommandPool,
     cmd: vk::CommandBuffer,
     descriptors: vk::DescriptorPool,
@@ -318,13 +321,9 @@ impl Gpu {
     }
 
     /// The pipeline of module `name`, made from its file and manifest entry.
-    fn pipeline(
-        &mut self,
-        manifest: &Manifest,
-        name: &str,
-    ) -> Result<(vk::PipelineLayout, vk::Pipeline, vk::DescriptorSetLayout)> {
+    fn pipeline(&mut self, manifest: &Manifest, name: &str) -> Result<Pipeline> {
         if let Some(p) = self.pipelines.get(name) {
-            return Ok((p.2, p.3, p.1));
+            return Ok(*p);
         }
         let m = manifest.module(name)?;
         let file = manifest.dir.join(m["file"].as_str().ok_or("a module's file")?);
@@ -367,8 +366,9 @@ impl Gpu {
             let pipeline = dev
                 .create_compute_pipelines(vk::PipelineCache::null(), &info, None)
                 .map_err(|(_, e)| format!("vkCreateComputePipelines ({name}) failed: {e}"))?[0];
-            self.pipelines.insert(name.to_string(), (module, set_layout, layout, pipeline));
-            Ok((layout, pipeline, set_layout))
+            let made = (module, set_layout, layout, pipeline);
+            self.pipelines.insert(name.to_string(), made);
+            Ok(made)
         }
     }
 
@@ -389,7 +389,7 @@ impl Gpu {
         }
         let wg = m["workgroup_size"][0].as_u64().ok_or("workgroup_size")?;
         let push = manifest.push_bytes(name, push)?;
-        let (layout, pipeline, set_layout) = self.pipeline(manifest, name)?;
+        let (_, set_layout, layout, pipeline) = self.pipeline(manifest, name)?;
         if threads == 0 {
             return Ok(());
         }
@@ -589,8 +589,17 @@ pub fn run(spirv_dir: &Path, verts: &[[f32; 3]], tets: &[[u32; 4]], sites: &[[f3
         ("list_len", U(k_site as u64)),
     ];
 
-    let used = ["grid_count", "scan_blocks", "scan_totals", "scan_offsets", "grid_scatter", "grid_sort", "knn_grid"];
-    let used: Vec<&str> = used.into_iter().chain(["clip_flood", "refine"]).collect();
+    let used = [
+        "grid_count",
+        "scan_blocks",
+        "scan_totals",
+        "scan_offsets",
+        "grid_scatter",
+        "grid_sort",
+        "knn_grid",
+        "clip_flood",
+        "refine",
+    ];
     let (mut gpu, device) = Gpu::open(&manifest, &used)?;
     let g = &mut gpu;
     let sites_f = g.buffer(0, &f32_bytes(sites_l.iter().flat_map(|p| [p[0] as f32, p[1] as f32, p[2] as f32, 0.0])))?;
