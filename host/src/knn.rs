@@ -120,7 +120,7 @@ impl KnnJob {
             exclude_self: exclude_self as u32,
             query_base: 0,
             d2_scratch: 0,
-            _pad: [0; 2],
+            _pad: [0; 3],
         };
         Ok(Self { sites, queries, params, method, quantizer })
     }

@@ -29,6 +29,7 @@ pub mod points;
 pub mod quantize;
 pub mod second_pass;
 pub mod site_grid;
+pub mod spirv;
 pub mod timing;
 pub mod voronoi;
 pub mod vulkan;

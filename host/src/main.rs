@@ -27,6 +27,13 @@ enum Command {
     Run(Box<RunArgs>),
     /// k nearest neighbours of random sites; checks the backend against the CPU.
     Knn(KnnArgs),
+    /// Write the kernels as SPIR-V modules, one per entry point, and their
+    /// manifest.json (docs/EMBEDDING.md).
+    Spirv {
+        /// Output folder.
+        #[arg(long, default_value = "spirv")]
+        out: PathBuf,
+    },
 }
 
 #[derive(Args)]
@@ -433,6 +440,10 @@ fn knn(args: &KnnArgs) -> cvd::Result<()> {
     Ok(())
 }
 
+fn cvd_kernels_abi_version() -> u64 {
+    cvd::spirv::manifest()["abi_version"].as_u64().unwrap_or(0)
+}
+
 fn main() -> ExitCode {
     // Die quietly when the reader of our output goes away (`cvd ... | head`).
     #[cfg(unix)]
@@ -449,6 +460,9 @@ fn main() -> ExitCode {
         }),
         Command::Run(args) => run(args),
         Command::Knn(args) => knn(args),
+        Command::Spirv { out } => cvd::spirv::export(out).map(|files| {
+            println!("wrote {} files into {} (ABI version {})", files.len(), out.display(), cvd_kernels_abi_version());
+        }),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -359,6 +359,7 @@ impl<'a> ClippedVoronoi<'a> {
             fixed_scale: bits.exp2() as f32,
             list_len: site_knn.params.k,
             tet_base: 0,
+            _pad: [0; 3],
             box_lo_x: lo[0] - margin,
             box_lo_y: lo[1] - margin,
             box_lo_z: lo[2] - margin,

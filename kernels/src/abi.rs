@@ -78,7 +78,7 @@ pub struct KnnParams {
     /// (thread `i` at slot `i`), not read afterwards.
     pub d2_scratch: u32,
     /// Padding to a 16-byte multiple.
-    pub _pad: [u32; 2],
+    pub _pad: [u32; 3],
 }
 
 /// The thread index of a 1D job dispatched as a 2D grid of workgroups
@@ -148,6 +148,8 @@ pub struct ClipParams {
     /// `tet_base * k_tet + i`, whose paired sites are at `tet_sites[i]`
     /// (the lists hold the chunk's tets only). 0 when not chunked.
     pub tet_base: u32,
+    /// Padding to a 16-byte multiple.
+    pub _pad: [u32; 3],
 }
 
 /// Push constants of the second pass ([`crate::refine`]): the clipping

@@ -7,6 +7,9 @@
 //! the CPU and the GPU run the same code, and the tests compare the two.
 //!
 //! Types that cross the CPU/GPU boundary live in [`abi`], defined once.
+//! On the host, [`layout`] describes their memory layout and [`interface`]
+//! lists every entry point's bindings and push constants: the exported
+//! SPIR-V's manifest is written from them (see `docs/EMBEDDING.md`).
 #![no_std]
 #![deny(missing_docs)]
 // Kernel bodies take each buffer they touch as an argument.
@@ -23,7 +26,11 @@ pub mod buffers;
 pub mod clip;
 pub mod entry;
 pub mod grid;
+#[cfg(not(target_arch = "spirv"))]
+pub mod interface;
 pub mod knn;
+#[cfg(not(target_arch = "spirv"))]
+pub mod layout;
 pub mod lloyd;
 pub mod polyhedron;
 pub mod refine;

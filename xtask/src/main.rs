@@ -16,6 +16,8 @@ commands:
   bench knn [ARGS]    the k-NN benchmark (ARGS: --sizes, --ks, --json PATH, ...)
   bench cvt [ARGS]    Lloyd and L-BFGS per model and backend (--iterations N, --only NAME, --json PATH, ...)
   build             build everything, optimised
+  spirv --out DIR   write the kernels as SPIR-V (one module per entry point) and manifest.json into DIR
+                    (docs/EMBEDDING.md); then: cargo run --release -p cvd-embed-example -- DIR
   lint              cargo fmt --check and cargo clippy -D warnings
 ";
 
@@ -62,6 +64,12 @@ fn run(args: &[String]) -> Result<(), String> {
         "run" => status(cargo(&["run", "--release", "--package", "cvd", "--", "run"], rest)),
         "test" => status(cargo(&["test", "--release", "--workspace"], rest)),
         "build" => status(cargo(&["build", "--release", "--workspace"], rest)),
+        "spirv" => {
+            if !rest.iter().any(|a| a == "--out") {
+                return Err(format!("spirv needs --out DIR\n\n{USAGE}"));
+            }
+            status(cargo(&["run", "--quiet", "--release", "--package", "cvd", "--", "spirv"], rest))
+        }
         "bench" => match rest.split_first() {
             Some((which, extra)) if ["knn", "paper", "cvt"].contains(&which.as_str()) => {
                 status(cargo(&["bench", "--package", "cvd", "--bench", which, "--"], extra))

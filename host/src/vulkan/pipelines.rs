@@ -5,7 +5,7 @@
 use super::context::Context;
 use crate::error::{Error, Result, VkContext};
 use ash::vk;
-use cvd_kernels::abi::{ClipParams, GridBuildParams, KnnParams, LloydParams, RefineParams};
+use cvd_kernels::interface::EntryPoint;
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
@@ -17,31 +17,14 @@ pub const KERNELS_SPV: &[u8] = include_bytes!(env!("CVD_KERNELS_SPV"));
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct KernelSpec {
     pub name: &'static str,
+    pub spirv_name: &'static str,
     pub bindings: u32,
     pub push_size: u32,
 }
 
-const fn spec<P>(name: &'static str, bindings: u32) -> KernelSpec {
-    KernelSpec { name, bindings, push_size: std::mem::size_of::<P>() as u32 }
-}
-
-/// Every entry point in `cvd_kernels::entry`.
-pub(crate) const KERNELS: &[KernelSpec] = &[
-    spec::<GridBuildParams>("grid_count", 3),
-    spec::<GridBuildParams>("scan_blocks", 3),
-    spec::<GridBuildParams>("scan_totals", 1),
-    spec::<GridBuildParams>("scan_offsets", 2),
-    spec::<GridBuildParams>("grid_scatter", 5),
-    spec::<GridBuildParams>("grid_sort", 3),
-    spec::<KnnParams>("knn_grid", 6),
-    spec::<KnnParams>("knn_brute", 4),
-    spec::<ClipParams>("clip_tet_cell", 8),
-    spec::<ClipParams>("voronoi_cells", 4),
-    spec::<ClipParams>("clip_cell_tet", 8),
-    spec::<ClipParams>("clip_flood", 8),
-    spec::<RefineParams>("refine", 11),
-    spec::<LloydParams>("move_sites", 6),
-];
+/// Every entry point in `cvd_kernels::entry`, from the kernels' own table
+/// (the one the exported manifest is written from).
+pub(crate) const KERNELS: &[EntryPoint] = cvd_kernels::interface::ENTRY_POINTS;
 
 /// A ready compute pipeline.
 pub(crate) struct Kernel {
@@ -78,10 +61,16 @@ impl Pipelines {
         if let Some(k) = made.get(name) {
             return Ok(k.clone());
         }
-        let spec = *KERNELS
+        let e = KERNELS
             .iter()
             .find(|k| k.name == name)
             .ok_or_else(|| Error::InvalidInput(format!("no kernel named {name}")))?;
+        let spec = KernelSpec {
+            name: e.name,
+            spirv_name: e.spirv_name,
+            bindings: e.bindings.len() as u32,
+            push_size: e.push_size() as u32,
+        };
         let kernel = Arc::new(self.create(spec)?);
         made.insert(spec.name, kernel.clone());
         Ok(kernel)
@@ -106,8 +95,7 @@ impl Pipelines {
         let set_layouts = [set_layout];
         let info = vk::PipelineLayoutCreateInfo::default().set_layouts(&set_layouts).push_constant_ranges(&ranges);
         let layout = unsafe { dev.create_pipeline_layout(&info, None) }.call("vkCreatePipelineLayout")?;
-        // rust-gpu names entry points by their path inside the kernels crate.
-        let entry = std::ffi::CString::new(format!("entry::{}", spec.name)).expect("kernel names have no NUL");
+        let entry = std::ffi::CString::new(spec.spirv_name).expect("kernel names have no NUL");
         let stage = vk::PipelineShaderStageCreateInfo::default()
             .stage(vk::ShaderStageFlags::COMPUTE)
             .module(self.module)
