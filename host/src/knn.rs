@@ -119,7 +119,7 @@ impl KnnJob {
             k: k as u32,
             exclude_self: exclude_self as u32,
             query_base: 0,
-            d2_scratch: 0,
+            in_order: 0,
             _pad: [0; 3],
         };
         Ok(Self { sites, queries, params, method, quantizer })

@@ -71,12 +71,14 @@ pub struct KnnParams {
     pub k: u32,
     /// 1: query `i` is site `i` and excludes itself; 0: plain points.
     pub exclude_self: u32,
-    /// First query of this dispatch: thread `i` answers query
-    /// `query_base + i` (a job split into parts; 0 otherwise).
+    /// First query of this dispatch (a job in parts; 0 otherwise): thread
+    /// `i` of a point job answers query `query_base + i`, writing at slot
+    /// `i` (the lists hold the dispatch's queries).
     pub query_base: u32,
-    /// 1: the distance list is scratch for this dispatch's queries only
-    /// (thread `i` at slot `i`), not read afterwards.
-    pub d2_scratch: u32,
+    /// 1: a site job answers its sites in index order from `query_base`,
+    /// like a point job (the lists hold the dispatch's sites); 0: in grid
+    /// order, each at its own slot.
+    pub in_order: u32,
     /// Padding to a 16-byte multiple.
     pub _pad: [u32; 3],
 }

@@ -15,7 +15,7 @@ use crate::layout::{Layout, TypeLayout};
 pub const ABI_VERSION: u32 = 2;
 
 /// The [`fingerprint`] of the interface of [`ABI_VERSION`].
-pub const ABI_FINGERPRINT: u64 = 0xadd6_f665_d515_64b3;
+pub const ABI_FINGERPRINT: u64 = 0xec96_b317_3a4a_8905;
 
 /// How an entry point uses a storage buffer.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -160,7 +160,7 @@ pub const ENTRY_POINTS: &[EntryPoint] = &[
                 W,
                 "n_sites * k (site job) or n_queries * k: neighbour indices, nearest first (NO_SITE: none)"
             ),
-            b::<u64>("neighbor_d2", W, "like neighbors, or n_queries * k if d2_scratch: squared quantized distances"),
+            b::<u64>("neighbor_d2", W, "like neighbors: squared quantized distances"),
         ],
     ),
     ep!(
@@ -170,8 +170,8 @@ pub const ENTRY_POINTS: &[EntryPoint] = &[
         &[
             b::<Quant>("queries", R, "n_queries quantized query points"),
             b::<Quant>("sites", R, "n_sites quantized sites"),
-            b::<u32>("neighbors", W, "n_sites * k (site job) or n_queries * k: neighbour indices, nearest first"),
-            b::<u64>("neighbor_d2", W, "like neighbors, or n_queries * k if d2_scratch: squared quantized distances"),
+            b::<u32>("neighbors", W, "n_queries * k: neighbour indices, nearest first"),
+            b::<u64>("neighbor_d2", W, "like neighbors: squared quantized distances"),
         ],
     ),
     ep!(

@@ -53,23 +53,13 @@ pub fn dist2(a: [u32; 3], b: &QuantPoint) -> u64 {
     dx * dx + dy * dy + dz * dz
 }
 
-/// Where a query's `k` neighbours go: `nbr[nbr..nbr + k]` and
-/// `d2[d2..d2 + k]`.
-#[derive(Clone, Copy)]
-pub struct Slots {
-    /// First slot in the neighbour list.
-    pub nbr: usize,
-    /// First slot in the distance list.
-    pub d2: usize,
-}
-
 /// A query's sorted list of the best `k` candidates, kept in `nbr`/`d2` at
-/// its [`Slots`], ordered by `(distance, index)`; the current k-th
+/// `base..base + k`, ordered by `(distance, index)`; the current k-th
 /// entry is mirrored in locals so that most candidates are rejected
 /// without touching memory.
 struct Best {
     k: u32,
-    at: Slots,
+    base: usize,
     found: u32,
     worst_d: u64,
     worst_i: u32,
@@ -77,8 +67,8 @@ struct Best {
 
 impl Best {
     #[inline]
-    fn new(k: u32, at: Slots) -> Self {
-        Self { k, at, found: 0, worst_d: u64::MAX, worst_i: u32::MAX }
+    fn new(k: u32, base: usize) -> Self {
+        Self { k, base, found: 0, worst_d: u64::MAX, worst_i: u32::MAX }
     }
 
     #[inline]
@@ -90,7 +80,7 @@ impl Best {
         if self.found == self.k && (d > self.worst_d || (d == self.worst_d && idx > self.worst_i)) {
             return;
         }
-        let (bn, bd) = (self.at.nbr, self.at.d2);
+        let base = self.base;
         let mut pos = self.found as usize;
         if self.found == self.k {
             pos -= 1;
@@ -99,36 +89,36 @@ impl Best {
         }
         // Shift larger entries up one slot, then insert.
         while pos > 0 {
-            let pd = d2.read(bd + pos - 1);
-            let pi = nbr.read(bn + pos - 1);
+            let pd = d2.read(base + pos - 1);
+            let pi = nbr.read(base + pos - 1);
             if pd < d || (pd == d && pi < idx) {
                 break;
             }
-            d2.write(bd + pos, pd);
-            nbr.write(bn + pos, pi);
+            d2.write(base + pos, pd);
+            nbr.write(base + pos, pi);
             pos -= 1;
         }
-        d2.write(bd + pos, d);
-        nbr.write(bn + pos, idx);
+        d2.write(base + pos, d);
+        nbr.write(base + pos, idx);
         if self.found == self.k {
-            let last = self.k as usize - 1;
-            self.worst_d = d2.read(bd + last);
-            self.worst_i = nbr.read(bn + last);
+            let last = base + self.k as usize - 1;
+            self.worst_d = d2.read(last);
+            self.worst_i = nbr.read(last);
         }
     }
 }
 
 /// Fills the slots a query could not fill (only when `k` exceeds the sites).
 #[inline]
-fn pad<N, D>(found: u32, k: u32, at: Slots, nbr: &mut N, d2: &mut D)
+fn pad<N, D>(found: u32, k: u32, base: usize, nbr: &mut N, d2: &mut D)
 where
     N: OutBuf<u32> + ?Sized,
     D: OutBuf<u64> + ?Sized,
 {
     let mut j = found as usize;
     while j < k as usize {
-        nbr.write(at.nbr + j, NO_SITE);
-        d2.write(at.d2 + j, u64::MAX);
+        nbr.write(base + j, NO_SITE);
+        d2.write(base + j, u64::MAX);
         j += 1;
     }
 }
@@ -141,14 +131,14 @@ pub fn brute_query<N, D>(
     q: [u32; 3],
     exclude: u32,
     k: u32,
-    at: Slots,
+    base: usize,
     nbr: &mut N,
     d2: &mut D,
 ) where
     N: OutBuf<u32> + ?Sized,
     D: OutBuf<u64> + ?Sized,
 {
-    let mut best = Best::new(k, at);
+    let mut best = Best::new(k, base);
     let mut j = 0usize;
     while j < n_sites as usize {
         let s = sites[j];
@@ -157,7 +147,7 @@ pub fn brute_query<N, D>(
         }
         j += 1;
     }
-    pad(best.found, k, at, nbr, d2);
+    pad(best.found, k, base, nbr, d2);
 }
 
 /// The distance from `q` to the nearest point outside the box of cells
@@ -246,7 +236,7 @@ pub fn grid_query<N, D>(
     q: [u32; 3],
     exclude: u32,
     k: u32,
-    at: Slots,
+    base: usize,
     nbr: &mut N,
     d2: &mut D,
 ) where
@@ -255,7 +245,7 @@ pub fn grid_query<N, D>(
 {
     let available = if exclude < g.n_sites { g.n_sites - 1 } else { g.n_sites };
     let c = cell_coords(g, q);
-    let mut best = Best::new(k, at);
+    let mut best = Best::new(k, base);
     let mut r = 0u32;
     loop {
         let z0 = sub_floor0(c[2], r);
@@ -297,25 +287,14 @@ pub fn grid_query<N, D>(
         }
         r += 1;
     }
-    pad(best.found, k, at, nbr, d2);
-}
-
-/// The slots of thread `i` answering query `q`. Neighbours: a site job
-/// writes at the site's own slot `q`, a point job at slot `i` (its list
-/// holds the dispatch's queries, from `query_base`). Distances: at the
-/// neighbours' slot, or at `i` when they are the dispatch's scratch
-/// (`d2_scratch`).
-#[inline]
-fn slots(p: &KnnParams, i: usize, q: usize) -> Slots {
-    let k = p.k as usize;
-    let nbr = if p.exclude_self != 0 { q } else { i };
-    Slots { nbr: nbr * k, d2: if p.d2_scratch != 0 { i * k } else { nbr * k } }
+    pad(best.found, k, base, nbr, d2);
 }
 
 /// Thread `i` of a grid k-NN job. A site job (`exclude_self`) takes its
 /// queries in grid order — thread `i` answers `sorted[i]`, writing the
 /// slots of that site's own index — so neighbouring threads search the same
-/// cells; a point job answers query `i`.
+/// cells; a point job, or a site job in parts (`in_order`), answers query
+/// `query_base + i` at slot `i`.
 #[inline]
 pub fn grid_thread<N, D>(
     i: usize,
@@ -333,10 +312,15 @@ pub fn grid_thread<N, D>(
     if i >= p.n_queries as usize {
         return;
     }
-    let g = p.query_base as usize + i;
-    let (q, exclude) = if p.exclude_self != 0 { (sorted[g], sorted[g][3]) } else { (queries[g], NO_SITE) };
-    let at = slots(p, i, if p.exclude_self != 0 { q[3] as usize } else { g });
-    grid_query(&p.grid, cell_start, cell_count, sorted, [q[0], q[1], q[2]], exclude, p.k, at, nbr, d2);
+    let (q, exclude, slot) = if p.exclude_self != 0 && p.in_order == 0 {
+        let q = sorted[i];
+        (q, q[3], q[3] as usize)
+    } else {
+        let q = queries[p.query_base as usize + i];
+        (q, if p.exclude_self != 0 { q[3] } else { NO_SITE }, i)
+    };
+    let base = slot * p.k as usize;
+    grid_query(&p.grid, cell_start, cell_count, sorted, [q[0], q[1], q[2]], exclude, p.k, base, nbr, d2);
 }
 
 /// Thread `i` of a brute-force k-NN job: the neighbours of query `i`.
@@ -355,8 +339,8 @@ pub fn brute_thread<N, D>(
     if i >= p.n_queries as usize {
         return;
     }
-    let g = p.query_base as usize + i;
-    let q = queries[g];
+    let q = queries[p.query_base as usize + i];
     let exclude = if p.exclude_self != 0 { q[3] } else { NO_SITE };
-    brute_query(sites, p.grid.n_sites, [q[0], q[1], q[2]], exclude, p.k, slots(p, i, g), nbr, d2);
+    let base = i * p.k as usize;
+    brute_query(sites, p.grid.n_sites, [q[0], q[1], q[2]], exclude, p.k, base, nbr, d2);
 }

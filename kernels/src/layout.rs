@@ -117,7 +117,7 @@ structure!(KnnParams {
     k: u32,
     exclude_self: u32,
     query_base: u32,
-    d2_scratch: u32,
+    in_order: u32,
     _pad: [u32; 3]
 });
 structure!(ClipParams {

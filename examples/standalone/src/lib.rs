@@ -644,14 +644,14 @@ pub fn run(spirv_dir: &Path, verts: &[[f32; 3]], tets: &[[u32; 4]], sites: &[[f3
             ("k", U(k_site as u64)),
             ("exclude_self", U(1)),
             ("query_base", U(0)),
-            ("d2_scratch", U(0)),
+            ("in_order", U(0)),
         ],
     ));
     g.dispatch(m, "knn_grid", &[qsites_b, cell_start, cell_count, sorted, nbrs, nbr_d2], &knn, n as u64)?;
     let mut knn = named("grid.", &grid);
     knn.extend(named(
         "",
-        &[("n_queries", U(nt as u64)), ("k", U(1)), ("exclude_self", U(0)), ("query_base", U(0)), ("d2_scratch", U(0))],
+        &[("n_queries", U(nt as u64)), ("k", U(1)), ("exclude_self", U(0)), ("query_base", U(0)), ("in_order", U(0))],
     ));
     g.dispatch(m, "knn_grid", &[qcent_b, cell_start, cell_count, sorted, tet_sites, tet_d2], &knn, nt as u64)?;
     // 3. Clip every tet by flooding its sites.

@@ -191,6 +191,17 @@ impl<'a> Job<'a> {
         }
     }
 
+    /// Copies the first `bytes` of `from` into `to` at byte `offset`, at
+    /// this point of the job.
+    pub(crate) fn copy_to(&mut self, from: BufId, to: BufId, offset: u64, bytes: u64) {
+        if bytes > 0 {
+            let region = [vk::BufferCopy::default().dst_offset(offset).size(bytes)];
+            let (from, to) = (self.buffers[from.0].buffer, self.buffers[to.0].buffer);
+            // SAFETY: recording a copy between live buffers of sufficient size.
+            unsafe { self.ctx.device.cmd_copy_buffer(self.cmd, from, to, &region) };
+        }
+    }
+
     /// Copies `bytes` of `buf` from `offset` to the host at this point of
     /// the job.
     pub(crate) fn download_at(&mut self, buf: BufId, offset: u64, bytes: u64) -> Result<Readback> {

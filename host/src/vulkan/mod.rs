@@ -133,12 +133,19 @@ impl Backend for VulkanBackend {
         let g = GridBuffers::new(&mut j, n, grid.n_cells as u64, n_blocks)?;
         g.record(&mut j, &bp, quant)?;
         j.mark("grid");
-        if ks > 0 {
-            let scratch = j.buffer(plan.site_chunk * ks * 8)?;
+        if ks > 0 && plan.site_chunk >= n {
+            let d2 = j.buffer(n * ks * 8)?;
+            j.dispatch("knn_grid", &[quant, g.start, g.count, g.sorted, site_nbrs, d2], &sk.params, n)?;
+        } else if ks > 0 {
+            // In parts of sites in index order, each part's lists copied to
+            // their place.
+            let (part_nbrs, part_d2) = (j.buffer(plan.site_chunk * ks * 4)?, j.buffer(plan.site_chunk * ks * 8)?);
             for first in (0..n).step_by(plan.site_chunk as usize) {
                 let count = plan.site_chunk.min(n - first);
-                let kp = KnnParams { n_queries: count as u32, query_base: first as u32, d2_scratch: 1, ..sk.params };
-                j.dispatch("knn_grid", &[quant, g.start, g.count, g.sorted, site_nbrs, scratch], &kp, count)?;
+                let kp = KnnParams { n_queries: count as u32, query_base: first as u32, in_order: 1, ..sk.params };
+                j.dispatch("knn_grid", &[quant, g.start, g.count, g.sorted, part_nbrs, part_d2], &kp, count)?;
+                j.barrier();
+                j.copy_to(part_nbrs, site_nbrs, first * ks * 4, count * ks * 4);
                 j.barrier();
             }
         }
@@ -166,7 +173,7 @@ impl Backend for VulkanBackend {
         for t0 in (0..nt).step_by(c as usize) {
             let count = c.min(nt - t0);
             let cp = ClipParams { tet_base: t0 as u32, n_tets: (t0 + count) as u32, ..*p };
-            let kp = KnnParams { n_queries: count as u32, query_base: t0 as u32, d2_scratch: 1, ..tk.params };
+            let kp = KnnParams { n_queries: count as u32, query_base: t0 as u32, ..tk.params };
             j.fill_zero(unfinished);
             j.fill_zero(still);
             j.dispatch("knn_grid", &[centroids, g.start, g.count, g.sorted, tet_sites, tet_d2], &kp, count)?;

@@ -12,7 +12,8 @@ use cvd_kernels::clip::CELL_RECORDS;
 /// Chunk sizes of a clipping job.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) struct Plan {
-    /// Sites per dispatch of the sites' k-NN (its distance scratch).
+    /// Sites per dispatch of the sites' k-NN (all of them: one dispatch in
+    /// grid order, with distances for every site).
     pub site_chunk: u64,
     /// Tets per part: their k-NN, clipping and second pass.
     pub tet_chunk: u64,
@@ -76,13 +77,13 @@ impl Plan {
         let group = WORKGROUP_SIZE as u64;
         let (ks, kt) = (job.site_knn.params.k as u64, job.params.k_tet as u64);
         let (n, nt) = (job.params.n_sites as u64, job.params.n_tets as u64);
-        let least = group * (8 * ks + bytes_per_tet(job));
+        let least = group * (12 * ks + bytes_per_tet(job));
         if total + least > budget {
             return too_big(format!("the job keeps {:.0} MiB resident", total as f64 / MIB));
         }
         let free = budget - total;
-        // Half of what is free for the distance scratch at most, the rest
-        // (and whatever the scratch leaves) for the tets.
+        // Half of what is free for the k-NN's distances (and a part's
+        // lists) at most, the rest (and whatever they leave) for the tets.
         let fit = |bytes_each: u64, room: u64, count: u64| -> u64 {
             let most = (room / bytes_each.max(1)).min(max_binding / bytes_each.max(1));
             if most >= count {
@@ -91,8 +92,11 @@ impl Plan {
                 (most / group * group).max(group)
             }
         };
-        let site_chunk = fit(8 * ks, free / 2, n);
-        let left = free - site_chunk * 8 * ks;
+        // Whole: distances for every site; in parts: lists and distances.
+        let site_chunk =
+            if 8 * ks * n <= free / 2 && 8 * ks * n <= max_binding { n } else { fit(12 * ks, free / 2, n) };
+        let per_site = if site_chunk == n { 8 * ks } else { 12 * ks };
+        let left = free.saturating_sub(site_chunk * per_site);
         let tet_chunk = fit(bytes_per_tet(job).max(8 * kt), left, nt);
         Ok(Self { site_chunk, tet_chunk, tet_parts: nt.div_ceil(tet_chunk) })
     }
@@ -120,7 +124,7 @@ mod tests {
     fn a_small_budget_splits_sites_and_tets_into_workgroup_multiples() {
         let j = job(2000);
         let resident: u64 = resident_bytes(&j).iter().map(|r| r.1).sum();
-        let plan = Plan::new(&j, resident + 60 * 1024, 1 << 30, "test").unwrap();
+        let plan = Plan::new(&j, resident + 100 * 1024, 1 << 30, "test").unwrap();
         assert!(plan.site_chunk < 2000 && plan.site_chunk.is_multiple_of(64), "{plan:?}");
         assert!(plan.tet_parts > 1 && plan.tet_chunk.is_multiple_of(64), "{plan:?}");
         assert_eq!(plan.tet_parts, (j.params.n_tets as u64).div_ceil(plan.tet_chunk));
