@@ -23,15 +23,19 @@ use crate::buffers::{AtomicSums, OutBuf, PairList};
 use crate::polyhedron::{Cell, Clip, Moments, Piece, Polyhedron, CELL_PLANES, CELL_VERTS, NO_ID};
 use spirv_std::glam::{Vec3, Vec4};
 
-/// `[f32; 4]` records per stored cell: a header, the planes, the vertices
-/// (position in `xyz`, packed plane triple in the bits of `w`).
+/// `[f32; 4]` records per stored cell: a header (planes, vertices, status
+/// as bits, and the squared radius of the ball around the site where a
+/// [`cell_status::SECURITY_MISSED`] cell is exact), the planes, the
+/// vertices (position in `xyz`, packed plane triple in the bits of `w`).
 pub const CELL_RECORDS: usize = 1 + CELL_PLANES + CELL_VERTS;
 
 /// Status of a stored cell (header `z`).
 pub mod cell_status {
     /// The security radius was reached (or every site was used).
     pub const COMPLETE: u32 = 0;
-    /// The neighbour budget ran out first.
+    /// The neighbour budget ran out first. The cell is still exact within
+    /// half the distance to the last neighbour: no site farther than `2R`
+    /// from the site can own a point within `R` of it.
     pub const SECURITY_MISSED: u32 = 1;
     /// The polyhedron overflowed or broke down.
     pub const FAILED: u32 = 2;
@@ -434,8 +438,18 @@ pub fn voronoi_cell<O: OutBuf<[f32; 4]> + ?Sized, C: AtomicSums>(
     } else {
         cell_status::COMPLETE
     };
+    // Where a cell that missed its security radius is exact: within half
+    // the distance to its k-th neighbour (with a margin for rounding).
+    let mut exact_r2 = 0.0;
+    if status == cell_status::SECURITY_MISSED && k > 0 {
+        let last = site_nbrs[i * k + k - 1];
+        if last != NO_SITE {
+            exact_r2 = 0.2499 * (xyz(sites[last as usize]) - xi).length_squared();
+        }
+    }
     let base = i * CELL_RECORDS;
-    cells.write(base, [f32::from_bits(poly.n_planes), f32::from_bits(poly.n_verts), f32::from_bits(status), 0.0]);
+    let header = [f32::from_bits(poly.n_planes), f32::from_bits(poly.n_verts), f32::from_bits(status), exact_r2];
+    cells.write(base, header);
     let mut q = 0;
     while q < poly.n_planes as usize {
         let pl = poly.planes[q];
@@ -474,7 +488,8 @@ pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     }
     let base = j * CELL_RECORDS;
     let header = cells[base];
-    if header[2].to_bits() != cell_status::COMPLETE {
+    let status = header[2].to_bits();
+    if status == cell_status::FAILED {
         // Counted when the cell was built; its pieces are left to the
         // second pass.
         counters.add(counter::PAIRS, 1);
@@ -512,6 +527,10 @@ pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
         }
         f += 1;
     }
+    // A cell that missed its security radius gives an exact piece where
+    // the piece lies within the ball it is exact in; other pieces go to the
+    // second pass.
+    c.security_missed = status == cell_status::SECURITY_MISSED && poly.bounds().0 >= header[3];
     let nonempty = finish_pair(t, j, &poly, &tv, &c, p.n_sites, p.fixed_scale, verts, tets, sums, unfinished, sink);
     count(counters, 1, nonempty as i64, &c);
 }
