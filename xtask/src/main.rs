@@ -7,18 +7,18 @@ const USAGE: &str = "\
 usage: cargo xtask <command> [args...]
 
 commands:
-  run [ARGS]        the main job: a clipped Voronoi diagram (cvd run ARGS, release build)
-  test [ARGS]       the whole test suite, optimised (cargo test ARGS)
+  run [ARGS]          the main job: a clipped Voronoi diagram (cvd run ARGS, release build)
+  test [ARGS]         the whole test suite, optimised (cargo test ARGS)
   bench paper [ARGS]  the paper's evaluation: Table 1, Figs. 7, 8, 12, 13 and scale runs, CPU and
-                    Vulkan; tables, JSON and charts in bench-results/paper (--sections LIST,
-                    --quick, --cpu-only, --repeat R, --scale-max N, --models-dir DIR, --out DIR, ...)
+                      Vulkan; tables, JSON and charts in bench-results/paper (--sections LIST,
+                      --quick, --cpu-only, --repeat R, --scale-max N, --models-dir DIR, --out DIR, ...)
   bench cvd [ARGS]    Table 1 alone (bench paper --sections table1 ARGS)
   bench knn [ARGS]    the k-NN benchmark (ARGS: --sizes, --ks, --json PATH, ...)
   bench cvt [ARGS]    Lloyd and L-BFGS per model and backend (--iterations N, --only NAME, --json PATH, ...)
-  build             build everything, optimised
-  spirv --out DIR   write the kernels as SPIR-V (one module per entry point) and manifest.json into DIR
-                    (docs/EMBEDDING.md); then: cargo run --release -p cvd-embed-example -- DIR
-  lint              cargo fmt --check and cargo clippy -D warnings
+  build               build everything, optimised
+  spirv --out DIR     write the kernels as SPIR-V (one module per entry point) and manifest.json into DIR
+                      (docs/EMBEDDING.md); then: cargo run --release -p cvd-embed-example -- DIR
+  lint                cargo fmt --check and cargo clippy -D warnings
 ";
 
 /// Paths given after these options are made absolute: cargo runs benches
