@@ -488,8 +488,16 @@ pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     }
     let base = j * CELL_RECORDS;
     let header = cells[base];
+    // A cell that missed its security radius is exact within a ball
+    // around its site: a tet inside that ball gets its piece from it.
     let status = header[2].to_bits();
-    if status == cell_status::FAILED {
+    let mut inside_exact_ball = status == cell_status::SECURITY_MISSED;
+    let mut v = 0;
+    while v < 4 {
+        inside_exact_ball = inside_exact_ball && tv[v].length_squared() < header[3];
+        v += 1;
+    }
+    if status != cell_status::COMPLETE && !inside_exact_ball {
         // Counted when the cell was built; its pieces are left to the
         // second pass.
         counters.add(counter::PAIRS, 1);
@@ -527,10 +535,6 @@ pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
         }
         f += 1;
     }
-    // A cell that missed its security radius gives an exact piece where
-    // the piece lies within the ball it is exact in; other pieces go to the
-    // second pass.
-    c.security_missed = status == cell_status::SECURITY_MISSED && poly.bounds().0 >= header[3];
     let nonempty = finish_pair(t, j, &poly, &tv, &c, p.n_sites, p.fixed_scale, verts, tets, sums, unfinished, sink);
     count(counters, 1, nonempty as i64, &c);
 }
