@@ -3,7 +3,7 @@
 //! Markdown, JSON and PNG charts into `--out` (default `bench-results/paper`).
 //!
 //! Options: `--sections table1,fig7,fig8,fig12,fig13,scale` `--out DIR`
-//! `--models-dir DIR` `--threads N` `--device D` `--cpu-only` `--repeat R`
+//! `--models-dir DIR` `--threads N` `--device D` `--cpu-only` `--only MODEL` `--repeat R`
 //! `--iterations N` (Fig. 13) `--scale-max N` (largest scale run, default
 //! 1 000 000; 10 000 000 on a GPU) `--quick` (every section, reduced sizes).
 
@@ -31,6 +31,7 @@ fn config() -> Result<Config, String> {
             "--threads" => c.threads = Some(number(value()?)?),
             "--device" => c.device = Some(value()?),
             "--cpu-only" => c.vulkan = false,
+            "--only" => c.only = Some(value()?),
             "--repeat" => c.repeat = number(value()?)?,
             "--iterations" => c.iterations = number(value()?)?,
             "--scale-max" => c.scale_max = number(value()?)?,

@@ -11,7 +11,7 @@ commands:
   test [ARGS]         the whole test suite, optimised (cargo test ARGS)
   bench paper [ARGS]  the paper's evaluation: Table 1, Figs. 7, 8, 12, 13 and scale runs, CPU and
                       Vulkan; tables, JSON and charts in bench-results/paper (--sections LIST,
-                      --quick, --cpu-only, --repeat R, --scale-max N, --models-dir DIR, --out DIR, ...)
+                      --quick, --cpu-only, --only MODEL, --repeat R, --scale-max N, --models-dir DIR, ...)
   bench cvd [ARGS]    Table 1 alone (bench paper --sections table1 ARGS)
   bench knn [ARGS]    the k-NN benchmark (ARGS: --sizes, --ks, --json PATH, ...)
   bench cvt [ARGS]    Lloyd and L-BFGS per model and backend (--iterations N, --only NAME, --json PATH, ...)

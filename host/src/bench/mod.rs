@@ -42,6 +42,8 @@ pub struct Config {
     pub scale_max: usize,
     /// The sections to run.
     pub sections: Vec<Section>,
+    /// Only this model (by its name in the tables).
+    pub only: Option<String>,
 }
 
 impl Config {
@@ -58,7 +60,13 @@ impl Config {
             iterations: 30,
             scale_max: 1_000_000,
             sections: Section::ALL.to_vec(),
+            only: None,
         }
+    }
+
+    /// Whether model `name` runs (see [`Config::only`]).
+    pub fn wants(&self, name: &str) -> bool {
+        self.only.as_ref().is_none_or(|only| only == name)
     }
 
     /// Every section at a size that runs in seconds, for tests.

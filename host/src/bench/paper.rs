@@ -239,7 +239,8 @@ impl<'a> Suite<'a> {
             let folder = [("torus_8k", 5000), ("bunny_10k", 10_000), ("fandisk_26k", 15_000), ("joint_31k", 35_000)];
             models.extend(self.folder_models(&folder, &[])?);
         }
-        for m in &models {
+        let cfg = self.config;
+        for m in models.iter().filter(|m| cfg.wants(&m.name)) {
             let sites = points::in_mesh(&m.mesh, m.sites, SEED);
             for b in self.each_backend() {
                 for method in METHODS {
@@ -256,7 +257,8 @@ impl<'a> Suite<'a> {
         let models = self.folder_models(&folder, &["torus", "joint"])?;
         let counts: &[usize] =
             if self.config.quick { &[200, 400] } else { &[1000, 2000, 5000, 10_000, 15_000, 20_000, 25_000, 31_000] };
-        for m in &models {
+        let cfg = self.config;
+        for m in models.iter().filter(|m| cfg.wants(&m.name)) {
             let mut rows = Vec::new();
             for &n in counts {
                 let sites = points::in_mesh(&m.mesh, n, SEED);
@@ -280,7 +282,8 @@ impl<'a> Suite<'a> {
         } else {
             (&[10_000, 20_000, 40_000, 60_000, 80_000, 100_000], 15_000)
         };
-        for name in ["torus", "joint"] {
+        let cfg = self.config;
+        for name in ["torus", "joint"].into_iter().filter(|n| cfg.wants(n)) {
             let base = Model::builtin(name, None)?;
             let base_resolution = crate::mesher::models::default_resolution(name)?;
             let mut rows = Vec::new();
@@ -306,7 +309,8 @@ impl<'a> Suite<'a> {
         let models = self.folder_models(&[("torus_8k", 0), ("bunny_10k", 0)], &["torus", "sphere"])?;
         let (ks, n): (Vec<usize>, usize) =
             if self.config.quick { (vec![10, 20], 300) } else { ((1..=12).map(|i| 10 * i).collect(), 15_000) };
-        for m in &models {
+        let cfg = self.config;
+        for m in models.iter().filter(|m| cfg.wants(&m.name)) {
             let sites = points::in_mesh(&m.mesh, n, SEED);
             let mut rows = Vec::new();
             for &k in &ks {
@@ -333,6 +337,9 @@ impl<'a> Suite<'a> {
     }
 
     fn fig13(&mut self) -> Result<()> {
+        if !self.config.wants("joint") {
+            return Ok(());
+        }
         let m = self.builtin("joint")?;
         let counts: &[usize] = if self.config.quick { &[200] } else { &[1000, 30_000] };
         if !self.config.quick {
@@ -366,6 +373,9 @@ impl<'a> Suite<'a> {
     }
 
     fn scale(&mut self) -> Result<()> {
+        if !self.config.wants("cube") {
+            return Ok(());
+        }
         let sizes: Vec<usize> = if self.config.quick {
             vec![5000]
         } else {
