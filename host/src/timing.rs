@@ -17,7 +17,8 @@ impl Timings {
 
     /// The time of one phase (0 if absent).
     pub fn get(&self, phase: &str) -> f64 {
-        self.phases.iter().filter(|(p, _)| p == phase).map(|(_, s)| s).sum()
+        // A fold from +0 (an empty `sum` of floats is -0).
+        self.phases.iter().filter(|(p, _)| p == phase).fold(0.0, |t, (_, s)| t + s)
     }
 
     /// Sum of all phases.
