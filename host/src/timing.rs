@@ -21,6 +21,17 @@ impl Timings {
         self.phases.iter().filter(|(p, _)| p == phase).fold(0.0, |t, (_, s)| t + s)
     }
 
+    /// The neighbour searches: the site grid and every k-NN phase.
+    pub fn knn(&self) -> f64 {
+        self.phases.iter().filter(|(p, _)| p == "grid" || p.contains("knn")).fold(0.0, |t, (_, s)| t + s)
+    }
+
+    /// Clipping: cells (cell-tet), pieces, and the second and host passes.
+    pub fn clip(&self) -> f64 {
+        let clipping = |p: &str| matches!(p, "cells" | "clip" | "second pass" | "host pass");
+        self.phases.iter().filter(|(p, _)| clipping(p)).fold(0.0, |t, (_, s)| t + s)
+    }
+
     /// Sum of all phases.
     pub fn total(&self) -> f64 {
         self.phases.iter().map(|(_, s)| s).sum()

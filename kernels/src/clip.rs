@@ -491,13 +491,9 @@ pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     // A cell that missed its security radius is exact within a ball
     // around its site: a tet inside that ball gets its piece from it.
     let status = header[2].to_bits();
-    let mut inside_exact_ball = status == cell_status::SECURITY_MISSED;
-    let mut v = 0;
-    while v < 4 {
-        inside_exact_ball = inside_exact_ball && tv[v].length_squared() < header[3];
-        v += 1;
-    }
-    if status != cell_status::COMPLETE && !inside_exact_ball {
+    let usable =
+        status == cell_status::COMPLETE || (status == cell_status::SECURITY_MISSED && inside_ball(&tv, header[3]));
+    if !usable {
         // Counted when the cell was built; its pieces are left to the
         // second pass.
         counters.add(counter::PAIRS, 1);
@@ -537,6 +533,19 @@ pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     }
     let nonempty = finish_pair(t, j, &poly, &tv, &c, p.n_sites, p.fixed_scale, verts, tets, sums, unfinished, sink);
     count(counters, 1, nonempty as i64, &c);
+}
+
+/// Whether every vertex of `tv` is nearer the origin than `sqrt(r2)`.
+#[inline]
+fn inside_ball(tv: &[Vec3; 4], r2: f32) -> bool {
+    let mut v = 0;
+    while v < 4 {
+        if tv[v].length_squared() >= r2 {
+            return false;
+        }
+        v += 1;
+    }
+    true
 }
 
 /// Most sites one tet's flood can visit in the kernel; more sends the tet

@@ -219,10 +219,12 @@ impl<'a> Suite<'a> {
         out
     }
 
-    fn chart(&mut self, chart: Chart, rows: &[Row]) -> Result<()> {
+    fn charts(&mut self, charts: impl IntoIterator<Item = Chart>, rows: &[Row]) -> Result<()> {
         let rows: Vec<&Row> = rows.iter().collect();
-        let path = chart.write(&self.config.out, &rows)?;
-        self.report.files.push(path);
+        for chart in charts {
+            let path = chart.write(&self.config.out, &rows)?;
+            self.report.files.push(path);
+        }
         Ok(())
     }
 
@@ -271,7 +273,7 @@ impl<'a> Suite<'a> {
             }
             let chart =
                 Chart::new(format!("fig7_{}.png", m.name), ("sites", |r| r.sites as f64), ("ms", |r| r.total_ms));
-            self.chart(chart, &rows)?;
+            self.charts([chart], &rows)?;
         }
         Ok(())
     }
@@ -300,7 +302,7 @@ impl<'a> Suite<'a> {
                 }
             }
             let chart = Chart::new(format!("fig8_{name}.png"), ("tets", |r| r.tets as f64), ("ms", |r| r.total_ms));
-            self.chart(chart, &rows)?;
+            self.charts([chart], &rows)?;
         }
         Ok(())
     }
@@ -329,9 +331,7 @@ impl<'a> Suite<'a> {
                 Chart::new(format!("fig12_{name}_missed.png"), k, missed),
                 Chart::new(format!("fig12_{name}_evol.png"), k, ("e_vol", |r| r.e_vol)).log_y(),
             ];
-            for c in charts {
-                self.chart(c, &rows)?;
-            }
+            self.charts(charts, &rows)?;
         }
         Ok(())
     }
@@ -365,9 +365,7 @@ impl<'a> Suite<'a> {
                 Chart::new(format!("fig13_{n}_time.png"), it, ("ms", |r| r.total_ms)),
                 Chart::new(format!("fig13_{n}_clips.png"), it, ("clips", |r| r.counters.clips as f64)),
             ];
-            for c in charts {
-                self.chart(c, &rows)?;
-            }
+            self.charts(charts, &rows)?;
         }
         Ok(())
     }
@@ -398,6 +396,6 @@ impl<'a> Suite<'a> {
         }
         let per_s: Axis = ("sites per second", |r| r.sites_per_s());
         let chart = Chart::new("scale_sites_per_s.png".into(), ("sites", |r| r.sites as f64), per_s).log_y();
-        self.chart(chart, &rows)
+        self.charts([chart], &rows)
     }
 }

@@ -61,8 +61,7 @@ impl Row {
     /// The row of one computation's `cells` taking `wall` seconds.
     pub fn new(section: &'static str, model: &str, tets: usize, backend: &dyn crate::Backend, cells: &Cells) -> Self {
         let t = &cells.timings;
-        let knn = t.get("grid") + t.get("knn") + t.get("site knn") + t.get("tet knn");
-        let clip = t.get("cells") + t.get("clip") + t.get("second pass") + t.get("host pass");
+        let (knn, clip) = (t.knn(), t.clip());
         Self {
             section,
             model: model.to_string(),

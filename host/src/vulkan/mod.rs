@@ -17,7 +17,9 @@ use crate::timing::timed;
 use crate::timing::Timings;
 use crate::voronoi::{ClipJob, ClipOutput, Pairing, Strategy};
 use context::Context;
-use cvd_kernels::abi::{counter, lloyd_stat, ClipParams, GridBuildParams, KnnParams, RefineParams, ACCUM_PER_SITE};
+use cvd_kernels::abi::{
+    counter, lloyd_stat, ClipParams, GridBuildParams, GridParams, KnnParams, RefineParams, ACCUM_PER_SITE,
+};
 use cvd_kernels::clip::CELL_RECORDS;
 use cvd_kernels::scan;
 use job::{BufId, Job};
@@ -87,7 +89,7 @@ impl Backend for VulkanBackend {
     fn knn(&self, job: &KnnJob) -> Result<Neighbors> {
         let (nq, k) = (job.queries.len() as u64, job.params.k as u64);
         let mut j = Job::new(&self.ctx, &self.pipelines, 8)?;
-        let KnnBuffers { nbr, d2, .. } = record_knn(&mut j, job, "knn")?;
+        let (nbr, d2) = record_knn(&mut j, job)?;
         let nbr_back = j.download(nbr, nq * k * 4)?;
         let d2_back = j.download(d2, nq * k * 8)?;
         j.mark("download");
@@ -127,11 +129,8 @@ impl Backend for VulkanBackend {
         j.mark("upload");
 
         // One grid of the sites answers both k-NN searches.
-        let grid = sk.params.grid;
-        let n_blocks = scan::block_count(grid.n_cells as usize) as u64;
-        let bp = GridBuildParams { grid, n_blocks: n_blocks as u32, _pad: [0; 3] };
-        let g = GridBuffers::new(&mut j, n, grid.n_cells as u64, n_blocks)?;
-        g.record(&mut j, &bp, quant)?;
+        let g = GridBuffers::new(&mut j, sk.params.grid)?;
+        g.record(&mut j, quant)?;
         j.mark("grid");
         if ks > 0 && plan.site_chunk >= n {
             let d2 = j.buffer(n * ks * 8)?;
@@ -170,6 +169,17 @@ impl Backend for VulkanBackend {
         let first_back = j.readback(4)?;
         let still_back = j.readback(list_len * 4)?;
         let (mut refined, mut left, mut timings) = (0, Vec::new(), Timings::default());
+        // Entries the second pass finished, and those left, of a part.
+        let mut collect = |first: u32, list: &[u32]| {
+            let still = crate::voronoi::pair_list(list);
+            refined += first as u64 - still.len() as u64;
+            left.extend(still);
+        };
+        let (kernel, cell_input) = match (job.strategy, job.pairing, cells) {
+            (Strategy::TetCell, Pairing::Flood, _) => ("clip_flood", site_nbrs),
+            (Strategy::TetCell, Pairing::Knn, _) => ("clip_tet_cell", site_nbrs),
+            (Strategy::CellTet, _, cells) => ("clip_cell_tet", cells.unwrap_or(site_nbrs)),
+        };
         for t0 in (0..nt).step_by(c as usize) {
             let count = c.min(nt - t0);
             let cp = ClipParams { tet_base: t0 as u32, n_tets: (t0 + count) as u32, ..*p };
@@ -178,22 +188,10 @@ impl Backend for VulkanBackend {
             j.fill_zero(still);
             j.dispatch("knn_grid", &[centroids, g.start, g.count, g.sorted, tet_sites, tet_d2], &kp, count)?;
             j.mark("tet knn");
+            // One thread per pair (flood: per tet, k_tet = 1).
             let pairs = count * kt;
-            match (job.strategy, job.pairing, cells) {
-                (Strategy::TetCell, Pairing::Flood, _) => {
-                    let args = [sites, verts, tets, tet_sites, site_nbrs, sums, counters, unfinished];
-                    j.dispatch("clip_flood", &args, &cp, count)?;
-                }
-                (Strategy::TetCell, Pairing::Knn, _) => {
-                    let args = [sites, verts, tets, tet_sites, site_nbrs, sums, counters, unfinished];
-                    j.dispatch("clip_tet_cell", &args, &cp, pairs)?;
-                }
-                (Strategy::CellTet, _, Some(cells)) => {
-                    let args = [sites, verts, tets, tet_sites, cells, sums, counters, unfinished];
-                    j.dispatch("clip_cell_tet", &args, &cp, pairs)?;
-                }
-                (Strategy::CellTet, _, None) => unreachable!("cell-tet builds its cells first"),
-            }
+            let args = [sites, verts, tets, tet_sites, cell_input, sums, counters, unfinished];
+            j.dispatch(kernel, &args, &cp, pairs)?;
             j.mark("clip");
             // The second pass, over as many threads as the list can hold
             // entries: those past its count return at once.
@@ -203,17 +201,20 @@ impl Backend for VulkanBackend {
             j.mark("second pass");
             j.download_into(unfinished, first_back, 4);
             j.download_into(still, still_back, list_len * 4);
-            j.mark("download");
-            timings.phases.extend(j.submit()?.phases);
-            let first = j.read::<u32>(first_back, 1)[0] as u64;
-            let still = crate::voronoi::pair_list(&j.read(still_back, list_len as usize));
-            refined += first - still.len() as u64;
-            left.extend(still);
+            // Parts before the last are read before the next reuses the
+            // lists; the last with the sums, in the job's one submission
+            // when it has a single part.
+            if t0 + count < nt {
+                j.mark("download");
+                timings.phases.extend(j.submit()?.phases);
+                collect(j.read::<u32>(first_back, 1)[0], &j.read(still_back, list_len as usize));
+            }
         }
         let sums_back = j.download(sums, n_sums * 8)?;
         let counters_back = j.download(counters, counter::COUNT as u64 * 8)?;
         j.mark("download");
         let done = j.run()?;
+        collect(done.read::<u32>(first_back, 1)[0], &done.read(still_back, list_len as usize));
         timings.phases.extend(done.timings.phases.iter().cloned());
         let mut sums: Vec<i64> = done.read(sums_back, n_sums as usize);
         let tet_volumes = sums.split_off(n as usize * ACCUM_PER_SITE);
@@ -230,50 +231,36 @@ impl Backend for VulkanBackend {
     }
 }
 
-/// Records a k-NN job (uploads, grid build, search) ending with the phase
-/// mark `phase`; returns the neighbour and distance buffers.
-fn record_knn(j: &mut Job, job: &KnnJob, phase: &str) -> Result<KnnBuffers> {
+/// Records a k-NN job (uploads, grid build, search); returns the neighbour
+/// and distance buffers, `k` per query.
+fn record_knn(j: &mut Job, job: &KnnJob) -> Result<(BufId, BufId)> {
     let p = &job.params;
-    let (n, nq, k) = (job.sites.len() as u64, job.queries.len() as u64, p.k as u64);
+    let (nq, k) = (job.queries.len() as u64, p.k as u64);
     let sites = j.upload(&job.sites)?;
     let queries = if p.exclude_self != 0 { sites } else { j.upload(&job.queries)? };
     let nbr = j.buffer(nq * k * 4)?;
     let d2 = j.buffer(nq * k * 8)?;
     if nq * k == 0 {
-        return Ok(KnnBuffers { nbr, d2 });
+        return Ok((nbr, d2));
     }
     j.mark("upload");
     match job.method {
         KnnMethod::Grid => {
-            let n_cells = p.grid.n_cells as u64;
-            let n_blocks = scan::block_count(n_cells as usize) as u64;
-            let bp = GridBuildParams { grid: p.grid, n_blocks: n_blocks as u32, _pad: [0; 3] };
-            let g = GridBuffers::new(j, n, n_cells, n_blocks)?;
-            g.record(j, &bp, sites)?;
-            let GridBuffers { start, count, sorted, .. } = g;
+            let g = GridBuffers::new(j, p.grid)?;
+            g.record(j, sites)?;
             j.mark("grid");
-            j.dispatch("knn_grid", &[queries, start, count, sorted, nbr, d2], p, nq)?;
-            j.mark(phase);
-            Ok(KnnBuffers { nbr, d2 })
+            j.dispatch("knn_grid", &[queries, g.start, g.count, g.sorted, nbr, d2], p, nq)?;
         }
-        KnnMethod::Brute => {
-            j.dispatch("knn_brute", &[queries, sites, nbr, d2], p, nq)?;
-            j.mark(phase);
-            Ok(KnnBuffers { nbr, d2 })
-        }
+        KnnMethod::Brute => j.dispatch("knn_brute", &[queries, sites, nbr, d2], p, nq)?,
     }
+    j.mark("knn");
+    Ok((nbr, d2))
 }
 
-/// What a recorded k-NN job leaves on the device.
-struct KnnBuffers {
-    /// Neighbour indices, `k` per query.
-    nbr: BufId,
-    /// Squared distances, `k` per query.
-    d2: BufId,
-}
-
-/// The buffers of a site grid (`knn_grid`'s input).
+/// The buffers of a site grid (`knn_grid`'s input) and its build's
+/// parameters.
 struct GridBuffers {
+    params: GridBuildParams,
     site_cell: BufId,
     count: BufId,
     cursor: BufId,
@@ -283,8 +270,11 @@ struct GridBuffers {
 }
 
 impl GridBuffers {
-    fn new(j: &mut Job, n_sites: u64, n_cells: u64, n_blocks: u64) -> Result<Self> {
+    fn new(j: &mut Job, grid: GridParams) -> Result<Self> {
+        let (n_sites, n_cells) = (grid.n_sites as u64, grid.n_cells as u64);
+        let n_blocks = scan::block_count(n_cells as usize) as u64;
         Ok(Self {
+            params: GridBuildParams { grid, n_blocks: n_blocks as u32, _pad: [0; 3] },
             site_cell: j.buffer(n_sites.max(1) * 4)?,
             count: j.buffer(n_cells * 4)?,
             cursor: j.buffer(n_cells * 4)?,
@@ -295,7 +285,8 @@ impl GridBuffers {
     }
 
     /// Records the counting sort of `sites` into the grid.
-    fn record(&self, j: &mut Job, bp: &GridBuildParams, sites: BufId) -> Result<()> {
+    fn record(&self, j: &mut Job, sites: BufId) -> Result<()> {
+        let bp = &self.params;
         let (n, n_blocks) = (bp.grid.n_sites as u64, bp.n_blocks as u64);
         j.fill_zero(self.count);
         j.fill_zero(self.cursor);
@@ -338,17 +329,13 @@ fn lloyd_on_device(
     let p = &job.params;
     let (sk, tk) = (&job.site_knn, &job.tet_knn);
     let (n, nt, k) = (p.n_sites as u64, p.n_tets as u64, sk.params.k as u64);
-    let grid = sk.params.grid;
-    let n_cells = grid.n_cells as u64;
-    let n_blocks = scan::block_count(n_cells as usize) as u64;
-    let bp = GridBuildParams { grid, n_blocks: n_blocks as u32, _pad: [0; 3] };
     let mut j = Job::new(&b.ctx, &b.pipelines, LLOYD_BATCH as u32 * 12 + 8)?;
     let sites = j.upload(&job.sites)?;
     let verts = j.upload(&job.verts)?;
     let tets = j.upload(&job.tets)?;
     let quant = j.upload(&sk.sites)?;
     let centroids = j.upload(&tk.queries)?;
-    let g = GridBuffers::new(&mut j, n, n_cells, n_blocks)?;
+    let g = GridBuffers::new(&mut j, sk.params.grid)?;
     let nbr = j.buffer((n * k).max(1) * 4)?;
     let d2 = j.buffer((n * k).max(1) * 8)?;
     let tet_sites = j.buffer(nt * 4)?;
@@ -367,7 +354,7 @@ fn lloyd_on_device(
         for buf in [sums, counters, unfinished, still] {
             j.fill_zero(buf);
         }
-        g.record(&mut j, &bp, quant)?;
+        g.record(&mut j, quant)?;
         j.barrier();
         if k > 0 {
             j.dispatch("knn_grid", &[quant, g.start, g.count, g.sorted, nbr, d2], &sk.params, n)?;
