@@ -1,8 +1,8 @@
 //! The host pass: finishes, with the kernels' own bodies, what even the
 //! kernels' second pass left unfinished (a tet met by more cells than its
 //! flood queue holds, a piece with more faces than a `Cell` holds), so
-//! that no volume is lost; and, for knn pairing, checks each tet's pieces
-//! add up to the tet.
+//! that no volume is lost; and, for knn pairing, completes the tets whose
+//! pieces border a site not paired with them.
 //!
 //! * A whole tet is flooded again (`refine::refine_tet`, the grid walk of
 //!   the second pass) with a longer queue, from the site nearest its
@@ -10,14 +10,18 @@
 //! * A tet whose flood still fails is paired with every site that may own
 //!   part of it (a radius bound, filtered), and each pair is done as below.
 //! * A `(tet, site)` pair is clipped on its own (`refine::refine_pair`).
-//! * Knn pairing: a tet whose pieces do not add up to it gets the pieces of
-//!   the sites that may own part of it but were not among its k nearest.
+//! * Knn pairing: a tet with a piece bordering a site not paired with it
+//!   (or, as a safety net, whose pieces do not add up to it) gets the
+//!   pieces of the sites that may own part of it but were not among its k
+//!   nearest.
 
 use crate::cpu::{build_grid, par_indices, LocalPairs, TaskSink};
 use crate::error::Result;
+use crate::knn::KnnJob;
 use crate::site_grid::SiteGrid;
 use crate::voronoi::{ClipJob, ClipOutput};
-use cvd_kernels::abi::{counter, NO_SITE};
+use cvd_kernels::abi::{counter, KnnParams, INCOMPLETE_TET, NO_SITE};
+use cvd_kernels::clip::Paired;
 use cvd_kernels::refine::{self, GridWalk};
 use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, Ordering};
 use std::sync::Mutex;
@@ -54,7 +58,16 @@ pub(crate) fn run<S: TaskSink>(job: &ClipJob, out: &mut ClipOutput, sinks: &Mute
     // The sites' sums, then the tets' volumes, as the kernels lay them out.
     let n_site_sums = out.sums.len();
     let sums: Vec<AtomicI64> = out.sums.iter().chain(&out.tet_volumes).map(|&s| AtomicI64::new(s)).collect();
-    let (tets, pairs): (Vec<[u32; 2]>, Vec<[u32; 2]>) = out.unfinished.iter().partition(|e| e[1] == NO_SITE);
+    let mut tets = Vec::new();
+    let mut pairs = Vec::new();
+    let mut incomplete = Vec::new();
+    for &e in &out.unfinished {
+        match e[1] {
+            NO_SITE => tets.push(e),
+            INCOMPLETE_TET => incomplete.push(e[0]),
+            _ => pairs.push(e),
+        }
+    }
     let mut redone = Redone::default();
 
     // Whole tets: flood again, with a longer queue.
@@ -82,21 +95,43 @@ pub(crate) fn run<S: TaskSink>(job: &ClipJob, out: &mut ClipOutput, sinks: &Mute
     redone.finished += (tets.len() - failed.len()) as u64;
 
     // Tets still unfinished, and the pairs: each pair on its own. An entry
-    // is finished when all of its pairs are.
+    // is finished when all of its pairs are. A knn pair is checked against
+    // its tet's paired sites (the same k-NN, redone for its tet); the
+    // pairs of a failed tet are all the sites that may own part of it.
+    let paired = if knn { tet_lists(job, pairs.iter().map(|e| e[0]))? } else { Vec::new() };
     let entries: Vec<[u32; 2]> = pairs.iter().chain(&failed).copied().collect();
-    let mut work: Vec<([u32; 2], usize)> = pairs.iter().enumerate().map(|(e, &p)| (p, e)).collect();
-    work.extend(candidate_pairs(job, &grid, &failed).into_iter().map(|(p, e)| (p, pairs.len() + e)));
+    let mut work: Vec<Work> = pairs.iter().enumerate().map(|(e, &p)| (p, e, knn.then_some(e))).collect();
+    work.extend(candidate_pairs(job, &grid, &failed).into_iter().map(|(p, e)| (p, pairs.len() + e, None)));
     let ok: Vec<AtomicBool> = entries.iter().map(|_| AtomicBool::new(true)).collect();
     let unresolved = AtomicU64::new(0);
-    let pair_work = |work: &[([u32; 2], usize)], ok: &[AtomicBool]| {
+    let found_incomplete = Mutex::new(Vec::new());
+    let pair_work = |work: &[Work], ok: &[AtomicBool]| {
         par_indices(work.len(), 16, &sums, &ignored, &Mutex::new(Vec::new()), sinks, |w, sums, _, _, sink| {
-            let ([t, j], entry) = work[w];
+            let ([t, j], entry, list) = work[w];
+            let k = job.params.k_tet as usize;
+            let paired = list.map_or(Paired::NONE, |e| Paired { list: &paired, start: e * k, len: k });
             let mut again = LocalPairs::default();
             let (sites, verts, tets) = (&job.sites, &job.verts, &job.tets);
-            refine::refine_pair(t as usize, j as usize, &job.refine, walk, sites, verts, tets, sums, &mut again, sink);
-            if !again.0.is_empty() {
-                unresolved.fetch_add(1, Ordering::Relaxed);
-                ok[entry].store(false, Ordering::Relaxed);
+            refine::refine_pair(
+                t as usize,
+                j as usize,
+                paired,
+                &job.refine,
+                walk,
+                sites,
+                verts,
+                tets,
+                sums,
+                &mut again,
+                sink,
+            );
+            for [t, j] in again.0 {
+                if j == INCOMPLETE_TET {
+                    found_incomplete.lock().unwrap_or_else(|e| e.into_inner()).push(t);
+                } else {
+                    unresolved.fetch_add(1, Ordering::Relaxed);
+                    ok[entry].store(false, Ordering::Relaxed);
+                }
             }
         });
     };
@@ -104,33 +139,35 @@ pub(crate) fn run<S: TaskSink>(job: &ClipJob, out: &mut ClipOutput, sinks: &Mute
     redone.finished += ok.iter().filter(|o| o.load(Ordering::Relaxed)).count() as u64;
 
     if knn {
-        // The certificate: each tet's pieces must add up to the tet.
+        // The certificate: a tet is missing pieces when one of its pieces
+        // borders a site not paired with it (found by the kernels and just
+        // above), or — a safety net for rounding — when its pieces do not
+        // add up to it.
+        incomplete.append(&mut found_incomplete.lock().unwrap_or_else(|e| e.into_inner()));
         let inv = 1.0 / job.params.fixed_scale as f64;
-        let missed: Vec<[u32; 2]> = (0..job.tets.len())
-            .filter(|&t| {
-                let v = job.tets[t].map(|i| {
-                    let p = job.verts[i as usize];
-                    [p[0], p[1], p[2]]
-                });
-                let vol = crate::mesh::signed_volume(v[0], v[1], v[2], v[3]).abs();
-                let found = sums[n_site_sums + t].load(Ordering::Relaxed) as f64 * inv;
-                (found - vol).abs() > 2e-6 * vol
-            })
-            .map(|t| [t as u32, NO_SITE])
-            .collect();
+        incomplete.extend((0..job.tets.len() as u32).filter(|&t| {
+            let v = job.tets[t as usize].map(|i| {
+                let p = job.verts[i as usize];
+                [p[0], p[1], p[2]]
+            });
+            let vol = crate::mesh::signed_volume(v[0], v[1], v[2], v[3]).abs();
+            let found = sums[n_site_sums + t as usize].load(Ordering::Relaxed) as f64 * inv;
+            (found - vol).abs() > VOLUME_TOLERANCE * vol
+        }));
+        incomplete.sort_unstable();
+        incomplete.dedup();
+        let missed: Vec<[u32; 2]> = incomplete.iter().map(|&t| [t, NO_SITE]).collect();
         redone.missed_tets = missed.len() as u64;
         if !missed.is_empty() {
             // Their paired sites' pieces are exact and already counted: add
             // the pieces of the sites that may own part of the tet but were
-            // not paired with it (the same k-NN, redone for these tets).
-            let centroids: Vec<[f32; 3]> =
-                missed.iter().map(|&[t, _]| centroid(job, t as usize).map(|c| c as f32)).collect();
-            let cpu = crate::cpu::CpuBackend::new(None)?;
+            // not paired with it.
+            let lists = tet_lists(job, incomplete.iter().copied())?;
             let k = job.params.k_tet as usize;
-            let nn = crate::knn::KnnJob::points_like(&job.site_knn, &centroids, k)?.run(&cpu)?;
-            let fill: Vec<([u32; 2], usize)> = candidate_pairs(job, &grid, &missed)
+            let fill: Vec<Work> = candidate_pairs(job, &grid, &missed)
                 .into_iter()
-                .filter(|&([_, j], e)| !nn.of(e).contains(&j))
+                .filter(|&([_, j], e)| !lists[e * k..(e + 1) * k].contains(&j))
+                .map(|(p, e)| (p, e, None))
                 .collect();
             let ok: Vec<AtomicBool> = missed.iter().map(|_| AtomicBool::new(true)).collect();
             pair_work(&fill, &ok);
@@ -141,6 +178,24 @@ pub(crate) fn run<S: TaskSink>(job: &ClipJob, out: &mut ClipOutput, sinks: &Mute
     out.tet_volumes = all.split_off(n_site_sums);
     out.sums = all;
     Ok(redone)
+}
+
+/// A pair to clip on its own: `(tet, site)`, the entry it finishes, and
+/// where its tet's paired sites are in the lists (knn pairs only).
+type Work = ([u32; 2], usize, Option<usize>);
+
+/// A safety net behind the faces' check: a tet whose pieces miss more than
+/// this fraction of its volume is incomplete. The pieces' own rounding
+/// stays well below it.
+const VOLUME_TOLERANCE: f64 = 1e-4;
+
+/// The sites paired with each of `tets`, `k_tet` per tet: the job's tet
+/// k-NN, redone for these tets' (quantized) centroids.
+fn tet_lists(job: &ClipJob, tets: impl Iterator<Item = u32>) -> Result<Vec<u32>> {
+    let queries: Vec<_> = tets.map(|t| job.tet_knn.queries[t as usize]).collect();
+    let params = KnnParams { n_queries: queries.len() as u32, ..job.tet_knn.params };
+    let knn = KnnJob { queries, params, ..job.tet_knn.clone() };
+    Ok(knn.run(&crate::cpu::CpuBackend::new(None)?)?.indices)
 }
 
 fn centroid(job: &ClipJob, t: usize) -> [f64; 3] {

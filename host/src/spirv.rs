@@ -150,6 +150,7 @@ pub fn manifest() -> Value {
             "QUANT_BITS": abi::QUANT_BITS,
             "QUANT_MAX": abi::QUANT_MAX,
             "NO_SITE": abi::NO_SITE,
+            "INCOMPLETE_TET": abi::INCOMPLETE_TET,
             "ACCUM_PER_SITE": abi::ACCUM_PER_SITE,
             "SCAN_BLOCK": cvd_kernels::scan::SCAN_BLOCK,
             "CELL_RECORDS": cvd_kernels::clip::CELL_RECORDS,

@@ -21,6 +21,12 @@ pub const QUANT_MAX: u32 = (1 << QUANT_BITS) - 1;
 /// Marks "no site" (no index to exclude, an empty neighbour slot).
 pub const NO_SITE: u32 = u32::MAX;
 
+/// In an unfinished list, `(tet, INCOMPLETE_TET)` says that a piece of the
+/// tet (knn pairing) has a face made by a site not paired with the tet:
+/// that site, or one beyond it, owns part of the tet, and the host adds
+/// the tet's missing pieces.
+pub const INCOMPLETE_TET: u32 = u32::MAX - 1;
+
 /// Threads per workgroup of every kernel.
 pub const WORKGROUP_SIZE: u32 = 64;
 

@@ -18,7 +18,7 @@
 //! Everything is computed relative to the site (the bisector of `x_i` and
 //! `x_j` is `n·x <= |n|²/2` with `n = x_j - x_i`), in f32.
 
-use crate::abi::{counter, ClipParams, ACCUM_PER_SITE, NO_SITE};
+use crate::abi::{counter, ClipParams, ACCUM_PER_SITE, INCOMPLETE_TET, NO_SITE};
 use crate::buffers::{AtomicSums, OutBuf, PairList};
 use crate::polyhedron::{Cell, Clip, Moments, Piece, Polyhedron, CELL_PLANES, CELL_VERTS, NO_ID};
 use spirv_std::glam::{Vec3, Vec4};
@@ -26,8 +26,12 @@ use spirv_std::glam::{Vec3, Vec4};
 /// `[f32; 4]` records per stored cell: a header (planes, vertices, status
 /// as bits, and the squared radius of the ball around the site where a
 /// [`cell_status::SECURITY_MISSED`] cell is exact), the planes, the
-/// vertices (position in `xyz`, packed plane triple in the bits of `w`).
-pub const CELL_RECORDS: usize = 1 + CELL_PLANES + CELL_VERTS;
+/// vertices (position in `xyz`, packed plane triple in the bits of `w`),
+/// and the planes' makers (site indices as bits, four per record).
+pub const CELL_RECORDS: usize = 1 + CELL_PLANES + CELL_VERTS + CELL_PLANES / 4;
+
+/// Where a stored cell's plane makers start.
+const CELL_IDS: usize = 1 + CELL_PLANES + CELL_VERTS;
 
 /// Status of a stored cell (header `z`).
 pub mod cell_status {
@@ -259,11 +263,87 @@ pub fn accumulate<A: AtomicSums>(j: usize, m: &Moments, scale: f32, sums: &mut A
     sums.add(base + 4, (m.second * scale) as i64);
 }
 
+/// The sites paired with a tet (knn pairing): `list[start..start + len]`,
+/// nearest the tet's centroid first. `len == 0`: no list to check against
+/// (the pair's site was found otherwise).
+#[derive(Clone, Copy)]
+pub struct Paired<'a> {
+    /// The buffer holding the list.
+    pub list: &'a [u32],
+    /// Where the tet's list starts.
+    pub start: usize,
+    /// Its length, `k_tet`.
+    pub len: usize,
+}
+
+impl Paired<'_> {
+    /// No list: the pair is not checked.
+    pub const NONE: Paired<'static> = Paired { list: &[], start: 0, len: 0 };
+
+    /// Whether site `s` is in the list.
+    #[inline]
+    fn holds(&self, s: u32) -> bool {
+        let mut i = 0;
+        while i < self.len {
+            if self.list[self.start + i] == s {
+                return true;
+            }
+            i += 1;
+        }
+        false
+    }
+}
+
+/// Whether a face of `poly` — site `j`'s piece of the tet with vertices
+/// `tv`, both relative to the site — was made by a site not in `paired`.
+/// The pieces of the paired sites are exact; if they leave part of the tet
+/// uncovered, that part borders one of them across a face made by a site
+/// that is not paired: this finds every tet knn pairing got wrong, however
+/// small the missing part. The list is the `len` sites nearest the
+/// centroid: a site clearly nearer than the last is in it, one clearly
+/// farther is not, and only the few in between are looked up.
+#[inline]
+fn borders_unpaired<const P: usize, const V: usize>(
+    poly: &Polyhedron<P, V>,
+    j: usize,
+    tv: &[Vec3; 4],
+    sites: &[[f32; 4]],
+    paired: Paired,
+) -> bool {
+    if paired.len == 0 {
+        return false;
+    }
+    let last = paired.list[paired.start + paired.len - 1];
+    if last == NO_SITE {
+        // Fewer sites than slots: every site is paired.
+        return false;
+    }
+    // The centroid, relative to the site.
+    let c = (tv[0] + tv[1] + tv[2] + tv[3]) * 0.25;
+    let xj = xyz(sites[j]);
+    let reach = (xyz(sites[last as usize]) - xj - c).length();
+    let band = 1e-4 * reach + 1e-6;
+    let faces = poly.face_mask();
+    let mut q = 0;
+    while q < poly.n_planes as usize {
+        let id = poly.ids[q];
+        if (faces >> q) & 1 != 0 && id != NO_ID {
+            let d = (xyz(sites[id as usize]) - xj - c).length();
+            if d > reach + band || (d >= reach - band && !paired.holds(id)) {
+                return true;
+            }
+        }
+        q += 1;
+    }
+    false
+}
+
 /// Ends a pair (tet `t`, site `j`, tet vertices `tv` relative to the site)
 /// whose clipping went as `c` says: a finished non-empty piece is added to
 /// its site's sums and its tet's volume and handed to `sink`; an
-/// unfinished one is listed in `unfinished`. Returns whether a piece was
-/// added.
+/// unfinished one is listed in `unfinished`, and so is the tet, as
+/// `(t, INCOMPLETE_TET)`, when the piece borders a site not `paired` with
+/// it. Returns whether a piece was added.
 #[inline]
 pub fn finish_pair<const P: usize, const V: usize, A: AtomicSums, L: PairList, S: PieceSink>(
     t: usize,
@@ -271,8 +351,9 @@ pub fn finish_pair<const P: usize, const V: usize, A: AtomicSums, L: PairList, S
     poly: &Polyhedron<P, V>,
     tv: &[Vec3; 4],
     c: &Clipped,
-    n_sites: u32,
-    fixed_scale: f32,
+    paired: Paired,
+    p: &ClipParams,
+    sites: &[[f32; 4]],
     verts: &[[f32; 4]],
     tets: &[[u32; 4]],
     sums: &mut A,
@@ -287,9 +368,12 @@ pub fn finish_pair<const P: usize, const V: usize, A: AtomicSums, L: PairList, S
         return false;
     }
     let (m, volume) = piece_moments(poly, t, verts, tets, tv);
-    accumulate(j, &m, fixed_scale, sums);
-    add_tet_volume(t, n_sites, volume, fixed_scale, sums);
+    accumulate(j, &m, p.fixed_scale, sums);
+    add_tet_volume(t, p.n_sites, volume, p.fixed_scale, sums);
     sink.piece(t as u32, j as u32, poly);
+    if borders_unpaired(poly, j, tv, sites, paired) {
+        unfinished.push(t as u32, INCOMPLETE_TET);
+    }
     true
 }
 
@@ -407,7 +491,8 @@ pub fn tet_cell_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     let mut poly = Piece::tetrahedron(tv);
     let k = p.k_site as usize;
     let c = clip_by_bisectors(&mut poly, j, p.n_sites, sites, site_nbrs, j * k, k);
-    let nonempty = finish_pair(t, j, &poly, &tv, &c, p.n_sites, p.fixed_scale, verts, tets, sums, unfinished, sink);
+    let paired = Paired { list: tet_sites, start: i - i % p.k_tet as usize, len: p.k_tet as usize };
+    let nonempty = finish_pair(t, j, &poly, &tv, &c, paired, p, sites, verts, tets, sums, unfinished, sink);
     count(counters, 1, nonempty as i64, &c);
 }
 
@@ -461,6 +546,13 @@ pub fn voronoi_cell<O: OutBuf<[f32; 4]> + ?Sized, C: AtomicSums>(
         let x = poly.verts[v];
         cells.write(base + 1 + CELL_PLANES + v, [x.x, x.y, x.z, f32::from_bits(poly.tris[v])]);
         v += 1;
+    }
+    let mut q = 0;
+    while q < poly.n_planes as usize {
+        let ids = [poly.ids[q], poly.ids[q + 1], poly.ids[q + 2], poly.ids[q + 3]];
+        let record = [f32::from_bits(ids[0]), f32::from_bits(ids[1]), f32::from_bits(ids[2]), f32::from_bits(ids[3])];
+        cells.write(base + CELL_IDS + q / 4, record);
+        q += 4;
     }
     count(counters, 0, 0, &c);
 }
@@ -516,6 +608,15 @@ pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
         poly.tris[v] = r[3].to_bits();
         v += 1;
     }
+    let mut q = 0;
+    while q < poly.n_planes as usize {
+        let r = cells[base + CELL_IDS + q / 4];
+        poly.ids[q] = r[0].to_bits();
+        poly.ids[q + 1] = r[1].to_bits();
+        poly.ids[q + 2] = r[2].to_bits();
+        poly.ids[q + 3] = r[3].to_bits();
+        q += 4;
+    }
     let faces = Piece::tetrahedron(tv);
     let mut c = Clipped { clips: 0, security_missed: false, overflow: false, broken: false };
     let mut f = 0;
@@ -531,7 +632,8 @@ pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
         }
         f += 1;
     }
-    let nonempty = finish_pair(t, j, &poly, &tv, &c, p.n_sites, p.fixed_scale, verts, tets, sums, unfinished, sink);
+    let paired = Paired { list: tet_sites, start: i - i % p.k_tet as usize, len: p.k_tet as usize };
+    let nonempty = finish_pair(t, j, &poly, &tv, &c, paired, p, sites, verts, tets, sums, unfinished, sink);
     count(counters, 1, nonempty as i64, &c);
 }
 

@@ -10,12 +10,14 @@ use crate::abi::{ClipParams, GridBuildParams, KnnParams, LloydParams, RefinePara
 use crate::layout::{Layout, TypeLayout};
 
 /// The version of the kernels' binary interface: entry points, bindings,
-/// element and push-constant layouts. It changes with any of them;
+/// element and push-constant layouts, and the constants that give buffers
+/// their meaning (records per stored cell, the markers in lists, sums per
+/// site). It changes with any of them;
 /// [`fingerprint`] is pinned by a test to make sure it does.
-pub const ABI_VERSION: u32 = 2;
+pub const ABI_VERSION: u32 = 3;
 
 /// The [`fingerprint`] of the interface of [`ABI_VERSION`].
-pub const ABI_FINGERPRINT: u64 = 0xec96_b317_3a4a_8905;
+pub const ABI_FINGERPRINT: u64 = 0xde60_0689_c4d6_c930;
 
 /// How an entry point uses a storage buffer.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -270,9 +272,18 @@ pub fn entry_point(name: &str) -> Option<&'static EntryPoint> {
 
 /// A 64-bit FNV-1a hash of the whole interface: every entry point's name,
 /// workgroup size, bindings (name, access, element layout) and
-/// push-constant layout, with every field's name, offset and size.
+/// push-constant layout, with every field's name, offset and size; and
+/// the constants buffers are read by.
 pub fn fingerprint() -> u64 {
     let mut h = Fnv(0xcbf2_9ce4_8422_2325);
+    for c in [
+        crate::clip::CELL_RECORDS as u64,
+        crate::abi::NO_SITE as u64,
+        crate::abi::INCOMPLETE_TET as u64,
+        crate::abi::ACCUM_PER_SITE as u64,
+    ] {
+        h.num(c);
+    }
     for e in ENTRY_POINTS {
         h.str(e.name);
         h.num(e.workgroup_size as u64);

@@ -194,6 +194,19 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
         self.recycle_planes();
     }
 
+    /// The planes some vertex uses — the faces — as bits (`P <= 64`).
+    #[inline]
+    pub fn face_mask(&self) -> u64 {
+        let mut mask = 0u64;
+        let mut i = 0;
+        while i < (self.n_verts as usize).min(V) {
+            let [a, b, c] = unpack(self.tris[i]);
+            mask |= (1u64 << a) | (1u64 << b) | (1u64 << c);
+            i += 1;
+        }
+        mask
+    }
+
     /// The largest squared distance of a vertex from the local origin, and
     /// the centre and half-extent of the bounding box.
     pub fn bounds(&self) -> (f32, Vec3, Vec3) {

@@ -12,9 +12,9 @@
 //! polyhedron or a flood queue that is still too small leaves an entry
 //! unfinished, for the host.
 
-use crate::abi::{GridParams, QuantPoint, RefineParams, NO_SITE};
+use crate::abi::{GridParams, QuantPoint, RefineParams, INCOMPLETE_TET, NO_SITE};
 use crate::buffers::{AtomicSums, PairList};
-use crate::clip::{finish_pair, flood, tet_vertices, BisectorRun, Clipped, PieceSink};
+use crate::clip::{finish_pair, flood, tet_vertices, BisectorRun, Clipped, Paired, PieceSink};
 use crate::grid::cell_index;
 use crate::knn::sub_floor0;
 use crate::polyhedron::{Cell, Polyhedron, CELL_PLANES, CELL_VERTS};
@@ -173,7 +173,9 @@ pub fn clip_by_grid<const P: usize, const V: usize>(
 /// (`list[0]` entries `(tet, site)` from `list[1]`): a whole tet
 /// (`site == NO_SITE`, a failed flood) is flooded again from the site
 /// nearest its centroid (`tet_sites[(tet - tet_base) * k_tet]`); a pair's piece is
-/// clipped on its own. What fails again goes to `still`.
+/// clipped on its own and checked against the tet's paired sites; a tet
+/// already known to be incomplete is passed on. What fails again, and the
+/// incomplete tets, go to `still`.
 #[inline]
 pub fn refine_entry<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     e: usize,
@@ -194,11 +196,26 @@ pub fn refine_entry<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     }
     let t = list[1 + 2 * e] as usize;
     let j = list[2 + 2 * e];
+    let (k, list) = (p.clip.k_tet as usize, (t - p.clip.tet_base as usize) * p.clip.k_tet as usize);
     if j == NO_SITE {
-        let start = tet_sites[(t - p.clip.tet_base as usize) * p.clip.k_tet as usize];
-        refine_tet::<REFINE_QUEUE, _, _, _, _>(t, start, p, w, sites, verts, tets, sums, counters, still, sink);
+        refine_tet::<REFINE_QUEUE, _, _, _, _>(
+            t,
+            tet_sites[list],
+            p,
+            w,
+            sites,
+            verts,
+            tets,
+            sums,
+            counters,
+            still,
+            sink,
+        );
+    } else if j == INCOMPLETE_TET {
+        still.push(t as u32, INCOMPLETE_TET);
     } else {
-        refine_pair(t, j as usize, p, w, sites, verts, tets, sums, still, sink);
+        let paired = Paired { list: tet_sites, start: list, len: k };
+        refine_pair(t, j as usize, paired, p, w, sites, verts, tets, sums, still, sink);
     }
 }
 
@@ -235,11 +252,13 @@ pub fn refine_tet<const Q: usize, A: AtomicSums, C: AtomicSums, L: PairList, S: 
 }
 
 /// Site `j`'s piece of tet `t`, clipped by a grid walk in a [`Cell`];
-/// listed in `still` if even that fails.
+/// listed in `still` if even that fails (and its tet if it borders a site
+/// not `paired` with the tet).
 #[inline]
 pub fn refine_pair<A: AtomicSums, L: PairList, S: PieceSink>(
     t: usize,
     j: usize,
+    paired: Paired,
     p: &RefineParams,
     w: GridWalk,
     sites: &[[f32; 4]],
@@ -253,5 +272,5 @@ pub fn refine_pair<A: AtomicSums, L: PairList, S: PieceSink>(
     let tv = tet_vertices(t, verts, tets, xyz(sites[j]));
     poly.set_tetrahedron(tv);
     let c = clip_by_grid(&mut poly, j, sites, w);
-    finish_pair(t, j, &poly, &tv, &c, p.clip.n_sites, p.clip.fixed_scale, verts, tets, sums, still, sink);
+    finish_pair(t, j, &poly, &tv, &c, paired, &p.clip, sites, verts, tets, sums, still, sink);
 }

@@ -329,3 +329,38 @@ fn a_memory_budget_splits_the_job_and_changes_nothing() {
     assert!(e.contains("memory budget"), "{e}");
     assert_no_vulkan_errors();
 }
+
+/// Knn pairing with k = 1: the site paired with every tet, just inside a
+/// corner of the cube, borders a site just outside it that owns a corner
+/// of volume δ³/6 — 1e-6 of each tet it cuts, below any tolerance a sum
+/// of f32 volumes could be checked to. The faces give it away; the host
+/// adds the corner.
+#[test]
+fn knn_pairing_misses_no_corner_however_small() {
+    let mesh = TetMesh::cube(1);
+    let delta = 0.01f32;
+    // The bisector is the plane x + y + z = 3 - δ.
+    let b = 0.01;
+    let (outside, inside) = (1.0 + b, 1.0 - b - 2.0 / 3.0 * delta);
+    let sites = vec![[inside; 3], [outside; 3]];
+    let corner = (delta as f64).powi(3) / 6.0;
+    for backend in backends() {
+        for strategy in [Strategy::TetCell, Strategy::CellTet] {
+            let what = format!("{} {strategy:?}", backend.name());
+            let cells = ClippedVoronoi::new(&mesh, &sites)
+                .strategy(strategy)
+                .pairing(Pairing::Knn)
+                .k(Some(1))
+                .backend(backend)
+                .compute()
+                .unwrap_or_else(|e| panic!("{what}: {e}"));
+            assert!(cells.counters.missed_tets > 0, "{what}: no tet found incomplete");
+            assert!(
+                (cells.volume[1] - corner).abs() <= 1e-3 * corner,
+                "{what}: corner {} vs {corner}",
+                cells.volume[1]
+            );
+            assert!((cells.volume[0] + cells.volume[1] - 1.0).abs() <= 1e-6, "{what}: {:?}", cells.volume);
+        }
+    }
+}
