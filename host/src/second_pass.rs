@@ -37,8 +37,8 @@ pub struct Redone {
     /// Pieces that could not be finished even here (more faces than a
     /// `Cell` holds): their volume is missing, and counted.
     pub unresolved: u64,
-    /// Knn pairing: tets whose paired sites' pieces did not add up to the
-    /// tet (a site owning part of it was not among its k nearest), whose
+    /// Knn pairing: tets a site owning part of them was not paired with (a
+    /// piece bordered it, or the pieces did not add up to the tet), whose
     /// missing pieces were added here.
     pub missed_tets: u64,
 }

@@ -30,9 +30,9 @@ pub enum Strategy {
 pub enum Pairing {
     /// The k nearest sites of each tet's centroid (paper Eq. 6), the
     /// paper's heuristic. A site owning part of a tet but not among its k
-    /// nearest would be missed: each tet's pieces are summed, and a tet whose
-    /// pieces do not add up to it gets its missing pieces from the host
-    /// (counted in `missed_tets`).
+    /// nearest would be missed: a tet with a piece bordering a site not
+    /// paired with it (or whose pieces do not add up to it) gets its missing
+    /// pieces from the host (counted in `missed_tets`).
     Knn,
     #[default]
     #[value(alias = "exact")]
@@ -134,9 +134,8 @@ pub struct Counters {
     /// Other sites whose clipped cell is empty (outside the mesh, or
     /// crowded out of it).
     pub empty_cells: u64,
-    /// Knn pairing: tets whose pieces did not add up to the tet (a site
-    /// owning part of it was not among its k nearest); the host added the
-    /// missing pieces.
+    /// Knn pairing: tets a site owning part of them was not paired with
+    /// (a piece bordered it), whose missing pieces the host added.
     pub missed_tets: u64,
 }
 

@@ -378,10 +378,10 @@ pub fn finish_pair<const P: usize, const V: usize, A: AtomicSums, L: PairList, S
 }
 
 /// Adds a piece's plain volume to its tet's sum, kept after the sites'
-/// sums (at `n_sites * ACCUM_PER_SITE + t`): knn pairing's certificate.
-/// The pieces of the sites paired with a tet are exact; if they do not add
-/// up to the tet, a site that owns part of it was not paired, and the host
-/// adds the missing pieces.
+/// sums (at `n_sites * ACCUM_PER_SITE + t`): the safety net behind knn
+/// pairing's certificate by faces. The pieces of the sites paired with a
+/// tet are exact; if they do not add up to the tet, a site that owns part
+/// of it was not paired, and the host adds the missing pieces.
 #[inline]
 pub fn add_tet_volume<A: AtomicSums>(t: usize, n_sites: u32, volume: f32, scale: f32, sums: &mut A) {
     sums.add(n_sites as usize * ACCUM_PER_SITE + t, (volume * scale) as i64);

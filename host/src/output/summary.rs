@@ -165,7 +165,7 @@ impl fmt::Display for Summary {
             (
                 "empty",
                 format!(
-                    "{} cells besides duplicates; knn pairing: {} tets whose pieces did not add up, completed",
+                    "{} cells besides duplicates; knn pairing: {} tets missing a site's pieces, completed",
                     c.empty_cells, c.missed_tets
                 ),
             ),
