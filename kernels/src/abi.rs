@@ -150,14 +150,23 @@ pub struct ClipParams {
     pub box_hi_y: f32,
     /// See `box_hi_x`.
     pub box_hi_z: f32,
-    /// Length of each site's slot in the neighbour list (`k_site`).
-    pub list_len: u32,
     /// First tet this dispatch covers: thread `i` works on tet pair
     /// `tet_base * k_tet + i`, whose paired sites are at `tet_sites[i]`
     /// (the lists hold the chunk's tets only). 0 when not chunked.
     pub tet_base: u32,
-    /// Padding to a 16-byte multiple.
-    pub _pad: [u32; 3],
+    /// The sites whose neighbour lists are bound, `nbr_base..nbr_end`:
+    /// site `j`'s `k_site` neighbours are at `site_nbrs[(j - nbr_base) *
+    /// k_site..]`. A piece of a site outside is left unfinished. `0..n_sites`
+    /// when the lists are not split into windows.
+    pub nbr_base: u32,
+    /// See `nbr_base`.
+    pub nbr_end: u32,
+    /// The sites this dispatch answers for, `own_lo..own_hi`: a tet whose
+    /// flood starts at, a pair whose site is, or a cell of a site outside is
+    /// left to the dispatch that owns it. `0..n_sites` when not split.
+    pub own_lo: u32,
+    /// See `own_lo`.
+    pub own_hi: u32,
 }
 
 /// Push constants of the second pass ([`crate::refine`]): the clipping

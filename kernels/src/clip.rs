@@ -136,10 +136,31 @@ impl BisectorRun {
     }
 }
 
+/// Marks a site whose neighbour list is not bound (see [`list_start`]).
+pub const NO_LIST: usize = usize::MAX;
+
+/// Where site `j`'s neighbour list starts in `site_nbrs`, or [`NO_LIST`]
+/// when the bound lists (`nbr_base..nbr_end`) do not hold it.
+#[inline]
+pub fn list_start(p: &ClipParams, j: usize) -> usize {
+    if j < p.nbr_base as usize || j >= p.nbr_end as usize {
+        NO_LIST
+    } else {
+        (j - p.nbr_base as usize) * p.k_site as usize
+    }
+}
+
+/// Whether this dispatch answers for site `j` (`own_lo..own_hi`).
+#[inline]
+fn owns(p: &ClipParams, j: usize) -> bool {
+    j >= p.own_lo as usize && j < p.own_hi as usize
+}
+
 /// Clips `poly` (relative to site `i`) by the bisectors of `i` and its
 /// neighbours `site_nbrs[base..base + k]`, nearest first, until the next
 /// neighbour is farther than twice the farthest vertex (the security
-/// radius) or nothing is left.
+/// radius) or nothing is left. Without a list (`base == NO_LIST`) the piece
+/// is left unfinished, as if the radius were missed.
 #[inline]
 pub fn clip_by_bisectors<const P: usize, const V: usize>(
     poly: &mut Polyhedron<P, V>,
@@ -150,6 +171,9 @@ pub fn clip_by_bisectors<const P: usize, const V: usize>(
     base: usize,
     k: usize,
 ) -> Clipped {
+    if base == NO_LIST {
+        return Clipped { clips: 0, security_missed: true, overflow: false, broken: false };
+    }
     let xi = xyz(sites[i]);
     let mut run = BisectorRun::new(poly);
     let mut s = 0;
@@ -454,7 +478,7 @@ fn open_pair<C: AtomicSums>(
     }
     let t = pair / k;
     let j = tet_sites[i];
-    if j == NO_SITE {
+    if j == NO_SITE || !owns(p, j as usize) {
         return none;
     }
     let j = j as usize;
@@ -490,24 +514,26 @@ pub fn tet_cell_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     }
     let mut poly = Piece::tetrahedron(tv);
     let k = p.k_site as usize;
-    let c = clip_by_bisectors(&mut poly, j, p.n_sites, sites, site_nbrs, j * k, k);
+    let c = clip_by_bisectors(&mut poly, j, p.n_sites, sites, site_nbrs, list_start(p, j), k);
     let paired = Paired { list: tet_sites, start: i - i % p.k_tet as usize, len: p.k_tet as usize };
     let nonempty = finish_pair(t, j, &poly, &tv, &c, paired, p, sites, verts, tets, sums, unfinished, sink);
     count(counters, 1, nonempty as i64, &c);
 }
 
-/// Thread `i` of Algorithm 1: the Voronoi cell of site `i` inside the
-/// bounding box, stored at records `i * CELL_RECORDS..` of `cells`.
+/// Thread `thread` of Algorithm 1: the Voronoi cell of site `i = own_lo +
+/// thread` inside the bounding box, stored at records `i * CELL_RECORDS..`
+/// of `cells`.
 #[inline]
 pub fn voronoi_cell<O: OutBuf<[f32; 4]> + ?Sized, C: AtomicSums>(
-    i: usize,
+    thread: usize,
     p: &ClipParams,
     sites: &[[f32; 4]],
     site_nbrs: &[u32],
     cells: &mut O,
     counters: &mut C,
 ) {
-    if i >= p.n_sites as usize {
+    let i = p.own_lo as usize + thread;
+    if i >= p.n_sites as usize || !owns(p, i) {
         return;
     }
     let xi = xyz(sites[i]);
@@ -515,7 +541,8 @@ pub fn voronoi_cell<O: OutBuf<[f32; 4]> + ?Sized, C: AtomicSums>(
     let hi = Vec3::new(p.box_hi_x, p.box_hi_y, p.box_hi_z) - xi;
     let mut poly = Cell::cuboid(lo, hi);
     let k = p.k_site as usize;
-    let c = clip_by_bisectors(&mut poly, i, p.n_sites, sites, site_nbrs, i * k, k);
+    let base = list_start(p, i);
+    let c = clip_by_bisectors(&mut poly, i, p.n_sites, sites, site_nbrs, base, k);
     let status = if c.overflow || c.broken {
         cell_status::FAILED
     } else if c.security_missed {
@@ -526,8 +553,8 @@ pub fn voronoi_cell<O: OutBuf<[f32; 4]> + ?Sized, C: AtomicSums>(
     // Where a cell that missed its security radius is exact: within half
     // the distance to its k-th neighbour (with a margin for rounding).
     let mut exact_r2 = 0.0;
-    if status == cell_status::SECURITY_MISSED && k > 0 {
-        let last = site_nbrs[i * k + k - 1];
+    if status == cell_status::SECURITY_MISSED && k > 0 && base != NO_LIST {
+        let last = site_nbrs[base + k - 1];
         if last != NO_SITE {
             exact_r2 = 0.2499 * (xyz(sites[last as usize]) - xi).length_squared();
         }
@@ -656,7 +683,7 @@ pub const FLOOD_CAP: usize = 32;
 
 /// Thread `i` of flood pairing (tet-cell): tet `t = tet_base + i`,
 /// [`flood`] from the site nearest its centroid (`tet_sites[i]`, a 1-NN list), each piece clipped by
-/// the bisectors of its site's `list_len` nearest neighbours.
+/// the bisectors of its site's `k_site` nearest neighbours.
 #[inline]
 pub fn flood_tet<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     i: usize,
@@ -672,19 +699,26 @@ pub fn flood_tet<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     sink: &mut S,
 ) {
     let t = p.tet_base as usize + i;
-    if t >= p.n_tets as usize {
+    let start = tet_sites[i];
+    // A tet belongs to the dispatch that owns its start site (the first,
+    // for a tet without one).
+    let owned = if start == NO_SITE { p.own_lo == 0 } else { owns(p, start as usize) };
+    if t >= p.n_tets as usize || !owned {
         return;
     }
-    let k = p.list_len as usize;
-    let n_sites = p.n_sites;
+    let k = p.k_site as usize;
+    let (n_sites, nbr_base, nbr_end) = (p.n_sites as usize, p.nbr_base as usize, p.nbr_end as usize);
     flood::<32, 64, FLOOD_CAP, _, _, _, _, _>(
         t,
-        tet_sites[i],
+        start,
         p.fixed_scale,
         sites,
         verts,
         tets,
-        move |j: usize, poly: &mut Piece| clip_by_bisectors(poly, j, n_sites, sites, site_nbrs, j * k, k),
+        move |j: usize, poly: &mut Piece| {
+            let base = if j < nbr_base || j >= nbr_end { NO_LIST } else { (j - nbr_base) * k };
+            clip_by_bisectors(poly, j, n_sites as u32, sites, site_nbrs, base, k)
+        },
         sums,
         counters,
         unfinished,

@@ -17,7 +17,7 @@ use crate::layout::{Layout, TypeLayout};
 pub const ABI_VERSION: u32 = 3;
 
 /// The [`fingerprint`] of the interface of [`ABI_VERSION`].
-pub const ABI_FINGERPRINT: u64 = 0xde60_0689_c4d6_c930;
+pub const ABI_FINGERPRINT: u64 = 0xf475_500d_bda0_9719;
 
 /// How an entry point uses a storage buffer.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -185,7 +185,11 @@ pub const ENTRY_POINTS: &[EntryPoint] = &[
             b::<Vec4>("verts", R, "mesh vertices, normalised, [x, y, z, density (1 without one)]"),
             b::<Quant>("tets", R, "n_tets: four vertex indices per tet"),
             b::<u32>("tet_sites", R, "(n_tets - tet_base) * k_tet: the sites paired with each tet of the part"),
-            b::<u32>("site_nbrs", R, "n_sites * list_len: the k_site nearest other sites of each site"),
+            b::<u32>(
+                "site_nbrs",
+                R,
+                "(nbr_end - nbr_base) * k_site: the k_site nearest other sites of each site in nbr_base..nbr_end"
+            ),
             b::<i64>("sums", W, "n_sites * 5 + n_tets: fixed-point sums per site, then per-tet volumes (atomic)"),
             b::<i64>("counters", W, "8 counters (abi::counter; atomic)"),
             b::<u32>("unfinished", W, "1 + 2 * capacity: count, then (tet, site) entries left for the second pass"),
@@ -197,7 +201,11 @@ pub const ENTRY_POINTS: &[EntryPoint] = &[
         "Cell-tet strategy: the Voronoi cell of each site (Algorithm 1). One thread per site.",
         &[
             b::<Vec4>("sites", R, "n_sites normalised sites"),
-            b::<u32>("site_nbrs", R, "n_sites * list_len: the k_site nearest other sites of each site"),
+            b::<u32>(
+                "site_nbrs",
+                R,
+                "(nbr_end - nbr_base) * k_site: the k_site nearest other sites of each site in nbr_base..nbr_end"
+            ),
             b::<Vec4>("cells", W, "n_sites * CELL_RECORDS records: each site's cell"),
             b::<i64>("counters", W, "8 counters (atomic)"),
         ],
@@ -226,7 +234,11 @@ pub const ENTRY_POINTS: &[EntryPoint] = &[
             b::<Vec4>("verts", R, "mesh vertices, normalised, [x, y, z, density]"),
             b::<Quant>("tets", R, "n_tets: four vertex indices per tet"),
             b::<u32>("tet_sites", R, "n_tets - tet_base: the site nearest each tet's centroid (knn_grid with k = 1)"),
-            b::<u32>("site_nbrs", R, "n_sites * list_len: the k_site nearest other sites of each site"),
+            b::<u32>(
+                "site_nbrs",
+                R,
+                "(nbr_end - nbr_base) * k_site: the k_site nearest other sites of each site in nbr_base..nbr_end"
+            ),
             b::<i64>("sums", W, "n_sites * 5 (+ n_tets, unused): fixed-point sums per site (atomic)"),
             b::<i64>("counters", W, "8 counters (atomic)"),
             b::<u32>("unfinished", W, "1 + 2 * n_tets: count, then (tet, site or NO_SITE) entries"),

@@ -132,9 +132,11 @@ structure!(ClipParams {
     box_hi_x: f32,
     box_hi_y: f32,
     box_hi_z: f32,
-    list_len: u32,
     tet_base: u32,
-    _pad: [u32; 3]
+    nbr_base: u32,
+    nbr_end: u32,
+    own_lo: u32,
+    own_hi: u32
 });
 structure!(RefineParams {
     clip: ClipParams,

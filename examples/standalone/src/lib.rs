@@ -586,8 +586,12 @@ pub fn run(spirv_dir: &Path, verts: &[[f32; 3]], tets: &[[u32; 4]], sites: &[[f3
         ("box_hi_x", F(qhi[0] + margin)),
         ("box_hi_y", F(qhi[1] + margin)),
         ("box_hi_z", F(qhi[2] + margin)),
-        ("list_len", U(k_site as u64)),
         ("tet_base", U(0)),
+        // Every site's list is bound, and this dispatch answers for all.
+        ("nbr_base", U(0)),
+        ("nbr_end", U(n as u64)),
+        ("own_lo", U(0)),
+        ("own_hi", U(n as u64)),
     ];
 
     let used = [

@@ -125,31 +125,47 @@ impl Backend for VulkanBackend {
         let n_sums = n * ACCUM_PER_SITE as u64 + nt;
         let sums = j.zeroed(n_sums * 8)?;
         let counters = j.zeroed(counter::COUNT as u64 * 8)?;
-        let site_nbrs = j.buffer((n * ks).max(1) * 4)?;
+        // Every site's neighbour list, or a window's (see `plan`).
+        let windows = plan.windows(n);
+        let site_nbrs = j.buffer((plan.window * ks).max(1) * 4)?;
         j.mark("upload");
 
         // One grid of the sites answers both k-NN searches.
         let g = GridBuffers::new(&mut j, sk.params.grid)?;
         g.record(&mut j, quant)?;
         j.mark("grid");
-        if ks > 0 && plan.site_chunk >= n {
-            let d2 = j.buffer(n * ks * 8)?;
-            j.dispatch("knn_grid", &[quant, g.start, g.count, g.sorted, site_nbrs, d2], &sk.params, n)?;
-        } else if ks > 0 {
-            // In parts of sites in index order, each part's lists copied to
-            // their place.
-            let (part_nbrs, part_d2) = (j.buffer(plan.site_chunk * ks * 4)?, j.buffer(plan.site_chunk * ks * 8)?);
-            for first in (0..n).step_by(plan.site_chunk as usize) {
-                let count = plan.site_chunk.min(n - first);
-                let kp = KnnParams { n_queries: count as u32, query_base: first as u32, in_order: 1, ..sk.params };
-                j.dispatch("knn_grid", &[quant, g.start, g.count, g.sorted, part_nbrs, part_d2], &kp, count)?;
-                j.barrier();
-                j.copy_to(part_nbrs, site_nbrs, first * ks * 4, count * ks * 4);
-                j.barrier();
+        // The lists of sites `first..end`, into `site_nbrs` from its start:
+        // all at once in grid order, or in parts of sites in index order,
+        // each part's lists copied to their place.
+        let part_lists = if ks > 0 && plan.site_chunk < n {
+            Some((j.buffer(plan.site_chunk * ks * 4)?, j.buffer(plan.site_chunk * ks * 8)?))
+        } else {
+            None
+        };
+        let site_lists = |j: &mut Job, first: u64, end: u64| -> Result<()> {
+            match part_lists {
+                None if ks > 0 => {
+                    let d2 = j.buffer(n * ks * 8)?;
+                    j.dispatch("knn_grid", &[quant, g.start, g.count, g.sorted, site_nbrs, d2], &sk.params, n)?;
+                }
+                Some((part_nbrs, part_d2)) => {
+                    for at in (first..end).step_by(plan.site_chunk as usize) {
+                        let count = plan.site_chunk.min(end - at);
+                        let kp = KnnParams { n_queries: count as u32, query_base: at as u32, in_order: 1, ..sk.params };
+                        j.dispatch("knn_grid", &[quant, g.start, g.count, g.sorted, part_nbrs, part_d2], &kp, count)?;
+                        j.barrier();
+                        j.copy_to(part_nbrs, site_nbrs, (at - first) * ks * 4, count * ks * 4);
+                        j.barrier();
+                    }
+                }
+                None => {}
             }
-        }
-        j.mark("site knn");
+            j.mark("site knn");
+            Ok(())
+        };
         let cells = if job.strategy == Strategy::CellTet {
+            // Cell-tet keeps every list (the plan has one window).
+            site_lists(&mut j, 0, n)?;
             let cells = j.buffer(n * CELL_RECORDS as u64 * 16)?;
             j.dispatch("voronoi_cells", &[sites, site_nbrs, cells, counters], p, n)?;
             j.mark("cells");
@@ -158,7 +174,8 @@ impl Backend for VulkanBackend {
             None
         };
 
-        // The tets, part by part: k-NN pairing, clipping, second pass.
+        // For each window, the tets, part by part: k-NN pairing, clipping,
+        // second pass.
         let c = plan.tet_chunk;
         let tet_sites = j.buffer(c * kt * 4)?;
         let tet_d2 = j.buffer(c * kt * 8)?;
@@ -180,34 +197,48 @@ impl Backend for VulkanBackend {
             (Strategy::TetCell, Pairing::Knn, _) => ("clip_tet_cell", site_nbrs),
             (Strategy::CellTet, _, cells) => ("clip_cell_tet", cells.unwrap_or(site_nbrs)),
         };
-        for t0 in (0..nt).step_by(c as usize) {
-            let count = c.min(nt - t0);
-            let cp = ClipParams { tet_base: t0 as u32, n_tets: (t0 + count) as u32, ..*p };
-            let kp = KnnParams { n_queries: count as u32, query_base: t0 as u32, ..tk.params };
-            j.fill_zero(unfinished);
-            j.fill_zero(still);
-            j.dispatch("knn_grid", &[centroids, g.start, g.count, g.sorted, tet_sites, tet_d2], &kp, count)?;
-            j.mark("tet knn");
-            // One thread per pair (flood: per tet, k_tet = 1).
-            let pairs = count * kt;
-            let args = [sites, verts, tets, tet_sites, cell_input, sums, counters, unfinished];
-            j.dispatch(kernel, &args, &cp, pairs)?;
-            j.mark("clip");
-            // The second pass, over as many threads as the list can hold
-            // entries: those past its count return at once.
-            let rp = RefineParams { clip: cp, capacity: pairs as u32, ..job.refine };
-            let args = [sites, verts, tets, tet_sites, unfinished, g.start, g.count, g.sorted, sums, ignored, still];
-            j.dispatch("refine", &args, &rp, pairs)?;
-            j.mark("second pass");
-            j.download_into(unfinished, first_back, 4);
-            j.download_into(still, still_back, list_len * 4);
-            // Parts before the last are read before the next reuses the
-            // lists; the last with the sums, in the job's one submission
-            // when it has a single part.
-            if t0 + count < nt {
-                j.mark("download");
-                timings.phases.extend(j.submit()?.phases);
-                collect(j.read::<u32>(first_back, 1)[0], &j.read(still_back, list_len as usize));
+        for (w, window) in windows.iter().enumerate() {
+            if cells.is_none() {
+                site_lists(&mut j, window.first, window.end)?;
+            }
+            for t0 in (0..nt).step_by(c as usize) {
+                let count = c.min(nt - t0);
+                let cp = ClipParams {
+                    tet_base: t0 as u32,
+                    n_tets: (t0 + count) as u32,
+                    nbr_base: window.first as u32,
+                    nbr_end: window.end as u32,
+                    own_lo: window.own_lo as u32,
+                    own_hi: window.own_hi as u32,
+                    ..*p
+                };
+                let kp = KnnParams { n_queries: count as u32, query_base: t0 as u32, ..tk.params };
+                j.fill_zero(unfinished);
+                j.fill_zero(still);
+                j.dispatch("knn_grid", &[centroids, g.start, g.count, g.sorted, tet_sites, tet_d2], &kp, count)?;
+                j.mark("tet knn");
+                // One thread per pair (flood: per tet, k_tet = 1).
+                let pairs = count * kt;
+                let args = [sites, verts, tets, tet_sites, cell_input, sums, counters, unfinished];
+                j.dispatch(kernel, &args, &cp, pairs)?;
+                j.mark("clip");
+                // The second pass, over as many threads as the list can hold
+                // entries: those past its count return at once.
+                let rp = RefineParams { clip: cp, capacity: pairs as u32, ..job.refine };
+                let args =
+                    [sites, verts, tets, tet_sites, unfinished, g.start, g.count, g.sorted, sums, ignored, still];
+                j.dispatch("refine", &args, &rp, pairs)?;
+                j.mark("second pass");
+                j.download_into(unfinished, first_back, 4);
+                j.download_into(still, still_back, list_len * 4);
+                // Parts before the last are read before the next reuses the
+                // lists; the last with the sums, in the job's one submission
+                // when it has a single part.
+                if t0 + count < nt || w + 1 < windows.len() {
+                    j.mark("download");
+                    timings.phases.extend(j.submit()?.phases);
+                    collect(j.read::<u32>(first_back, 1)[0], &j.read(still_back, list_len as usize));
+                }
             }
         }
         let sums_back = j.download(sums, n_sums * 8)?;
@@ -224,7 +255,7 @@ impl Backend for VulkanBackend {
             tet_volumes,
             counters: done.read(counters_back, counter::COUNT),
             refined,
-            chunks: plan.tet_parts,
+            chunks: plan.tet_parts * windows.len() as u64,
             unfinished: left,
             timings,
         })
