@@ -166,16 +166,30 @@ impl<'a, T> SharedSlots<'a, T> {
 }
 
 impl<T: Copy> OutBuf<T> for SharedSlots<'_, T> {
+    #[inline]
     fn read(&self, i: usize) -> T {
-        assert!(i < self.len, "slot {i} out of {}", self.len);
+        if i >= self.len {
+            out_of_bounds(i, self.len);
+        }
         // SAFETY: in bounds; only this thread touches slot `i`.
         unsafe { self.ptr.add(i).read() }
     }
+    #[inline]
     fn write(&mut self, i: usize, value: T) {
-        assert!(i < self.len, "slot {i} out of {}", self.len);
+        if i >= self.len {
+            out_of_bounds(i, self.len);
+        }
         // SAFETY: in bounds; only this thread touches slot `i`.
         unsafe { self.ptr.add(i).write(value) }
     }
+}
+
+/// The panic of a slot out of bounds, kept out of the k-NN's inner loop
+/// (formatting its message there cost a register spill per shift).
+#[cold]
+#[inline(never)]
+fn out_of_bounds(i: usize, len: usize) -> ! {
+    panic!("slot {i} out of {len}")
 }
 
 /// A task's list of unfinished pairs, merged after the task.
