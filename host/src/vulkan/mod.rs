@@ -115,18 +115,34 @@ impl Backend for VulkanBackend {
         let (ks, kt) = (sk.params.k as u64, p.k_tet as u64);
         let site_parts = n.div_ceil(plan.site_chunk);
         let mut j = Job::new(&self.ctx, &self.pipelines, 16 + site_parts as u32 + 4 * plan.tet_parts as u32)?;
-        let sites = j.upload(&job.sites)?;
+        // Every site's neighbour list, or a window's. Floods in windows
+        // take the sites in slabs (see `plan`; knn pairs need no other list
+        // than their own site's, and keep the job's order, and its ties);
+        // the results go back to the job's order.
+        let windows = plan.windows(n);
+        let slabs = windows.len() > 1 && job.pairing == Pairing::Flood;
+        let order = slabs.then(|| slab_order(&job.sites, plan.own / 4));
+        let (sites, quant) = match &order {
+            None => (j.upload(&job.sites)?, j.upload(&sk.sites)?),
+            Some(order) => {
+                let sites: Vec<[f32; 4]> = order.iter().map(|&old| job.sites[old as usize]).collect();
+                let quant: Vec<[u32; 4]> = (0..order.len())
+                    .map(|new| {
+                        let q = sk.sites[order[new] as usize];
+                        [q[0], q[1], q[2], new as u32]
+                    })
+                    .collect();
+                (j.upload(&sites)?, j.upload(&quant)?)
+            }
+        };
         let verts = j.upload(&job.verts)?;
         let tets = j.upload(&job.tets)?;
-        let quant = j.upload(&sk.sites)?;
         let centroids = j.upload(&tk.queries)?;
         // The sites' sums, then one volume sum per tet (knn pairing's
         // certificate).
         let n_sums = n * ACCUM_PER_SITE as u64 + nt;
         let sums = j.zeroed(n_sums * 8)?;
         let counters = j.zeroed(counter::COUNT as u64 * 8)?;
-        // Every site's neighbour list, or a window's (see `plan`).
-        let windows = plan.windows(n);
         let site_nbrs = j.buffer((plan.window * ks).max(1) * 4)?;
         j.mark("upload");
 
@@ -249,6 +265,19 @@ impl Backend for VulkanBackend {
         timings.phases.extend(done.timings.phases.iter().cloned());
         let mut sums: Vec<i64> = done.read(sums_back, n_sums as usize);
         let tet_volumes = sums.split_off(n as usize * ACCUM_PER_SITE);
+        if let Some(order) = order {
+            let mut back = vec![0; sums.len()];
+            for (new, &old) in order.iter().enumerate() {
+                let (from, to) = (new * ACCUM_PER_SITE, old as usize * ACCUM_PER_SITE);
+                back[to..to + ACCUM_PER_SITE].copy_from_slice(&sums[from..from + ACCUM_PER_SITE]);
+            }
+            sums = back;
+            for entry in &mut left {
+                if (entry[1] as u64) < n {
+                    entry[1] = order[entry[1] as usize];
+                }
+            }
+        }
         left.sort_unstable();
         Ok(ClipOutput {
             sums,
@@ -260,6 +289,27 @@ impl Backend for VulkanBackend {
             timings,
         })
     }
+}
+
+/// The sites' order for windows of neighbour lists (see `plan`): slabs of
+/// `slab` sites across the longest axis of their bounding box, in the
+/// job's (Morton) order within each slab. `order[new] = old`.
+fn slab_order(sites: &[[f32; 4]], slab: u64) -> Vec<u32> {
+    let extent = |a: usize| {
+        let (lo, hi) =
+            sites.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), p| (lo.min(p[a]), hi.max(p[a])));
+        hi - lo
+    };
+    let axis = (0..3).max_by(|&a, &b| extent(a).total_cmp(&extent(b))).unwrap_or(0);
+    let mut along: Vec<u32> = (0..sites.len() as u32).collect();
+    along.sort_by(|&a, &b| sites[a as usize][axis].total_cmp(&sites[b as usize][axis]).then(a.cmp(&b)));
+    let mut slab_of = vec![0u64; sites.len()];
+    for (rank, &i) in along.iter().enumerate() {
+        slab_of[i as usize] = rank as u64 / slab.max(1);
+    }
+    let mut order: Vec<u32> = (0..sites.len() as u32).collect();
+    order.sort_by_key(|&i| slab_of[i as usize]);
+    order
 }
 
 /// Records a k-NN job (uploads, grid build, search); returns the neighbour

@@ -7,10 +7,14 @@
 //! not (tet-cell only: cell-tet's stored cells are larger still), the sites
 //! are taken in windows: each window's lists are computed and bound, and
 //! the tets are clipped once per window, each by the window that owns the
-//! site its flood starts at (or its paired site). Sites are in Morton
-//! order, so a window's lists also hold most of the neighbours its tets'
-//! pieces need; a piece whose site is outside the window is left to the
-//! second pass, which needs no lists.
+//! site its flood starts at (or its paired site). For floods in windows the
+//! backend orders the sites in slabs across the longest axis, `own / 4`
+//! sites each (Morton order within a slab): a window binds eight
+//! consecutive slabs and owns the middle four, so the neighbours a flood
+//! meets near the edge of what a window owns lie in the two slabs it binds
+//! beyond it. A piece whose site's list is still outside is left to the
+//! second pass, which needs no lists. (A knn pair needs its own site's
+//! list only, which the window that owns the site binds.)
 
 use super::context::Context;
 use crate::error::{Error, Result};
@@ -27,8 +31,8 @@ pub(crate) struct Plan {
     /// Sites whose neighbour lists are bound at once: all of them, or a
     /// window (see the module's documentation).
     pub window: u64,
-    /// Sites each window answers for (all of them with one window); the
-    /// rest of a window is an equal margin on either side.
+    /// Sites each window answers for (all of them with one window): four
+    /// slabs, with two more on either side.
     pub own: u64,
     /// Tets per part: their k-NN, clipping and second pass.
     pub tet_chunk: u64,
@@ -126,11 +130,11 @@ impl Plan {
             }
         };
         let (window, own) = if windows {
-            // A third of what is free for a window's lists; it answers for
-            // three quarters of its sites.
-            let window = fit(4 * ks, free / 3, n);
-            free -= 4 * ks * window;
-            (window, (window * 3 / 4 / group * group).max(group).min(window))
+            // A third of what is free for a window's lists: eight slabs,
+            // the middle four its own.
+            let slab = (fit(4 * ks, free / 3, n) / 8).max(1);
+            free -= 4 * ks * 8 * slab;
+            (8 * slab, 4 * slab)
         } else {
             (n, n)
         };
@@ -215,7 +219,7 @@ mod tests {
         let j = job(2000);
         let max_binding = 100_000;
         let plan = Plan::new(&j, 1 << 30, max_binding, "test").unwrap();
-        assert!(plan.window < 2000 && plan.own < plan.window, "{plan:?}");
+        assert!(plan.window < 2000 && 2 * plan.own == plan.window && plan.own % 4 == 0, "{plan:?}");
         assert!(4 * plan.window * j.site_knn.params.k as u64 <= max_binding, "{plan:?}");
         let windows = plan.windows(2000);
         let mut next = 0;
