@@ -219,7 +219,7 @@ mod tests {
         let j = job(2000);
         let max_binding = 100_000;
         let plan = Plan::new(&j, 1 << 30, max_binding, "test").unwrap();
-        assert!(plan.window < 2000 && 2 * plan.own == plan.window && plan.own % 4 == 0, "{plan:?}");
+        assert!(plan.window < 2000 && 2 * plan.own == plan.window && plan.own.is_multiple_of(4), "{plan:?}");
         assert!(4 * plan.window * j.site_knn.params.k as u64 <= max_binding, "{plan:?}");
         let windows = plan.windows(2000);
         let mut next = 0;
