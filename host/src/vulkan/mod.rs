@@ -116,28 +116,27 @@ impl Backend for VulkanBackend {
         let site_parts = n.div_ceil(plan.site_chunk);
         let mut j = Job::new(&self.ctx, &self.pipelines, 16 + site_parts as u32 + 4 * plan.tet_parts as u32)?;
         // Every site's neighbour list, or a window's. Floods in windows
-        // take the sites in slabs (see `plan`; knn pairs need no other list
-        // than their own site's, and keep the job's order, and its ties);
-        // the results go back to the job's order.
+        // take the sites and the tets in slabs (see `plan`; knn pairs need
+        // no other list than their own site's, and keep the job's order,
+        // and its ties); the results go back to the job's order.
         let windows = plan.windows(n);
-        let slabs = windows.len() > 1 && job.pairing == Pairing::Flood;
-        let order = slabs.then(|| slab_order(&job.sites, plan.own / 4));
-        let (sites, quant) = match &order {
-            None => (j.upload(&job.sites)?, j.upload(&sk.sites)?),
-            Some(order) => {
-                let sites: Vec<[f32; 4]> = order.iter().map(|&old| job.sites[old as usize]).collect();
-                let quant: Vec<[u32; 4]> = (0..order.len())
+        let slabs = (windows.len() > 1 && job.pairing == Pairing::Flood).then(|| Slabs::new(job, plan.own / 4));
+        let (sites, quant, tets, centroids) = match &slabs {
+            None => (j.upload(&job.sites)?, j.upload(&sk.sites)?, j.upload(&job.tets)?, j.upload(&tk.queries)?),
+            Some(s) => {
+                let sites: Vec<[f32; 4]> = s.sites.iter().map(|&old| job.sites[old as usize]).collect();
+                let quant: Vec<[u32; 4]> = (0..s.sites.len())
                     .map(|new| {
-                        let q = sk.sites[order[new] as usize];
+                        let q = sk.sites[s.sites[new] as usize];
                         [q[0], q[1], q[2], new as u32]
                     })
                     .collect();
-                (j.upload(&sites)?, j.upload(&quant)?)
+                let tets: Vec<[u32; 4]> = s.tets.iter().map(|&old| job.tets[old as usize]).collect();
+                let centroids: Vec<[u32; 4]> = s.tets.iter().map(|&old| tk.queries[old as usize]).collect();
+                (j.upload(&sites)?, j.upload(&quant)?, j.upload(&tets)?, j.upload(&centroids)?)
             }
         };
         let verts = j.upload(&job.verts)?;
-        let tets = j.upload(&job.tets)?;
-        let centroids = j.upload(&tk.queries)?;
         // The sites' sums, then one volume sum per tet (knn pairing's
         // certificate).
         let n_sums = n * ACCUM_PER_SITE as u64 + nt;
@@ -213,19 +212,28 @@ impl Backend for VulkanBackend {
             (Strategy::TetCell, Pairing::Knn, _) => ("clip_tet_cell", site_nbrs),
             (Strategy::CellTet, _, cells) => ("clip_cell_tet", cells.unwrap_or(site_nbrs)),
         };
+        // Whether the last part's lists are still to be read.
+        let mut pending = false;
         for (w, window) in windows.iter().enumerate() {
             if cells.is_none() {
                 site_lists(&mut j, window.first, window.end)?;
             }
-            for t0 in (0..nt).step_by(c as usize) {
-                let count = c.min(nt - t0);
+            // Floods in slabs: the window's tets, whatever their start site;
+            // otherwise every tet, for the pairs or floods of the sites the
+            // window owns.
+            let (tets_of, own) = match &slabs {
+                Some(s) => (s.tet_ranges[w].clone(), 0..n),
+                None => (0..nt, window.own_lo..window.own_hi),
+            };
+            for t0 in tets_of.clone().step_by(c as usize) {
+                let count = c.min(tets_of.end - t0);
                 let cp = ClipParams {
                     tet_base: t0 as u32,
                     n_tets: (t0 + count) as u32,
                     nbr_base: window.first as u32,
                     nbr_end: window.end as u32,
-                    own_lo: window.own_lo as u32,
-                    own_hi: window.own_hi as u32,
+                    own_lo: own.start as u32,
+                    own_hi: own.end as u32,
                     ..*p
                 };
                 let kp = KnnParams { n_queries: count as u32, query_base: t0 as u32, ..tk.params };
@@ -250,10 +258,12 @@ impl Backend for VulkanBackend {
                 // Parts before the last are read before the next reuses the
                 // lists; the last with the sums, in the job's one submission
                 // when it has a single part.
-                if t0 + count < nt || w + 1 < windows.len() {
+                pending = true;
+                if t0 + count < tets_of.end || w + 1 < windows.len() {
                     j.mark("download");
                     timings.phases.extend(j.submit()?.phases);
                     collect(j.read::<u32>(first_back, 1)[0], &j.read(still_back, list_len as usize));
+                    pending = false;
                 }
             }
         }
@@ -261,22 +271,14 @@ impl Backend for VulkanBackend {
         let counters_back = j.download(counters, counter::COUNT as u64 * 8)?;
         j.mark("download");
         let done = j.run()?;
-        collect(done.read::<u32>(first_back, 1)[0], &done.read(still_back, list_len as usize));
+        if pending {
+            collect(done.read::<u32>(first_back, 1)[0], &done.read(still_back, list_len as usize));
+        }
         timings.phases.extend(done.timings.phases.iter().cloned());
         let mut sums: Vec<i64> = done.read(sums_back, n_sums as usize);
-        let tet_volumes = sums.split_off(n as usize * ACCUM_PER_SITE);
-        if let Some(order) = order {
-            let mut back = vec![0; sums.len()];
-            for (new, &old) in order.iter().enumerate() {
-                let (from, to) = (new * ACCUM_PER_SITE, old as usize * ACCUM_PER_SITE);
-                back[to..to + ACCUM_PER_SITE].copy_from_slice(&sums[from..from + ACCUM_PER_SITE]);
-            }
-            sums = back;
-            for entry in &mut left {
-                if (entry[1] as u64) < n {
-                    entry[1] = order[entry[1] as usize];
-                }
-            }
+        let mut tet_volumes = sums.split_off(n as usize * ACCUM_PER_SITE);
+        if let Some(s) = slabs {
+            s.restore(&mut sums, &mut tet_volumes, &mut left);
         }
         left.sort_unstable();
         Ok(ClipOutput {
@@ -291,25 +293,81 @@ impl Backend for VulkanBackend {
     }
 }
 
-/// The sites' order for windows of neighbour lists (see `plan`): slabs of
-/// `slab` sites across the longest axis of their bounding box, in the
-/// job's (Morton) order within each slab. `order[new] = old`.
-fn slab_order(sites: &[[f32; 4]], slab: u64) -> Vec<u32> {
-    let extent = |a: usize| {
-        let (lo, hi) =
-            sites.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), p| (lo.min(p[a]), hi.max(p[a])));
-        hi - lo
-    };
-    let axis = (0..3).max_by(|&a, &b| extent(a).total_cmp(&extent(b))).unwrap_or(0);
-    let mut along: Vec<u32> = (0..sites.len() as u32).collect();
-    along.sort_by(|&a, &b| sites[a as usize][axis].total_cmp(&sites[b as usize][axis]).then(a.cmp(&b)));
-    let mut slab_of = vec![0u64; sites.len()];
-    for (rank, &i) in along.iter().enumerate() {
-        slab_of[i as usize] = rank as u64 / slab.max(1);
+/// The order of a flood's sites and tets in windows of neighbour lists
+/// (see `plan`): slabs of `slab` sites across the longest axis of the
+/// sites' bounding box, the job's (Morton) order within each; each tet in
+/// the slab of its centroid. A window binds eight slabs' lists and clips
+/// the tets of the middle four, so each tet is clipped once, and the sites
+/// its flood meets lie in the slabs bound.
+struct Slabs {
+    /// `sites[new] = old`.
+    sites: Vec<u32>,
+    /// `tets[new] = old`.
+    tets: Vec<u32>,
+    /// The tets (new order) each window clips.
+    tet_ranges: Vec<std::ops::Range<u64>>,
+}
+
+impl Slabs {
+    fn new(job: &ClipJob, slab: u64) -> Self {
+        let slab = slab.max(1) as usize;
+        let sites = &job.sites;
+        let extent = |a: usize| {
+            let (lo, hi) =
+                sites.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(l, h), p| (l.min(p[a]), h.max(p[a])));
+            hi - lo
+        };
+        let axis = (0..3).max_by(|&a, &b| extent(a).total_cmp(&extent(b))).unwrap_or(0);
+        let mut along: Vec<u32> = (0..sites.len() as u32).collect();
+        along.sort_by(|&a, &b| sites[a as usize][axis].total_cmp(&sites[b as usize][axis]).then(a.cmp(&b)));
+        let mut slab_of = vec![0usize; sites.len()];
+        for (rank, &i) in along.iter().enumerate() {
+            slab_of[i as usize] = rank / slab;
+        }
+        // Where each slab ends along the axis.
+        let ends: Vec<f32> = along.chunks(slab).map(|c| sites[c[c.len() - 1] as usize][axis]).collect();
+        let mut site_order: Vec<u32> = (0..sites.len() as u32).collect();
+        site_order.sort_by_key(|&i| slab_of[i as usize]);
+        let tet_slab: Vec<usize> = job
+            .tets
+            .iter()
+            .map(|t| {
+                let c = t.iter().map(|&v| job.verts[v as usize][axis]).sum::<f32>() / 4.0;
+                ends.partition_point(|&e| e < c).min(ends.len() - 1)
+            })
+            .collect();
+        let mut tets: Vec<u32> = (0..job.tets.len() as u32).collect();
+        tets.sort_by_key(|&t| tet_slab[t as usize]);
+        // Window w owns slabs 4w..4w + 4 (the plan's `own` is four slabs).
+        let mut tet_ranges = Vec::new();
+        let mut start = 0u64;
+        for w in 0..ends.len().div_ceil(4) {
+            let end = tets.partition_point(|&t| tet_slab[t as usize] < 4 * (w + 1)) as u64;
+            tet_ranges.push(start..end);
+            start = end;
+        }
+        Self { sites: site_order, tets, tet_ranges }
     }
-    let mut order: Vec<u32> = (0..sites.len() as u32).collect();
-    order.sort_by_key(|&i| slab_of[i as usize]);
-    order
+
+    /// Puts the sums and the unfinished entries back in the job's order.
+    fn restore(&self, sums: &mut Vec<i64>, tet_volumes: &mut [i64], left: &mut [[u32; 2]]) {
+        let mut back = vec![0; sums.len()];
+        for (new, &old) in self.sites.iter().enumerate() {
+            let (from, to) = (new * ACCUM_PER_SITE, old as usize * ACCUM_PER_SITE);
+            back[to..to + ACCUM_PER_SITE].copy_from_slice(&sums[from..from + ACCUM_PER_SITE]);
+        }
+        *sums = back;
+        let volumes = tet_volumes.to_vec();
+        for (new, &old) in self.tets.iter().enumerate() {
+            tet_volumes[old as usize] = volumes[new];
+        }
+        for entry in left {
+            entry[0] = self.tets[entry[0] as usize];
+            if (entry[1] as usize) < self.sites.len() {
+                entry[1] = self.sites[entry[1] as usize];
+            }
+        }
+    }
 }
 
 /// Records a k-NN job (uploads, grid build, search); returns the neighbour

@@ -6,15 +6,15 @@
 //! The sites' neighbour lists stay resident when they fit. When they do
 //! not (tet-cell only: cell-tet's stored cells are larger still), the sites
 //! are taken in windows: each window's lists are computed and bound, and
-//! the tets are clipped once per window, each by the window that owns the
-//! site its flood starts at (or its paired site). For floods in windows the
-//! backend orders the sites in slabs across the longest axis, `own / 4`
-//! sites each (Morton order within a slab): a window binds eight
-//! consecutive slabs and owns the middle four, so the neighbours a flood
-//! meets near the edge of what a window owns lie in the two slabs it binds
-//! beyond it. A piece whose site's list is still outside is left to the
-//! second pass, which needs no lists. (A knn pair needs its own site's
-//! list only, which the window that owns the site binds.)
+//! each knn pair is clipped by the window that owns the
+//! site of its pair. Floods in windows take the sites in slabs across the
+//! longest axis, `own / 4` sites each (Morton order within a slab), and
+//! each tet in the slab of its centroid: a window binds eight consecutive
+//! slabs' lists and floods the tets of the middle four, so each tet is
+//! flooded once and the sites it meets lie in the slabs bound. A piece
+//! whose site's list is still outside is left to the second pass, which
+//! needs no lists. (A knn pair needs its own site's list only, which the
+//! window that owns the site binds.)
 
 use super::context::Context;
 use crate::error::{Error, Result};
