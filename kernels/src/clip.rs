@@ -716,6 +716,8 @@ pub fn flood_tet<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
         verts,
         tets,
         move |j: usize, poly: &mut Piece| {
+            // `list_start`, from plain values: the closure holds no pointer
+            // to the push constants.
             let base = if j < nbr_base || j >= nbr_end { NO_LIST } else { (j - nbr_base) * k };
             clip_by_bisectors(poly, j, n_sites as u32, sites, site_nbrs, base, k)
         },
