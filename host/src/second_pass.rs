@@ -192,9 +192,10 @@ const VOLUME_TOLERANCE: f64 = 1e-4;
 /// The sites paired with each of `tets`, `k_tet` per tet: the job's tet
 /// k-NN, redone for these tets' (quantized) centroids.
 fn tet_lists(job: &ClipJob, tets: impl Iterator<Item = u32>) -> Result<Vec<u32>> {
-    let queries: Vec<_> = tets.map(|t| job.tet_knn.queries[t as usize]).collect();
-    let params = KnnParams { n_queries: queries.len() as u32, ..job.tet_knn.params };
-    let knn = KnnJob { queries, params, ..job.tet_knn.clone() };
+    let all = &job.tet_knn;
+    let queries: Vec<_> = tets.map(|t| all.queries[t as usize]).collect();
+    let params = KnnParams { n_queries: queries.len() as u32, ..all.params };
+    let knn = KnnJob { sites: all.sites.clone(), queries, params, method: all.method, quantizer: all.quantizer };
     Ok(knn.run(&crate::cpu::CpuBackend::new(None)?)?.indices)
 }
 

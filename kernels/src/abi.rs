@@ -161,9 +161,10 @@ pub struct ClipParams {
     pub nbr_base: u32,
     /// See `nbr_base`.
     pub nbr_end: u32,
-    /// The sites this dispatch answers for, `own_lo..own_hi`: a tet whose
-    /// flood starts at, a pair whose site is, or a cell of a site outside is
-    /// left to the dispatch that owns it. `0..n_sites` when not split.
+    /// The sites this dispatch answers for, `own_lo..own_hi`: a pair whose
+    /// site is, or a cell of a site outside is left to the dispatch that
+    /// owns it (floods go by tets, `tet_base..n_tets`). `0..n_sites` when
+    /// not split.
     pub own_lo: u32,
     /// See `own_lo`.
     pub own_hi: u32,

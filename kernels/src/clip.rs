@@ -520,19 +520,17 @@ pub fn tet_cell_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     count(counters, 1, nonempty as i64, &c);
 }
 
-/// Thread `thread` of Algorithm 1: the Voronoi cell of site `i = own_lo +
-/// thread` inside the bounding box, stored at records `i * CELL_RECORDS..`
-/// of `cells`.
+/// Thread `i` of Algorithm 1: the Voronoi cell of site `i` inside the
+/// bounding box, stored at records `i * CELL_RECORDS..` of `cells`.
 #[inline]
 pub fn voronoi_cell<O: OutBuf<[f32; 4]> + ?Sized, C: AtomicSums>(
-    thread: usize,
+    i: usize,
     p: &ClipParams,
     sites: &[[f32; 4]],
     site_nbrs: &[u32],
     cells: &mut O,
     counters: &mut C,
 ) {
-    let i = p.own_lo as usize + thread;
     if i >= p.n_sites as usize || !owns(p, i) {
         return;
     }
@@ -698,14 +696,13 @@ pub fn flood_tet<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     unfinished: &mut L,
     sink: &mut S,
 ) {
+    // Floods in windows of lists own their tets (`tet_base..n_tets`), not
+    // sites: `own_lo..own_hi` does not apply.
     let t = p.tet_base as usize + i;
-    let start = tet_sites[i];
-    // A tet belongs to the dispatch that owns its start site (the first,
-    // for a tet without one).
-    let owned = if start == NO_SITE { p.own_lo == 0 } else { owns(p, start as usize) };
-    if t >= p.n_tets as usize || !owned {
+    if t >= p.n_tets as usize {
         return;
     }
+    let start = tet_sites[i];
     let k = p.k_site as usize;
     let (n_sites, nbr_base, nbr_end) = (p.n_sites as usize, p.nbr_base as usize, p.nbr_end as usize);
     flood::<32, 64, FLOOD_CAP, _, _, _, _, _>(

@@ -218,13 +218,9 @@ impl Backend for VulkanBackend {
             if cells.is_none() {
                 site_lists(&mut j, window.first, window.end)?;
             }
-            // Floods in slabs: the window's tets, whatever their start site;
-            // otherwise every tet, for the pairs or floods of the sites the
-            // window owns.
-            let (tets_of, own) = match &slabs {
-                Some(s) => (s.tet_ranges[w].clone(), 0..n),
-                None => (0..nt, window.own_lo..window.own_hi),
-            };
+            // Floods in slabs: the window's tets; otherwise every tet, for
+            // the pairs of the sites the window owns.
+            let tets_of = slabs.as_ref().map_or(0..nt, |s| s.tet_ranges[w].clone());
             for t0 in tets_of.clone().step_by(c as usize) {
                 let count = c.min(tets_of.end - t0);
                 let cp = ClipParams {
@@ -232,8 +228,8 @@ impl Backend for VulkanBackend {
                     n_tets: (t0 + count) as u32,
                     nbr_base: window.first as u32,
                     nbr_end: window.end as u32,
-                    own_lo: own.start as u32,
-                    own_hi: own.end as u32,
+                    own_lo: window.own_lo as u32,
+                    own_hi: window.own_hi as u32,
                     ..*p
                 };
                 let kp = KnnParams { n_queries: count as u32, query_base: t0 as u32, ..tk.params };
