@@ -224,6 +224,96 @@ fn visit_cell<N, D>(
     }
 }
 
+/// Visits the 26 cells around cell `c`, faces first, then edges, then
+/// corners: nearer candidates come first, so the list's worst entry
+/// tightens early and later candidates are mostly rejected or land near the
+/// list's end (short shifts).
+#[inline]
+fn visit_first_ring<N, D>(
+    g: &GridParams,
+    c: [u32; 3],
+    cell_start: &[u32],
+    cell_count: &[u32],
+    sorted: &[QuantPoint],
+    q: [u32; 3],
+    exclude: u32,
+    best: &mut Best,
+    nbr: &mut N,
+    d2: &mut D,
+) where
+    N: OutBuf<u32> + ?Sized,
+    D: OutBuf<u64> + ?Sized,
+{
+    let mut axes = 1u32;
+    while axes <= 3 {
+        // Offsets as digits 0, 1, 2 (for -1, 0, +1), `axes` of them off 1.
+        let mut o = 0u32;
+        while o < 27 {
+            let d = [o % 3, (o / 3) % 3, o / 9];
+            let off = (d[0] != 1) as u32 + (d[1] != 1) as u32 + (d[2] != 1) as u32;
+            let x = c[0] + d[0];
+            let y = c[1] + d[1];
+            let z = c[2] + d[2];
+            let inside = x >= 1 && y >= 1 && z >= 1 && x <= g.dim_x && y <= g.dim_y && z <= g.dim_z;
+            if off == axes && inside {
+                visit_cell(g, [x - 1, y - 1, z - 1], cell_start, cell_count, sorted, q, exclude, best, nbr, d2);
+            }
+            o += 1;
+        }
+        axes += 1;
+    }
+}
+
+/// Visits the cells of Chebyshev ring `r` around cell `c`.
+#[inline]
+fn visit_ring<N, D>(
+    g: &GridParams,
+    c: [u32; 3],
+    r: u32,
+    cell_start: &[u32],
+    cell_count: &[u32],
+    sorted: &[QuantPoint],
+    q: [u32; 3],
+    exclude: u32,
+    best: &mut Best,
+    nbr: &mut N,
+    d2: &mut D,
+) where
+    N: OutBuf<u32> + ?Sized,
+    D: OutBuf<u64> + ?Sized,
+{
+    let z0 = sub_floor0(c[2], r);
+    let z1 = (c[2] + r).min(g.dim_z - 1);
+    let y0 = sub_floor0(c[1], r);
+    let y1 = (c[1] + r).min(g.dim_y - 1);
+    let x0 = sub_floor0(c[0], r);
+    let x1 = (c[0] + r).min(g.dim_x - 1);
+    let mut z = z0;
+    while z <= z1 {
+        let mut y = y0;
+        while y <= y1 {
+            let on_shell = diff(z, c[2]) == r || diff(y, c[1]) == r;
+            if on_shell {
+                let mut x = x0;
+                while x <= x1 {
+                    visit_cell(g, [x, y, z], cell_start, cell_count, sorted, q, exclude, best, nbr, d2);
+                    x += 1;
+                }
+            } else {
+                // Inside the shell's y-z extent only the two x ends are new.
+                if c[0] >= r {
+                    visit_cell(g, [c[0] - r, y, z], cell_start, cell_count, sorted, q, exclude, best, nbr, d2);
+                }
+                if c[0] + r < g.dim_x {
+                    visit_cell(g, [c[0] + r, y, z], cell_start, cell_count, sorted, q, exclude, best, nbr, d2);
+                }
+            }
+            y += 1;
+        }
+        z += 1;
+    }
+}
+
 /// Grid ring search: visits the cells ring by ring around the query's cell
 /// and stops once the k-th candidate is strictly nearer than anything
 /// outside the rings visited so far (so ties are resolved too).
@@ -248,35 +338,10 @@ pub fn grid_query<N, D>(
     let mut best = Best::new(k, base);
     let mut r = 0u32;
     loop {
-        let z0 = sub_floor0(c[2], r);
-        let z1 = (c[2] + r).min(g.dim_z - 1);
-        let y0 = sub_floor0(c[1], r);
-        let y1 = (c[1] + r).min(g.dim_y - 1);
-        let x0 = sub_floor0(c[0], r);
-        let x1 = (c[0] + r).min(g.dim_x - 1);
-        let mut z = z0;
-        while z <= z1 {
-            let mut y = y0;
-            while y <= y1 {
-                let on_shell = diff(z, c[2]) == r || diff(y, c[1]) == r;
-                if on_shell {
-                    let mut x = x0;
-                    while x <= x1 {
-                        visit_cell(g, [x, y, z], cell_start, cell_count, sorted, q, exclude, &mut best, nbr, d2);
-                        x += 1;
-                    }
-                } else {
-                    // Inside the shell's y-z extent only the two x ends are new.
-                    if c[0] >= r {
-                        visit_cell(g, [c[0] - r, y, z], cell_start, cell_count, sorted, q, exclude, &mut best, nbr, d2);
-                    }
-                    if c[0] + r < g.dim_x {
-                        visit_cell(g, [c[0] + r, y, z], cell_start, cell_count, sorted, q, exclude, &mut best, nbr, d2);
-                    }
-                }
-                y += 1;
-            }
-            z += 1;
+        if r == 1 {
+            visit_first_ring(g, c, cell_start, cell_count, sorted, q, exclude, &mut best, nbr, d2);
+        } else {
+            visit_ring(g, c, r, cell_start, cell_count, sorted, q, exclude, &mut best, nbr, d2);
         }
         let gap = ring_gap(g, q, c, r);
         if gap == u64::MAX || best.found == available {

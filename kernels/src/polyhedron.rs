@@ -55,7 +55,8 @@ pub struct Moments {
     pub second: f32,
 }
 
-/// A convex polyhedron of at most `P` planes and `V` vertices.
+/// A convex polyhedron of at most `P` planes (`P <= 64`: a clip keeps
+/// planes as bits of a `u64`) and `V` vertices.
 #[derive(Clone, Copy)]
 pub struct Polyhedron<const P: usize, const V: usize> {
     /// Planes `(n, d)`: the inside is `n·x <= d`.
@@ -77,9 +78,6 @@ pub struct Polyhedron<const P: usize, const V: usize> {
 fn pack(a: u32, b: u32, c: u32) -> u32 {
     a | (b << 8) | (c << 16)
 }
-
-/// Flags a vertex a clip removes (above the 24 bits of its triple).
-const REMOVED: u32 = 1 << 31;
 
 #[inline]
 fn unpack(t: u32) -> [u32; 3] {
@@ -270,41 +268,41 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
         }
         let n_old = (self.n_verts as usize).min(V);
         let n = plane.truncate();
-        // One test per vertex; the removed ones are flagged in their triple.
-        let mut n_out = 0;
+        // One test per vertex, listing the removed ones without a branch.
+        let mut out = [0u32; V];
+        let mut r = 0;
         let mut i = 0;
         while i < n_old {
-            let outside = (self.verts[i].dot(n) > plane.w) as u32;
-            self.tris[i] |= outside << 31;
-            n_out += outside as usize;
+            out[r] = i as u32;
+            r += (self.verts[i].dot(n) > plane.w) as usize;
             i += 1;
         }
-        if n_out == 0 {
+        if r == 0 {
             return Clip::Unchanged;
         }
-        if n_out == n_old {
+        if r == n_old {
             self.n_verts = 0;
             return Clip::Empty;
         }
         let new_plane = self.n_planes;
         self.planes[new_plane as usize] = plane;
         self.ids[new_plane as usize] = id;
-        // The removed vertices, listed once.
-        let mut out = [0u32; V];
-        let mut r = 0;
-        let mut i = 0;
-        while i < n_old {
-            if self.tris[i] & REMOVED != 0 {
-                out[r] = i as u32;
-                r += 1;
-            }
-            i += 1;
+        // The removed vertices' directed edges, by plane: bit `y` of
+        // `from[x]` for each edge `x -> y` (planes number fewer than 64).
+        let mut from = [0u64; P];
+        let mut a = 0;
+        while a < r {
+            let [x, y, z] = unpack(self.tris[out[a] as usize]);
+            from[x as usize] |= 1u64 << y;
+            from[y as usize] |= 1u64 << z;
+            from[z as usize] |= 1u64 << x;
+            a += 1;
         }
-        // Each edge x -> y of a removed vertex whose reverse y -> x belongs
-        // to a kept vertex crosses the plane: it gets a new vertex, which
-        // inherits the edge's direction, so orientation is preserved. The
-        // new vertex slides from the removed one along the edge (the line
-        // where planes x and y meet) to the plane.
+        // Each edge x -> y of a removed vertex whose reverse y -> x is not
+        // also a removed vertex's crosses the plane: it gets a new vertex,
+        // which inherits the edge's direction, so orientation is preserved.
+        // The new vertex slides from the removed one along the edge (the
+        // line where planes x and y meet) to the plane.
         let mut n_new = n_old;
         let mut a = 0;
         while a < r {
@@ -314,13 +312,8 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
             while e < 3 {
                 let x = tri[e];
                 let y = tri[(e + 1) % 3];
-                let mut b = 0;
-                while b < r && !has_edge(self.tris[out[b] as usize], y, x) {
-                    b += 1;
-                }
-                if b == r {
+                if (from[y as usize] >> x) & 1 == 0 {
                     if n_new == V {
-                        self.clear_flags();
                         return Clip::Overflow;
                     }
                     let v_out = self.verts[t];
@@ -333,13 +326,13 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
                         // ends are about as far from it, and the line
                         // intersection is ill-conditioned. Interpolate
                         // between the edge's ends by their distances (a
-                        // point of the edge, whatever the rounding).
+                        // point of the edge, whatever the rounding). The
+                        // other end is the kept vertex with edge y -> x.
                         let mut b = 0;
                         while b < n_old && !has_edge(self.tris[b], y, x) {
                             b += 1;
                         }
                         if b == n_old {
-                            self.clear_flags();
                             return Clip::Broken;
                         }
                         let v_in = self.verts[b];
@@ -369,15 +362,6 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
         self.n_verts = end as u32;
         self.n_planes += 1;
         Clip::Cut
-    }
-
-    /// Unflags the vertices of a clip that was given up.
-    fn clear_flags(&mut self) {
-        let mut i = 0;
-        while i < (self.n_verts as usize).min(V) {
-            self.tris[i] &= !REMOVED;
-            i += 1;
-        }
     }
 
     /// Volume, first and second moments, from vertex-local pieces only
