@@ -373,15 +373,17 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
     /// site (signed tets, so the site may lie outside). `|f| <= |v|`, so no
     /// far-away point enters the sums.
     pub fn moments(&self) -> Moments {
-        // Per plane: the foot c and |c|².
+        // Per plane: the foot c and 3|c|².
         let mut feet = [Vec4::ZERO; P];
         let mut p = 0;
         while p < (self.n_planes as usize).min(P) {
             let n = self.planes[p].truncate();
             let c = n * (self.planes[p].w / n.length_squared());
-            feet[p] = c.extend(c.length_squared());
+            feet[p] = c.extend(3.0 * c.length_squared());
             p += 1;
         }
+        // Summed as 6 V, 24 ∫x and 60 ∫|x|²: the cones' constant factors
+        // are applied once, at the end.
         let mut m = Moments::default();
         let mut i = 0;
         while i < (self.n_verts as usize).min(V) {
@@ -393,28 +395,32 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
             self.add_corner_edge(&mut m, &feet, v, vv, c, a);
             i += 1;
         }
-        m
+        Moments { volume: m.volume / 6.0, first: m.first / 24.0, second: m.second / 60.0 }
     }
 
-    /// The two cones of vertex `v` at its edge `x -> y`. Every point of a
-    /// cone's base triangle lies on the base's plane and `f` is the foot on
-    /// the edge line, so the cross terms of the second moment reduce:
-    /// `c·v = c·f = |c|²` and `f·v = |f|²`.
+    /// The two cones of vertex `v` at its edge `x -> y`, added as 6 V, 24
+    /// ∫x and 60 ∫|x|². Every point of a cone's base triangle lies on the
+    /// base's plane and `f` is the foot on the edge line, so the cross terms
+    /// of the second moment reduce: `c·v = c·f = |c|²` and `f·v = |f|²`;
+    /// with `f = v - s u`, `f × v = w` and `|f|² = |v|² - s (v·u)`.
     #[inline]
     fn add_corner_edge(&self, m: &mut Moments, feet: &[Vec4; P], v: Vec3, vv: f32, x: u32, y: u32) {
         let cx = feet[x as usize];
         let cy = feet[y as usize];
         let u = self.planes[x as usize].truncate().cross(self.planes[y as usize].truncate());
         let uu = u.length_squared();
-        let f = if uu > 0.0 { v - u * (v.dot(u) / uu) } else { v };
+        let vu = v.dot(u);
+        let s = if uu > 0.0 { vu / uu } else { 0.0 };
+        let f = v - u * s;
         let w = f.cross(v);
-        // Signed volumes of (0, c_x, f, v) and (0, c_y, v, f).
-        let vol_x = cx.truncate().dot(w) / 6.0;
-        let vol_y = -cy.truncate().dot(w) / 6.0;
-        let ff = f.length_squared();
-        m.volume += vol_x + vol_y;
-        m.first += ((f + v) * (vol_x + vol_y) + cx.truncate() * vol_x + cy.truncate() * vol_y) / 4.0;
-        m.second += (vol_x * (3.0 * cx.w) + vol_y * (3.0 * cy.w) + (vol_x + vol_y) * (2.0 * ff + vv)) / 10.0;
+        // 6x the signed volumes of (0, c_x, f, v) and (0, c_y, v, f).
+        let vol_x = cx.truncate().dot(w);
+        let vol_y = -cy.truncate().dot(w);
+        let vol = vol_x + vol_y;
+        let ff = vv - s * vu;
+        m.volume += vol;
+        m.first += (f + v) * vol + cx.truncate() * vol_x + cy.truncate() * vol_y;
+        m.second += vol_x * cx.w + vol_y * cy.w + vol * (2.0 * ff + vv);
     }
 }
 
