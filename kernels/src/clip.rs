@@ -783,13 +783,14 @@ pub fn flood<const P: usize, const V: usize, const Q: usize, F, A, C, L, S>(
             let (m, volume) = piece_moments(&poly, t, verts, tets, &tv);
             found[head] = m;
             total += volume;
-            poly.keep_faces_only();
             // Given now, while the piece exists; taken back if the flood fails.
             sink.piece(t as u32, j as u32, &poly);
+            // Planes a clip made but a later one cut away are no faces.
+            let faces = poly.face_mask();
             let mut q = 0;
             while q < poly.n_planes as usize {
                 let id = poly.ids[q];
-                if id != NO_ID {
+                if (faces >> q) & 1 != 0 && id != NO_ID {
                     let mut seen = false;
                     let mut s = 0;
                     while s < len {

@@ -186,12 +186,6 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
         p
     }
 
-    /// Drops the planes no vertex uses (keeping the others' order), so that
-    /// every plane left is a face.
-    pub fn keep_faces_only(&mut self) {
-        self.recycle_planes();
-    }
-
     /// The planes some vertex uses — the faces — as bits (`P <= 64`).
     #[inline]
     pub fn face_mask(&self) -> u64 {
