@@ -93,6 +93,10 @@ fn has_edge(t: u32, x: u32, y: u32) -> bool {
 }
 
 impl<const P: usize, const V: usize> Polyhedron<P, V> {
+    /// Refuses, at compile time, more planes than a clip's `u64` masks or
+    /// the 8-bit plane numbers of a vertex triple hold.
+    const PLANES_FIT: () = assert!(P <= 64, "a polyhedron has at most 64 planes");
+
     /// An empty polyhedron (no vertices).
     pub fn empty() -> Self {
         Self { planes: [Vec4::ZERO; P], ids: [NO_ID; P], verts: [Vec3::ZERO; V], tris: [0; V], n_planes: 0, n_verts: 0 }
@@ -254,6 +258,7 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
 
     /// Like [`Self::clip`], recording `id` as the new plane's maker.
     pub fn clip_as(&mut self, plane: Vec4, id: u32) -> Clip {
+        let () = Self::PLANES_FIT;
         if self.n_planes as usize == P {
             self.recycle_planes();
             if self.n_planes as usize == P {
