@@ -20,7 +20,7 @@
 
 use crate::abi::{counter, ClipParams, ACCUM_PER_SITE, INCOMPLETE_TET, NO_SITE};
 use crate::buffers::{AtomicSums, OutBuf, PairList};
-use crate::polyhedron::{Cell, Clip, Moments, Piece, Polyhedron, CELL_PLANES, CELL_VERTS, NO_ID};
+use crate::polyhedron::{Cell, Clip, Moments, Piece, Point, Polyhedron, CELL_PLANES, CELL_VERTS, NO_ID};
 use spirv_std::glam::{Vec3, Vec4};
 
 /// `[f32; 4]` records per stored cell: a header (planes, vertices, status
@@ -79,8 +79,8 @@ pub struct BisectorRun {
     pub out: Clipped,
     /// Largest squared distance of a vertex from the site.
     pub r2: f32,
-    mid: Vec3,
-    half: Vec3,
+    mid: Point,
+    half: Point,
 }
 
 impl BisectorRun {
@@ -95,7 +95,7 @@ impl BisectorRun {
     /// bounding box — then it cannot cut. The margin keeps this test from
     /// deciding what rounding could flip.
     #[inline]
-    pub fn clears(&self, n: Vec3, d2: f32) -> bool {
+    pub fn clears(&self, n: Point, d2: f32) -> bool {
         let inward = n.dot(self.mid);
         let spread = n.abs().dot(self.half);
         inward + spread + 1e-5 * (inward.abs() + spread) < 0.5 * d2
@@ -108,7 +108,7 @@ impl BisectorRun {
     pub fn clip<const P: usize, const V: usize>(
         &mut self,
         poly: &mut Polyhedron<P, V>,
-        n: Vec3,
+        n: Point,
         d2: f32,
         id: u32,
     ) -> bool {
@@ -184,7 +184,7 @@ pub fn clip_by_bisectors<const P: usize, const V: usize>(
             run.out.security_missed = false;
             break;
         }
-        let n = xyz(sites[nb as usize]) - xi;
+        let n = Point::from(xyz(sites[nb as usize]) - xi);
         let d2 = n.length_squared();
         if d2 > 4.0 * run.r2 {
             run.out.security_missed = false;
@@ -629,7 +629,7 @@ pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     let mut v = 0;
     while v < poly.n_verts as usize {
         let r = cells[base + 1 + CELL_PLANES + v];
-        poly.verts[v] = Vec3::new(r[0], r[1], r[2]);
+        poly.verts[v] = Point::new(r[0], r[1], r[2]);
         poly.tris[v] = r[3].to_bits();
         v += 1;
     }

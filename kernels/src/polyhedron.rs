@@ -6,11 +6,37 @@
 //! vertex is stored as the triple of planes that meet there, ordered
 //! consistently around the vertex, with its position cached. Clipping
 //! removes the vertices outside the new plane and closes the hole with one
-//! new vertex per boundary edge; no adjacency is stored (it is found by
-//! searching the few vertices a piece has). All coordinates are relative to
-//! a local origin (the site), so f32 keeps its precision.
+//! new vertex per boundary edge; no adjacency is stored (a clip finds the
+//! edges between removed and kept vertices from the removed ones' plane
+//! pairs alone). All coordinates are relative to a local origin (the
+//! site), so f32 keeps its precision.
 
 use spirv_std::glam::{Vec3, Vec4};
+
+/// A vertex position: a 16-byte SIMD vector on the CPU (its products and
+/// crosses are a few instructions there), a plain `Vec3` on the GPU; the
+/// code is the same for both.
+#[cfg(not(target_arch = "spirv"))]
+pub type Point = spirv_std::glam::Vec3A;
+/// A vertex position: a 16-byte SIMD vector on the CPU (its products and
+/// crosses are a few instructions there), a plain `Vec3` on the GPU; the
+/// code is the same for both.
+#[cfg(target_arch = "spirv")]
+pub type Point = Vec3;
+
+/// The normal (`xyz`) of a plane `(n, d)`, as a [`Point`].
+#[cfg(not(target_arch = "spirv"))]
+#[inline]
+pub fn normal(plane: Vec4) -> Point {
+    Point::from_vec4(plane)
+}
+
+/// The normal (`xyz`) of a plane `(n, d)`, as a [`Point`].
+#[cfg(target_arch = "spirv")]
+#[inline]
+pub fn normal(plane: Vec4) -> Point {
+    plane.truncate()
+}
 
 /// Capacities: a Voronoi cell of a site (Algorithm 1) may have ~40 faces
 /// and ~80 vertices; a piece of a cell inside a tet has far fewer. A clip
@@ -55,6 +81,14 @@ pub struct Moments {
     pub second: f32,
 }
 
+/// [`Moments`] while they are summed, in [`Point`]s.
+#[derive(Default)]
+struct Sums {
+    volume: f32,
+    first: Point,
+    second: f32,
+}
+
 /// A convex polyhedron of at most `P` planes (`P <= 64`: a clip keeps
 /// planes as bits of a `u64`) and `V` vertices.
 #[derive(Clone, Copy)]
@@ -65,7 +99,7 @@ pub struct Polyhedron<const P: usize, const V: usize> {
     /// [`NO_ID`] for the starting shape's planes.
     pub ids: [u32; P],
     /// Vertex positions.
-    pub verts: [Vec3; V],
+    pub verts: [Point; V],
     /// Vertex plane triples, packed 8 bits each: `a | b << 8 | c << 16`.
     pub tris: [u32; V],
     /// Planes in use.
@@ -99,7 +133,14 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
 
     /// An empty polyhedron (no vertices).
     pub fn empty() -> Self {
-        Self { planes: [Vec4::ZERO; P], ids: [NO_ID; P], verts: [Vec3::ZERO; V], tris: [0; V], n_planes: 0, n_verts: 0 }
+        Self {
+            planes: [Vec4::ZERO; P],
+            ids: [NO_ID; P],
+            verts: [Point::ZERO; V],
+            tris: [0; V],
+            n_planes: 0,
+            n_verts: 0,
+        }
     }
 
     /// The planes meeting at vertex `v`, ordered so that `det(n_a, n_b,
@@ -119,10 +160,10 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
 
     /// Adds vertex `pos` where planes `a, b, c` meet, ordered so that
     /// `det(n_a, n_b, n_c) > 0` (the orientation every clip preserves).
-    fn add_corner(&mut self, a: u32, b: u32, c: u32, pos: Vec3) {
-        let na = self.planes[a as usize].truncate();
-        let nb = self.planes[b as usize].truncate();
-        let nc = self.planes[c as usize].truncate();
+    fn add_corner(&mut self, a: u32, b: u32, c: u32, pos: Point) {
+        let na = normal(self.planes[a as usize]);
+        let nb = normal(self.planes[b as usize]);
+        let nc = normal(self.planes[c as usize]);
         let t = if na.cross(nb).dot(nc) > 0.0 { pack(a, b, c) } else { pack(a, c, b) };
         self.tris[self.n_verts as usize] = t;
         self.verts[self.n_verts as usize] = pos;
@@ -138,6 +179,7 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
 
     /// Makes this polyhedron the tetrahedron `v`, reusing its storage.
     pub fn set_tetrahedron(&mut self, v: [Vec3; 4]) {
+        let v = [Point::from(v[0]), Point::from(v[1]), Point::from(v[2]), Point::from(v[3])];
         let p = self;
         p.n_verts = 0;
         // Plane i is the face opposite vertex i, facing away from it.
@@ -150,7 +192,7 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
             if n.dot(v[i] - a) > 0.0 {
                 n = -n;
             }
-            p.planes[i] = n.extend(n.dot(a));
+            p.planes[i] = Vec3::from(n).extend(n.dot(a));
             p.ids[i] = NO_ID;
             i += 1;
         }
@@ -179,7 +221,7 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
             let sx = corner & 1;
             let sy = (corner >> 1) & 1;
             let sz = (corner >> 2) & 1;
-            let pos = Vec3::new(
+            let pos = Point::new(
                 if sx == 1 { hi.x } else { lo.x },
                 if sy == 1 { hi.y } else { lo.y },
                 if sz == 1 { hi.z } else { lo.z },
@@ -205,10 +247,10 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
 
     /// The largest squared distance of a vertex from the local origin, and
     /// the centre and half-extent of the bounding box.
-    pub fn bounds(&self) -> (f32, Vec3, Vec3) {
+    pub fn bounds(&self) -> (f32, Point, Point) {
         let mut r = 0.0f32;
-        let mut lo = Vec3::splat(f32::INFINITY);
-        let mut hi = Vec3::splat(f32::NEG_INFINITY);
+        let mut lo = Point::splat(f32::INFINITY);
+        let mut hi = Point::splat(f32::NEG_INFINITY);
         let mut i = 0;
         while i < (self.n_verts as usize).min(V) {
             let v = self.verts[i];
@@ -266,7 +308,7 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
             }
         }
         let n_old = (self.n_verts as usize).min(V);
-        let n = plane.truncate();
+        let n = normal(plane);
         // One test per vertex, listing the removed ones without a branch.
         let mut out = [0u32; V];
         let mut r = 0;
@@ -316,7 +358,7 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
                         return Clip::Overflow;
                     }
                     let v_out = self.verts[t];
-                    let dir = self.planes[x as usize].truncate().cross(self.planes[y as usize].truncate());
+                    let dir = normal(self.planes[x as usize]).cross(normal(self.planes[y as usize]));
                     let along = n.dot(dir);
                     self.verts[n_new] = if along * along > 1e-12 * n.length_squared() * dir.length_squared() {
                         v_out + dir * ((plane.w - n.dot(v_out)) / along)
@@ -383,7 +425,7 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
         }
         // Summed as 6 V, 24 ∫x and 60 ∫|x|²: the cones' constant factors
         // are applied once, at the end.
-        let mut m = Moments::default();
+        let mut m = Sums::default();
         let mut i = 0;
         while i < (self.n_verts as usize).min(V) {
             let v = self.verts[i];
@@ -394,7 +436,7 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
             self.add_corner_edge(&mut m, &feet, v, vv, c, a);
             i += 1;
         }
-        Moments { volume: m.volume / 6.0, first: m.first / 24.0, second: m.second / 60.0 }
+        Moments { volume: m.volume / 6.0, first: Vec3::from(m.first) / 24.0, second: m.second / 60.0 }
     }
 
     /// The two cones of vertex `v` at its edge `x -> y`, added as 6 V, 24
@@ -403,22 +445,23 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
     /// of the second moment reduce: `c·v = c·f = |c|²` and `f·v = |f|²`;
     /// with `f = v - s u`, `f × v = w` and `|f|² = |v|² - s (v·u)`.
     #[inline]
-    fn add_corner_edge(&self, m: &mut Moments, feet: &[Vec4; P], v: Vec3, vv: f32, x: u32, y: u32) {
+    fn add_corner_edge(&self, m: &mut Sums, feet: &[Vec4; P], v: Point, vv: f32, x: u32, y: u32) {
         let cx = feet[x as usize];
         let cy = feet[y as usize];
-        let u = self.planes[x as usize].truncate().cross(self.planes[y as usize].truncate());
+        let (cx3, cy3) = (normal(cx), normal(cy));
+        let u = normal(self.planes[x as usize]).cross(normal(self.planes[y as usize]));
         let uu = u.length_squared();
         let vu = v.dot(u);
         let s = if uu > 0.0 { vu / uu } else { 0.0 };
         let f = v - u * s;
         let w = f.cross(v);
         // 6x the signed volumes of (0, c_x, f, v) and (0, c_y, v, f).
-        let vol_x = cx.truncate().dot(w);
-        let vol_y = -cy.truncate().dot(w);
+        let vol_x = cx3.dot(w);
+        let vol_y = -cy3.dot(w);
         let vol = vol_x + vol_y;
         let ff = vv - s * vu;
         m.volume += vol;
-        m.first += (f + v) * vol + cx.truncate() * vol_x + cy.truncate() * vol_y;
+        m.first += (f + v) * vol + cx3 * vol_x + cy3 * vol_y;
         m.second += vol_x * cx.w + vol_y * cy.w + vol * (2.0 * ff + vv);
     }
 }
@@ -442,7 +485,7 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
         let mut acc = Linear::default();
         let mut i = 0;
         while i < (self.n_verts as usize).min(V) {
-            let v = self.verts[i];
+            let v = Vec3::from(self.verts[i]);
             let t = unpack(self.tris[i]);
             let mut e = 0;
             while e < 3 {

@@ -17,7 +17,7 @@ use crate::buffers::{AtomicSums, PairList};
 use crate::clip::{finish_pair, flood, tet_vertices, BisectorRun, Clipped, Paired, PieceSink};
 use crate::grid::cell_index;
 use crate::knn::sub_floor0;
-use crate::polyhedron::{Cell, Polyhedron, CELL_PLANES, CELL_VERTS};
+use crate::polyhedron::{Cell, Point, Polyhedron, CELL_PLANES, CELL_VERTS};
 use spirv_std::glam::Vec3;
 
 /// Most sites a tet's flood may visit in the second pass.
@@ -127,7 +127,7 @@ pub fn clip_by_grid<const P: usize, const V: usize>(
                             if s as usize == i {
                                 continue;
                             }
-                            let n = xyz(sites[s as usize]) - xi;
+                            let n = Point::from(xyz(sites[s as usize]) - xi);
                             let d2 = n.length_squared();
                             // Beyond twice the farthest vertex, or clear of
                             // the bounding box: the bisector cannot cut.
