@@ -20,7 +20,7 @@
 
 use crate::abi::{counter, ClipParams, ACCUM_PER_SITE, INCOMPLETE_TET, NO_SITE};
 use crate::buffers::{AtomicSums, OutBuf, PairList};
-use crate::polyhedron::{Cell, Clip, Moments, Piece, Point, Polyhedron, CELL_PLANES, CELL_VERTS, NO_ID};
+use crate::polyhedron::{point, Cell, Clip, Moments, Piece, Point, Polyhedron, CELL_PLANES, CELL_VERTS, NO_ID};
 use spirv_std::glam::{Vec3, Vec4};
 
 /// `[f32; 4]` records per stored cell: a header (planes, vertices, status
@@ -174,7 +174,7 @@ pub fn clip_by_bisectors<const P: usize, const V: usize>(
     if base == NO_LIST {
         return Clipped { clips: 0, security_missed: true, overflow: false, broken: false };
     }
-    let xi = xyz(sites[i]);
+    let xi = point(sites[i]);
     let mut run = BisectorRun::new(poly);
     let mut s = 0;
     while s < k {
@@ -184,7 +184,7 @@ pub fn clip_by_bisectors<const P: usize, const V: usize>(
             run.out.security_missed = false;
             break;
         }
-        let n = Point::from(xyz(sites[nb as usize]) - xi);
+        let n = point(sites[nb as usize]) - xi;
         let d2 = n.length_squared();
         if d2 > 4.0 * run.r2 {
             run.out.security_missed = false;

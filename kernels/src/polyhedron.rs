@@ -24,6 +24,20 @@ pub type Point = spirv_std::glam::Vec3A;
 #[cfg(target_arch = "spirv")]
 pub type Point = Vec3;
 
+/// The `xyz` of a buffer record, as a [`Point`] (one load on the CPU).
+#[cfg(not(target_arch = "spirv"))]
+#[inline]
+pub fn point(v: [f32; 4]) -> Point {
+    Point::from_vec4(Vec4::from_array(v))
+}
+
+/// The `xyz` of a buffer record, as a [`Point`] (one load on the CPU).
+#[cfg(target_arch = "spirv")]
+#[inline]
+pub fn point(v: [f32; 4]) -> Point {
+    Vec3::new(v[0], v[1], v[2])
+}
+
 /// The normal (`xyz`) of a plane `(n, d)`, as a [`Point`].
 #[cfg(not(target_arch = "spirv"))]
 #[inline]

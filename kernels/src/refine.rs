@@ -17,7 +17,7 @@ use crate::buffers::{AtomicSums, PairList};
 use crate::clip::{finish_pair, flood, tet_vertices, BisectorRun, Clipped, Paired, PieceSink};
 use crate::grid::cell_index;
 use crate::knn::sub_floor0;
-use crate::polyhedron::{Cell, Point, Polyhedron, CELL_PLANES, CELL_VERTS};
+use crate::polyhedron::{point, Cell, Polyhedron, CELL_PLANES, CELL_VERTS};
 use spirv_std::glam::Vec3;
 
 /// Most sites a tet's flood may visit in the second pass.
@@ -87,7 +87,7 @@ pub fn clip_by_grid<const P: usize, const V: usize>(
     sites: &[[f32; 4]],
     w: GridWalk,
 ) -> Clipped {
-    let xi = xyz(sites[i]);
+    let xi = point(sites[i]);
     let g = w.grid;
     let dims = [g.dim_x, g.dim_y, g.dim_z];
     let c = [
@@ -127,7 +127,7 @@ pub fn clip_by_grid<const P: usize, const V: usize>(
                             if s as usize == i {
                                 continue;
                             }
-                            let n = Point::from(xyz(sites[s as usize]) - xi);
+                            let n = point(sites[s as usize]) - xi;
                             let d2 = n.length_squared();
                             // Beyond twice the farthest vertex, or clear of
                             // the bounding box: the bisector cannot cut.
