@@ -190,35 +190,36 @@ fn cell_dist2(g: &GridParams, q: [u32; 3], c: [u32; 3]) -> u64 {
     d2
 }
 
+/// What a grid query searches: the grid, its cells' sites, the query
+/// point and the site it skips (its own, or `NO_SITE`).
+struct Search<'a> {
+    g: &'a GridParams,
+    cell_start: &'a [u32],
+    cell_count: &'a [u32],
+    sorted: &'a [QuantPoint],
+    q: [u32; 3],
+    exclude: u32,
+}
+
 /// Offers every site of grid cell `c`, unless the list is full and the
 /// whole cell is farther than its worst entry.
 #[inline]
-fn visit_cell<N, D>(
-    g: &GridParams,
-    c: [u32; 3],
-    cell_start: &[u32],
-    cell_count: &[u32],
-    sorted: &[QuantPoint],
-    q: [u32; 3],
-    exclude: u32,
-    best: &mut Best,
-    nbr: &mut N,
-    d2: &mut D,
-) where
+fn visit_cell<N, D>(s: &Search, c: [u32; 3], best: &mut Best, nbr: &mut N, d2: &mut D)
+where
     N: OutBuf<u32> + ?Sized,
     D: OutBuf<u64> + ?Sized,
 {
-    if best.found == best.k && cell_dist2(g, q, c) > best.worst_d {
+    if best.found == best.k && cell_dist2(s.g, s.q, c) > best.worst_d {
         return;
     }
-    let cell = cell_index(g, c);
-    let start = cell_start[cell] as usize;
-    let end = start + cell_count[cell] as usize;
+    let cell = cell_index(s.g, c);
+    let start = s.cell_start[cell] as usize;
+    let end = start + s.cell_count[cell] as usize;
     let mut j = start;
     while j < end {
-        let s = sorted[j];
-        if s[3] != exclude {
-            best.offer(dist2(q, &s), s[3], nbr, d2);
+        let site = s.sorted[j];
+        if site[3] != s.exclude {
+            best.offer(dist2(s.q, &site), site[3], nbr, d2);
         }
         j += 1;
     }
@@ -229,18 +230,8 @@ fn visit_cell<N, D>(
 /// tightens early and later candidates are mostly rejected or land near the
 /// list's end (short shifts).
 #[inline]
-fn visit_first_ring<N, D>(
-    g: &GridParams,
-    c: [u32; 3],
-    cell_start: &[u32],
-    cell_count: &[u32],
-    sorted: &[QuantPoint],
-    q: [u32; 3],
-    exclude: u32,
-    best: &mut Best,
-    nbr: &mut N,
-    d2: &mut D,
-) where
+fn visit_first_ring<N, D>(s: &Search, c: [u32; 3], best: &mut Best, nbr: &mut N, d2: &mut D)
+where
     N: OutBuf<u32> + ?Sized,
     D: OutBuf<u64> + ?Sized,
 {
@@ -254,9 +245,9 @@ fn visit_first_ring<N, D>(
             let x = c[0] + d[0];
             let y = c[1] + d[1];
             let z = c[2] + d[2];
-            let inside = x >= 1 && y >= 1 && z >= 1 && x <= g.dim_x && y <= g.dim_y && z <= g.dim_z;
+            let inside = x >= 1 && y >= 1 && z >= 1 && x <= s.g.dim_x && y <= s.g.dim_y && z <= s.g.dim_z;
             if off == axes && inside {
-                visit_cell(g, [x - 1, y - 1, z - 1], cell_start, cell_count, sorted, q, exclude, best, nbr, d2);
+                visit_cell(s, [x - 1, y - 1, z - 1], best, nbr, d2);
             }
             o += 1;
         }
@@ -266,28 +257,17 @@ fn visit_first_ring<N, D>(
 
 /// Visits the cells of Chebyshev ring `r` around cell `c`.
 #[inline]
-fn visit_ring<N, D>(
-    g: &GridParams,
-    c: [u32; 3],
-    r: u32,
-    cell_start: &[u32],
-    cell_count: &[u32],
-    sorted: &[QuantPoint],
-    q: [u32; 3],
-    exclude: u32,
-    best: &mut Best,
-    nbr: &mut N,
-    d2: &mut D,
-) where
+fn visit_ring<N, D>(s: &Search, c: [u32; 3], r: u32, best: &mut Best, nbr: &mut N, d2: &mut D)
+where
     N: OutBuf<u32> + ?Sized,
     D: OutBuf<u64> + ?Sized,
 {
     let z0 = sub_floor0(c[2], r);
-    let z1 = (c[2] + r).min(g.dim_z - 1);
+    let z1 = (c[2] + r).min(s.g.dim_z - 1);
     let y0 = sub_floor0(c[1], r);
-    let y1 = (c[1] + r).min(g.dim_y - 1);
+    let y1 = (c[1] + r).min(s.g.dim_y - 1);
     let x0 = sub_floor0(c[0], r);
-    let x1 = (c[0] + r).min(g.dim_x - 1);
+    let x1 = (c[0] + r).min(s.g.dim_x - 1);
     let mut z = z0;
     while z <= z1 {
         let mut y = y0;
@@ -296,16 +276,16 @@ fn visit_ring<N, D>(
             if on_shell {
                 let mut x = x0;
                 while x <= x1 {
-                    visit_cell(g, [x, y, z], cell_start, cell_count, sorted, q, exclude, best, nbr, d2);
+                    visit_cell(s, [x, y, z], best, nbr, d2);
                     x += 1;
                 }
             } else {
                 // Inside the shell's y-z extent only the two x ends are new.
                 if c[0] >= r {
-                    visit_cell(g, [c[0] - r, y, z], cell_start, cell_count, sorted, q, exclude, best, nbr, d2);
+                    visit_cell(s, [c[0] - r, y, z], best, nbr, d2);
                 }
-                if c[0] + r < g.dim_x {
-                    visit_cell(g, [c[0] + r, y, z], cell_start, cell_count, sorted, q, exclude, best, nbr, d2);
+                if c[0] + r < s.g.dim_x {
+                    visit_cell(s, [c[0] + r, y, z], best, nbr, d2);
                 }
             }
             y += 1;
@@ -335,13 +315,14 @@ pub fn grid_query<N, D>(
 {
     let available = if exclude < g.n_sites { g.n_sites - 1 } else { g.n_sites };
     let c = cell_coords(g, q);
+    let search = Search { g, cell_start, cell_count, sorted, q, exclude };
     let mut best = Best::new(k, base);
     let mut r = 0u32;
     loop {
         if r == 1 {
-            visit_first_ring(g, c, cell_start, cell_count, sorted, q, exclude, &mut best, nbr, d2);
+            visit_first_ring(&search, c, &mut best, nbr, d2);
         } else {
-            visit_ring(g, c, r, cell_start, cell_count, sorted, q, exclude, &mut best, nbr, d2);
+            visit_ring(&search, c, r, &mut best, nbr, d2);
         }
         let gap = ring_gap(g, q, c, r);
         if gap == u64::MAX || best.found == available {
