@@ -343,7 +343,7 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
         self.planes[new_plane as usize] = plane;
         self.ids[new_plane as usize] = id;
         // The removed vertices' directed edges, by plane: bit `y` of
-        // `from[x]` for each edge `x -> y` (planes number fewer than 64).
+        // `from[x]` for each edge `x -> y` (plane numbers are below 64).
         let mut from = [0u64; P];
         let mut a = 0;
         while a < r {
