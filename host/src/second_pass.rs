@@ -15,7 +15,7 @@
 //!   pieces of the sites that may own part of it but were not among its k
 //!   nearest.
 
-use crate::cpu::{build_grid, par_indices, LocalPairs, TaskSink};
+use crate::cpu::{build_grid, par_indices, CpuBackend, LocalPairs, TaskSink};
 use crate::error::Result;
 use crate::knn::KnnJob;
 use crate::site_grid::SiteGrid;
@@ -23,6 +23,7 @@ use crate::voronoi::{ClipJob, ClipOutput};
 use cvd_kernels::abi::{counter, KnnParams, INCOMPLETE_TET, NO_SITE};
 use cvd_kernels::clip::Paired;
 use cvd_kernels::refine::{self, GridWalk};
+use std::cell::OnceCell;
 use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, Ordering};
 use std::sync::Mutex;
 
@@ -98,7 +99,8 @@ pub(crate) fn run<S: TaskSink>(job: &ClipJob, out: &mut ClipOutput, sinks: &Mute
     // is finished when all of its pairs are. A knn pair is checked against
     // its tet's paired sites (the same k-NN, redone for its tet); the
     // pairs of a failed tet are all the sites that may own part of it.
-    let paired = if knn { tet_lists(job, pairs.iter().map(|e| e[0]))? } else { Vec::new() };
+    let cpu = OnceCell::new();
+    let paired = if knn { tet_lists(job, &cpu, pairs.iter().map(|e| e[0]))? } else { Vec::new() };
     let entries: Vec<[u32; 2]> = pairs.iter().chain(&failed).copied().collect();
     let mut work: Vec<Work> = pairs.iter().enumerate().map(|(e, &p)| (p, e, knn.then_some(e))).collect();
     work.extend(candidate_pairs(job, &grid, &failed).into_iter().map(|(p, e)| (p, pairs.len() + e, None)));
@@ -162,7 +164,7 @@ pub(crate) fn run<S: TaskSink>(job: &ClipJob, out: &mut ClipOutput, sinks: &Mute
             // Their paired sites' pieces are exact and already counted: add
             // the pieces of the sites that may own part of the tet but were
             // not paired with it.
-            let lists = tet_lists(job, incomplete.iter().copied())?;
+            let lists = tet_lists(job, &cpu, incomplete.iter().copied())?;
             let k = job.params.k_tet as usize;
             let fill: Vec<Work> = candidate_pairs(job, &grid, &missed)
                 .into_iter()
@@ -190,13 +192,24 @@ type Work = ([u32; 2], usize, Option<usize>);
 const VOLUME_TOLERANCE: f64 = 1e-4;
 
 /// The sites paired with each of `tets`, `k_tet` per tet: the job's tet
-/// k-NN, redone for these tets' (quantized) centroids.
-fn tet_lists(job: &ClipJob, tets: impl Iterator<Item = u32>) -> Result<Vec<u32>> {
+/// k-NN, redone for these tets' (quantized) centroids on the CPU backend
+/// in `cpu`, started on first use (most passes have no tet to redo).
+fn tet_lists(job: &ClipJob, cpu: &OnceCell<CpuBackend>, tets: impl Iterator<Item = u32>) -> Result<Vec<u32>> {
     let all = &job.tet_knn;
     let queries: Vec<_> = tets.map(|t| all.queries[t as usize]).collect();
+    if queries.is_empty() {
+        return Ok(Vec::new());
+    }
+    let cpu = match cpu.get() {
+        Some(cpu) => cpu,
+        None => {
+            let started = CpuBackend::new(None)?;
+            cpu.get_or_init(|| started)
+        }
+    };
     let params = KnnParams { n_queries: queries.len() as u32, ..all.params };
     let knn = KnnJob { sites: all.sites.clone(), queries, params, method: all.method, quantizer: all.quantizer };
-    Ok(knn.run(&crate::cpu::CpuBackend::new(None)?)?.indices)
+    Ok(knn.run(cpu)?.indices)
 }
 
 fn centroid(job: &ClipJob, t: usize) -> [f64; 3] {

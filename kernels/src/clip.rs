@@ -300,9 +300,16 @@ pub struct Paired<'a> {
     pub len: usize,
 }
 
-impl Paired<'_> {
+impl<'a> Paired<'a> {
     /// No list: the pair is not checked.
     pub const NONE: Paired<'static> = Paired { list: &[], start: 0, len: 0 };
+
+    /// The list of the tet whose paired sites hold slot `slot` of
+    /// `tet_sites`, `k_tet` slots per tet.
+    #[inline]
+    pub fn around(tet_sites: &'a [u32], slot: usize, k_tet: usize) -> Self {
+        Paired { list: tet_sites, start: slot - slot % k_tet, len: k_tet }
+    }
 
     /// Whether site `s` is in the list.
     #[inline]
@@ -515,7 +522,7 @@ pub fn tet_cell_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     let mut poly = Piece::tetrahedron(tv);
     let k = p.k_site as usize;
     let c = clip_by_bisectors(&mut poly, j, p.n_sites, sites, site_nbrs, list_start(p, j), k);
-    let paired = Paired { list: tet_sites, start: i - i % p.k_tet as usize, len: p.k_tet as usize };
+    let paired = Paired::around(tet_sites, i, p.k_tet as usize);
     let nonempty = finish_pair(t, j, &poly, &tv, &c, paired, p, sites, verts, tets, sums, unfinished, sink);
     count(counters, 1, nonempty as i64, &c);
 }
@@ -657,7 +664,7 @@ pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
         }
         f += 1;
     }
-    let paired = Paired { list: tet_sites, start: i - i % p.k_tet as usize, len: p.k_tet as usize };
+    let paired = Paired::around(tet_sites, i, p.k_tet as usize);
     let nonempty = finish_pair(t, j, &poly, &tv, &c, paired, p, sites, verts, tets, sums, unfinished, sink);
     count(counters, 1, nonempty as i64, &c);
 }

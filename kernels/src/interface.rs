@@ -88,6 +88,10 @@ use Access::{ReadOnly as R, ReadWrite as W};
 type Quant = [u32; 4];
 type Vec4 = [f32; 4];
 
+/// What the clipping kernels' `site_nbrs` binding holds.
+const SITE_NBRS: &str =
+    "(nbr_end - nbr_base) * k_site: the k_site nearest other sites of each site in nbr_base..nbr_end";
+
 /// Every entry point of [`crate::entry`], in the order a clipping job
 /// first dispatches them.
 pub const ENTRY_POINTS: &[EntryPoint] = &[
@@ -185,11 +189,7 @@ pub const ENTRY_POINTS: &[EntryPoint] = &[
             b::<Vec4>("verts", R, "mesh vertices, normalised, [x, y, z, density (1 without one)]"),
             b::<Quant>("tets", R, "n_tets: four vertex indices per tet"),
             b::<u32>("tet_sites", R, "(n_tets - tet_base) * k_tet: the sites paired with each tet of the part"),
-            b::<u32>(
-                "site_nbrs",
-                R,
-                "(nbr_end - nbr_base) * k_site: the k_site nearest other sites of each site in nbr_base..nbr_end"
-            ),
+            b::<u32>("site_nbrs", R, SITE_NBRS),
             b::<i64>("sums", W, "n_sites * 5 + n_tets: fixed-point sums per site, then per-tet volumes (atomic)"),
             b::<i64>("counters", W, "8 counters (abi::counter; atomic)"),
             b::<u32>("unfinished", W, "1 + 2 * capacity: count, then (tet, site) entries left for the second pass"),
@@ -201,11 +201,7 @@ pub const ENTRY_POINTS: &[EntryPoint] = &[
         "Cell-tet strategy: the Voronoi cell of each site (Algorithm 1). One thread per site.",
         &[
             b::<Vec4>("sites", R, "n_sites normalised sites"),
-            b::<u32>(
-                "site_nbrs",
-                R,
-                "(nbr_end - nbr_base) * k_site: the k_site nearest other sites of each site in nbr_base..nbr_end"
-            ),
+            b::<u32>("site_nbrs", R, SITE_NBRS),
             b::<Vec4>("cells", W, "n_sites * CELL_RECORDS records: each site's cell"),
             b::<i64>("counters", W, "8 counters (atomic)"),
         ],
@@ -234,11 +230,7 @@ pub const ENTRY_POINTS: &[EntryPoint] = &[
             b::<Vec4>("verts", R, "mesh vertices, normalised, [x, y, z, density]"),
             b::<Quant>("tets", R, "n_tets: four vertex indices per tet"),
             b::<u32>("tet_sites", R, "n_tets - tet_base: the site nearest each tet's centroid (knn_grid with k = 1)"),
-            b::<u32>(
-                "site_nbrs",
-                R,
-                "(nbr_end - nbr_base) * k_site: the k_site nearest other sites of each site in nbr_base..nbr_end"
-            ),
+            b::<u32>("site_nbrs", R, SITE_NBRS),
             b::<i64>("sums", W, "n_sites * 5 (+ n_tets, unused): fixed-point sums per site (atomic)"),
             b::<i64>("counters", W, "8 counters (atomic)"),
             b::<u32>("unfinished", W, "1 + 2 * n_tets: count, then (tet, site or NO_SITE) entries"),

@@ -196,11 +196,12 @@ pub fn refine_entry<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     }
     let t = list[1 + 2 * e] as usize;
     let j = list[2 + 2 * e];
-    let (k, list) = (p.clip.k_tet as usize, (t - p.clip.tet_base as usize) * p.clip.k_tet as usize);
+    // The tet's slots in `tet_sites`: its paired sites, nearest first.
+    let (k, slot) = (p.clip.k_tet as usize, (t - p.clip.tet_base as usize) * p.clip.k_tet as usize);
     if j == NO_SITE {
         refine_tet::<REFINE_QUEUE, _, _, _, _>(
             t,
-            tet_sites[list],
+            tet_sites[slot],
             p,
             w,
             sites,
@@ -214,7 +215,7 @@ pub fn refine_entry<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     } else if j == INCOMPLETE_TET {
         still.push(t as u32, INCOMPLETE_TET);
     } else {
-        let paired = Paired { list: tet_sites, start: list, len: k };
+        let paired = Paired::around(tet_sites, slot, k);
         refine_pair(t, j as usize, paired, p, w, sites, verts, tets, sums, still, sink);
     }
 }
