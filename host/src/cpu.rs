@@ -10,6 +10,7 @@ use crate::voronoi::{ClipJob, ClipOutput, Pairing, Strategy};
 use cvd_kernels::abi::{counter, lloyd_stat, QuantPoint, RefineParams, ACCUM_PER_SITE};
 use cvd_kernels::buffers::{DeviceSums, OutBuf, PairList, Window};
 use cvd_kernels::clip::{self, NoPieces, PieceSink, CELL_RECORDS};
+use cvd_kernels::walk::GridWalk;
 use cvd_kernels::{grid, knn, lloyd, refine, scan};
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicI64, AtomicU32, Ordering};
@@ -61,6 +62,10 @@ impl CpuBackend {
             match job.strategy {
                 Strategy::TetCell if job.pairing == Pairing::Flood => {
                     let (_, t) = timed(|| {
+                        // The grid the k-NN searched, again, for the pieces
+                        // their lists do not settle.
+                        let g = build_grid(&job.site_knn);
+                        let w = GridWalk::new(&job.refine, &site_nn.indices, &g.cell_start, &g.cell_count, &g.sorted);
                         par_indices(
                             p.n_tets as usize,
                             CHUNK / 16,
@@ -69,7 +74,7 @@ impl CpuBackend {
                             &unfinished,
                             sinks,
                             |t, s, c, u, k| {
-                                clip::flood_tet(t, p, sites, verts, tets, &tet_nn.indices, &site_nn.indices, s, c, u, k)
+                                clip::flood_tet(t, &job.refine, w, sites, verts, tets, &tet_nn.indices, s, c, u, k)
                             },
                         )
                     });
@@ -115,7 +120,7 @@ impl CpuBackend {
                     let mut list = vec![first.len() as u32];
                     list.extend(first.iter().flatten());
                     let rp = RefineParams { capacity: first.len() as u32, ..job.refine };
-                    let w = refine::GridWalk::new(&rp, &g.cell_start, &g.cell_count, &g.sorted);
+                    let w = GridWalk::new(&rp, &site_nn.indices, &g.cell_start, &g.cell_count, &g.sorted);
                     let ignored: Vec<AtomicI64> = (0..counter::COUNT).map(|_| AtomicI64::new(0)).collect();
                     let again = Mutex::new(Vec::new());
                     par_indices(first.len(), 1, &sums, &ignored, &again, sinks, |e, s, c, u, k| {

@@ -22,7 +22,8 @@ use crate::site_grid::SiteGrid;
 use crate::voronoi::{ClipJob, ClipOutput};
 use cvd_kernels::abi::{counter, KnnParams, INCOMPLETE_TET, NO_SITE};
 use cvd_kernels::clip::Paired;
-use cvd_kernels::refine::{self, GridWalk};
+use cvd_kernels::refine;
+use cvd_kernels::walk::GridWalk;
 use std::cell::OnceCell;
 use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, Ordering};
 use std::sync::Mutex;
@@ -54,7 +55,7 @@ pub(crate) fn run<S: TaskSink>(job: &ClipJob, out: &mut ClipOutput, sinks: &Mute
     // The kernels' grid walk, over the kernels' grid; the host grid answers
     // nearest-site and radius queries.
     let g = build_grid(&job.site_knn);
-    let walk = GridWalk::new(&job.refine, &g.cell_start, &g.cell_count, &g.sorted);
+    let walk = GridWalk::new(&job.refine, &[], &g.cell_start, &g.cell_count, &g.sorted);
     let grid = SiteGrid::new(&job.sites);
     // The sites' sums, then the tets' volumes, as the kernels lay them out.
     let n_site_sums = out.sums.len();

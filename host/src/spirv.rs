@@ -162,6 +162,7 @@ pub fn manifest() -> Value {
                 "OVERFLOWS": counter::OVERFLOWS,
                 "BROKEN": counter::BROKEN,
                 "FILTERED": counter::FILTERED,
+                "WALKS": counter::WALKS,
                 "COUNT": counter::COUNT,
             },
             "lloyd_stat": {

@@ -123,6 +123,9 @@ pub struct Counters {
     pub overflows: u64,
     /// Polyhedra that broke down numerically.
     pub broken: u64,
+    /// Pieces their k_site list did not settle, finished in place by a grid
+    /// walk (flood pairing; not unfinished, not in the second pass).
+    pub walks: u64,
     /// Pieces the kernels could not finish (any of the three above), all
     /// redone on the CPU with every neighbour needed and more capacity.
     pub second_pass: u64,
@@ -534,6 +537,7 @@ fn finish(
         security_missed: c(counter::SECURITY_MISSED),
         overflows: c(counter::OVERFLOWS),
         broken: c(counter::BROKEN),
+        walks: c(counter::WALKS),
         duplicate_sites: map.iter().filter(|m| m.is_none()).count() as u64,
         empty_cells: map.iter().zip(&cells.volume).filter(|(m, &v)| m.is_some() && v <= 0.0).count() as u64,
         second_pass: 0,

@@ -118,6 +118,9 @@ pub mod counter {
     pub const BROKEN: usize = 5;
     /// Pairs dropped by the half-space test before any clipping.
     pub const FILTERED: usize = 6;
+    /// Pieces their neighbour list did not settle, finished in place by a
+    /// grid walk (flood pairing).
+    pub const WALKS: usize = 7;
     /// Number of counters.
     pub const COUNT: usize = 8;
 }

@@ -9,8 +9,9 @@
 //!
 //! A pair whose piece could not be finished (security radius not reached
 //! within the neighbour list, capacity overflow, numerical breakdown) adds
-//! nothing and is listed in `unfinished`, for a second pass with more
-//! neighbours and more capacity ([`clip_by_bisectors`] with a [`Cell`]).
+//! nothing and is listed in `unfinished`, for a second pass with a complete
+//! neighbourhood and more capacity ([`crate::refine`]). Flood pairing
+//! completes short lists on the spot ([`clip_to_cell`]).
 //!
 //! Each piece added to a site's sums is also handed to a [`PieceSink`]:
 //! nothing on the GPU, the host's piece export on the CPU.
@@ -18,9 +19,10 @@
 //! Everything is computed relative to the site (the bisector of `x_i` and
 //! `x_j` is `n·x <= |n|²/2` with `n = x_j - x_i`), in f32.
 
-use crate::abi::{counter, ClipParams, ACCUM_PER_SITE, INCOMPLETE_TET, NO_SITE};
+use crate::abi::{counter, ClipParams, RefineParams, ACCUM_PER_SITE, INCOMPLETE_TET, NO_SITE};
 use crate::buffers::{AtomicSums, OutBuf, PairList};
 use crate::polyhedron::{point, Cell, Clip, Moments, Piece, Point, Polyhedron, CELL_PLANES, CELL_VERTS, NO_ID};
+use crate::walk::{clip_to_cell, GridWalk};
 use spirv_std::glam::{Vec3, Vec4};
 
 /// `[f32; 4]` records per stored cell: a header (planes, vertices, status
@@ -46,7 +48,7 @@ pub mod cell_status {
 }
 
 #[inline]
-fn xyz(v: [f32; 4]) -> Vec3 {
+pub(crate) fn xyz(v: [f32; 4]) -> Vec3 {
     Vec3::new(v[0], v[1], v[2])
 }
 
@@ -61,6 +63,8 @@ pub struct Clipped {
     pub overflow: bool,
     /// The polyhedron's structure broke down numerically.
     pub broken: bool,
+    /// Pieces finished by a grid walk after their list.
+    pub walks: i64,
 }
 
 impl Clipped {
@@ -88,7 +92,12 @@ impl BisectorRun {
     #[inline]
     pub fn new<const P: usize, const V: usize>(poly: &Polyhedron<P, V>) -> Self {
         let (r2, mid, half) = poly.bounds();
-        Self { out: Clipped { clips: 0, security_missed: true, overflow: false, broken: false }, r2, mid, half }
+        Self {
+            out: Clipped { clips: 0, security_missed: true, overflow: false, broken: false, walks: 0 },
+            r2,
+            mid,
+            half,
+        }
     }
 
     /// Whether the bisector with the site at `n` (`d2 = |n|²`) clears the
@@ -172,7 +181,7 @@ pub fn clip_by_bisectors<const P: usize, const V: usize>(
     k: usize,
 ) -> Clipped {
     if base == NO_LIST {
-        return Clipped { clips: 0, security_missed: true, overflow: false, broken: false };
+        return Clipped { clips: 0, security_missed: true, overflow: false, broken: false, walks: 0 };
     }
     let xi = point(sites[i]);
     let mut run = BisectorRun::new(poly);
@@ -451,6 +460,7 @@ fn count<C: AtomicSums>(counters: &mut C, pieces: i64, nonempty: i64, c: &Clippe
     counters.add(counter::PAIRS, pieces);
     counters.add(counter::NONEMPTY, nonempty);
     counters.add(counter::CLIPS, c.clips);
+    counters.add(counter::WALKS, c.walks);
     if c.security_missed {
         counters.add(counter::SECURITY_MISSED, 1);
     }
@@ -650,7 +660,7 @@ pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
         q += 4;
     }
     let faces = Piece::tetrahedron(tv);
-    let mut c = Clipped { clips: 0, security_missed: false, overflow: false, broken: false };
+    let mut c = Clipped { clips: 0, security_missed: false, overflow: false, broken: false, walks: 0 };
     let mut f = 0;
     while f < 4 && !poly.is_empty() {
         match poly.clip(faces.planes[f]) {
@@ -687,17 +697,18 @@ fn inside_ball(tv: &[Vec3; 4], r2: f32) -> bool {
 pub const FLOOD_CAP: usize = 32;
 
 /// Thread `i` of flood pairing (tet-cell): tet `t = tet_base + i`,
-/// [`flood`] from the site nearest its centroid (`tet_sites[i]`, a 1-NN list), each piece clipped by
-/// the bisectors of its site's `k_site` nearest neighbours.
+/// [`flood`] from the site nearest its centroid (`tet_sites[i]`, a 1-NN
+/// list), each piece clipped to its site's cell by [`clip_to_cell`]: its
+/// `k_site` nearest neighbours, then a grid walk if they do not settle it.
 #[inline]
 pub fn flood_tet<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     i: usize,
-    p: &ClipParams,
+    p: &RefineParams,
+    w: GridWalk,
     sites: &[[f32; 4]],
     verts: &[[f32; 4]],
     tets: &[[u32; 4]],
     tet_sites: &[u32],
-    site_nbrs: &[u32],
     sums: &mut A,
     counters: &mut C,
     unfinished: &mut L,
@@ -705,26 +716,18 @@ pub fn flood_tet<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
 ) {
     // Floods in windows of lists own their tets (`tet_base..n_tets`), not
     // sites: `own_lo..own_hi` does not apply.
-    let t = p.tet_base as usize + i;
-    if t >= p.n_tets as usize {
+    let t = p.clip.tet_base as usize + i;
+    if t >= p.clip.n_tets as usize {
         return;
     }
-    let start = tet_sites[i];
-    let k = p.k_site as usize;
-    let (n_sites, nbr_base, nbr_end) = (p.n_sites as usize, p.nbr_base as usize, p.nbr_end as usize);
     flood::<32, 64, FLOOD_CAP, _, _, _, _, _>(
         t,
-        start,
-        p.fixed_scale,
+        tet_sites[i],
+        p.clip.fixed_scale,
         sites,
         verts,
         tets,
-        move |j: usize, poly: &mut Piece| {
-            // `list_start`, from plain values: the closure holds no pointer
-            // to the push constants.
-            let base = if j < nbr_base || j >= nbr_end { NO_LIST } else { (j - nbr_base) * k };
-            clip_by_bisectors(poly, j, n_sites as u32, sites, site_nbrs, base, k)
-        },
+        move |j: usize, poly: &mut Piece| clip_to_cell(poly, j, sites, w),
         sums,
         counters,
         unfinished,
@@ -781,6 +784,7 @@ pub fn flood<const P: usize, const V: usize, const Q: usize, F, A, C, L, S>(
         poly.set_tetrahedron(tv);
         let ci = piece(j, &mut poly);
         c.clips += ci.clips;
+        c.walks += ci.walks;
         c.security_missed |= ci.security_missed;
         c.overflow |= ci.overflow;
         c.broken |= ci.broken;

@@ -8,6 +8,7 @@
 use crate::abi::{thread_index, ClipParams, GridBuildParams, KnnParams, LloydParams, QuantPoint, RefineParams};
 use crate::buffers::{DeviceCounters, DeviceList, DeviceSums};
 use crate::clip::NoPieces;
+use crate::walk::GridWalk;
 use crate::{clip, grid, knn, lloyd, refine, scan};
 use spirv_std::glam::UVec3;
 use spirv_std::spirv;
@@ -209,25 +210,29 @@ pub fn clip_cell_tet(
 pub fn clip_flood(
     #[spirv(global_invocation_id)] id: UVec3,
     #[spirv(num_workgroups)] groups: UVec3,
-    #[spirv(push_constant)] p: &ClipParams,
+    #[spirv(push_constant)] p: &RefineParams,
     #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] sites: &[[f32; 4]],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] verts: &[[f32; 4]],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] tets: &[[u32; 4]],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] tet_sites: &[u32],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] site_nbrs: &[u32],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] sums: &mut [i64],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 6)] counters: &mut [i64],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 7)] unfinished: &mut [u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] cell_start: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 6)] cell_count: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 7)] sorted: &[QuantPoint],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] sums: &mut [i64],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] counters: &mut [i64],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] unfinished: &mut [u32],
 ) {
     let t = thread_index(id.x, id.y, groups.x);
+    let w = GridWalk::new(p, site_nbrs, cell_start, cell_count, sorted);
     clip::flood_tet(
         t,
         p,
+        w,
         sites,
         verts,
         tets,
         tet_sites,
-        site_nbrs,
         &mut DeviceSums(sums),
         &mut DeviceSums(counters),
         &mut DeviceList(unfinished),
@@ -246,15 +251,16 @@ pub fn refine(
     #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] tets: &[[u32; 4]],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] tet_sites: &[u32],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] list: &[u32],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] cell_start: &[u32],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 6)] cell_count: &[u32],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 7)] sorted: &[QuantPoint],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] sums: &mut [i64],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] counters: &mut [i64],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] still: &mut [u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] site_nbrs: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 6)] cell_start: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 7)] cell_count: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] sorted: &[QuantPoint],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] sums: &mut [i64],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] counters: &mut [i64],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 11)] still: &mut [u32],
 ) {
     let e = thread_index(id.x, id.y, groups.x);
-    let w = refine::GridWalk::new(p, cell_start, cell_count, sorted);
+    let w = GridWalk::new(p, site_nbrs, cell_start, cell_count, sorted);
     refine::refine_entry(
         e,
         p,

@@ -14,10 +14,10 @@ use crate::layout::{Layout, TypeLayout};
 /// their meaning (records per stored cell, the markers in lists, sums per
 /// site). It changes with any of them;
 /// [`fingerprint`] is pinned by a test to make sure it does.
-pub const ABI_VERSION: u32 = 3;
+pub const ABI_VERSION: u32 = 4;
 
 /// The [`fingerprint`] of the interface of [`ABI_VERSION`].
-pub const ABI_FINGERPRINT: u64 = 0xf475_500d_bda0_9719;
+pub const ABI_FINGERPRINT: u64 = 0x577f_3ab9_9235_10c0;
 
 /// How an entry point uses a storage buffer.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -91,6 +91,12 @@ type Vec4 = [f32; 4];
 /// What the clipping kernels' `site_nbrs` binding holds.
 const SITE_NBRS: &str =
     "(nbr_end - nbr_base) * k_site: the k_site nearest other sites of each site in nbr_base..nbr_end";
+/// What a site-grid walk's bindings hold.
+const CELL_START: &str = "n_cells: first sorted slot of each cell of the site grid";
+/// See [`CELL_START`].
+const CELL_COUNT: &str = "n_cells: sites per cell";
+/// See [`CELL_START`].
+const SORTED: &str = "n_sites: the sites sorted by cell and index (grid_sort)";
 
 /// Every entry point of [`crate::entry`], in the order a clipping job
 /// first dispatches them.
@@ -222,15 +228,18 @@ pub const ENTRY_POINTS: &[EntryPoint] = &[
         ],
     ),
     ep!(
-        ClipParams,
+        RefineParams,
         "clip_flood",
-        "Tet-cell strategy, flood pairing: one thread per tet, seeded with the site nearest its centroid.",
+        "Tet-cell strategy, flood pairing: one thread per tet, seeded with the site nearest its centroid; a piece its site's list does not settle walks the site grid.",
         &[
             b::<Vec4>("sites", R, "n_sites normalised sites"),
             b::<Vec4>("verts", R, "mesh vertices, normalised, [x, y, z, density]"),
             b::<Quant>("tets", R, "n_tets: four vertex indices per tet"),
             b::<u32>("tet_sites", R, "n_tets - tet_base: the site nearest each tet's centroid (knn_grid with k = 1)"),
             b::<u32>("site_nbrs", R, SITE_NBRS),
+            b::<u32>("cell_start", R, CELL_START),
+            b::<u32>("cell_count", R, CELL_COUNT),
+            b::<Quant>("sorted", R, SORTED),
             b::<i64>("sums", W, "n_sites * 5 (+ n_tets, unused): fixed-point sums per site (atomic)"),
             b::<i64>("counters", W, "8 counters (atomic)"),
             b::<u32>("unfinished", W, "1 + 2 * n_tets: count, then (tet, site or NO_SITE) entries"),
@@ -239,16 +248,17 @@ pub const ENTRY_POINTS: &[EntryPoint] = &[
     ep!(
         RefineParams,
         "refine",
-        "Second pass: redoes each unfinished entry by a grid walk. One thread per list slot (capacity threads).",
+        "Second pass: redoes each unfinished entry by its neighbour list, then a grid walk. One thread per list slot (capacity threads).",
         &[
             b::<Vec4>("sites", R, "n_sites normalised sites"),
             b::<Vec4>("verts", R, "mesh vertices, normalised, [x, y, z, density]"),
             b::<Quant>("tets", R, "n_tets: four vertex indices per tet"),
             b::<u32>("tet_sites", R, "the first pass's pairs"),
             b::<u32>("list", R, "the first pass's unfinished list"),
-            b::<u32>("cell_start", R, "n_cells: first sorted slot of each cell of the site grid"),
-            b::<u32>("cell_count", R, "n_cells: sites per cell"),
-            b::<Quant>("sorted", R, "n_sites: the sites sorted by cell and index (grid_sort)"),
+            b::<u32>("site_nbrs", R, SITE_NBRS),
+            b::<u32>("cell_start", R, CELL_START),
+            b::<u32>("cell_count", R, CELL_COUNT),
+            b::<Quant>("sorted", R, SORTED),
             b::<i64>("sums", W, "the first pass's sums, added to (atomic)"),
             b::<i64>("counters", W, "8 counters (atomic; the host passes a scratch buffer)"),
             b::<u32>("still", W, "1 + 2 * capacity: entries even this pass could not finish"),

@@ -35,3 +35,4 @@ pub mod lloyd;
 pub mod polyhedron;
 pub mod refine;
 pub mod scan;
+pub mod walk;

@@ -259,6 +259,19 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
         mask
     }
 
+    /// Whether a plane in use was made by site `id`.
+    #[inline]
+    pub fn has_plane_of(&self, id: u32) -> bool {
+        let mut p = 0;
+        while p < (self.n_planes as usize).min(P) {
+            if self.ids[p] == id {
+                return true;
+            }
+            p += 1;
+        }
+        false
+    }
+
     /// The largest squared distance of a vertex from the local origin, and
     /// the centre and half-extent of the bounding box.
     pub fn bounds(&self) -> (f32, Point, Point) {

@@ -658,11 +658,9 @@ pub fn run(spirv_dir: &Path, verts: &[[f32; 3]], tets: &[[u32; 4]], sites: &[[f3
         &[("n_queries", U(nt as u64)), ("k", U(1)), ("exclude_self", U(0)), ("query_base", U(0)), ("in_order", U(0))],
     ));
     g.dispatch(m, "knn_grid", &[qcent_b, cell_start, cell_count, sorted, tet_sites, tet_d2], &knn, nt as u64)?;
-    // 3. Clip every tet by flooding its sites.
-    let clip_push = named("", &clip);
-    let args = [sites_f, verts_f, tets_b, tet_sites, nbrs, sums, counters, unfinished];
-    g.dispatch(m, "clip_flood", &args, &clip_push, nt as u64)?;
-    // 4. The second pass over the entries the first left unfinished.
+    // 3. Clip every tet by flooding its sites; a piece its site's list does
+    // not settle walks the site grid. 4. The second pass over the entries
+    // the first left unfinished. Both take the clipping and grid parameters.
     let mut refine = named("clip.", &clip);
     refine.extend(named("grid.", &grid));
     refine.extend(named(
@@ -676,7 +674,10 @@ pub fn run(spirv_dir: &Path, verts: &[[f32; 3]], tets: &[[u32; 4]], sites: &[[f3
             ("capacity", U(nt as u64)),
         ],
     ));
-    let args = [sites_f, verts_f, tets_b, tet_sites, unfinished, cell_start, cell_count, sorted, sums, scratch, still];
+    let args = [sites_f, verts_f, tets_b, tet_sites, nbrs, cell_start, cell_count, sorted, sums, counters, unfinished];
+    g.dispatch(m, "clip_flood", &args, &refine, nt as u64)?;
+    let args =
+        [sites_f, verts_f, tets_b, tet_sites, unfinished, nbrs, cell_start, cell_count, sorted, sums, scratch, still];
     g.dispatch(m, "refine", &args, &refine, nt as u64)?;
     g.submit()?;
 

@@ -151,8 +151,8 @@ impl fmt::Display for Summary {
             (
                 "pairs",
                 format!(
-                    "{} tried, {} non-empty, {} dropped before clipping; {} clips",
-                    c.pairs, c.nonempty, c.filtered, c.clips
+                    "{} tried, {} non-empty, {} dropped before clipping; {} clips; {} pieces beyond their list, walked",
+                    c.pairs, c.nonempty, c.filtered, c.clips, c.walks
                 ),
             ),
             (

@@ -239,14 +239,24 @@ impl Backend for VulkanBackend {
                 j.mark("tet knn");
                 // One thread per pair (flood: per tet, k_tet = 1).
                 let pairs = count * kt;
-                let args = [sites, verts, tets, tet_sites, cell_input, sums, counters, unfinished];
-                j.dispatch(kernel, &args, &cp, pairs)?;
+                let rp = RefineParams { clip: cp, capacity: pairs as u32, ..job.refine };
+                if kernel == "clip_flood" {
+                    let args = [
+                        sites, verts, tets, tet_sites, site_nbrs, g.start, g.count, g.sorted, sums, counters,
+                        unfinished,
+                    ];
+                    j.dispatch(kernel, &args, &rp, pairs)?;
+                } else {
+                    let args = [sites, verts, tets, tet_sites, cell_input, sums, counters, unfinished];
+                    j.dispatch(kernel, &args, &cp, pairs)?;
+                }
                 j.mark("clip");
                 // The second pass, over as many threads as the list can hold
                 // entries: those past its count return at once.
-                let rp = RefineParams { clip: cp, capacity: pairs as u32, ..job.refine };
-                let args =
-                    [sites, verts, tets, tet_sites, unfinished, g.start, g.count, g.sorted, sums, ignored, still];
+                let args = [
+                    sites, verts, tets, tet_sites, unfinished, site_nbrs, g.start, g.count, g.sorted, sums, ignored,
+                    still,
+                ];
                 j.dispatch("refine", &args, &rp, pairs)?;
                 j.mark("second pass");
                 j.download_into(unfinished, first_back, 4);
@@ -496,9 +506,10 @@ fn lloyd_on_device(
         }
         j.dispatch("knn_grid", &[centroids, g.start, g.count, g.sorted, tet_sites, tet_d2], &tk.params, nt)?;
         j.barrier();
-        j.dispatch("clip_flood", &[sites, verts, tets, tet_sites, nbr, sums, counters, unfinished], p, nt)?;
+        let args = [sites, verts, tets, tet_sites, nbr, g.start, g.count, g.sorted, sums, counters, unfinished];
+        j.dispatch("clip_flood", &args, &rp, nt)?;
         j.barrier();
-        let args = [sites, verts, tets, tet_sites, unfinished, g.start, g.count, g.sorted, sums, ignored, still];
+        let args = [sites, verts, tets, tet_sites, unfinished, nbr, g.start, g.count, g.sorted, sums, ignored, still];
         j.dispatch("refine", &args, &rp, nt)?;
         j.barrier();
         let lp = crate::cvt::params(job, it);
