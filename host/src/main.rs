@@ -88,9 +88,11 @@ struct RunArgs {
     /// How the iterations minimise the CVT energy.
     #[arg(long, value_enum, default_value_t = Optimizer::Lloyd)]
     optimizer: Optimizer,
-    /// Neighbours per site for its cell.
-    #[arg(long, default_value_t = cvd::voronoi::DEFAULT_K_SITE)]
-    k_site: usize,
+    /// Neighbours per site for its cell [default: 48 for flood pairing on
+    /// the CPU (a piece its list does not settle walks the site grid), 90
+    /// otherwise].
+    #[arg(long)]
+    k_site: Option<usize>,
     /// Output folder [default: out/<model or mesh file name>/].
     #[arg(long)]
     out: Option<PathBuf>,

@@ -42,8 +42,27 @@ pub enum Pairing {
     Flood,
 }
 
-/// Neighbours per site used to build its cell (paper: 90).
+/// Neighbours per site used to build its cell (paper: 90): the default on
+/// Vulkan, and for knn pairing and cell-tet.
 pub const DEFAULT_K_SITE: usize = 90;
+
+/// The default `k_site` of flood pairing on the CPU: a piece its list does
+/// not settle walks the site grid, which on a CPU core costs only that
+/// piece's time, so a shorter list (less k-NN work) pays (docs/BENCHMARKS.md:
+/// 48 against 90 on joint_31k with 35k sites). On a GPU a walking thread
+/// holds up its whole warp, and knn pairing sends such pieces to a second
+/// pass: those keep [`DEFAULT_K_SITE`].
+pub const DEFAULT_K_SITE_CPU_FLOOD: usize = 48;
+
+/// The default `k_site` for a backend of `kind` ([`Backend::kind`]) and a
+/// pairing.
+pub fn default_k_site(kind: &str, pairing: Pairing) -> usize {
+    if kind == "cpu" && pairing == Pairing::Flood {
+        DEFAULT_K_SITE_CPU_FLOOD
+    } else {
+        DEFAULT_K_SITE
+    }
+}
 
 /// The paper's Eq. (6): sites paired with each tet, from the ratio of
 /// sites to tets (lambda 20, alpha 10, beta 8, gamma 7).
@@ -188,7 +207,7 @@ pub struct ClippedVoronoi<'a> {
     pub(crate) strategy: Strategy,
     pub(crate) pairing: Option<Pairing>,
     pub(crate) k: Option<usize>,
-    pub(crate) k_site: usize,
+    pub(crate) k_site: Option<usize>,
     pub(crate) backend: Option<&'a dyn Backend>,
     pub(crate) density: Option<&'a [f32]>,
 }
@@ -202,7 +221,7 @@ impl<'a> ClippedVoronoi<'a> {
             strategy: Strategy::default(),
             pairing: None,
             k: None,
-            k_site: DEFAULT_K_SITE,
+            k_site: None,
             backend: None,
             density: None,
         }
@@ -234,10 +253,16 @@ impl<'a> ClippedVoronoi<'a> {
         self
     }
 
-    /// Neighbours per site for its cell (default 90).
-    pub fn k_site(mut self, k_site: usize) -> Self {
-        self.k_site = k_site;
+    /// Neighbours per site for its cell (default: [`default_k_site`]).
+    pub fn k_site(mut self, k_site: impl Into<Option<usize>>) -> Self {
+        self.k_site = k_site.into();
         self
+    }
+
+    /// The `k_site` this computation uses.
+    pub fn resolved_k_site(&self) -> usize {
+        let kind = self.backend.map_or("cpu", |b| b.kind());
+        self.k_site.unwrap_or_else(|| default_k_site(kind, self.resolved_pairing()))
     }
 
     /// A density `ρ > 0` per mesh vertex, linear inside each tet (default:
@@ -287,7 +312,7 @@ impl<'a> ClippedVoronoi<'a> {
                 )));
             }
         }
-        if self.k_site == 0 || self.k == Some(0) {
+        if self.k_site == Some(0) || self.k == Some(0) {
             return Err(Error::InvalidInput("k and k_site must be at least 1".into()));
         }
         // Duplicates: the lowest index owns the cell.
@@ -333,7 +358,7 @@ impl<'a> ClippedVoronoi<'a> {
         };
         // One frame and grid for both k-NN jobs, covering the mesh: sites
         // that move (Lloyd) stay inside it.
-        let site_knn = KnnJob::sites_in_frame(&sites, &local_mesh.vertices, self.k_site, KnnMethod::Grid)?;
+        let site_knn = KnnJob::sites_in_frame(&sites, &local_mesh.vertices, self.resolved_k_site(), KnnMethod::Grid)?;
         let tet_knn = KnnJob::points_like(&site_knn, &centroids, k)?;
 
         // Box for Algorithm 1 (mesh and sites, with a margin).

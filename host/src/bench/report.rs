@@ -31,6 +31,8 @@ pub struct Row {
     pub pairing: Pairing,
     /// Sites paired with each tet (flood: 1).
     pub k: usize,
+    /// Neighbours per site for its cell.
+    pub k_site: usize,
     /// Lloyd iteration (Fig. 13).
     pub iteration: Option<usize>,
     /// Both k-NN searches, grids included.
@@ -73,6 +75,7 @@ impl Row {
             strategy: cells.strategy,
             pairing: cells.pairing,
             k: cells.k,
+            k_site: cells.k_site,
             iteration: None,
             knn_ms: knn * 1e3,
             clip_ms: clip * 1e3,
@@ -155,6 +158,7 @@ fn columns(section: &str) -> Vec<Column> {
         ("backend", |r| r.backend.to_string()),
         ("method", |r| r.method()),
         ("k", |r| if r.pairing == Pairing::Flood { "-".into() } else { r.k.to_string() }),
+        ("k_site", |r| r.k_site.to_string()),
     ];
     if section == "fig13" {
         c.push(("iteration", |r| r.iteration.map_or("-".into(), |i| i.to_string())));
@@ -183,6 +187,7 @@ fn columns(section: &str) -> Vec<Column> {
     }
     c.extend::<[Column; 3]>([
         ("E_vol", |r| format!("{:.1e}", r.e_vol)),
+        ("walked", |r| r.counters.walks.to_string()),
         ("second pass", |r| r.counters.second_pass.to_string()),
         ("missed tets", |r| r.counters.missed_tets.to_string()),
     ]);

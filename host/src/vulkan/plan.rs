@@ -166,12 +166,14 @@ impl Plan {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::voronoi::DEFAULT_K_SITE;
     use crate::{points, ClippedVoronoi, TetMesh};
 
     fn job(n: usize) -> ClipJob {
         let mesh = TetMesh::cube(6);
         let sites = points::in_mesh(&mesh, n, 3);
-        ClippedVoronoi::new(&mesh, &sites).job().unwrap().0
+        // Vulkan's default list length.
+        ClippedVoronoi::new(&mesh, &sites).k_site(DEFAULT_K_SITE).job().unwrap().0
     }
 
     fn cell_tet_job(n: usize) -> ClipJob {
