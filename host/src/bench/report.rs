@@ -185,7 +185,7 @@ fn columns(section: &str) -> Vec<Column> {
             ("chunks", |r| r.chunks.to_string()),
         ]);
     }
-    c.extend::<[Column; 3]>([
+    c.extend::<[Column; 4]>([
         ("E_vol", |r| format!("{:.1e}", r.e_vol)),
         ("walked", |r| r.counters.walks.to_string()),
         ("second pass", |r| r.counters.second_pass.to_string()),
