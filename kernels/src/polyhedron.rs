@@ -458,39 +458,51 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
             let v = self.verts[i];
             let vv = v.length_squared();
             let [a, b, c] = unpack(self.tris[i]);
-            self.add_corner_edge(&mut m, &feet, v, vv, a, b);
-            self.add_corner_edge(&mut m, &feet, v, vv, b, c);
-            self.add_corner_edge(&mut m, &feet, v, vv, c, a);
+            let (na, nb, nc) =
+                (normal(self.planes[a as usize]), normal(self.planes[b as usize]), normal(self.planes[c as usize]));
+            let (va, vb, vc) = (v.dot(na), v.dot(nb), v.dot(nc));
+            add_corner_edge(&mut m, &feet, v, vv, (a, na, va), (b, nb, vb));
+            add_corner_edge(&mut m, &feet, v, vv, (b, nb, vb), (c, nc, vc));
+            add_corner_edge(&mut m, &feet, v, vv, (c, nc, vc), (a, na, va));
             i += 1;
         }
         Moments { volume: m.volume / 6.0, first: Vec3::from(m.first) / 24.0, second: m.second / 60.0 }
     }
+}
 
-    /// The two cones of vertex `v` at its edge `x -> y`, added as 6 V, 24
-    /// ∫x and 60 ∫|x|². Every point of a cone's base triangle lies on the
-    /// base's plane and `f` is the foot on the edge line, so the cross terms
-    /// of the second moment reduce: `c·v = c·f = |c|²` and `f·v = |f|²`;
-    /// with `f = v - s u`, `f × v = w` and `|f|² = |v|² - s (v·u)`.
-    #[inline]
-    fn add_corner_edge(&self, m: &mut Sums, feet: &[Vec4; P], v: Point, vv: f32, x: u32, y: u32) {
-        let cx = feet[x as usize];
-        let cy = feet[y as usize];
-        let (cx3, cy3) = (normal(cx), normal(cy));
-        let u = normal(self.planes[x as usize]).cross(normal(self.planes[y as usize]));
-        let uu = u.length_squared();
-        let vu = v.dot(u);
-        let s = if uu > 0.0 { vu / uu } else { 0.0 };
-        let f = v - u * s;
-        let w = f.cross(v);
-        // 6x the signed volumes of (0, c_x, f, v) and (0, c_y, v, f).
-        let vol_x = cx3.dot(w);
-        let vol_y = -cy3.dot(w);
-        let vol = vol_x + vol_y;
-        let ff = vv - s * vu;
-        m.volume += vol;
-        m.first += (f + v) * vol + cx3 * vol_x + cy3 * vol_y;
-        m.second += vol_x * cx.w + vol_y * cy.w + vol * (2.0 * ff + vv);
-    }
+/// The two cones of vertex `v` at its edge `x -> y` (each plane with its
+/// normal `n` and `v·n`), added as 6 V, 24 ∫x and 60 ∫|x|². Every point of
+/// a cone's base triangle lies on the base's plane and `f` is the foot on
+/// the edge line, so the cross terms of the second moment reduce: `c·v =
+/// c·f = |c|²` and `f·v = |f|²`; with `u = n_x × n_y`, `f = v - s u`,
+/// `|f|² = |v|² - s (v·u)` and `f × v = s (v × u) = s (n_x (v·n_y) - n_y
+/// (v·n_x))`.
+#[inline]
+fn add_corner_edge<const P: usize>(
+    m: &mut Sums,
+    feet: &[Vec4; P],
+    v: Point,
+    vv: f32,
+    (x, nx, vx): (u32, Point, f32),
+    (y, ny, vy): (u32, Point, f32),
+) {
+    let cx = feet[x as usize];
+    let cy = feet[y as usize];
+    let (cx3, cy3) = (normal(cx), normal(cy));
+    let u = nx.cross(ny);
+    let uu = u.length_squared();
+    let vu = v.dot(u);
+    let s = if uu > 0.0 { vu / uu } else { 0.0 };
+    let f = v - u * s;
+    let w = (nx * vy - ny * vx) * s;
+    // 6x the signed volumes of (0, c_x, f, v) and (0, c_y, v, f).
+    let vol_x = cx3.dot(w);
+    let vol_y = -cy3.dot(w);
+    let vol = vol_x + vol_y;
+    let ff = vv - s * vu;
+    m.volume += vol;
+    m.first += (f + v) * vol + cx3 * vol_x + cy3 * vol_y;
+    m.second += vol_x * cx.w + vol_y * cy.w + vol * (2.0 * ff + vv);
 }
 
 impl<const P: usize, const V: usize> Polyhedron<P, V> {
