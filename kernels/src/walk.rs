@@ -17,12 +17,12 @@ use crate::knn::sub_floor0;
 use crate::polyhedron::{point, Polyhedron};
 use spirv_std::glam::Vec3;
 
-/// What a second look at a piece searches: the first pass's neighbour
+/// What clipping a piece to its cell searches: the sites' neighbour
 /// lists, then the site grid — its cells, their sites, and where cell
 /// (0, 0, 0) lies in the clipping frame.
 #[derive(Clone, Copy)]
 pub struct GridWalk<'a> {
-    /// The first pass's lists, `k_site` per site of `nbr_base..nbr_end`
+    /// The k-NN's lists, `k_site` per site of `nbr_base..nbr_end`
     /// (as [`crate::clip::list_start`] reads them); none when empty.
     pub site_nbrs: &'a [u32],
     /// Entries per list.
