@@ -36,7 +36,7 @@ pub enum Pairing {
     Knn,
     #[default]
     #[value(alias = "exact")]
-    /// From the site nearest the tet's first vertex, visit the sites whose bisectors
+    /// From the site nearest the centroid, visit the sites whose bisectors
     /// are faces of the pieces found so far: exactly the sites that own
     /// part of the tet (tet-cell only).
     Flood,
@@ -359,14 +359,7 @@ impl<'a> ClippedVoronoi<'a> {
         // One frame and grid for both k-NN jobs, covering the mesh: sites
         // that move (Lloyd) stay inside it.
         let site_knn = KnnJob::sites_in_frame(&sites, &local_mesh.vertices, self.resolved_k_site(), KnnMethod::Grid)?;
-        // Knn pairing: the k nearest sites of each tet's centroid. Flood:
-        // the nearest site of each mesh vertex, the seed of every tet whose
-        // first vertex it is (it owns a neighbourhood of that vertex, so a
-        // piece of the tet); 4-5x fewer queries than the tets.
-        let tet_knn = match pairing {
-            Pairing::Knn => KnnJob::points_like(&site_knn, &centroids, k)?,
-            Pairing::Flood => KnnJob::points_like(&site_knn, &local_mesh.vertices, 1)?,
-        };
+        let tet_knn = KnnJob::points_like(&site_knn, &centroids, k)?;
 
         // Box for Algorithm 1 (mesh and sites, with a margin).
         let mut lo = [f32::INFINITY; 3];

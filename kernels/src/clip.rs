@@ -697,9 +697,9 @@ fn inside_ball(tv: &[Vec3; 4], r2: f32) -> bool {
 pub const FLOOD_CAP: usize = 32;
 
 /// Thread `i` of flood pairing (tet-cell): tet `t = tet_base + i`,
-/// [`flood`] from its seed (see [`flood_seed`]), each piece clipped to its
-/// site's cell by [`clip_to_cell`]: its `k_site` nearest neighbours, then a
-/// grid walk if they do not settle it.
+/// [`flood`] from the site nearest its centroid (`tet_sites[i]`, a 1-NN
+/// list), each piece clipped to its site's cell by [`clip_to_cell`]: its
+/// `k_site` nearest neighbours, then a grid walk if they do not settle it.
 #[inline]
 pub fn flood_tet<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     i: usize,
@@ -722,7 +722,7 @@ pub fn flood_tet<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     }
     flood::<32, 64, FLOOD_CAP, _, _, _, _, _>(
         t,
-        flood_seed(t, tets, tet_sites),
+        tet_sites[i],
         p.clip.fixed_scale,
         sites,
         verts,
@@ -733,17 +733,6 @@ pub fn flood_tet<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
         unfinished,
         sink,
     );
-}
-
-/// The site a flood of tet `t` starts from: the nearest site of the tet's
-/// first vertex (`vert_sites`: one per mesh vertex, a 1-NN list). That site
-/// owns a neighbourhood of the vertex, so a piece of the tet of positive
-/// volume, unless the vertex is tied between sites; then the piece may be
-/// empty, the certificate fails, and the tet goes to the second pass (and
-/// to the host, which seeds from the centroid).
-#[inline]
-pub fn flood_seed(t: usize, tets: &[[u32; 4]], vert_sites: &[u32]) -> u32 {
-    vert_sites[tets[t][0] as usize]
 }
 
 /// Flood pairing of tet `t` from site `start`: build its piece, and visit

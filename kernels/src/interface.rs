@@ -230,12 +230,12 @@ pub const ENTRY_POINTS: &[EntryPoint] = &[
     ep!(
         RefineParams,
         "clip_flood",
-        "Tet-cell strategy, flood pairing: one thread per tet, seeded with the site nearest its first vertex; a piece its site's list does not settle walks the site grid.",
+        "Tet-cell strategy, flood pairing: one thread per tet, seeded with the site nearest its centroid; a piece its site's list does not settle walks the site grid.",
         &[
             b::<Vec4>("sites", R, "n_sites normalised sites"),
             b::<Vec4>("verts", R, "mesh vertices, normalised, [x, y, z, density]"),
             b::<Quant>("tets", R, "n_tets: four vertex indices per tet"),
-            b::<u32>("tet_sites", R, "n_verts: the site nearest each mesh vertex (knn_grid with k = 1)"),
+            b::<u32>("tet_sites", R, "n_tets - tet_base: the site nearest each tet's centroid (knn_grid with k = 1)"),
             b::<u32>("site_nbrs", R, SITE_NBRS),
             b::<u32>("cell_start", R, CELL_START),
             b::<u32>("cell_count", R, CELL_COUNT),
@@ -253,7 +253,7 @@ pub const ENTRY_POINTS: &[EntryPoint] = &[
             b::<Vec4>("sites", R, "n_sites normalised sites"),
             b::<Vec4>("verts", R, "mesh vertices, normalised, [x, y, z, density]"),
             b::<Quant>("tets", R, "n_tets: four vertex indices per tet"),
-            b::<u32>("tet_sites", R, "the first pass's pairs (knn pairing) or seeds (flood)"),
+            b::<u32>("tet_sites", R, "the first pass's pairs"),
             b::<u32>("list", R, "the first pass's unfinished list"),
             b::<u32>("site_nbrs", R, SITE_NBRS),
             b::<u32>("cell_start", R, CELL_START),

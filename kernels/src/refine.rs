@@ -7,7 +7,7 @@
 
 use crate::abi::{RefineParams, INCOMPLETE_TET, NO_SITE};
 use crate::buffers::{AtomicSums, PairList};
-use crate::clip::{finish_pair, flood, flood_seed, tet_vertices, xyz, Paired, PieceSink};
+use crate::clip::{finish_pair, flood, tet_vertices, xyz, Paired, PieceSink};
 use crate::polyhedron::{Cell, CELL_PLANES, CELL_VERTS};
 use crate::walk::{clip_to_cell, GridWalk};
 
@@ -16,10 +16,9 @@ pub const REFINE_QUEUE: usize = 256;
 
 /// Thread `e` of the second pass over the first pass's unfinished list
 /// (`list[0]` entries `(tet, site)` from `list[1]`): a whole tet
-/// (`site == NO_SITE`, a failed flood) is flooded again from its seed
-/// ([`flood_seed`]: `tet_sites` holds one per mesh vertex); a knn pair's
-/// piece is clipped on its own and checked against the tet's paired sites
-/// (`tet_sites[(tet - tet_base) * k_tet..]`); a tet
+/// (`site == NO_SITE`, a failed flood) is flooded again from the site
+/// nearest its centroid (`tet_sites[(tet - tet_base) * k_tet]`); a pair's piece is
+/// clipped on its own and checked against the tet's paired sites; a tet
 /// already known to be incomplete is passed on. What fails again, and the
 /// incomplete tets, go to `still`.
 #[inline]
@@ -42,11 +41,12 @@ pub fn refine_entry<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     }
     let t = list[1 + 2 * e] as usize;
     let j = list[2 + 2 * e];
+    // The tet's slots in `tet_sites`: its paired sites, nearest first.
+    let (k, slot) = (p.clip.k_tet as usize, (t - p.clip.tet_base as usize) * p.clip.k_tet as usize);
     if j == NO_SITE {
-        // A failed flood: `tet_sites` holds the floods' seeds.
         refine_tet::<REFINE_QUEUE, _, _, _, _>(
             t,
-            flood_seed(t, tets, tet_sites),
+            tet_sites[slot],
             p,
             w,
             sites,
@@ -60,8 +60,6 @@ pub fn refine_entry<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     } else if j == INCOMPLETE_TET {
         still.push(t as u32, INCOMPLETE_TET);
     } else {
-        // A knn pair: the tet's slots in `tet_sites` list its paired sites.
-        let (k, slot) = (p.clip.k_tet as usize, (t - p.clip.tet_base as usize) * p.clip.k_tet as usize);
         let paired = Paired::around(tet_sites, slot, k);
         refine_pair(t, j as usize, paired, p, w, sites, verts, tets, sums, still, sink);
     }

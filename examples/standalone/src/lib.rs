@@ -4,8 +4,7 @@
 //!
 //! The job is the tet-cell strategy with flood pairing: build the site grid
 //! (count, scan, scatter, sort), find each site's nearest sites and each
-//! mesh vertex's nearest site (the seed of the tets it is the first vertex
-//! of), clip every tet (`clip_flood`), redo what the first
+//! tet's nearest site, clip every tet (`clip_flood`), redo what the first
 //! pass could not finish (`refine`), and read the fixed-point sums back.
 //! The manifest gives each module's file, entry point, bindings and
 //! push-constant layout; push constants are written field by field at the
@@ -523,6 +522,8 @@ pub fn run(spirv_dir: &Path, verts: &[[f32; 3]], tets: &[[u32; 4]], sites: &[[f3
     let local = |p: &[f32; 3]| [0, 1, 2].map(|a| (p[a] as f64 - lo[a]) / scale);
     let sites_l: Vec<[f64; 3]> = sites.iter().map(local).collect();
     let verts_l: Vec<[f64; 3]> = verts.iter().map(local).collect();
+    let centroids: Vec<[f64; 3]> =
+        tets.iter().map(|t| [0, 1, 2].map(|a| t.iter().map(|&v| verts_l[v as usize][a]).sum::<f64>() / 4.0)).collect();
 
     // Quantized coordinates (exact integer distances for the k-NN): the box
     // of sites and mesh, scaled by a power of two into [0, QUANT_MAX].
@@ -541,7 +542,7 @@ pub fn run(spirv_dir: &Path, verts: &[[f32; 3]], tets: &[[u32; 4]], sites: &[[f3
         [q[0], q[1], q[2], i as u32]
     };
     let qsites: Vec<[u32; 4]> = sites_l.iter().enumerate().map(|(i, p)| quant(p, i)).collect();
-    let qverts: Vec<[u32; 4]> = verts_l.iter().enumerate().map(|(i, p)| quant(p, i)).collect();
+    let qcentroids: Vec<[u32; 4]> = centroids.iter().enumerate().map(|(i, p)| quant(p, i)).collect();
 
     // The site grid: about 5 sites per cubic cell over the quantized box.
     let mut ext = [1u64; 3];
@@ -610,7 +611,7 @@ pub fn run(spirv_dir: &Path, verts: &[[f32; 3]], tets: &[[u32; 4]], sites: &[[f3
     let verts_f = g.buffer(0, &f32_bytes(verts_l.iter().flat_map(|p| [p[0] as f32, p[1] as f32, p[2] as f32, 1.0])))?;
     let tets_b = g.buffer(0, &u32_bytes(tets.iter().flatten().copied()))?;
     let qsites_b = g.buffer(0, &u32_bytes(qsites.iter().flatten().copied()))?;
-    let qverts_b = g.buffer(0, &u32_bytes(qverts.iter().flatten().copied()))?;
+    let qcent_b = g.buffer(0, &u32_bytes(qcentroids.iter().flatten().copied()))?;
     let site_cell = g.buffer(n * 4, &[])?;
     let cell_count = g.buffer(n_cells * 4, &[])?;
     let cell_start = g.buffer(n_cells * 4, &[])?;
@@ -619,9 +620,8 @@ pub fn run(spirv_dir: &Path, verts: &[[f32; 3]], tets: &[[u32; 4]], sites: &[[f3
     let sorted = g.buffer(n * 16, &[])?;
     let nbrs = g.buffer(n * k_site * 4, &[])?;
     let nbr_d2 = g.buffer(n * k_site * 8, &[])?;
-    let nv = verts.len();
-    let seeds = g.buffer(nv * 4, &[])?;
-    let seed_d2 = g.buffer(nv * 8, &[])?;
+    let tet_sites = g.buffer(nt * 4, &[])?;
+    let tet_d2 = g.buffer(nt * 8, &[])?;
     let sums = g.buffer((n * accum + nt) * 8, &[])?;
     let counters = g.buffer(n_counters * 8, &[])?;
     let unfinished = g.buffer((1 + 2 * nt) * 4, &[])?;
@@ -639,7 +639,7 @@ pub fn run(spirv_dir: &Path, verts: &[[f32; 3]], tets: &[[u32; 4]], sites: &[[f3
     g.dispatch(m, "grid_scatter", &[qsites_b, site_cell, cell_start, cursor, sorted], &build, n as u64)?;
     g.dispatch(m, "grid_sort", &[cell_start, cell_count, sorted], &build, n_cells as u64)?;
     // 2. The k_site nearest other sites of each site; the nearest site of
-    // each mesh vertex (flood pairing's seeds).
+    // each tet's centroid (flood pairing's seed).
     let mut knn = named("grid.", &grid);
     knn.extend(named(
         "",
@@ -655,9 +655,9 @@ pub fn run(spirv_dir: &Path, verts: &[[f32; 3]], tets: &[[u32; 4]], sites: &[[f3
     let mut knn = named("grid.", &grid);
     knn.extend(named(
         "",
-        &[("n_queries", U(nv as u64)), ("k", U(1)), ("exclude_self", U(0)), ("query_base", U(0)), ("in_order", U(0))],
+        &[("n_queries", U(nt as u64)), ("k", U(1)), ("exclude_self", U(0)), ("query_base", U(0)), ("in_order", U(0))],
     ));
-    g.dispatch(m, "knn_grid", &[qverts_b, cell_start, cell_count, sorted, seeds, seed_d2], &knn, nv as u64)?;
+    g.dispatch(m, "knn_grid", &[qcent_b, cell_start, cell_count, sorted, tet_sites, tet_d2], &knn, nt as u64)?;
     // 3. Clip every tet by flooding its sites; a piece its site's list does
     // not settle walks the site grid. 4. The second pass over the entries
     // the first left unfinished. Both take the clipping and grid parameters.
@@ -674,10 +674,10 @@ pub fn run(spirv_dir: &Path, verts: &[[f32; 3]], tets: &[[u32; 4]], sites: &[[f3
             ("capacity", U(nt as u64)),
         ],
     ));
-    let args = [sites_f, verts_f, tets_b, seeds, nbrs, cell_start, cell_count, sorted, sums, counters, unfinished];
+    let args = [sites_f, verts_f, tets_b, tet_sites, nbrs, cell_start, cell_count, sorted, sums, counters, unfinished];
     g.dispatch(m, "clip_flood", &args, &refine, nt as u64)?;
     let args =
-        [sites_f, verts_f, tets_b, seeds, unfinished, nbrs, cell_start, cell_count, sorted, sums, scratch, still];
+        [sites_f, verts_f, tets_b, tet_sites, unfinished, nbrs, cell_start, cell_count, sorted, sums, scratch, still];
     g.dispatch(m, "refine", &args, &refine, nt as u64)?;
     g.submit()?;
 

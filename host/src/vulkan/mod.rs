@@ -121,9 +121,7 @@ impl Backend for VulkanBackend {
         // and its ties); the results go back to the job's order.
         let windows = plan.windows(n);
         let slabs = (windows.len() > 1 && job.pairing == Pairing::Flood).then(|| Slabs::new(job, plan.own / 4));
-        // `queries`: the tets' centroids (knn pairing) or the mesh's
-        // vertices (flood seeds).
-        let (sites, quant, tets, queries) = match &slabs {
+        let (sites, quant, tets, centroids) = match &slabs {
             None => (j.upload(&job.sites)?, j.upload(&sk.sites)?, j.upload(&job.tets)?, j.upload(&tk.queries)?),
             Some(s) => {
                 let sites: Vec<[f32; 4]> = s.sites.iter().map(|&old| job.sites[old as usize]).collect();
@@ -134,9 +132,8 @@ impl Backend for VulkanBackend {
                     })
                     .collect();
                 let tets: Vec<[u32; 4]> = s.tets.iter().map(|&old| job.tets[old as usize]).collect();
-                // Slabs are for floods, whose queries are the mesh's
-                // vertices (the floods' seeds): not reordered.
-                (j.upload(&sites)?, j.upload(&quant)?, j.upload(&tets)?, j.upload(&tk.queries)?)
+                let centroids: Vec<[u32; 4]> = s.tets.iter().map(|&old| tk.queries[old as usize]).collect();
+                (j.upload(&sites)?, j.upload(&quant)?, j.upload(&tets)?, j.upload(&centroids)?)
             }
         };
         let verts = j.upload(&job.verts)?;
@@ -192,26 +189,11 @@ impl Backend for VulkanBackend {
             None
         };
 
-        // Flood: every tet's seed, from its first vertex's nearest site,
-        // once for the whole job.
-        let flood = job.pairing == Pairing::Flood;
-        let seeds = if flood {
-            let nv = tk.queries.len() as u64;
-            let (seeds, d2) = (j.buffer(nv.max(1) * 4)?, j.buffer(nv.max(1) * 8)?);
-            j.dispatch("knn_grid", &[queries, g.start, g.count, g.sorted, seeds, d2], &tk.params, nv)?;
-            j.mark("tet knn");
-            Some(seeds)
-        } else {
-            None
-        };
-
-        // For each window, the tets, part by part: k-NN pairing (knn),
-        // clipping, second pass.
+        // For each window, the tets, part by part: k-NN pairing, clipping,
+        // second pass.
         let c = plan.tet_chunk;
-        let (tet_sites, tet_d2) = match seeds {
-            Some(seeds) => (seeds, seeds),
-            None => (j.buffer(c * kt * 4)?, j.buffer(c * kt * 8)?),
-        };
+        let tet_sites = j.buffer(c * kt * 4)?;
+        let tet_d2 = j.buffer(c * kt * 8)?;
         let list_len = 1 + 2 * c * kt;
         let unfinished = j.buffer(list_len * 4)?;
         let still = j.buffer(list_len * 4)?;
@@ -250,13 +232,11 @@ impl Backend for VulkanBackend {
                     own_hi: window.own_hi as u32,
                     ..*p
                 };
+                let kp = KnnParams { n_queries: count as u32, query_base: t0 as u32, ..tk.params };
                 j.fill_zero(unfinished);
                 j.fill_zero(still);
-                if !flood {
-                    let kp = KnnParams { n_queries: count as u32, query_base: t0 as u32, ..tk.params };
-                    j.dispatch("knn_grid", &[queries, g.start, g.count, g.sorted, tet_sites, tet_d2], &kp, count)?;
-                    j.mark("tet knn");
-                }
+                j.dispatch("knn_grid", &[centroids, g.start, g.count, g.sorted, tet_sites, tet_d2], &kp, count)?;
+                j.mark("tet knn");
                 // One thread per pair (flood: per tet, k_tet = 1).
                 let pairs = count * kt;
                 let rp = RefineParams { clip: cp, capacity: pairs as u32, ..job.refine };
@@ -499,14 +479,12 @@ fn lloyd_on_device(
     let verts = j.upload(&job.verts)?;
     let tets = j.upload(&job.tets)?;
     let quant = j.upload(&sk.sites)?;
-    // Flood seeds: the nearest site of each mesh vertex.
-    let seed_queries = j.upload(&tk.queries)?;
-    let nv = tk.queries.len() as u64;
+    let centroids = j.upload(&tk.queries)?;
     let g = GridBuffers::new(&mut j, sk.params.grid)?;
     let nbr = j.buffer((n * k).max(1) * 4)?;
     let d2 = j.buffer((n * k).max(1) * 8)?;
-    let seeds = j.buffer(nv.max(1) * 4)?;
-    let seed_d2 = j.buffer(nv.max(1) * 8)?;
+    let tet_sites = j.buffer(nt * 4)?;
+    let tet_d2 = j.buffer(nt * 8)?;
     let sums = j.buffer(n * ACCUM_PER_SITE as u64 * 8)?;
     let counters = j.buffer(counter::COUNT as u64 * 8)?;
     let list_len = 1 + 2 * nt;
@@ -526,12 +504,12 @@ fn lloyd_on_device(
         if k > 0 {
             j.dispatch("knn_grid", &[quant, g.start, g.count, g.sorted, nbr, d2], &sk.params, n)?;
         }
-        j.dispatch("knn_grid", &[seed_queries, g.start, g.count, g.sorted, seeds, seed_d2], &tk.params, nv)?;
+        j.dispatch("knn_grid", &[centroids, g.start, g.count, g.sorted, tet_sites, tet_d2], &tk.params, nt)?;
         j.barrier();
-        let args = [sites, verts, tets, seeds, nbr, g.start, g.count, g.sorted, sums, counters, unfinished];
+        let args = [sites, verts, tets, tet_sites, nbr, g.start, g.count, g.sorted, sums, counters, unfinished];
         j.dispatch("clip_flood", &args, &rp, nt)?;
         j.barrier();
-        let args = [sites, verts, tets, seeds, unfinished, nbr, g.start, g.count, g.sorted, sums, ignored, still];
+        let args = [sites, verts, tets, tet_sites, unfinished, nbr, g.start, g.count, g.sorted, sums, ignored, still];
         j.dispatch("refine", &args, &rp, nt)?;
         j.barrier();
         let lp = crate::cvt::params(job, it);
