@@ -262,6 +262,28 @@ fn short_lists_lose_nothing() {
     assert_no_vulkan_errors();
 }
 
+/// Sites at the centres of a lattice's cubes, mesh vertices at its
+/// corners: every interior vertex is equidistant from 8 sites, exactly (the
+/// quantization is by a power of two), and the cells' faces lie on the
+/// tets' faces. Nothing is lost, on any backend, with either pairing.
+#[test]
+fn lattice_sites_tied_at_every_mesh_vertex() {
+    let mesh = TetMesh::cube(4);
+    let c = |i: usize| (2 * i + 1) as f32 / 8.0;
+    let sites: Vec<[f32; 3]> = (0..64).map(|i| [c(i % 4), c(i / 4 % 4), c(i / 16)]).collect();
+    let (vol, centroid) = clipped_cells(&mesh, &sites);
+    for backend in backends() {
+        for pairing in [Pairing::Flood, Pairing::Knn] {
+            let cells = ClippedVoronoi::new(&mesh, &sites).pairing(pairing).backend(backend).compute().unwrap();
+            let what = format!("{} {pairing:?} lattice sites", backend.name());
+            assert_eq!(cells.counters.unresolved, 0, "{what}");
+            assert!(cells.e_vol < 1e-6, "{what}: E_vol {}", cells.e_vol);
+            assert_cells_match(&what, &cells, &vol, &centroid, 1e-4);
+        }
+    }
+    assert_no_vulkan_errors();
+}
+
 #[test]
 fn many_sites_per_tet() {
     // 600 sites in 6 tets: about 100 cells meet each tet, more than any
