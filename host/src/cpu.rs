@@ -59,12 +59,15 @@ impl CpuBackend {
             let unfinished = Mutex::new(Vec::new());
             let n_pairs = p.n_tets as usize * p.k_tet as usize;
             let (sites, verts, tets) = (&job.sites, &job.verts, &job.tets);
+            // The grid the k-NN searched, again, for grid walks (flood
+            // pieces their lists do not settle, the second pass): built
+            // once, on first use.
+            let grid = std::cell::OnceCell::new();
+            let grid = || grid.get_or_init(|| build_grid(&job.site_knn));
             match job.strategy {
                 Strategy::TetCell if job.pairing == Pairing::Flood => {
                     let (_, t) = timed(|| {
-                        // The grid the k-NN searched, again, for the pieces
-                        // their lists do not settle.
-                        let g = build_grid(&job.site_knn);
+                        let g = grid();
                         let w = GridWalk::new(&job.refine, &site_nn.indices, &g.cell_start, &g.cell_count, &g.sorted);
                         par_indices(
                             p.n_tets as usize,
@@ -116,7 +119,7 @@ impl CpuBackend {
             let mut still = Vec::new();
             if !first.is_empty() {
                 let (_, t) = timed(|| {
-                    let g = build_grid(&job.site_knn);
+                    let g = grid();
                     let mut list = vec![first.len() as u32];
                     list.extend(first.iter().flatten());
                     let rp = RefineParams { capacity: first.len() as u32, ..job.refine };

@@ -92,12 +92,7 @@ impl BisectorRun {
     #[inline]
     pub fn new<const P: usize, const V: usize>(poly: &Polyhedron<P, V>) -> Self {
         let (r2, mid, half) = poly.bounds();
-        Self {
-            out: Clipped { clips: 0, security_missed: true, overflow: false, broken: false, walks: 0 },
-            r2,
-            mid,
-            half,
-        }
+        Self { out: Clipped { security_missed: true, ..Clipped::default() }, r2, mid, half }
     }
 
     /// Whether the bisector with the site at `n` (`d2 = |n|²`) clears the
@@ -152,10 +147,17 @@ pub const NO_LIST: usize = usize::MAX;
 /// when the bound lists (`nbr_base..nbr_end`) do not hold it.
 #[inline]
 pub fn list_start(p: &ClipParams, j: usize) -> usize {
-    if j < p.nbr_base as usize || j >= p.nbr_end as usize {
+    list_in(j, p.nbr_base, p.nbr_end, p.k_site)
+}
+
+/// [`list_start`] from plain values (for callers that hold no pointer to
+/// the push constants): lists of `k` entries for sites `base..end`.
+#[inline]
+pub fn list_in(j: usize, base: u32, end: u32, k: u32) -> usize {
+    if j < base as usize || j >= end as usize {
         NO_LIST
     } else {
-        (j - p.nbr_base as usize) * p.k_site as usize
+        (j - base as usize) * k as usize
     }
 }
 
@@ -181,7 +183,7 @@ pub fn clip_by_bisectors<const P: usize, const V: usize>(
     k: usize,
 ) -> Clipped {
     if base == NO_LIST {
-        return Clipped { clips: 0, security_missed: true, overflow: false, broken: false, walks: 0 };
+        return Clipped { security_missed: true, ..Clipped::default() };
     }
     let xi = point(sites[i]);
     let mut run = BisectorRun::new(poly);
@@ -660,7 +662,7 @@ pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
         q += 4;
     }
     let faces = Piece::tetrahedron(tv);
-    let mut c = Clipped { clips: 0, security_missed: false, overflow: false, broken: false, walks: 0 };
+    let mut c = Clipped::default();
     let mut f = 0;
     while f < 4 && !poly.is_empty() {
         match poly.clip(faces.planes[f]) {

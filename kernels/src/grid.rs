@@ -4,10 +4,66 @@
 //! each site to its bin. The scatter's order inside a bin depends on thread
 //! timing, so [`sort_cell`] then orders each bin by site index: walks over
 //! the grid (the second pass clips in the order it meets sites) give the
-//! same bits run after run.
+//! same bits run after run. [`ring_span`] and [`ring_row`] list the cells
+//! of a Chebyshev ring around a cell: the k-NN and the walks search the grid
+//! ring by ring.
 
 use crate::abi::{GridParams, QuantPoint};
 use crate::buffers::{AtomicCounters, OutBuf};
+
+/// `|a - b|`, written out: rust-gpu 0.11 lacks the intrinsics behind
+/// `abs_diff` and `saturating_sub`.
+#[inline]
+#[allow(clippy::manual_abs_diff)]
+pub fn diff(a: u32, b: u32) -> u32 {
+    if a > b {
+        a - b
+    } else {
+        b - a
+    }
+}
+
+/// `max(a - b, 0)`.
+#[inline]
+#[allow(clippy::implicit_saturating_sub)]
+pub fn sub_floor0(a: u32, b: u32) -> u32 {
+    if a > b {
+        a - b
+    } else {
+        0
+    }
+}
+
+/// Rows or layers `lo..=hi` of Chebyshev ring `r` around cell coordinate
+/// `c` along an axis of `dim` cells.
+#[inline]
+pub fn ring_span(c: u32, r: u32, dim: u32) -> (u32, u32) {
+    (sub_floor0(c, r), (c + r).min(dim - 1))
+}
+
+/// The cells of Chebyshev ring `r` around cell `c` in row `(y, z)` of the
+/// ring's span: `x` from `first` by `step` up to `last` (none when `first >
+/// last`). A row on the ring's y-z shell lies wholly on the ring; inside
+/// it, only the row's two ends do.
+#[inline]
+pub fn ring_row(g: &GridParams, c: [u32; 3], r: u32, y: u32, z: u32) -> (u32, u32, u32) {
+    if diff(z, c[2]) == r || diff(y, c[1]) == r {
+        let (x0, x1) = ring_span(c[0], r, g.dim_x);
+        return (x0, x1, 1);
+    }
+    // Not on the shell: r >= 1.
+    let low = c[0] >= r;
+    let high = c[0] + r < g.dim_x;
+    if low && high {
+        (c[0] - r, c[0] + r, 2 * r)
+    } else if low {
+        (c[0] - r, c[0] - r, 1)
+    } else if high {
+        (c[0] + r, c[0] + r, 1)
+    } else {
+        (1, 0, 1)
+    }
+}
 
 /// The cell holding quantized point `q` (points past the last cell go to it).
 #[inline]

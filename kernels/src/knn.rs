@@ -8,30 +8,7 @@
 
 use crate::abi::{GridParams, KnnParams, QuantPoint, NO_SITE};
 use crate::buffers::OutBuf;
-use crate::grid::{cell_coords, cell_index};
-
-/// `|a - b|`, written out: rust-gpu 0.11 lacks the intrinsics behind
-/// `abs_diff` and `saturating_sub`.
-#[inline]
-#[allow(clippy::manual_abs_diff)]
-fn diff(a: u32, b: u32) -> u32 {
-    if a > b {
-        a - b
-    } else {
-        b - a
-    }
-}
-
-/// `max(a - b, 0)`.
-#[inline]
-#[allow(clippy::implicit_saturating_sub)]
-pub(crate) fn sub_floor0(a: u32, b: u32) -> u32 {
-    if a > b {
-        a - b
-    } else {
-        0
-    }
-}
+use crate::grid::{cell_coords, cell_index, diff, ring_row, ring_span};
 
 /// `max(a - b, 0)` in 64 bits.
 #[inline]
@@ -287,31 +264,17 @@ where
     N: OutBuf<u32> + ?Sized,
     D: OutBuf<u64> + ?Sized,
 {
-    let z0 = sub_floor0(c[2], r);
-    let z1 = (c[2] + r).min(s.g.dim_z - 1);
-    let y0 = sub_floor0(c[1], r);
-    let y1 = (c[1] + r).min(s.g.dim_y - 1);
-    let x0 = sub_floor0(c[0], r);
-    let x1 = (c[0] + r).min(s.g.dim_x - 1);
+    let (z0, z1) = ring_span(c[2], r, s.g.dim_z);
+    let (y0, y1) = ring_span(c[1], r, s.g.dim_y);
     let mut z = z0;
     while z <= z1 {
         let mut y = y0;
         while y <= y1 {
-            let on_shell = diff(z, c[2]) == r || diff(y, c[1]) == r;
-            if on_shell {
-                let mut x = x0;
-                while x <= x1 {
-                    visit_cell(s, [x, y, z], best, nbr, d2);
-                    x += 1;
-                }
-            } else {
-                // Inside the shell's y-z extent only the two x ends are new.
-                if c[0] >= r {
-                    visit_cell(s, [c[0] - r, y, z], best, nbr, d2);
-                }
-                if c[0] + r < s.g.dim_x {
-                    visit_cell(s, [c[0] + r, y, z], best, nbr, d2);
-                }
+            let (first, last, step) = ring_row(s.g, c, r, y, z);
+            let mut x = first;
+            while x <= last {
+                visit_cell(s, [x, y, z], best, nbr, d2);
+                x += step;
             }
             y += 1;
         }

@@ -11,9 +11,8 @@
 //! the list settles them, and a short list trades k-NN time for walks.
 
 use crate::abi::{GridParams, QuantPoint, RefineParams};
-use crate::clip::{clip_by_bisectors, BisectorRun, Clipped, NO_LIST};
-use crate::grid::cell_index;
-use crate::knn::sub_floor0;
+use crate::clip::{clip_by_bisectors, list_in, BisectorRun, Clipped, NO_LIST};
+use crate::grid::{cell_index, ring_row, ring_span};
 use crate::polyhedron::{point, Polyhedron};
 use spirv_std::glam::Vec3;
 
@@ -123,8 +122,8 @@ pub fn clip_to_cell<const P: usize, const V: usize>(
     sites: &[[f32; 4]],
     w: GridWalk,
 ) -> Clipped {
-    let (k, j) = (w.k_site as usize, i as u32);
-    let base = if j < w.nbr_base || j >= w.nbr_end { NO_LIST } else { (j - w.nbr_base) as usize * k };
+    let k = w.k_site as usize;
+    let base = list_in(i, w.nbr_base, w.nbr_end, w.k_site);
     let listed = clip_by_bisectors(poly, i, w.n_sites, sites, w.site_nbrs, base, k);
     if !listed.security_missed || listed.overflow || listed.broken {
         return listed;
@@ -160,23 +159,17 @@ pub fn clip_to_cell<const P: usize, const V: usize>(
     run.out.security_missed = false;
     let mut r = 0u32;
     loop {
-        let z0 = sub_floor0(c[2], r);
-        let z1 = if c[2] + r < dims[2] { c[2] + r } else { dims[2] - 1 };
-        let y0 = sub_floor0(c[1], r);
-        let y1 = if c[1] + r < dims[1] { c[1] + r } else { dims[1] - 1 };
-        let x0 = sub_floor0(c[0], r);
-        let x1 = if c[0] + r < dims[0] { c[0] + r } else { dims[0] - 1 };
+        let (z0, z1) = ring_span(c[2], r, dims[2]);
+        let (y0, y1) = ring_span(c[1], r, dims[1]);
         let mut z = z0;
         while z <= z1 {
             let mut y = y0;
             while y <= y1 {
-                let on_shell = z + r == c[2] || z == c[2] + r || y + r == c[1] || y == c[1] + r;
-                let mut xc = x0;
-                while xc <= x1 {
-                    // Inside the shell's y-z extent only the two x ends are new.
+                let (first, last, step) = ring_row(&g, c, r, y, z);
+                let mut xc = first;
+                while xc <= last {
                     let cell = [xc, y, z];
-                    let new = on_shell || xc + r == c[0] || xc == c[0] + r;
-                    if new && cell_gap2(&w, x, cell) <= 4.0 * run.r2 {
+                    if cell_gap2(&w, x, cell) <= 4.0 * run.r2 {
                         let cell = cell_index(&g, cell);
                         let start = w.cell_start[cell] as usize;
                         let end = start + w.cell_count[cell] as usize;
@@ -202,7 +195,7 @@ pub fn clip_to_cell<const P: usize, const V: usize>(
                             }
                         }
                     }
-                    xc += 1;
+                    xc += step;
                 }
                 y += 1;
             }

@@ -207,10 +207,11 @@ impl Backend for VulkanBackend {
             refined += first as u64 - still.len() as u64;
             left.extend(still);
         };
-        let (kernel, cell_input) = match (job.strategy, job.pairing, cells) {
-            (Strategy::TetCell, Pairing::Flood, _) => ("clip_flood", site_nbrs),
-            (Strategy::TetCell, Pairing::Knn, _) => ("clip_tet_cell", site_nbrs),
-            (Strategy::CellTet, _, cells) => ("clip_cell_tet", cells.unwrap_or(site_nbrs)),
+        // Floods walk the site grid and take the walk's parameters.
+        let (kernel, cell_input, flood) = match (job.strategy, job.pairing, cells) {
+            (Strategy::TetCell, Pairing::Flood, _) => ("clip_flood", site_nbrs, true),
+            (Strategy::TetCell, Pairing::Knn, _) => ("clip_tet_cell", site_nbrs, false),
+            (Strategy::CellTet, _, cells) => ("clip_cell_tet", cells.unwrap_or(site_nbrs), false),
         };
         // Whether the last part's lists are still to be read.
         let mut pending = false;
@@ -240,7 +241,7 @@ impl Backend for VulkanBackend {
                 // One thread per pair (flood: per tet, k_tet = 1).
                 let pairs = count * kt;
                 let rp = RefineParams { clip: cp, capacity: pairs as u32, ..job.refine };
-                if kernel == "clip_flood" {
+                if flood {
                     let args = [
                         sites, verts, tets, tet_sites, site_nbrs, g.start, g.count, g.sorted, sums, counters,
                         unfinished,
