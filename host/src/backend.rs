@@ -5,7 +5,7 @@ use crate::cvt::LloydOutput;
 use crate::error::Result;
 use crate::knn::{KnnJob, Neighbors};
 use crate::voronoi::{ClipJob, ClipOutput};
-use crate::vulkan::{VulkanBackend, VulkanOptions};
+use crate::vulkan::{list_devices, DeviceInfo, VulkanBackend, VulkanOptions, HAS_KERNELS};
 
 /// Something that runs the kernels.
 pub trait Backend: Send + Sync {
@@ -25,17 +25,26 @@ pub trait Backend: Send + Sync {
     /// `progress` with the number of iterations done so far (in batches)
     /// and the last one's energy (fixed point, as in the statistics).
     fn lloyd(&self, job: &ClipJob, iterations: usize, progress: &mut dyn FnMut(usize, i64)) -> Result<LloydOutput>;
+    /// Seconds the driver has spent compiling kernels since the backend
+    /// opened (on first use; 0 on the CPU). Not part of any job's timings.
+    fn kernel_compile_seconds(&self) -> f64 {
+        0.0
+    }
 }
 
 /// Which backend to use.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
 pub enum BackendKind {
-    /// Vulkan if a device is available, else the CPU (saying so).
+    /// Vulkan on a real GPU (discrete, integrated or virtual) if there is
+    /// one, else the CPU backend. A Vulkan device that runs on the CPU
+    /// (lavapipe, SwiftShader) is slower than the CPU backend: it is used
+    /// only when asked for.
     #[default]
     Auto,
     /// The CPU backend (rayon).
     Cpu,
-    /// The Vulkan backend; fails if there is no device.
+    /// The Vulkan backend on the best device (or `--device`), GPU or not;
+    /// fails if there is none.
     Vulkan,
 }
 
@@ -50,18 +59,113 @@ pub struct BackendOptions {
     pub vulkan: VulkanOptions,
 }
 
-/// Opens the backend the options ask for. With `Auto`, a missing Vulkan is
-/// reported in one line on stderr and the CPU backend serves.
+/// A backend and why it was chosen.
+pub struct Chosen {
+    /// The backend.
+    pub backend: Box<dyn Backend>,
+    /// Why this one, in a few words (e.g. "asked for", "auto: the GPU
+    /// NAME", "auto: no Vulkan device").
+    pub why: String,
+}
+
+/// What [`BackendKind::Auto`] does with the Vulkan devices found.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum AutoChoice {
+    /// Vulkan on the device of this index.
+    Gpu(usize),
+    /// The CPU backend, for this reason.
+    Cpu(String),
+}
+
+/// [`BackendKind::Auto`]'s rule: the first real GPU, by kind (discrete,
+/// integrated, virtual), when this build has the kernels; otherwise the CPU
+/// backend, saying why.
+pub fn auto_choice(devices: &[DeviceInfo], has_kernels: bool) -> AutoChoice {
+    let gpu = devices.iter().filter_map(|d| Some((d.gpu_rank()?, d))).min_by_key(|&(rank, d)| (rank, d.index));
+    match gpu.map(|(_, d)| d) {
+        Some(d) if has_kernels => AutoChoice::Gpu(d.index),
+        Some(d) => AutoChoice::Cpu(format!(
+            "auto: the GPU {} was found, but this build has no SPIR-V kernels (build with --features vulkan)",
+            d.name
+        )),
+        None if devices.is_empty() => AutoChoice::Cpu("auto: no Vulkan device".into()),
+        None => {
+            let names: Vec<&str> = devices.iter().map(|d| d.name.as_str()).collect();
+            AutoChoice::Cpu(format!(
+                "auto: no GPU ({} is Vulkan on the CPU, slower than the CPU backend: --backend vulkan uses it)",
+                names.join(", ")
+            ))
+        }
+    }
+}
+
+/// Opens the backend the options ask for (see [`choose`]).
 pub fn open(options: &BackendOptions) -> Result<Box<dyn Backend>> {
+    choose(options).map(|c| c.backend)
+}
+
+/// Opens the backend the options ask for, and says why. With `Auto`, a
+/// Vulkan device is used only if it is a real GPU (or `--device` names
+/// one): see [`auto_choice`]; a GPU that cannot run the kernels leaves the
+/// CPU backend to serve, with the reason.
+pub fn choose(options: &BackendOptions) -> Result<Chosen> {
+    let cpu =
+        |why: String| -> Result<Chosen> { Ok(Chosen { backend: Box::new(CpuBackend::new(options.threads)?), why }) };
+    let vulkan = |vulkan: &VulkanOptions, why: String| -> Result<Chosen> {
+        Ok(Chosen { backend: Box::new(VulkanBackend::new(vulkan)?), why })
+    };
     match options.kind {
-        BackendKind::Cpu => Ok(Box::new(CpuBackend::new(options.threads)?)),
-        BackendKind::Vulkan => Ok(Box::new(VulkanBackend::new(&options.vulkan)?)),
-        BackendKind::Auto => match VulkanBackend::new(&options.vulkan) {
-            Ok(vk) => Ok(Box::new(vk)),
-            Err(e) => {
-                eprintln!("cvd: {e}; using the CPU backend");
-                Ok(Box::new(CpuBackend::new(options.threads)?))
+        BackendKind::Cpu => cpu("asked for".into()),
+        BackendKind::Vulkan => vulkan(&options.vulkan, "asked for".into()),
+        BackendKind::Auto if options.vulkan.device.is_some() => vulkan(&options.vulkan, "the device asked for".into()),
+        BackendKind::Auto => {
+            let devices = match list_devices() {
+                Ok(devices) => devices,
+                Err(e) => return cpu(format!("auto: no Vulkan ({e})")),
+            };
+            match auto_choice(&devices, HAS_KERNELS) {
+                AutoChoice::Cpu(why) => cpu(why),
+                AutoChoice::Gpu(index) => {
+                    let name = devices.iter().find(|d| d.index == index).map_or("", |d| &d.name);
+                    let chosen = VulkanOptions { device: Some(index.to_string()), ..options.vulkan.clone() };
+                    match VulkanBackend::new(&chosen) {
+                        Ok(vk) => Ok(Chosen { backend: Box::new(vk), why: format!("auto: the GPU {name}") }),
+                        Err(e) => cpu(format!("auto: the GPU {name} cannot run the kernels ({e})")),
+                    }
+                }
             }
-        },
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ash::vk::PhysicalDeviceType as T;
+
+    fn device(index: usize, name: &str, kind: T) -> DeviceInfo {
+        DeviceInfo { index, name: name.into(), kind, api_version: ash::vk::API_VERSION_1_3 }
+    }
+
+    #[test]
+    fn auto_never_picks_a_cpu_implemented_device() {
+        let lavapipe = device(0, "llvmpipe (LLVM 15.0.6, 256 bits)", T::CPU);
+        let swiftshader = device(1, "SwiftShader Device (Subzero)", T::CPU);
+        let AutoChoice::Cpu(why) = auto_choice(&[lavapipe.clone(), swiftshader], true) else {
+            panic!("auto picked a CPU-implemented Vulkan device");
+        };
+        assert!(why.contains("llvmpipe") && why.contains("--backend vulkan"), "{why}");
+        assert_eq!(auto_choice(&[], true), AutoChoice::Cpu("auto: no Vulkan device".into()));
+        // A real GPU wins wherever it is listed, the discrete one first.
+        let igpu = device(1, "Intel(R) UHD Graphics", T::INTEGRATED_GPU);
+        let dgpu = device(2, "NVIDIA GeForce RTX 4090", T::DISCRETE_GPU);
+        assert_eq!(auto_choice(&[lavapipe.clone(), igpu.clone()], true), AutoChoice::Gpu(1));
+        assert_eq!(auto_choice(&[lavapipe.clone(), igpu.clone(), dgpu], true), AutoChoice::Gpu(2));
+        assert_eq!(auto_choice(&[device(0, "virtio-gpu", T::VIRTUAL_GPU)], true), AutoChoice::Gpu(0));
+        // A build without the kernels cannot use the GPU, and says so.
+        let AutoChoice::Cpu(why) = auto_choice(&[lavapipe, igpu], false) else {
+            panic!("a build without kernels picked Vulkan");
+        };
+        assert!(why.contains("Intel(R) UHD Graphics") && why.contains("no SPIR-V kernels"), "{why}");
     }
 }

@@ -1,10 +1,10 @@
 //! `cvd`: the command-line tool.
 
-use clap::{Args, Parser, Subcommand};
+use clap::{Args, Parser, Subcommand, ValueEnum};
 use cvd::backend::{self, BackendKind, BackendOptions};
 use cvd::cpu::CpuBackend;
 use cvd::mesher::models;
-use cvd::output::{self, Section, Summary};
+use cvd::output::{self, CvtRecord, Section, Summary};
 use cvd::vulkan::{self, VulkanOptions};
 use cvd::{points, ClippedVoronoi, KnnJob, KnnMethod, Pairing, Strategy, TetMesh};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -22,7 +22,12 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// List the Vulkan devices (the index or a part of the name picks one with --device).
-    Devices,
+    Devices {
+        /// As JSON: index, name, type and whether it is a real GPU (what
+        /// `--backend auto` would use).
+        #[arg(long)]
+        json: bool,
+    },
     /// The clipped Voronoi diagram of random sites in a model.
     Run(Box<RunArgs>),
     /// k nearest neighbours of random sites; checks the backend against the CPU.
@@ -110,6 +115,10 @@ struct RunArgs {
     /// Skip picture.png (the cells cut by the plane through the middle of the mesh).
     #[arg(long)]
     no_picture: bool,
+    /// Compute the diagram once more before the timed run (caches, memory,
+    /// the driver's kernel compilation), as benchmarks do.
+    #[arg(long)]
+    warm_up: bool,
     #[command(flatten)]
     backend: BackendArgs,
 }
@@ -250,15 +259,16 @@ enum Optimizer {
     Lbfgs,
 }
 
-/// Runs the CVT iterations with a progress bar; returns the final sites.
-/// Also writes `energy.png`, the energy against the iteration, into `dir`.
+/// Runs the CVT iterations with a progress bar; returns the final sites and
+/// the optimiser's record. Also writes `energy.png`, the energy against the
+/// iteration, into `dir`.
 fn lloyd(
     args: &RunArgs,
     mesh: &TetMesh,
     sites: &[[f32; 3]],
     backend: &dyn cvd::Backend,
     dir: &std::path::Path,
-) -> cvd::Result<Vec<[f32; 3]>> {
+) -> cvd::Result<(Vec<[f32; 3]>, CvtRecord)> {
     let bar = indicatif::ProgressBar::new(args.iterations as u64).with_style(
         indicatif::ProgressStyle::with_template("{msg} {bar:30} {pos}/{len} iterations, {elapsed} ({per_sec})")
             .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
@@ -275,17 +285,6 @@ fn lloyd(
         Optimizer::Lbfgs => cv.lbfgs(args.iterations, &mut |done, energy| show(done, energy))?,
     };
     bar.finish_and_clear();
-    let total: f64 = run.iterations.iter().map(|i| i.seconds).sum();
-    let (first, last) = (run.iterations[0], run.iterations[run.iterations.len() - 1]);
-    println!(
-        "{:?}: {} iterations in {:.3} s ({:.2} ms per iteration); energy {:.6e} -> {:.6e}",
-        args.optimizer,
-        run.iterations.len(),
-        total,
-        1e3 * total / run.iterations.len() as f64,
-        first.energy,
-        last.energy
-    );
     let unresolved: u64 = run.iterations.iter().map(|i| i.unresolved).sum();
     let empty = run.iterations.iter().map(|i| i.empty_cells).max().unwrap_or(0);
     if unresolved > 0 || empty > 0 {
@@ -293,11 +292,11 @@ fn lloyd(
             "Lloyd: up to {empty} empty cells in an iteration (their sites stayed); {unresolved} pieces unresolved"
         );
     }
-    let energy: Vec<f64> = run.iterations.iter().map(|i| i.energy).collect();
-    let name = format!("{:?}", args.optimizer).to_lowercase();
-    let series = [output::Series { name: &name, values: &energy, x: &[], rgb: [200, 40, 40] }];
+    let name = args.optimizer.to_possible_value().map(|v| v.get_name().to_string()).unwrap_or_default();
+    let record = CvtRecord::of(&name, &run.iterations);
+    let series = [output::Series { name: &name, values: &record.energy, x: &[], rgb: [200, 40, 40] }];
     output::write_line_chart_png(&dir.join("energy.png"), "cvt energy", &series)?;
-    Ok(run.sites)
+    Ok((run.sites, record))
 }
 
 fn run(args: &RunArgs) -> cvd::Result<()> {
@@ -315,9 +314,20 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
     let dir = args.out.clone().unwrap_or_else(|| default_out_dir(&model));
     // Before the long part: a folder that cannot be made fails now.
     create_dir(&dir)?;
-    let backend = backend::open(&args.backend.options())?;
-    println!("{model}: {} tets, {} sites, {:?} on {}", mesh.tets.len(), sites.len(), args.strategy, backend.name());
-    let sites = if args.iterations > 0 { lloyd(args, &mesh, &sites, backend.as_ref(), &dir)? } else { sites };
+    let backend::Chosen { backend, why } = backend::choose(&args.backend.options())?;
+    println!(
+        "{model}: {} tets, {} sites, {:?} on {} — {why}",
+        mesh.tets.len(),
+        sites.len(),
+        args.strategy,
+        backend.name()
+    );
+    let (sites, record) = if args.iterations > 0 {
+        let (sites, record) = lloyd(args, &mesh, &sites, backend.as_ref(), &dir)?;
+        (sites, Some(record))
+    } else {
+        (sites, None)
+    };
     let density = density(args, &mesh)?;
     let mut cv = ClippedVoronoi::new(&mesh, &sites)
         .strategy(args.strategy)
@@ -328,11 +338,17 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
         cv = cv.pairing(pairing);
     }
     let cv = cv.backend(backend.as_ref());
-    // The first run warms up (pipelines, caches); the second is timed.
-    let first = with_spinner("first run", || cv.compute())?;
-    println!("first run: {:.1} ms (warm-up); the table shows the second", first.timings.total() * 1e3);
-    let cells = with_spinner("second run", || cv.compute())?;
+    if args.warm_up {
+        let first = with_spinner("warm-up run", || cv.compute())?;
+        println!("warm-up run: {:.1} ms; the table shows the next", first.timings.total() * 1e3);
+    }
+    let cells = with_spinner("clipped Voronoi diagram", || cv.compute())?;
+    let compiled = backend.kernel_compile_seconds();
+    if compiled > 0.0 {
+        println!("kernels: the driver compiled them in {compiled:.2} s on first use (not in the times below)");
+    }
     let mut summary = Summary::new(&model, &mesh, sites.len(), args.strategy, backend.as_ref(), &cells);
+    summary.cvt = record;
 
     let mut written = Vec::new();
     let mut file = |name: &str| {
@@ -442,6 +458,34 @@ fn knn(args: &KnnArgs) -> cvd::Result<()> {
     Ok(())
 }
 
+/// `cvd devices`: the Vulkan devices, or none (no loader, no driver).
+fn devices(json: bool) -> cvd::Result<()> {
+    let devices = match vulkan::list_devices() {
+        Ok(devices) => devices,
+        Err(cvd::Error::VulkanUnavailable(why)) => {
+            eprintln!("cvd: no Vulkan device: {why}");
+            Vec::new()
+        }
+        Err(e) => return Err(e),
+    };
+    if json {
+        let list: Vec<serde_json::Value> = devices
+            .iter()
+            .map(|d| serde_json::json!({ "index": d.index, "name": d.name, "type": d.kind_name(), "gpu": d.is_gpu() }))
+            .collect();
+        let text = serde_json::to_string_pretty(&list).map_err(|e| cvd::Error::Internal(e.to_string()))?;
+        println!("{text}");
+        return Ok(());
+    }
+    for d in &devices {
+        println!("{}: {} ({})", d.index, d.name, d.kind_name());
+    }
+    if !vulkan::HAS_KERNELS {
+        println!("(this build has no SPIR-V kernels: it runs on the CPU backend only)");
+    }
+    Ok(())
+}
+
 fn cvd_kernels_abi_version() -> u64 {
     cvd::spirv::manifest()["abi_version"].as_u64().unwrap_or(0)
 }
@@ -455,11 +499,7 @@ fn main() -> ExitCode {
     }
     let cli = Cli::parse();
     let result = match &cli.command {
-        Command::Devices => vulkan::list_devices().map(|devices| {
-            for d in devices {
-                println!("{}: {} ({:?})", d.index, d.name, d.kind);
-            }
-        }),
+        Command::Devices { json } => devices(*json),
         Command::Run(args) => run(args),
         Command::Knn(args) => knn(args),
         Command::Spirv { out } => cvd::spirv::export(out).map(|files| {

@@ -131,3 +131,92 @@ fn an_unwritable_output_exits_1() {
     assert_eq!(out.status.code(), Some(1), "{stderr}");
     assert!(stderr.contains("cannot write file/sub"), "{stderr}");
 }
+
+/// The numbers of `key` in a JSON object, as f64.
+fn numbers(v: &serde_json::Value, key: &str) -> Vec<f64> {
+    v[key]
+        .as_array()
+        .unwrap_or_else(|| panic!("{key} is not an array: {v}"))
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect()
+}
+
+#[test]
+fn a_cvt_run_records_every_iteration_in_the_summary() {
+    let dir = temp_dir("cvt-record");
+    for (optimizer, iterations) in [("lloyd", 6), ("lbfgs", 4)] {
+        let json = dir.join(format!("{optimizer}.json"));
+        let args = ["--sites", "60", "--resolution", "3", "--no-pieces", "--iterations", &iterations.to_string()];
+        let out = cvd_run(&dir, &[&args[..], &["--optimizer", optimizer, "--json", json.to_str().unwrap()]].concat());
+        assert!(out.status.success(), "{}", text(&out.stderr));
+        let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+        let cvt = &summary["cvt"];
+        assert_eq!(cvt["optimizer"], optimizer);
+        let n = cvt["iterations"].as_u64().unwrap() as usize;
+        assert!(n >= 1 && n <= iterations, "{cvt}");
+        let energy = numbers(cvt, "energy");
+        let seconds = numbers(cvt, "seconds");
+        assert_eq!((energy.len(), seconds.len(), numbers(cvt, "empty_cells").len()), (n, n, n), "{cvt}");
+        // Both optimisers only lower the energy, down to the final diagram's.
+        let last = summary["energy"].as_f64().unwrap();
+        for w in energy.windows(2) {
+            assert!(w[1] <= w[0], "{optimizer}: the energy rose: {energy:?}");
+        }
+        assert!(last <= energy[n - 1] && last > 0.0, "{optimizer}: final {last} after {energy:?}");
+        let total = cvt["total_s"].as_f64().unwrap();
+        assert!((total - seconds.iter().sum::<f64>()).abs() <= 1e-9 * total.max(1.0), "{cvt}");
+        assert!((cvt["per_iteration_s"].as_f64().unwrap() - total / n as f64).abs() <= 1e-12, "{cvt}");
+        // The table says the same as the record.
+        let stdout = text(&out.stdout);
+        let row = stdout.lines().find(|l| l.trim_start().starts_with(optimizer)).expect("a cvt row");
+        assert!(row.contains(&format!("{n} iterations")), "{row}");
+        assert!(row.contains(&format!("energy {:.6e} -> {last:.6e}", energy[0])), "{row}");
+    }
+    // A plain run has no record.
+    let json = dir.join("plain.json");
+    let out = cvd_run(&dir, &["--sites", "30", "--resolution", "2", "--no-pieces", "--json", json.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert!(summary.get("cvt").is_none(), "{summary}");
+}
+
+#[test]
+fn the_header_says_which_backend_and_why() {
+    let dir = temp_dir("why");
+    let out = cvd_run(&dir, &["--sites", "30", "--resolution", "2", "--no-pieces"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let stdout = text(&out.stdout);
+    assert!(stdout.contains("on cpu (2 threads) — asked for"), "{stdout}");
+    // The diagram is computed once unless a warm-up is asked for.
+    assert!(!stdout.contains("warm-up"), "{stdout}");
+    let out = cvd_run(&dir, &["--sites", "30", "--resolution", "2", "--no-pieces", "--warm-up"]);
+    assert!(out.status.success() && text(&out.stdout).contains("warm-up run: "), "{}", text(&out.stdout));
+}
+
+#[test]
+fn auto_does_not_pick_vulkan_on_the_cpu() {
+    // `cvd devices --json` says which devices are GPUs; auto runs on the
+    // CPU backend unless one is.
+    let listing = Command::new(env!("CARGO_BIN_EXE_cvd")).args(["devices", "--json"]).output().unwrap();
+    assert!(listing.status.success(), "{}", text(&listing.stderr));
+    let devices: serde_json::Value = serde_json::from_slice(&listing.stdout).unwrap();
+    let devices = devices.as_array().unwrap();
+    for d in devices {
+        assert_eq!(d["gpu"].as_bool().unwrap(), d["type"].as_str().unwrap().ends_with("GPU"), "{d}");
+    }
+    let dir = temp_dir("auto");
+    let out = Command::new(env!("CARGO_BIN_EXE_cvd"))
+        .current_dir(&dir)
+        .args(["run", "--model", "cube", "--resolution", "2", "--sites", "30", "--no-pieces"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let stdout = text(&out.stdout);
+    let header = stdout.lines().find(|l| l.starts_with("cube: ")).expect("the run's header");
+    if devices.iter().any(|d| d["gpu"] == true) {
+        assert!(header.contains("on vulkan") && header.contains("— auto: the GPU "), "{header}");
+    } else {
+        assert!(header.contains("on cpu") && header.contains("— auto: no "), "{header}");
+    }
+}

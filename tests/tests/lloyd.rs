@@ -15,6 +15,11 @@ fn lloyd(mesh: &TetMesh, sites: &[[f32; 3]], iterations: usize, backend: &dyn Ba
     let last = calls.last().copied().unwrap_or_default();
     assert_eq!(last, (iterations, run.iterations[iterations - 1].energy), "{}: progress", backend.name());
     assert!(calls.windows(2).all(|w| w[0].0 < w[1].0), "{}: progress went backwards: {calls:?}", backend.name());
+    // What the progress bar showed is what summary.json records.
+    let record = cvd::output::CvtRecord::of("lloyd", &run.iterations);
+    for &(done, energy) in &calls {
+        assert_eq!(record.energy[done - 1], energy, "{}: iteration {done}", backend.name());
+    }
     run
 }
 
@@ -93,9 +98,13 @@ fn lbfgs_decreases_the_energy_and_ends_no_worse_than_lloyd() {
     let sites = points::uniform(500, 21);
     for backend in backends() {
         let lloyd = lloyd(&mesh, &sites, 100, backend);
-        let mut calls = 0;
-        let lbfgs = ClippedVoronoi::new(&mesh, &sites).backend(backend).lbfgs(100, &mut |_, _| calls += 1).unwrap();
-        assert_eq!(calls, lbfgs.iterations.len());
+        let mut calls = Vec::new();
+        let lbfgs =
+            ClippedVoronoi::new(&mesh, &sites).backend(backend).lbfgs(100, &mut |d, e| calls.push((d, e))).unwrap();
+        // One progress call per iteration, showing what the record keeps.
+        let record = cvd::output::CvtRecord::of("lbfgs", &lbfgs.iterations);
+        let shown: Vec<(usize, f64)> = record.energy.iter().enumerate().map(|(i, &e)| (i + 1, e)).collect();
+        assert_eq!(calls, shown, "{}", backend.name());
         let e: Vec<f64> = lbfgs.iterations.iter().map(|i| i.energy).collect();
         assert!(e.windows(2).all(|w| w[1] < w[0]), "{}: L-BFGS energy did not decrease: {e:?}", backend.name());
         // Final energies: of the sites each run ends with.

@@ -1,14 +1,20 @@
 //! `cargo xtask`: builds, runs, tests and benchmarks the project by driving
 //! cargo (the SPIR-V kernels are built by the host crate's build script).
+//! Each command first checks what it needs (see `setup`), and passes the
+//! exit status of what it runs through unchanged.
 
-use std::process::{Command, ExitCode};
+mod setup;
+
+use setup::Needs;
+use std::process::{Command, ExitCode, ExitStatus};
 
 const USAGE: &str = "\
 usage: cargo xtask <command> [args...]
 
 commands:
-  run [ARGS]          the main job: a clipped Voronoi diagram (cvd run ARGS, release build)
-  test [ARGS]         the whole test suite, optimised (cargo test ARGS)
+  run [ARGS]          the main job: a clipped Voronoi diagram (cvd run ARGS, release build); the
+                      SPIR-V kernels are built only when a GPU (or --backend vulkan) will run them
+  test [ARGS]         the whole test suite, optimised, on the CPU and lavapipe (cargo test ARGS)
   bench paper [ARGS]  the paper's evaluation: Table 1, Figs. 7, 8, 12, 13 and scale runs, CPU and
                       Vulkan; tables, JSON and charts in bench-results/paper (--sections LIST,
                       --quick, --cpu-only, --only MODEL, --repeat R, --scale-max N, --models-dir DIR, ...)
@@ -47,39 +53,102 @@ fn cargo(args: &[&str], extra: &[String]) -> Command {
     cmd
 }
 
-fn status(mut cmd: Command) -> Result<(), String> {
-    let shown = format!("{cmd:?}");
-    match cmd.status() {
-        Ok(s) if s.success() => Ok(()),
-        Ok(s) => Err(format!("{shown} failed ({s})")),
-        Err(e) => Err(format!("cannot run {shown}: {e}")),
+/// How a command ended: its exit status, or why it could not start.
+enum Failure {
+    /// The command ran and failed: its status is passed on unchanged.
+    Status(ExitStatus),
+    /// Something the xtask itself found wrong (exit 1).
+    Message(String),
+}
+
+impl From<String> for Failure {
+    fn from(message: String) -> Self {
+        Failure::Message(message)
     }
 }
 
-fn run(args: &[String]) -> Result<(), String> {
+fn status(mut cmd: Command) -> Result<(), Failure> {
+    match cmd.status() {
+        Ok(s) if s.success() => Ok(()),
+        Ok(s) => Err(Failure::Status(s)),
+        Err(e) => Err(Failure::Message(format!("cannot run {cmd:?}: {e}"))),
+    }
+}
+
+/// The value of `--name VALUE` or `--name=VALUE` in `args`.
+fn option<'a>(args: &'a [String], name: &str) -> Option<&'a str> {
+    args.iter().enumerate().find_map(|(i, a)| {
+        if a == name {
+            args.get(i + 1).map(String::as_str)
+        } else {
+            a.strip_prefix(name).and_then(|rest| rest.strip_prefix('='))
+        }
+    })
+}
+
+/// Whether `cvd run ARGS` will run on Vulkan, so that its build needs the
+/// SPIR-V kernels: when asked for (`--backend vulkan`, `--device`), or,
+/// with the default `--backend auto`, when a real GPU is there (a device
+/// that runs Vulkan on the CPU is not used by auto). The devices are listed
+/// by a build without the kernels, which takes minutes less to make.
+fn run_needs_kernels(args: &[String]) -> Result<bool, Failure> {
+    match option(args, "--backend") {
+        Some("cpu") => return Ok(false),
+        Some("vulkan") => return Ok(true),
+        _ if option(args, "--device").is_some() => return Ok(true),
+        Some("auto") | None => {}
+        // Let cvd say what is wrong with the value.
+        Some(_) => return Ok(false),
+    }
+    let out = cargo(&["run", "--quiet", "--release", "--package", "cvd", "--no-default-features", "--"], &[])
+        .args(["devices", "--json"])
+        .stderr(std::process::Stdio::inherit())
+        .output()
+        .map_err(|e| format!("cannot run cargo: {e}"))?;
+    if !out.status.success() {
+        return Err(Failure::Status(out.status));
+    }
+    let listing = String::from_utf8_lossy(&out.stdout);
+    Ok(listing.contains("\"gpu\": true") || listing.contains("\"gpu\":true"))
+}
+
+fn run(args: &[String]) -> Result<(), Failure> {
     let Some((command, rest)) = args.split_first() else {
-        return Err(USAGE.into());
+        return Err(USAGE.to_string().into());
     };
     match command.as_str() {
-        "run" => status(cargo(&["run", "--release", "--package", "cvd", "--", "run"], rest)),
-        "test" => status(cargo(&["test", "--release", "--workspace"], rest)),
-        "build" => status(cargo(&["build", "--release", "--workspace"], rest)),
+        "run" => {
+            setup::ensure(Needs::Toolchain)?;
+            let kernels = run_needs_kernels(rest)?;
+            if kernels {
+                setup::ensure(Needs::Build)?;
+            }
+            let features: &[&str] = if kernels { &[] } else { &["--no-default-features"] };
+            let mut cmd = cargo(&["run", "--release", "--package", "cvd"], &[]);
+            cmd.args(features).args(["--", "run"]).args(absolute_paths(rest));
+            status(cmd)
+        }
+        "test" => {
+            setup::ensure(Needs::Test)?;
+            status(cargo(&["test", "--release", "--workspace"], rest))
+        }
+        "build" => {
+            setup::ensure(Needs::Build)?;
+            status(cargo(&["build", "--release", "--workspace"], rest))
+        }
         "spirv" => {
             if !rest.iter().any(|a| a == "--out") {
-                return Err(format!("spirv needs --out DIR\n\n{USAGE}"));
+                return Err(format!("spirv needs --out DIR\n\n{USAGE}").into());
             }
+            setup::ensure(Needs::Build)?;
             status(cargo(&["run", "--quiet", "--release", "--package", "cvd", "--", "spirv"], rest))
         }
-        "bench" => match rest.split_first() {
-            Some((which, extra)) if ["knn", "paper", "cvt"].contains(&which.as_str()) => {
-                status(cargo(&["bench", "--package", "cvd", "--bench", which, "--"], extra))
-            }
-            Some((cvd, extra)) if cvd == "cvd" => {
-                status(cargo(&["bench", "--package", "cvd", "--bench", "paper", "--", "--sections", "table1"], extra))
-            }
-            _ => Err(format!("unknown benchmark; expected: paper, cvd, knn or cvt\n\n{USAGE}")),
-        },
+        "bench" => {
+            setup::ensure(if rest.iter().any(|a| a == "--cpu-only") { Needs::Build } else { Needs::Test })?;
+            bench(rest)
+        }
         "lint" => {
+            setup::ensure(Needs::Build)?;
             status(cargo(&["fmt", "--all", "--check"], &[]))?;
             status(cargo(&["clippy", "--release", "--workspace", "--all-targets", "--", "-D", "warnings"], &[]))
         }
@@ -87,15 +156,38 @@ fn run(args: &[String]) -> Result<(), String> {
             print!("{USAGE}");
             Ok(())
         }
-        other => Err(format!("unknown command '{other}'\n\n{USAGE}")),
+        other => Err(format!("unknown command '{other}'\n\n{USAGE}").into()),
     }
+}
+
+fn bench(rest: &[String]) -> Result<(), Failure> {
+    match rest.split_first() {
+        Some((which, extra)) if ["knn", "paper", "cvt"].contains(&which.as_str()) => {
+            status(cargo(&["bench", "--package", "cvd", "--bench", which, "--"], extra))
+        }
+        Some((cvd, extra)) if cvd == "cvd" => {
+            status(cargo(&["bench", "--package", "cvd", "--bench", "paper", "--", "--sections", "table1"], extra))
+        }
+        _ => Err(format!("unknown benchmark; expected: paper, cvd, knn or cvt\n\n{USAGE}").into()),
+    }
+}
+
+/// The exit code that passes `status` on: its own code, or 128 + the
+/// signal that ended it (as shells report it).
+fn exit_code(status: ExitStatus) -> u8 {
+    #[cfg(unix)]
+    if let Some(signal) = std::os::unix::process::ExitStatusExt::signal(&status) {
+        return (128 + signal).clamp(0, 255) as u8;
+    }
+    status.code().map_or(1, |c| c.clamp(0, 255) as u8)
 }
 
 fn main() -> ExitCode {
     let args: Vec<String> = std::env::args().skip(1).collect();
     match run(&args) {
         Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
+        Err(Failure::Status(s)) => ExitCode::from(exit_code(s)),
+        Err(Failure::Message(e)) => {
             eprintln!("xtask: {e}");
             ExitCode::FAILURE
         }

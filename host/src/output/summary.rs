@@ -2,6 +2,7 @@
 //! fast, and how well (`E_vol`, counters).
 
 use crate::backend::Backend;
+use crate::cvt::Iteration;
 use crate::error::Result;
 use crate::io::write_file;
 use crate::mesh::TetMesh;
@@ -47,6 +48,53 @@ pub struct Summary {
     /// Pieces exported (absent when they were not).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub pieces: Option<usize>,
+    /// The optimiser's record, when CVT iterations moved the sites before
+    /// this diagram (absent otherwise).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub cvt: Option<CvtRecord>,
+}
+
+/// What a CVT run did, iteration by iteration.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct CvtRecord {
+    /// `lloyd` or `lbfgs`.
+    pub optimizer: String,
+    /// Iterations run (L-BFGS stops early at a minimum).
+    pub iterations: usize,
+    /// Seconds of all the iterations together.
+    pub total_s: f64,
+    /// `total_s / iterations`.
+    pub per_iteration_s: f64,
+    /// Per iteration: the CVT energy of the diagram it started from, as the
+    /// progress bar shows it (so `energy[i]` is the energy after `i`
+    /// iterations; after the last one it is the summary's `energy`).
+    pub energy: Vec<f64>,
+    /// Per iteration: sites whose cell was empty in that diagram.
+    pub empty_cells: Vec<u64>,
+    /// Per iteration: pieces the second pass finished.
+    pub second_pass: Vec<u64>,
+    /// Per iteration: pieces not even the second pass could finish.
+    pub unresolved: Vec<u64>,
+    /// Per iteration: seconds on the backend.
+    pub seconds: Vec<f64>,
+}
+
+impl CvtRecord {
+    /// The record of `iterations` run by `optimizer`.
+    pub fn of(optimizer: &str, iterations: &[Iteration]) -> Self {
+        let total_s: f64 = iterations.iter().map(|i| i.seconds).sum();
+        Self {
+            optimizer: optimizer.to_string(),
+            iterations: iterations.len(),
+            total_s,
+            per_iteration_s: total_s / iterations.len().max(1) as f64,
+            energy: iterations.iter().map(|i| i.energy).collect(),
+            empty_cells: iterations.iter().map(|i| i.empty_cells).collect(),
+            second_pass: iterations.iter().map(|i| i.second_pass).collect(),
+            unresolved: iterations.iter().map(|i| i.unresolved).collect(),
+            seconds: iterations.iter().map(|i| i.seconds).collect(),
+        }
+    }
 }
 
 /// Times of a run, in seconds.
@@ -58,6 +106,9 @@ pub struct Times {
     pub clip_s: f64,
     /// Every phase, transfers included.
     pub total_s: f64,
+    /// The driver's compilation of the kernels on their first use in this
+    /// process (Vulkan; 0 on the CPU). Not part of `total_s`.
+    pub kernel_compile_s: f64,
     /// Each phase as the backend names it, in order (a JSON object).
     #[serde(serialize_with = "in_order")]
     pub phases: Vec<(String, f64)>,
@@ -71,7 +122,7 @@ fn in_order<S: serde::Serializer>(pairs: &[(String, f64)], s: S) -> std::result:
 impl Times {
     /// Sorts a backend's phases into k-NN, clipping and total.
     pub fn of(t: &Timings) -> Self {
-        Self { knn_s: t.knn(), clip_s: t.clip(), total_s: t.total(), phases: t.phases.clone() }
+        Self { knn_s: t.knn(), clip_s: t.clip(), total_s: t.total(), kernel_compile_s: 0.0, phases: t.phases.clone() }
     }
 }
 
@@ -105,9 +156,10 @@ impl Summary {
             volume_sum: cells.total_volume,
             e_vol: cells.e_vol,
             energy: cells.energy_total(),
-            times: Times::of(&cells.timings),
+            times: Times { kernel_compile_s: backend.kernel_compile_seconds(), ..Times::of(&cells.timings) },
             counters: cells.counters,
             pieces: None,
+            cvt: None,
         }
     }
 
@@ -175,6 +227,19 @@ impl fmt::Display for Summary {
         }
         if let Some(n) = self.pieces {
             writeln!(f, "  {:<11}{n}", "pieces")?;
+        }
+        if let Some(r) = &self.cvt {
+            let empty = r.empty_cells.iter().max().copied().unwrap_or(0);
+            writeln!(
+                f,
+                "  {:<11}{} iterations in {:.3} s ({}), energy {:.6e} -> {:.6e}, up to {empty} empty cells",
+                r.optimizer,
+                r.iterations,
+                r.total_s,
+                ms(r.per_iteration_s) + " each",
+                r.energy.first().copied().unwrap_or(self.energy),
+                self.energy,
+            )?;
         }
         Ok(())
     }

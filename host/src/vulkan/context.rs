@@ -59,6 +59,36 @@ pub struct DeviceInfo {
     pub api_version: u32,
 }
 
+impl DeviceInfo {
+    /// A real GPU (discrete, integrated or virtual), not a device that
+    /// implements Vulkan on the CPU (lavapipe, SwiftShader).
+    pub fn is_gpu(&self) -> bool {
+        self.gpu_rank().is_some()
+    }
+
+    /// For a real GPU, its rank in the default choice: discrete 0,
+    /// integrated 1, virtual 2.
+    pub fn gpu_rank(&self) -> Option<u8> {
+        match self.kind {
+            vk::PhysicalDeviceType::DISCRETE_GPU => Some(0),
+            vk::PhysicalDeviceType::INTEGRATED_GPU => Some(1),
+            vk::PhysicalDeviceType::VIRTUAL_GPU => Some(2),
+            _ => None,
+        }
+    }
+
+    /// What kind of device it is, in words.
+    pub fn kind_name(&self) -> &'static str {
+        match self.kind {
+            vk::PhysicalDeviceType::DISCRETE_GPU => "discrete GPU",
+            vk::PhysicalDeviceType::INTEGRATED_GPU => "integrated GPU",
+            vk::PhysicalDeviceType::VIRTUAL_GPU => "virtual GPU",
+            vk::PhysicalDeviceType::CPU => "Vulkan on the CPU",
+            _ => "other device",
+        }
+    }
+}
+
 /// An open Vulkan device with one compute queue.
 pub struct Context {
     _entry: ash::Entry,
@@ -147,14 +177,8 @@ fn pick_device(devices: &[(vk::PhysicalDevice, DeviceInfo)], wanted: Option<&str
         };
         return found.ok_or_else(|| Error::NoSuchDevice { wanted: w.into(), available: listing() });
     }
-    let rank = |t: vk::PhysicalDeviceType| match t {
-        vk::PhysicalDeviceType::DISCRETE_GPU => 0,
-        vk::PhysicalDeviceType::INTEGRATED_GPU => 1,
-        vk::PhysicalDeviceType::VIRTUAL_GPU => 2,
-        vk::PhysicalDeviceType::CPU => 3,
-        _ => 4,
-    };
-    Ok((0..devices.len()).min_by_key(|&i| (rank(devices[i].1.kind), i)).unwrap_or(0))
+    let rank = |d: &DeviceInfo| d.gpu_rank().unwrap_or(if d.kind == vk::PhysicalDeviceType::CPU { 3 } else { 4 });
+    Ok((0..devices.len()).min_by_key(|&i| (rank(&devices[i].1), i)).unwrap_or(0))
 }
 
 impl Context {

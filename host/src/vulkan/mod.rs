@@ -26,6 +26,13 @@ use job::{BufId, Job};
 use pipelines::{Pipelines, KERNELS};
 use plan::Plan;
 
+/// Whether this build embeds the kernels' SPIR-V (the `vulkan` feature).
+pub const HAS_KERNELS: bool = !KERNELS_SPV.is_empty();
+
+/// Why a build without the kernels cannot run on Vulkan.
+const NO_KERNELS: &str = "this build of cvd has no SPIR-V kernels: it was built without the `vulkan` \
+                          feature (cargo build --features vulkan; cargo xtask run --backend vulkan)";
+
 /// Runs the kernels on a Vulkan device.
 pub struct VulkanBackend {
     // Dropped before the context that owns the device.
@@ -36,6 +43,9 @@ pub struct VulkanBackend {
 impl VulkanBackend {
     /// Opens a device and loads the kernels' module.
     pub fn new(options: &VulkanOptions) -> Result<Self> {
+        if !HAS_KERNELS {
+            return Err(Error::VulkanUnavailable(NO_KERNELS.into()));
+        }
         let ctx = Context::new(options)?;
         let pipelines = Pipelines::new(&ctx)?;
         Ok(Self { pipelines, ctx })
@@ -84,6 +94,10 @@ impl Backend for VulkanBackend {
 
     fn device(&self) -> String {
         self.ctx.info().name.clone()
+    }
+
+    fn kernel_compile_seconds(&self) -> f64 {
+        self.pipelines.compile_seconds()
     }
 
     fn knn(&self, job: &KnnJob) -> Result<Neighbors> {

@@ -7,10 +7,17 @@ use crate::error::{Error, Result, VkContext};
 use ash::vk;
 use cvd_kernels::interface::EntryPoint;
 use std::collections::HashMap;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
-/// The kernels' SPIR-V module, built by rust-gpu at compile time.
+/// The kernels' SPIR-V module, built by rust-gpu at compile time (empty in
+/// a build without the `vulkan` feature).
+#[cfg(feature = "vulkan")]
 pub const KERNELS_SPV: &[u8] = include_bytes!(env!("CVD_KERNELS_SPV"));
+/// The kernels' SPIR-V module, built by rust-gpu at compile time (empty in
+/// a build without the `vulkan` feature).
+#[cfg(not(feature = "vulkan"))]
+pub const KERNELS_SPV: &[u8] = &[];
 
 /// The interface of one entry point: storage buffers at bindings
 /// `0..bindings` of set 0, and a push-constant block.
@@ -40,6 +47,8 @@ pub(crate) struct Pipelines {
     module: vk::ShaderModule,
     cache: vk::PipelineCache,
     made: Mutex<HashMap<&'static str, Arc<Kernel>>>,
+    /// Nanoseconds spent creating pipelines (the driver compiles them).
+    compile_ns: AtomicU64,
 }
 
 impl Pipelines {
@@ -52,7 +61,13 @@ impl Pipelines {
         // SAFETY: empty cache.
         let cache = unsafe { ctx.device.create_pipeline_cache(&vk::PipelineCacheCreateInfo::default(), None) }
             .call("vkCreatePipelineCache")?;
-        Ok(Self { device: ctx.device.clone(), module, cache, made: Mutex::new(HashMap::new()) })
+        Ok(Self {
+            device: ctx.device.clone(),
+            module,
+            cache,
+            made: Mutex::new(HashMap::new()),
+            compile_ns: AtomicU64::new(0),
+        })
     }
 
     /// The pipeline for entry point `name`, created if needed.
@@ -71,9 +86,16 @@ impl Pipelines {
             bindings: e.bindings.len() as u32,
             push_size: e.push_size() as u32,
         };
+        let start = std::time::Instant::now();
         let kernel = Arc::new(self.create(spec)?);
+        self.compile_ns.fetch_add(start.elapsed().as_nanos() as u64, Ordering::Relaxed);
         made.insert(spec.name, kernel.clone());
         Ok(kernel)
+    }
+
+    /// Seconds spent creating pipelines so far.
+    pub(crate) fn compile_seconds(&self) -> f64 {
+        self.compile_ns.load(Ordering::Relaxed) as f64 * 1e-9
     }
 
     fn create(&self, spec: KernelSpec) -> Result<Kernel> {
