@@ -2,7 +2,7 @@
 
 use crate::cpu::CpuBackend;
 use crate::cvt::LloydOutput;
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::knn::{KnnJob, Neighbors};
 use crate::voronoi::{ClipJob, ClipOutput};
 use crate::vulkan::{list_devices, DeviceInfo, VulkanBackend, VulkanOptions, HAS_KERNELS};
@@ -121,7 +121,8 @@ pub fn choose(options: &BackendOptions) -> Result<Chosen> {
         BackendKind::Auto => {
             let devices = match list_devices() {
                 Ok(devices) => devices,
-                Err(e) => return cpu(format!("auto: no Vulkan ({e})")),
+                Err(Error::VulkanUnavailable(why)) => return cpu(format!("auto: no Vulkan device ({why})")),
+                Err(e) => return cpu(format!("auto: no Vulkan device ({e})")),
             };
             match auto_choice(&devices, HAS_KERNELS) {
                 AutoChoice::Cpu(why) => cpu(why),

@@ -463,7 +463,9 @@ fn devices(json: bool) -> cvd::Result<()> {
     let devices = match vulkan::list_devices() {
         Ok(devices) => devices,
         Err(cvd::Error::VulkanUnavailable(why)) => {
-            eprintln!("cvd: no Vulkan device: {why}");
+            if !json {
+                println!("no Vulkan device: {why}");
+            }
             Vec::new()
         }
         Err(e) => return Err(e),

@@ -25,6 +25,9 @@ commands:
   spirv --out DIR     write the kernels as SPIR-V (one module per entry point) and manifest.json into DIR
                       (docs/EMBEDDING.md); then: cargo run --release -p cvd-embed-example -- DIR
   lint                cargo fmt --check and cargo clippy -D warnings
+
+Each command first checks what it needs from the system and installs what is missing where it
+can (xtask/install-deps; CVD_XTASK_NO_SETUP=1 skips this), and exits with the status of what it ran.
 ";
 
 /// Paths given after these options are made absolute: cargo runs benches
@@ -100,7 +103,8 @@ fn run_needs_kernels(args: &[String]) -> Result<bool, Failure> {
         // Let cvd say what is wrong with the value.
         Some(_) => return Ok(false),
     }
-    let out = cargo(&["run", "--quiet", "--release", "--package", "cvd", "--no-default-features", "--"], &[])
+    eprintln!("xtask: listing the Vulkan devices: the SPIR-V kernels are built only if a GPU will run them");
+    let out = cargo(&["run", "--release", "--package", "cvd", "--no-default-features", "--"], &[])
         .args(["devices", "--json"])
         .stderr(std::process::Stdio::inherit())
         .output()
