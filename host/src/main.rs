@@ -316,10 +316,10 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
     create_dir(&dir)?;
     let backend::Chosen { backend, why } = backend::choose(&args.backend.options())?;
     println!(
-        "{model}: {} tets, {} sites, {:?} on {} — {why}",
+        "{model}: {} tets, {} sites, {} on {} — {why}",
         mesh.tets.len(),
         sites.len(),
-        args.strategy,
+        args.strategy.to_possible_value().map(|v| v.get_name().to_string()).unwrap_or_default(),
         backend.name()
     );
     let (sites, record) = if args.iterations > 0 {
@@ -396,7 +396,8 @@ struct BackendArgs {
     /// CPU backend threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
-    /// Vulkan device: an index from `cvd devices` or part of its name.
+    /// Vulkan device: an index from `cvd devices` or part of its name (named
+    /// devices are used by `--backend auto` too, GPU or not).
     #[arg(long)]
     device: Option<String>,
     /// Enable the Vulkan validation layer.
