@@ -100,7 +100,9 @@ fn main() {
     }
     let (tet, xyz) = (o.models_dir.join("paper_joint.tet"), o.models_dir.join("paper_joint_3000.xyz"));
     match (cvd::io::read_mesh(&tet), cvd::io::read_sites(&xyz)) {
-        (Ok(mesh), Ok(sites)) => models.push(("paper_joint".into(), mesh, sites)),
+        (Ok(mesh), Ok(sites)) => {
+            models.push(("paper_joint".into(), mesh, sites.iter().map(|p| p.map(|c| c as f32)).collect()))
+        }
         (Err(e), _) | (_, Err(e)) => println!("{e}: paper_joint skipped"),
     }
     let mut backends: Vec<&dyn Backend> = vec![&cpu];

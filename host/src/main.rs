@@ -301,16 +301,19 @@ fn lloyd(
 
 fn run(args: &RunArgs) -> cvd::Result<()> {
     let (model, mesh) = load_model(args)?;
-    let sites = match &args.sites_file {
+    // The sites as given (a file's coordinates to the last digit), and as
+    // the library takes them.
+    let given: Vec<[f64; 3]> = match &args.sites_file {
         Some(path) => cvd::io::read_sites(path)?,
         None => {
             let n = match args.sites {
                 Some(n) => n,
                 None => models::default_sites(&args.model).unwrap_or(5000),
             };
-            points::in_mesh(&mesh, n, args.seed)
+            points::in_mesh(&mesh, n, args.seed).iter().map(|p| p.map(f64::from)).collect()
         }
     };
+    let sites: Vec<[f32; 3]> = given.iter().map(|p| p.map(|c| c as f32)).collect();
     let dir = args.out.clone().unwrap_or_else(|| default_out_dir(&model));
     // Before the long part: a folder that cannot be made fails now.
     create_dir(&dir)?;
@@ -356,7 +359,15 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
         dir.join(name)
     };
     output::write_cells_csv(&file("cells.csv"), &cells)?;
-    cvd::io::write_sites_xyz(&file("sites.xyz"), &sites)?;
+    // The sites of the diagram: as given, or where the iterations moved them.
+    let moved: Vec<[f64; 3]>;
+    let used = if summary.cvt.is_some() {
+        moved = sites.iter().map(|p| p.map(f64::from)).collect();
+        &moved
+    } else {
+        &given
+    };
+    cvd::io::write_sites_xyz(&file("sites.xyz"), used)?;
     if !args.no_pieces {
         let cpu = CpuBackend::new(args.backend.threads)?;
         let (_, pieces) = with_spinner("pieces, on the CPU", || cv.compute_with_pieces(&cpu))?;

@@ -44,7 +44,8 @@ fn run_writes_every_output() {
     assert_eq!(rows.len(), 150);
     let sites = cvd::io::read_sites(&folder.join("sites.xyz")).unwrap();
     let cube = cvd::mesher::models::builtin("cube", Some(3)).unwrap();
-    assert_eq!(sites, cvd::points::in_mesh(&cube, 150, 1), "sites.xyz holds the sites used");
+    let generated: Vec<[f64; 3]> = cvd::points::in_mesh(&cube, 150, 1).iter().map(|p| p.map(f64::from)).collect();
+    assert_eq!(sites, generated, "sites.xyz holds the sites used");
     let summary = std::fs::read_to_string(folder.join("summary.json")).unwrap();
     assert_eq!(std::fs::read_to_string(&json).unwrap(), summary, "--json writes the same summary");
     let stdout = text(&out.stdout);
@@ -219,4 +220,26 @@ fn auto_does_not_pick_vulkan_on_the_cpu() {
     } else {
         assert!(header.contains("on cpu") && header.contains("— auto: no "), "{header}");
     }
+}
+
+#[test]
+fn a_sites_file_is_written_back_digit_for_digit() {
+    // UTM-like coordinates: sites.xyz holds exactly what was read.
+    let dir = temp_dir("round-trip");
+    let file = "4\n1000000.0145585263 4649776.224345621 12.5\n1000000.9 4649776.5 12.25\n\
+                1000000.25 4649776.125 12.75\n1000000.5 4649776.875 12.0625\n";
+    std::fs::write(dir.join("utm.xyz"), file).unwrap();
+    let given = cvd::io::read_sites(&dir.join("utm.xyz")).unwrap();
+    assert_eq!(given[0], [1000000.0145585263, 4649776.224345621, 12.5]);
+    let (lo, hi) = ([1000000.0, 4649776.0, 12.0], [1000001.0, 4649777.0, 13.0]);
+    let mut cube = cvd::TetMesh::cube(2);
+    for v in &mut cube.vertices {
+        for a in 0..3 {
+            v[a] = (lo[a] + v[a] as f64 * (hi[a] - lo[a])) as f32;
+        }
+    }
+    cvd::io::write_medit(&dir.join("box.mesh"), &cube).unwrap();
+    let out = cvd_run(&dir, &["--mesh", "box.mesh", "--sites-file", "utm.xyz", "--no-pieces", "--out", "o"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert_eq!(cvd::io::read_sites(&dir.join("o/sites.xyz")).unwrap(), given);
 }

@@ -41,6 +41,14 @@ impl<'a> Tok<'a> {
         }
     }
 
+    /// The token as a finite `f64` (NaN, infinities and overflows rejected).
+    pub fn f64(&self, what: impl Display) -> Result<f64> {
+        match self.text.parse::<f64>() {
+            Ok(x) if x.is_finite() => Ok(x),
+            _ => Err(self.unexpected(format_args!("{what} (a finite number)"))),
+        }
+    }
+
     /// The token as an integer.
     pub fn int(&self, what: impl Display) -> Result<i64> {
         self.text.parse().map_err(|_| self.unexpected(format_args!("{what} (an integer)")))
@@ -90,6 +98,10 @@ pub(super) trait Tokens<'a> {
     /// The next token as a finite `f32`.
     fn f32(&mut self, what: impl Display + Copy) -> Result<f32> {
         self.expect(what)?.f32(what)
+    }
+    /// The next token as a finite `f64`.
+    fn f64(&mut self, what: impl Display + Copy) -> Result<f64> {
+        self.expect(what)?.f64(what)
     }
     /// The next token as an integer.
     fn int(&mut self, what: impl Display + Copy) -> Result<i64> {

@@ -55,7 +55,7 @@ pub fn read_mesh(path: &Path) -> Result<TetMesh> {
 }
 
 /// Reads sites from an `.xyz` file (any extension): see [`parse_xyz`].
-pub fn read_sites(path: &Path) -> Result<Vec<[f32; 3]>> {
+pub fn read_sites(path: &Path) -> Result<Vec<[f64; 3]>> {
     parse_xyz(&read_text(path)?, &path.display().to_string())
 }
 
@@ -65,8 +65,9 @@ pub fn read_values(path: &Path) -> Result<Vec<f32>> {
 }
 
 /// Writes sites as `.xyz`: a line with the count, then `x y z` per line,
-/// each coordinate written so that it reads back exactly.
-pub fn write_sites_xyz(path: &Path, sites: &[[f32; 3]]) -> Result<()> {
+/// each coordinate written so that it reads back exactly (the shortest
+/// decimal that parses to the same f64).
+pub fn write_sites_xyz(path: &Path, sites: &[[f64; 3]]) -> Result<()> {
     write_file(path, |w| {
         writeln!(w, "{}", sites.len())?;
         for [x, y, z] in sites {
@@ -280,7 +281,7 @@ mod tests {
         };
         let sites = read_sites(&path).unwrap();
         assert_eq!(sites.len(), 3000);
-        assert_eq!(sites[0], [0.368190565_f64, 0.311753023, -0.155509743].map(|x| x as f32));
+        assert_eq!(sites[0], [0.368190565, 0.311753023, -0.155509743]);
     }
 
     #[test]
@@ -295,7 +296,13 @@ mod tests {
 
     #[test]
     fn sites_round_trip_exactly() {
-        let sites = vec![[0.1, -2.5e-7, 3.0e30], [f32::MIN_POSITIVE, 1.0 / 3.0, -0.0], [123456.79, 1e-45, 7.0]];
+        let sites = vec![
+            [0.1, -2.5e-7, 3.0e300],
+            [f64::MIN_POSITIVE, 1.0 / 3.0, -0.0],
+            [123456.79, 5e-324, 7.0],
+            // UTM-like coordinates keep every digit.
+            [1000000.0145585263, 4649776.224345621, 0.30000000000000004],
+        ];
         let path = temp_path("round_trip.xyz");
         write_sites_xyz(&path, &sites).unwrap();
         let back = read_sites(&path);

@@ -5,8 +5,9 @@ use crate::error::Result;
 
 /// Parses points, `x y z` per line; `#` starts a comment and blank lines
 /// are ignored. A first line holding a single number is the count of
-/// points, which must then match.
-pub fn parse_xyz(text: &str, path: &str) -> Result<Vec<[f32; 3]>> {
+/// points, which must then match. Coordinates are read as f64, exactly as
+/// written (to the nearest f64).
+pub fn parse_xyz(text: &str, path: &str) -> Result<Vec<[f64; 3]>> {
     let mut lex = Lexer::new(text, path);
     let mut points = Vec::new();
     // The count and its line, when the file gives one.
@@ -29,7 +30,7 @@ pub fn parse_xyz(text: &str, path: &str) -> Result<Vec<[f32; 3]>> {
         line.expect_len(3, format_args!("3 coordinates x y z for point {i}"))?;
         let mut p = [0.0; 3];
         for (c, axis) in p.iter_mut().zip(["x", "y", "z"]) {
-            *c = line.f32(format_args!("the {axis} coordinate of point {i}"))?;
+            *c = line.f64(format_args!("the {axis} coordinate of point {i}"))?;
         }
         points.push(p);
     }
