@@ -1,6 +1,6 @@
 //! `cvd`: the command-line tool.
 
-use clap::{Args, Parser, Subcommand, ValueEnum};
+use clap::{Args, Parser, Subcommand};
 use cvd::backend::{self, BackendKind, BackendOptions};
 use cvd::cpu::CpuBackend;
 use cvd::mesher::models;
@@ -285,15 +285,13 @@ fn lloyd(
         Optimizer::Lbfgs => cv.lbfgs(args.iterations, &mut |done, energy| show(done, energy))?,
     };
     bar.finish_and_clear();
-    let unresolved: u64 = run.iterations.iter().map(|i| i.unresolved).sum();
-    let empty = run.iterations.iter().map(|i| i.empty_cells).max().unwrap_or(0);
-    if unresolved > 0 || empty > 0 {
-        println!(
-            "Lloyd: up to {empty} empty cells in an iteration (their sites stayed); {unresolved} pieces unresolved"
-        );
-    }
-    let name = args.optimizer.to_possible_value().map(|v| v.get_name().to_string()).unwrap_or_default();
+    let name = output::value_name(&args.optimizer);
     let record = CvtRecord::of(&name, &run.iterations);
+    // The table shows the empty cells; what no pass could finish is said here.
+    let unresolved: u64 = record.unresolved.iter().sum();
+    if unresolved > 0 {
+        println!("{name}: {unresolved} pieces unresolved over the iterations (their volume was missing)");
+    }
     let series = [output::Series { name: &name, values: &record.energy, x: &[], rgb: [200, 40, 40] }];
     output::write_line_chart_png(&dir.join("energy.png"), "cvt energy", &series)?;
     Ok((run.sites, record))
@@ -322,7 +320,7 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
         "{model}: {} tets, {} sites, {} on {} — {why}",
         mesh.tets.len(),
         sites.len(),
-        args.strategy.to_possible_value().map(|v| v.get_name().to_string()).unwrap_or_default(),
+        output::value_name(&args.strategy),
         backend.name()
     );
     let (sites, record) = if args.iterations > 0 {
@@ -360,14 +358,11 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
     };
     output::write_cells_csv(&file("cells.csv"), &cells)?;
     // The sites of the diagram: as given, or where the iterations moved them.
-    let moved: Vec<[f64; 3]>;
-    let used = if summary.cvt.is_some() {
-        moved = sites.iter().map(|p| p.map(f64::from)).collect();
-        &moved
-    } else {
-        &given
+    let used = match summary.cvt {
+        Some(_) => sites.iter().map(|p| p.map(f64::from)).collect(),
+        None => given,
     };
-    cvd::io::write_sites_xyz(&file("sites.xyz"), used)?;
+    cvd::io::write_sites_xyz(&file("sites.xyz"), &used)?;
     if !args.no_pieces {
         let cpu = CpuBackend::new(args.backend.threads)?;
         let (_, pieces) = with_spinner("pieces, on the CPU", || cv.compute_with_pieces(&cpu))?;

@@ -18,7 +18,7 @@ pub mod vtu;
 pub use cells_csv::{read_cells_csv, write_cells_csv, CellRow};
 pub use picture::{write_section_png, Section};
 pub use plot::{write_chart_png, write_line_chart_png, Axes, Series};
-pub use summary::{CvtRecord, Summary, Times};
+pub use summary::{value_name, CvtRecord, Summary, Times};
 pub use vtu::write_pieces_vtu;
 
 /// A progress report: `(done, total)`, in units the writer chooses.

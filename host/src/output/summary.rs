@@ -126,8 +126,8 @@ impl Times {
     }
 }
 
-/// The name clap shows for a value (`tet-cell`, `flood`).
-fn value_name<T: clap::ValueEnum>(value: &T) -> String {
+/// The name clap shows for a value (`tet-cell`, `flood`, `lbfgs`).
+pub fn value_name<T: clap::ValueEnum>(value: &T) -> String {
     value.to_possible_value().map(|v| v.get_name().to_string()).unwrap_or_default()
 }
 
@@ -232,11 +232,11 @@ impl fmt::Display for Summary {
             let empty = r.empty_cells.iter().max().copied().unwrap_or(0);
             writeln!(
                 f,
-                "  {:<11}{} iterations in {:.3} s ({}), energy {:.6e} -> {:.6e}, up to {empty} empty cells",
+                "  {:<11}{} iterations in {:.3} s ({} each), energy {:.6e} -> {:.6e}, up to {empty} empty cells",
                 r.optimizer,
                 r.iterations,
                 r.total_s,
-                ms(r.per_iteration_s) + " each",
+                ms(r.per_iteration_s),
                 r.energy.first().copied().unwrap_or(self.energy),
                 self.energy,
             )?;

@@ -12,12 +12,7 @@ use std::sync::{Arc, Mutex};
 
 /// The kernels' SPIR-V module, built by rust-gpu at compile time (empty in
 /// a build without the `vulkan` feature).
-#[cfg(feature = "vulkan")]
 pub const KERNELS_SPV: &[u8] = include_bytes!(env!("CVD_KERNELS_SPV"));
-/// The kernels' SPIR-V module, built by rust-gpu at compile time (empty in
-/// a build without the `vulkan` feature).
-#[cfg(not(feature = "vulkan"))]
-pub const KERNELS_SPV: &[u8] = &[];
 
 /// The interface of one entry point: storage buffers at bindings
 /// `0..bindings` of set 0, and a push-constant block.
