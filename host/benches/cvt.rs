@@ -82,7 +82,7 @@ fn main() {
     let o = options();
     let cpu = CpuBackend::new(o.threads).expect("CPU backend");
     let vulkan = common::warm_vulkan(o.device.clone());
-    let mut models: Vec<(String, TetMesh, Vec<[f32; 3]>)> = Vec::new();
+    let mut models: Vec<(String, TetMesh, Vec<[f64; 3]>)> = Vec::new();
     for name in ["torus", "joint"] {
         let mesh = cvd::mesher::models::builtin(name, None).expect("built-in model");
         let sites = points::in_mesh(&mesh, cvd::mesher::models::default_sites(name).expect("built-in model"), 2020);
@@ -100,9 +100,7 @@ fn main() {
     }
     let (tet, xyz) = (o.models_dir.join("paper_joint.tet"), o.models_dir.join("paper_joint_3000.xyz"));
     match (cvd::io::read_mesh(&tet), cvd::io::read_sites(&xyz)) {
-        (Ok(mesh), Ok(sites)) => {
-            models.push(("paper_joint".into(), mesh, sites.iter().map(|p| p.map(|c| c as f32)).collect()))
-        }
+        (Ok(mesh), Ok(sites)) => models.push(("paper_joint".into(), mesh, sites)),
         (Err(e), _) | (_, Err(e)) => println!("{e}: paper_joint skipped"),
     }
     let mut backends: Vec<&dyn Backend> = vec![&cpu];

@@ -139,9 +139,9 @@ fn main() {
             let (_, t) = best_of(o.repeat, || {
                 timed(|| {
                     pool.install(|| {
-                        let tree = ImmutableKdTree::<f32, 3>::new_from_slice(&sites).expect("kiddo tree");
+                        let tree = ImmutableKdTree::<f64, 3>::new_from_slice(&sites).expect("kiddo tree");
                         let kk = NonZeroUsize::new(k + 1).expect("k + 1 > 0");
-                        tree.query_batch(&sites).nearest_n::<SquaredEuclidean<f32>>(kk).execute()
+                        tree.query_batch(&sites).nearest_n::<SquaredEuclidean<f64>>(kk).execute()
                     })
                 })
             });

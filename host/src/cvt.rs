@@ -13,13 +13,13 @@
 use crate::backend::Backend;
 use crate::error::{Error, Result};
 use crate::voronoi::{ClipJob, ClippedVoronoi, Frame};
-use cvd_kernels::abi::{lloyd_stat, LloydParams};
+use cvd_kernels::abi::{lloyd_stat, LloydParams, SplitPoint};
 
 /// What a backend returns for a Lloyd run, in the job's frame and order.
 #[derive(Clone, Debug, Default)]
 pub struct LloydOutput {
-    /// The sites after the last iteration (`[x, y, z, 0]`, normalised).
-    pub sites: Vec<[f32; 4]>,
+    /// The sites after the last iteration (normalised, `hi + lo`).
+    pub sites: Vec<SplitPoint>,
     /// [`lloyd_stat::COUNT`] statistics per iteration.
     pub stats: Vec<i64>,
     /// Seconds per iteration.
@@ -47,7 +47,7 @@ pub struct Iteration {
 #[derive(Clone, Debug, Default)]
 pub struct CvtRun {
     /// The sites after the last iteration, in input order.
-    pub sites: Vec<[f32; 3]>,
+    pub sites: Vec<[f64; 3]>,
     /// Every iteration.
     pub iterations: Vec<Iteration>,
 }
@@ -97,7 +97,7 @@ fn energy_scale(job: &ClipJob, frame: &Frame) -> f64 {
     frame.scale.powi(5) / job.params.fixed_scale as f64
 }
 
-fn report(input: &[[f32; 3]], job: &ClipJob, map: &[Option<usize>], frame: &Frame, out: &LloydOutput) -> CvtRun {
+fn report(input: &[[f64; 3]], job: &ClipJob, map: &[Option<usize>], frame: &Frame, out: &LloydOutput) -> CvtRun {
     let to_energy = energy_scale(job, frame);
     let iterations = out
         .stats
@@ -117,7 +117,7 @@ fn report(input: &[[f32; 3]], job: &ClipJob, map: &[Option<usize>], frame: &Fram
         .iter()
         .zip(input)
         .map(|(m, &p)| match m {
-            Some(u) => frame.to_world(out.sites[*u]),
+            Some(u) => frame.to_world(out.sites[*u].to_f64()),
             None => p,
         })
         .collect();
@@ -150,8 +150,7 @@ impl ClippedVoronoi<'_> {
             let v = cells.volume[i];
             if v > 0.0 {
                 for a in 0..3 {
-                    // The site as the kernels saw it (f32).
-                    gradient[3 * i + a] = 2.0 * v * (sites[i][a] as f64 - cells.centroid[i][a]);
+                    gradient[3 * i + a] = 2.0 * v * (sites[i][a] - cells.centroid[i][a]);
                     precondition[3 * i + a] = 1.0 / (2.0 * v);
                 }
             }
@@ -174,7 +173,7 @@ impl ClippedVoronoi<'_> {
     /// float precision).
     pub fn lbfgs(&self, iterations: usize, progress: &mut dyn FnMut(usize, f64)) -> Result<CvtRun> {
         let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
-        let mut x: Vec<f64> = self.sites.iter().flat_map(|p| p.map(f64::from)).collect();
+        let mut x: Vec<f64> = self.sites.iter().flatten().copied().collect();
         let (mut at, mut seconds) = self.evaluate(&x)?;
         let mut memory: Vec<(Vec<f64>, Vec<f64>, f64)> = Vec::new();
         let mut run = CvtRun::default();
@@ -244,6 +243,6 @@ impl ClippedVoronoi<'_> {
 }
 
 /// Flat `x, y, z` coordinates as points.
-fn to_points(x: &[f64]) -> Vec<[f32; 3]> {
-    x.as_chunks::<3>().0.iter().map(|p| p.map(|c| c as f32)).collect()
+fn to_points(x: &[f64]) -> Vec<[f64; 3]> {
+    x.as_chunks::<3>().0.to_vec()
 }

@@ -56,14 +56,14 @@ impl Expr {
 
     /// The density at every vertex of `mesh`; every value must be finite
     /// and positive.
-    pub fn at_vertices(&self, mesh: &TetMesh, text: &str) -> Result<Vec<f32>> {
+    pub fn at_vertices(&self, mesh: &TetMesh, text: &str) -> Result<Vec<f64>> {
         mesh.vertices
             .iter()
             .enumerate()
             .map(|(i, v)| {
                 let rho = self.eval(v.map(f64::from));
                 if rho.is_finite() && rho > 0.0 && (rho as f32) > 0.0 {
-                    Ok(rho as f32)
+                    Ok(rho)
                 } else {
                     Err(Error::InvalidInput(format!(
                         "density \"{text}\" is {rho} at vertex {i} {v:?}; it must be finite and positive"

@@ -55,7 +55,7 @@ impl Neighbors {
 
 impl KnnJob {
     /// The `k` nearest other sites of every site.
-    pub fn sites(sites: &[[f32; 3]], k: usize, method: KnnMethod) -> Result<Self> {
+    pub fn sites(sites: &[[f64; 3]], k: usize, method: KnnMethod) -> Result<Self> {
         let quantizer = Quantizer::fit(&[("site", sites)])?;
         let q = quantizer.quantize_all(sites);
         Self::build(q.clone(), q, true, k, method, quantizer)
@@ -63,7 +63,7 @@ impl KnnJob {
 
     /// The `k` nearest other sites of every site, quantized in a frame and
     /// on a grid that also cover `frame` (points the sites may move to).
-    pub fn sites_in_frame(sites: &[[f32; 3]], frame: &[[f32; 3]], k: usize, method: KnnMethod) -> Result<Self> {
+    pub fn sites_in_frame(sites: &[[f64; 3]], frame: &[[f64; 3]], k: usize, method: KnnMethod) -> Result<Self> {
         let quantizer = Quantizer::fit(&[("site", sites), ("frame point", frame)])?;
         let q = quantizer.quantize_all(sites);
         let mut job = Self::build(q.clone(), q, true, k, method, quantizer)?;
@@ -73,7 +73,7 @@ impl KnnJob {
 
     /// The `k` nearest sites of every query point, with the sites, frame
     /// and grid of a site job (the queries must lie in its frame).
-    pub fn points_like(site_job: &KnnJob, queries: &[[f32; 3]], k: usize) -> Result<Self> {
+    pub fn points_like(site_job: &KnnJob, queries: &[[f64; 3]], k: usize) -> Result<Self> {
         let q = site_job.quantizer;
         let mut job = Self::build(site_job.sites.clone(), q.quantize_all(queries), false, k, site_job.method, q)?;
         job.params.grid = site_job.params.grid;
@@ -81,7 +81,7 @@ impl KnnJob {
     }
 
     /// The `k` nearest sites of every query point.
-    pub fn points(sites: &[[f32; 3]], queries: &[[f32; 3]], k: usize, method: KnnMethod) -> Result<Self> {
+    pub fn points(sites: &[[f64; 3]], queries: &[[f64; 3]], k: usize, method: KnnMethod) -> Result<Self> {
         let quantizer = Quantizer::fit(&[("site", sites), ("query point", queries)])?;
         Self::build(quantizer.quantize_all(sites), quantizer.quantize_all(queries), false, k, method, quantizer)
     }

@@ -232,7 +232,7 @@ fn create_dir(dir: &Path) -> cvd::Result<()> {
 }
 
 /// The density per mesh vertex the arguments ask for, if any.
-fn density(args: &RunArgs, mesh: &TetMesh) -> cvd::Result<Option<Vec<f32>>> {
+fn density(args: &RunArgs, mesh: &TetMesh) -> cvd::Result<Option<Vec<f64>>> {
     if let Some(text) = &args.density {
         return Ok(Some(cvd::density::Expr::parse(text)?.at_vertices(mesh, text)?));
     }
@@ -265,10 +265,10 @@ enum Optimizer {
 fn lloyd(
     args: &RunArgs,
     mesh: &TetMesh,
-    sites: &[[f32; 3]],
+    sites: &[[f64; 3]],
     backend: &dyn cvd::Backend,
     dir: &std::path::Path,
-) -> cvd::Result<(Vec<[f32; 3]>, CvtRecord)> {
+) -> cvd::Result<(Vec<[f64; 3]>, CvtRecord)> {
     let bar = indicatif::ProgressBar::new(args.iterations as u64).with_style(
         indicatif::ProgressStyle::with_template("{msg} {bar:30} {pos}/{len} iterations, {elapsed} ({per_sec})")
             .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
@@ -299,19 +299,17 @@ fn lloyd(
 
 fn run(args: &RunArgs) -> cvd::Result<()> {
     let (model, mesh) = load_model(args)?;
-    // The sites as given (a file's coordinates to the last digit), and as
-    // the library takes them.
-    let given: Vec<[f64; 3]> = match &args.sites_file {
+    // The sites as given (a file's coordinates to the last digit).
+    let sites: Vec<[f64; 3]> = match &args.sites_file {
         Some(path) => cvd::io::read_sites(path)?,
         None => {
             let n = match args.sites {
                 Some(n) => n,
                 None => models::default_sites(&args.model).unwrap_or(5000),
             };
-            points::in_mesh(&mesh, n, args.seed).iter().map(|p| p.map(f64::from)).collect()
+            points::in_mesh(&mesh, n, args.seed)
         }
     };
-    let sites: Vec<[f32; 3]> = given.iter().map(|p| p.map(|c| c as f32)).collect();
     let dir = args.out.clone().unwrap_or_else(|| default_out_dir(&model));
     // Before the long part: a folder that cannot be made fails now.
     create_dir(&dir)?;
@@ -358,11 +356,7 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
     };
     output::write_cells_csv(&file("cells.csv"), &cells)?;
     // The sites of the diagram: as given, or where the iterations moved them.
-    let used = match summary.cvt {
-        Some(_) => sites.iter().map(|p| p.map(f64::from)).collect(),
-        None => given,
-    };
-    cvd::io::write_sites_xyz(&file("sites.xyz"), &used)?;
+    cvd::io::write_sites_xyz(&file("sites.xyz"), &sites)?;
     if !args.no_pieces {
         let cpu = CpuBackend::new(args.backend.threads)?;
         let (_, pieces) = with_spinner("pieces, on the CPU", || cv.compute_with_pieces(&cpu))?;

@@ -7,15 +7,15 @@ use crate::error::{Error, Result};
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct TetMesh {
     /// Vertex positions.
-    pub vertices: Vec<[f32; 3]>,
+    pub vertices: Vec<[f64; 3]>,
     /// Tets, as indices into `vertices`.
     pub tets: Vec<[u32; 4]>,
 }
 
 /// Signed volume of the tet `a, b, c, d` (positive when `d` is on the side
 /// of `(b - a) x (c - a)`), in f64.
-pub fn signed_volume(a: [f32; 3], b: [f32; 3], c: [f32; 3], d: [f32; 3]) -> f64 {
-    let s = |p: [f32; 3], q: [f32; 3]| [0, 1, 2].map(|i| p[i] as f64 - q[i] as f64);
+pub fn signed_volume(a: [f64; 3], b: [f64; 3], c: [f64; 3], d: [f64; 3]) -> f64 {
+    let s = |p: [f64; 3], q: [f64; 3]| [0, 1, 2].map(|i| p[i] - q[i]);
     let (u, v, w) = (s(b, a), s(c, a), s(d, a));
     let cross = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
     (cross[0] * w[0] + cross[1] * w[1] + cross[2] * w[2]) / 6.0
@@ -24,7 +24,7 @@ pub fn signed_volume(a: [f32; 3], b: [f32; 3], c: [f32; 3], d: [f32; 3]) -> f64 
 impl TetMesh {
     /// A mesh from vertices and tets, rejecting (by index) out-of-range
     /// vertex references, non-finite coordinates and zero-volume tets.
-    pub fn new(vertices: Vec<[f32; 3]>, tets: Vec<[u32; 4]>) -> Result<Self> {
+    pub fn new(vertices: Vec<[f64; 3]>, tets: Vec<[u32; 4]>) -> Result<Self> {
         if let Some(i) = vertices.iter().position(|v| !v.iter().all(|c| c.is_finite())) {
             return Err(Error::InvalidInput(format!("vertex {i} has a non-finite coordinate: {:?}", vertices[i])));
         }
@@ -39,6 +39,12 @@ impl TetMesh {
         let mesh = Self { vertices, tets };
         if let Some(t) = (0..mesh.tets.len()).find(|&t| mesh.tet_volume(t) == 0.0) {
             return Err(Error::InvalidInput(format!("tet {t} {:?} has zero volume", mesh.tets[t])));
+        }
+        if let Some(t) = (0..mesh.tets.len()).find(|&t| !mesh.tet_volume(t).is_finite()) {
+            return Err(Error::InvalidInput(format!(
+                "tet {t} {:?} is too large: its volume overflows f64",
+                mesh.tets[t]
+            )));
         }
         Ok(mesh)
     }
@@ -70,17 +76,17 @@ impl TetMesh {
     }
 
     /// Centroid of every tet.
-    pub fn centroids(&self) -> Vec<[f32; 3]> {
+    pub fn centroids(&self) -> Vec<[f64; 3]> {
         self.tets
             .iter()
             .map(|tet| {
                 let mut c = [0.0f64; 3];
                 for &v in tet {
                     for (a, ca) in c.iter_mut().enumerate() {
-                        *ca += self.vertices[v as usize][a] as f64 / 4.0;
+                        *ca += self.vertices[v as usize][a] / 4.0;
                     }
                 }
-                c.map(|x| x as f32)
+                c
             })
             .collect()
     }
@@ -91,8 +97,8 @@ impl TetMesh {
         let mut hi = [f64::NEG_INFINITY; 3];
         for v in &self.vertices {
             for a in 0..3 {
-                lo[a] = lo[a].min(v[a] as f64);
-                hi[a] = hi[a].max(v[a] as f64);
+                lo[a] = lo[a].min(v[a]);
+                hi[a] = hi[a].max(v[a]);
             }
         }
         (lo, hi)
@@ -113,7 +119,7 @@ impl TetMesh {
         let vertices = (0..side * side * side)
             .map(|v| {
                 let (i, j, k) = (v % side, (v / side) % side, v / (side * side));
-                [i as f32 / n as f32, j as f32 / n as f32, k as f32 / n as f32]
+                [i as f64 / n as f64, j as f64 / n as f64, k as f64 / n as f64]
             })
             .collect();
         const PATHS: [[usize; 3]; 6] = [[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]];

@@ -170,7 +170,7 @@ pub(crate) fn to_world(
     job: &ClipJob,
     map: &[Option<usize>],
     frame: &Frame,
-    input: &[[f32; 3]],
+    input: &[[f64; 3]],
 ) -> Vec<Piece> {
     // The input index that owns each job site: the lowest.
     let mut owner = vec![u32::MAX; job.sites.len()];

@@ -39,35 +39,35 @@ impl Rng {
 }
 
 /// `n` points uniform in the unit cube.
-pub fn uniform(n: usize, seed: u64) -> Vec<[f32; 3]> {
+pub fn uniform(n: usize, seed: u64) -> Vec<[f64; 3]> {
     let mut rng = Rng::new(seed);
-    (0..n).map(|_| [rng.unit() as f32, rng.unit() as f32, rng.unit() as f32]).collect()
+    (0..n).map(|_| [rng.unit(), rng.unit(), rng.unit()]).collect()
 }
 
 /// `n` points in `blobs` tight Gaussian blobs (standard deviation `sigma`)
 /// centred uniformly in the unit cube.
-pub fn clustered(n: usize, blobs: usize, sigma: f64, seed: u64) -> Vec<[f32; 3]> {
+pub fn clustered(n: usize, blobs: usize, sigma: f64, seed: u64) -> Vec<[f64; 3]> {
     let mut rng = Rng::new(seed);
     let centres: Vec<[f64; 3]> = (0..blobs.max(1)).map(|_| [rng.unit(), rng.unit(), rng.unit()]).collect();
     (0..n)
         .map(|_| {
             let c = centres[rng.below(centres.len())];
-            [0, 1, 2].map(|a| (c[a] + sigma * rng.normal()) as f32)
+            [0, 1, 2].map(|a| c[a] + sigma * rng.normal())
         })
         .collect()
 }
 
 /// `n` points on an integer lattice of side `side` (many equal distances),
 /// in random order, with repeats when `n` exceeds the lattice.
-pub fn lattice(n: usize, side: usize, seed: u64) -> Vec<[f32; 3]> {
+pub fn lattice(n: usize, side: usize, seed: u64) -> Vec<[f64; 3]> {
     let mut rng = Rng::new(seed);
     let side = side.max(1);
-    (0..n).map(|_| [0; 3].map(|_| rng.below(side) as f32)).collect()
+    (0..n).map(|_| [0; 3].map(|_| rng.below(side) as f64)).collect()
 }
 
 /// `n` points uniform inside a tet mesh: a tet drawn with probability
 /// proportional to its volume, then a uniform point in it.
-pub fn in_mesh(mesh: &crate::TetMesh, n: usize, seed: u64) -> Vec<[f32; 3]> {
+pub fn in_mesh(mesh: &crate::TetMesh, n: usize, seed: u64) -> Vec<[f64; 3]> {
     let mut rng = Rng::new(seed);
     let mut cumulative = Vec::with_capacity(mesh.tets.len());
     let mut total = 0.0;
@@ -87,7 +87,7 @@ pub fn in_mesh(mesh: &crate::TetMesh, n: usize, seed: u64) -> Vec<[f32; 3]> {
             u.sort_by(f64::total_cmp);
             let w = [u[0], u[1] - u[0], u[2] - u[1], 1.0 - u[2]];
             let v = mesh.tets[t].map(|i| mesh.vertices[i as usize]);
-            [0, 1, 2].map(|a| (0..4).map(|k| w[k] * v[k][a] as f64).sum::<f64>() as f32)
+            [0, 1, 2].map(|a| (0..4).map(|k| w[k] * v[k][a]).sum::<f64>())
         })
         .collect()
 }
@@ -95,16 +95,16 @@ pub fn in_mesh(mesh: &crate::TetMesh, n: usize, seed: u64) -> Vec<[f32; 3]> {
 /// The order of `points` along a Morton (Z-order) curve: neighbours in
 /// space become neighbours in memory, which keeps caches (and GPU
 /// workgroups) on nearby data. Ties keep the input order.
-pub fn morton_order(points: &[[f32; 3]]) -> Vec<u32> {
-    let mut lo = [f32::INFINITY; 3];
-    let mut hi = [f32::NEG_INFINITY; 3];
+pub fn morton_order(points: &[[f64; 3]]) -> Vec<u32> {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
     for p in points {
         for a in 0..3 {
             lo[a] = lo[a].min(p[a]);
             hi[a] = hi[a].max(p[a]);
         }
     }
-    let extent = (0..3).map(|a| hi[a] - lo[a]).fold(0.0f32, f32::max).max(f32::MIN_POSITIVE);
+    let extent = (0..3).map(|a| hi[a] - lo[a]).fold(0.0f64, f64::max).max(f64::MIN_POSITIVE);
     // Spreads the low 10 bits of v to every third bit.
     let spread = |v: u32| {
         let mut x = v & 0x3ff;

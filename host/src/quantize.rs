@@ -20,7 +20,7 @@ pub struct Quantizer {
 impl Quantizer {
     /// The frame covering every point of all the given sets. Rejects
     /// non-finite coordinates, naming the set and the point.
-    pub fn fit(sets: &[(&str, &[[f32; 3]])]) -> Result<Self> {
+    pub fn fit(sets: &[(&str, &[[f64; 3]])]) -> Result<Self> {
         let mut lo = [f64::INFINITY; 3];
         let mut hi = [f64::NEG_INFINITY; 3];
         for (name, points) in sets {
@@ -29,8 +29,8 @@ impl Quantizer {
                     return Err(Error::InvalidInput(format!("{name} {i} has a non-finite coordinate: {p:?}")));
                 }
                 for a in 0..3 {
-                    lo[a] = lo[a].min(p[a] as f64);
-                    hi[a] = hi[a].max(p[a] as f64);
+                    lo[a] = lo[a].min(p[a]);
+                    hi[a] = hi[a].max(p[a]);
                 }
             }
         }
@@ -55,13 +55,13 @@ impl Quantizer {
     }
 
     /// The quantized point for `p`, tagged with `index`.
-    pub fn quantize(&self, p: [f32; 3], index: u32) -> QuantPoint {
-        let q = |a: usize| ((p[a] as f64 - self.origin[a]) * self.scale).round().clamp(0.0, QUANT_MAX as f64) as u32;
+    pub fn quantize(&self, p: [f64; 3], index: u32) -> QuantPoint {
+        let q = |a: usize| ((p[a] - self.origin[a]) * self.scale).round().clamp(0.0, QUANT_MAX as f64) as u32;
         [q(0), q(1), q(2), index]
     }
 
     /// Quantizes a whole set, tagging each point with its position.
-    pub fn quantize_all(&self, points: &[[f32; 3]]) -> Vec<QuantPoint> {
+    pub fn quantize_all(&self, points: &[[f64; 3]]) -> Vec<QuantPoint> {
         points.iter().enumerate().map(|(i, &p)| self.quantize(p, i as u32)).collect()
     }
 

@@ -149,10 +149,7 @@ pub(crate) fn run<S: TaskSink>(job: &ClipJob, out: &mut ClipOutput, sinks: &Mute
         incomplete.append(&mut found_incomplete.lock().unwrap_or_else(|e| e.into_inner()));
         let inv = 1.0 / job.params.fixed_scale as f64;
         incomplete.extend((0..job.tets.len() as u32).filter(|&t| {
-            let v = job.tets[t as usize].map(|i| {
-                let p = job.verts[i as usize];
-                [p[0], p[1], p[2]]
-            });
+            let v = job.tets[t as usize].map(|i| job.verts[i as usize].to_f64());
             let vol = crate::mesh::signed_volume(v[0], v[1], v[2], v[3]).abs();
             let found = sums[n_site_sums + t as usize].load(Ordering::Relaxed) as f64 * inv;
             (found - vol).abs() > VOLUME_TOLERANCE * vol
@@ -214,8 +211,8 @@ fn tet_lists(job: &ClipJob, cpu: &OnceCell<CpuBackend>, tets: impl Iterator<Item
 }
 
 fn centroid(job: &ClipJob, t: usize) -> [f64; 3] {
-    let v = job.tets[t].map(|i| job.verts[i as usize]);
-    [0, 1, 2].map(|a| v.iter().map(|p| p[a] as f64).sum::<f64>() / 4.0)
+    let v = job.tets[t].map(|i| job.verts[i as usize].to_f64());
+    [0, 1, 2].map(|a| v.iter().map(|p| p[a]).sum::<f64>() / 4.0)
 }
 
 /// The pairs of each tet `(t, NO_SITE)` with every site that may own part
@@ -230,8 +227,8 @@ fn candidate_pairs(job: &ClipJob, grid: &SiteGrid, tets: &[[u32; 2]]) -> Vec<([u
         .enumerate()
         .map(|(e, &[t, _])| {
             let c = centroid(job, t as usize);
-            let v = job.tets[t as usize].map(|i| job.verts[i as usize].map(f64::from));
-            let dist = |a: [f64; 4], b: [f64; 3]| (0..3).map(|i| (a[i] - b[i]).powi(2)).sum::<f64>().sqrt();
+            let v = job.tets[t as usize].map(|i| job.verts[i as usize].to_f64());
+            let dist = |a: [f64; 3], b: [f64; 3]| (0..3).map(|i| (a[i] - b[i]).powi(2)).sum::<f64>().sqrt();
             let r = v.iter().map(|&p| dist(p, c)).fold(0.0, f64::max);
             let (nearest, d1) = grid.nearest(c);
             let mut found = Vec::new();

@@ -2,9 +2,10 @@
 //! (the host pass). The kernels' grid answers k-nearest queries; these
 //! ask for every site within a radius, which a k cannot bound.
 
+use cvd_kernels::abi::SplitPoint;
 /// Sites binned into cubic cells.
 pub struct SiteGrid<'a> {
-    sites: &'a [[f32; 4]],
+    sites: &'a [SplitPoint],
     lo: [f64; 3],
     cell: f64,
     dims: [usize; 3],
@@ -18,13 +19,14 @@ const SITES_PER_CELL: f64 = 4.0;
 
 impl<'a> SiteGrid<'a> {
     /// Bins `sites` (at least one).
-    pub fn new(sites: &'a [[f32; 4]]) -> Self {
+    pub fn new(sites: &'a [SplitPoint]) -> Self {
         let mut lo = [f64::INFINITY; 3];
         let mut hi = [f64::NEG_INFINITY; 3];
         for s in sites {
+            let s = s.to_f64();
             for a in 0..3 {
-                lo[a] = lo[a].min(s[a] as f64);
-                hi[a] = hi[a].max(s[a] as f64);
+                lo[a] = lo[a].min(s[a]);
+                hi[a] = hi[a].max(s[a]);
             }
         }
         let ext = [0, 1, 2].map(|a| (hi[a] - lo[a]).max(1e-9));
@@ -38,8 +40,7 @@ impl<'a> SiteGrid<'a> {
         let dims = dims_for(cell);
         let mut grid =
             Self { sites, lo, cell, dims, start: vec![0; dims.iter().product::<usize>() + 1], ids: Vec::new() };
-        let cells: Vec<usize> =
-            sites.iter().map(|s| grid.index(grid.coords([s[0], s[1], s[2]].map(f64::from)))).collect();
+        let cells: Vec<usize> = sites.iter().map(|s| grid.index(grid.coords(s.to_f64()))).collect();
         for &c in &cells {
             grid.start[c + 1] += 1;
         }
@@ -65,8 +66,8 @@ impl<'a> SiteGrid<'a> {
 
     /// Squared distance from `p` to site `i`.
     pub fn dist2(&self, i: u32, p: [f64; 3]) -> f64 {
-        let s = self.sites[i as usize];
-        (0..3).map(|a| (s[a] as f64 - p[a]).powi(2)).sum()
+        let s = self.sites[i as usize].to_f64();
+        (0..3).map(|a| (s[a] - p[a]).powi(2)).sum()
     }
 
     /// Appends every site within `radius` of `p` (and maybe a few more just
@@ -108,8 +109,8 @@ mod tests {
     #[test]
     fn ball_and_nearest_match_brute_force() {
         let mut rng = crate::points::Rng::new(7);
-        let sites: Vec<[f32; 4]> =
-            (0..2000).map(|_| [rng.unit() as f32, rng.unit() as f32, 0.3 * rng.unit() as f32, 0.0]).collect();
+        let sites: Vec<SplitPoint> =
+            (0..2000).map(|_| SplitPoint::new([rng.unit(), rng.unit(), 0.3 * rng.unit()], 0.0)).collect();
         let grid = SiteGrid::new(&sites);
         for q in 0..50 {
             let p = [rng.unit() * 1.4 - 0.2, rng.unit(), rng.unit() - 0.5];

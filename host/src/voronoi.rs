@@ -9,7 +9,7 @@ use crate::mesh::TetMesh;
 use crate::pieces::{Piece, PieceCollector};
 use crate::points;
 use crate::timing::Timings;
-use cvd_kernels::abi::{counter, ClipParams, RefineParams, ACCUM_PER_SITE};
+use cvd_kernels::abi::{counter, ClipParams, RefineParams, SplitPoint, ACCUM_PER_SITE};
 use cvd_kernels::clip::NoPieces;
 use std::collections::HashMap;
 use std::sync::Mutex;
@@ -83,10 +83,11 @@ pub struct ClipJob {
     pub site_knn: KnnJob,
     /// k nearest sites of each tet centroid: the pairs.
     pub tet_knn: KnnJob,
-    /// Unique sites, normalised, as `[x, y, z, 0]`.
-    pub sites: Vec<[f32; 4]>,
-    /// Mesh vertices, normalised, as `[x, y, z, 0]`.
-    pub verts: Vec<[f32; 4]>,
+    /// Unique sites, normalised, each as `hi + lo` (w 0).
+    pub sites: Vec<SplitPoint>,
+    /// Mesh vertices, normalised, each as `hi + lo`, the density (1
+    /// without one) in `hi[3]`.
+    pub verts: Vec<SplitPoint>,
     /// Tets.
     pub tets: Vec<[u32; 4]>,
     /// The mesh's index of each tet (they are in Morton order).
@@ -203,18 +204,18 @@ impl Cells {
 #[derive(Clone, Copy)]
 pub struct ClippedVoronoi<'a> {
     pub(crate) mesh: &'a TetMesh,
-    pub(crate) sites: &'a [[f32; 3]],
+    pub(crate) sites: &'a [[f64; 3]],
     pub(crate) strategy: Strategy,
     pub(crate) pairing: Option<Pairing>,
     pub(crate) k: Option<usize>,
     pub(crate) k_site: Option<usize>,
     pub(crate) backend: Option<&'a dyn Backend>,
-    pub(crate) density: Option<&'a [f32]>,
+    pub(crate) density: Option<&'a [f64]>,
 }
 
 impl<'a> ClippedVoronoi<'a> {
     /// The clipped Voronoi diagram of `sites` in `mesh`.
-    pub fn new(mesh: &'a TetMesh, sites: &'a [[f32; 3]]) -> Self {
+    pub fn new(mesh: &'a TetMesh, sites: &'a [[f64; 3]]) -> Self {
         Self {
             mesh,
             sites,
@@ -269,7 +270,7 @@ impl<'a> ClippedVoronoi<'a> {
     /// 1). Volumes, centroids and energies become ρ-weighted: `volume` is
     /// the cell's mass `∫ρ`, `centroid` its centre of mass, `energy`
     /// `∫ρ|x - x_i|²`, and `mesh_volume` the mesh's mass.
-    pub fn density(mut self, density: Option<&'a [f32]>) -> Self {
+    pub fn density(mut self, density: Option<&'a [f64]>) -> Self {
         self.density = density;
         self
     }
@@ -316,7 +317,7 @@ impl<'a> ClippedVoronoi<'a> {
             return Err(Error::InvalidInput("k and k_site must be at least 1".into()));
         }
         // Duplicates: the lowest index owns the cell.
-        let mut first: HashMap<[u32; 3], usize> = HashMap::new();
+        let mut first: HashMap<[u64; 3], usize> = HashMap::new();
         let mut unique = Vec::new();
         let map: Vec<Option<usize>> = self
             .sites
@@ -342,11 +343,13 @@ impl<'a> ClippedVoronoi<'a> {
             rank[old as usize] = new;
         }
         let map: Vec<Option<usize>> = map.into_iter().map(|m| m.map(|u| rank[u])).collect();
-        let unique: Vec<[f32; 3]> = order.iter().map(|&old| unique[old as usize]).collect();
+        let unique: Vec<[f64; 3]> = order.iter().map(|&old| unique[old as usize]).collect();
 
-        let frame = Frame::of(mesh, &unique);
-        let sites: Vec<[f32; 3]> = unique.iter().map(|&p| frame.to_local(p)).collect();
-        let verts: Vec<[f32; 3]> = mesh.vertices.iter().map(|&p| frame.to_local(p)).collect();
+        let frame = Frame::of(mesh);
+        let sites: Vec<[f64; 3]> = unique.iter().map(|&p| frame.to_local(p)).collect();
+        let split: Vec<SplitPoint> = sites.iter().map(|&p| SplitPoint::new(p, 0.0)).collect();
+        check_separable(&split, &unique, &map)?;
+        let verts: Vec<[f64; 3]> = mesh.vertices.iter().map(|&p| frame.to_local(p)).collect();
         let tet_order = points::morton_order(&mesh.centroids());
         let tets = tet_order.iter().map(|&t| mesh.tets[t as usize]).collect();
         let local_mesh = TetMesh { vertices: verts, tets };
@@ -362,20 +365,20 @@ impl<'a> ClippedVoronoi<'a> {
         let tet_knn = KnnJob::points_like(&site_knn, &centroids, k)?;
 
         // Box for Algorithm 1 (mesh and sites, with a margin).
-        let mut lo = [f32::INFINITY; 3];
-        let mut hi = [f32::NEG_INFINITY; 3];
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
         for p in sites.iter().chain(&local_mesh.vertices) {
             for a in 0..3 {
                 lo[a] = lo[a].min(p[a]);
                 hi[a] = hi[a].max(p[a]);
             }
         }
-        let diag = (0..3).map(|a| ((hi[a] - lo[a]) as f64).powi(2)).sum::<f64>().sqrt();
-        let margin = 0.01 * diag.max(1e-3) as f32;
+        let diag = (0..3).map(|a| (hi[a] - lo[a]).powi(2)).sum::<f64>().sqrt();
+        let margin = 0.01 * diag.max(1e-3);
         // Per-site sums are at most (mesh volume <= 1) x 3 (1 + diag)² x the
         // largest density: keep
         // them well inside i64 with a power-of-two scale.
-        let rho_max = self.density.map_or(1.0, |rho| rho.iter().fold(1.0f32, |a, &b| a.max(b)) as f64);
+        let rho_max = self.density.map_or(1.0, |rho| rho.iter().fold(1.0, |a: f64, &b| a.max(b)));
         let bound = 3.0 * (1.0 + diag).powi(2) * rho_max;
         let bits = (62.0 - bound.log2().ceil()).min(48.0);
         let params = ClipParams {
@@ -389,12 +392,12 @@ impl<'a> ClippedVoronoi<'a> {
             nbr_end: n as u32,
             own_lo: 0,
             own_hi: n as u32,
-            box_lo_x: lo[0] - margin,
-            box_lo_y: lo[1] - margin,
-            box_lo_z: lo[2] - margin,
-            box_hi_x: hi[0] + margin,
-            box_hi_y: hi[1] + margin,
-            box_hi_z: hi[2] + margin,
+            box_lo_x: (lo[0] - margin) as f32,
+            box_lo_y: (lo[1] - margin) as f32,
+            box_lo_z: (lo[2] - margin) as f32,
+            box_hi_x: (hi[0] + margin) as f32,
+            box_hi_y: (hi[1] + margin) as f32,
+            box_hi_z: (hi[2] + margin) as f32,
         };
         let q = &site_knn.quantizer;
         let lo = q.origin();
@@ -415,13 +418,13 @@ impl<'a> ClippedVoronoi<'a> {
             refine,
             site_knn,
             tet_knn,
-            sites: sites.iter().map(|p| [p[0], p[1], p[2], 0.0]).collect(),
+            sites: split,
             // The density rides in each vertex record's w.
             verts: local_mesh
                 .vertices
                 .iter()
                 .enumerate()
-                .map(|(v, p)| [p[0], p[1], p[2], self.density.map_or(1.0, |rho| rho[v])])
+                .map(|(v, &p)| SplitPoint::new(p, self.density.map_or(1.0, |rho| rho[v] as f32)))
                 .collect(),
             tets: local_mesh.tets,
             tet_order,
@@ -483,6 +486,27 @@ impl<'a> ClippedVoronoi<'a> {
     }
 }
 
+/// Refuses distinct sites the kernels could not tell apart: those whose
+/// normalised coordinates, split into `hi + lo` (`split`, in the order of
+/// `unique`), are equal. Names them by their input indices (`map`).
+fn check_separable(split: &[SplitPoint], unique: &[[f64; 3]], map: &[Option<usize>]) -> Result<()> {
+    let mut seen: HashMap<[u32; 6], usize> = HashMap::with_capacity(split.len());
+    for (u, p) in split.iter().enumerate() {
+        let key = [p.hi[0], p.hi[1], p.hi[2], p.lo[0], p.lo[1], p.lo[2]].map(|c| (c + 0.0).to_bits());
+        if let Some(&other) = seen.get(&key) {
+            let input = |u: usize| map.iter().position(|m| *m == Some(u)).unwrap_or(u);
+            let (a, b) = (input(other).min(input(u)), input(other).max(input(u)));
+            return Err(Error::InvalidInput(format!(
+                "sites {a} {:?} and {b} {:?} are distinct but too close to be told apart in the domain's frame \
+                 (about 1e-14 of its size); move or merge them",
+                unique[other], unique[u]
+            )));
+        }
+        seen.insert(key, u);
+    }
+    Ok(())
+}
+
 /// The normalising map: `local = (world - origin) / scale`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Frame {
@@ -493,25 +517,25 @@ pub struct Frame {
 }
 
 impl Frame {
-    fn of(mesh: &TetMesh, _sites: &[[f32; 3]]) -> Self {
+    fn of(mesh: &TetMesh) -> Self {
         let (lo, hi) = mesh.bounding_box();
         let scale = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
         Self { origin: lo, scale: if scale > 0.0 { scale } else { 1.0 } }
     }
 
-    fn to_local(self, p: [f32; 3]) -> [f32; 3] {
-        [0, 1, 2].map(|a| ((p[a] as f64 - self.origin[a]) / self.scale) as f32)
+    fn to_local(self, p: [f64; 3]) -> [f64; 3] {
+        [0, 1, 2].map(|a| (p[a] - self.origin[a]) / self.scale)
     }
 
-    pub(crate) fn to_world(self, p: [f32; 4]) -> [f32; 3] {
-        [0, 1, 2].map(|a| (p[a] as f64 * self.scale + self.origin[a]) as f32)
+    pub(crate) fn to_world(self, p: [f64; 3]) -> [f64; 3] {
+        [0, 1, 2].map(|a| p[a] * self.scale + self.origin[a])
     }
 }
 
 fn finish(
     mesh: &TetMesh,
-    density: Option<&[f32]>,
-    input: &[[f32; 3]],
+    density: Option<&[f64]>,
+    input: &[[f64; 3]],
     job: &ClipJob,
     map: &[Option<usize>],
     frame: &Frame,
@@ -528,7 +552,7 @@ fn finish(
         ..Default::default()
     };
     for (i, m) in map.iter().enumerate() {
-        let site = input[i].map(|c| c as f64);
+        let site = input[i];
         let (v, c, e) = match m {
             Some(u) => {
                 let s = &out.sums[u * ACCUM_PER_SITE..(u + 1) * ACCUM_PER_SITE];
@@ -548,7 +572,7 @@ fn finish(
     cells.mesh_volume = match density {
         // Linear in each tet: the mass is the volume times the mean.
         Some(rho) => (0..mesh.tets.len())
-            .map(|t| mesh.tet_volume(t).abs() * mesh.tets[t].iter().map(|&v| rho[v as usize] as f64).sum::<f64>() / 4.0)
+            .map(|t| mesh.tet_volume(t).abs() * mesh.tets[t].iter().map(|&v| rho[v as usize]).sum::<f64>() / 4.0)
             .sum(),
         None => mesh.volume(),
     };

@@ -235,7 +235,7 @@ fn a_sites_file_is_written_back_digit_for_digit() {
     let mut cube = cvd::TetMesh::cube(2);
     for v in &mut cube.vertices {
         for a in 0..3 {
-            v[a] = (lo[a] + v[a] as f64 * (hi[a] - lo[a])) as f32;
+            v[a] = lo[a] + v[a] * (hi[a] - lo[a]);
         }
     }
     cvd::io::write_medit(&dir.join("box.mesh"), &cube).unwrap();

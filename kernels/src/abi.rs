@@ -33,6 +33,46 @@ pub const WORKGROUP_SIZE: u32 = 64;
 /// A site or query point: quantized `x, y, z` and its original index.
 pub type QuantPoint = [u32; 4];
 
+/// A point of the clipping frame as the unevaluated sum `hi + lo` of two
+/// f32 vectors, made on the host from the f64 input: `hi` is the point
+/// rounded to f32 and `lo` what that rounding left, so the pair holds about
+/// 48 bits per coordinate. The kernels take the vector between two nearby
+/// points as `(hi_a - hi_b) + (lo_a - lo_b)` (see
+/// [`crate::polyhedron::between`]): the first difference is exact or
+/// rounded relative to itself, so the vector is accurate to f32 relative to
+/// its own length, however far the points are from the frame's origin.
+/// `hi[3]` carries a value of the point (a mesh vertex's density; 0 for a
+/// site), `lo[3]` is 0.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct SplitPoint {
+    /// The coordinates rounded to f32, and the point's value.
+    pub hi: [f32; 4],
+    /// The rounding's remainders (and 0).
+    pub lo: [f32; 4],
+}
+
+#[cfg(not(target_arch = "spirv"))]
+impl SplitPoint {
+    /// `p` split into `hi + lo`, with `value` in `hi[3]`.
+    #[inline]
+    pub fn new(p: [f64; 3], value: f32) -> Self {
+        let hi = [p[0] as f32, p[1] as f32, p[2] as f32];
+        let lo = [(p[0] - hi[0] as f64) as f32, (p[1] - hi[1] as f64) as f32, (p[2] - hi[2] as f64) as f32];
+        Self { hi: [hi[0], hi[1], hi[2], value], lo: [lo[0], lo[1], lo[2], 0.0] }
+    }
+
+    /// The point in f64 (exactly `hi + lo`).
+    #[inline]
+    pub fn to_f64(&self) -> [f64; 3] {
+        [
+            self.hi[0] as f64 + self.lo[0] as f64,
+            self.hi[1] as f64 + self.lo[1] as f64,
+            self.hi[2] as f64 + self.lo[2] as f64,
+        ]
+    }
+}
+
 /// A uniform grid over quantized space: cubic cells of side `cell_size`.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]

@@ -19,9 +19,9 @@
 //! Everything is computed relative to the site (the bisector of `x_i` and
 //! `x_j` is `n·x <= |n|²/2` with `n = x_j - x_i`), in f32.
 
-use crate::abi::{counter, ClipParams, RefineParams, ACCUM_PER_SITE, INCOMPLETE_TET, NO_SITE};
+use crate::abi::{counter, ClipParams, RefineParams, SplitPoint, ACCUM_PER_SITE, INCOMPLETE_TET, NO_SITE};
 use crate::buffers::{AtomicSums, OutBuf, PairList};
-use crate::polyhedron::{point, Cell, Clip, Moments, Piece, Point, Polyhedron, CELL_PLANES, CELL_VERTS, NO_ID};
+use crate::polyhedron::{between, Cell, Clip, Moments, Piece, Point, Polyhedron, CELL_PLANES, CELL_VERTS, NO_ID};
 use crate::walk::{clip_to_cell, GridWalk};
 use spirv_std::glam::{Vec3, Vec4};
 
@@ -177,7 +177,7 @@ pub fn clip_by_bisectors<const P: usize, const V: usize>(
     poly: &mut Polyhedron<P, V>,
     i: usize,
     n_sites: u32,
-    sites: &[[f32; 4]],
+    sites: &[SplitPoint],
     site_nbrs: &[u32],
     base: usize,
     k: usize,
@@ -185,7 +185,7 @@ pub fn clip_by_bisectors<const P: usize, const V: usize>(
     if base == NO_LIST {
         return Clipped { security_missed: true, ..Clipped::default() };
     }
-    let xi = point(sites[i]);
+    let xi = sites[i];
     let mut run = BisectorRun::new(poly);
     let mut s = 0;
     while s < k {
@@ -195,7 +195,7 @@ pub fn clip_by_bisectors<const P: usize, const V: usize>(
             run.out.security_missed = false;
             break;
         }
-        let n = point(sites[nb as usize]) - xi;
+        let n = between(&sites[nb as usize], &xi);
         let d2 = n.length_squared();
         if d2 > 4.0 * run.r2 {
             run.out.security_missed = false;
@@ -213,15 +213,15 @@ pub fn clip_by_bisectors<const P: usize, const V: usize>(
     run.out
 }
 
-/// The vertices of tet `t`, relative to `origin`.
+/// The vertices of tet `t`, relative to `origin` (a site).
 #[inline]
-pub fn tet_vertices(t: usize, verts: &[[f32; 4]], tets: &[[u32; 4]], origin: Vec3) -> [Vec3; 4] {
+pub fn tet_vertices(t: usize, verts: &[SplitPoint], tets: &[[u32; 4]], origin: &SplitPoint) -> [Vec3; 4] {
     let tet = tets[t];
     [
-        xyz(verts[tet[0] as usize]) - origin,
-        xyz(verts[tet[1] as usize]) - origin,
-        xyz(verts[tet[2] as usize]) - origin,
-        xyz(verts[tet[3] as usize]) - origin,
+        Vec3::from(between(&verts[tet[0] as usize], origin)),
+        Vec3::from(between(&verts[tet[1] as usize], origin)),
+        Vec3::from(between(&verts[tet[2] as usize], origin)),
+        Vec3::from(between(&verts[tet[3] as usize], origin)),
     ]
 }
 
@@ -234,14 +234,14 @@ pub const FILTER_SITES: usize = 8;
 /// half-space meets a convex polytope only if it holds one of its
 /// vertices). The test keeps a margin, so it never drops a real piece.
 #[inline]
-fn may_meet(tv: &[Vec3; 4], j: usize, list: usize, p: &ClipParams, sites: &[[f32; 4]], tet_sites: &[u32]) -> bool {
-    let xj = xyz(sites[j]);
+fn may_meet(tv: &[Vec3; 4], j: usize, list: usize, p: &ClipParams, sites: &[SplitPoint], tet_sites: &[u32]) -> bool {
+    let xj = sites[j];
     let k = p.k_tet as usize;
     let mut f = 0;
     while f < FILTER_SITES && f < k {
         let s = tet_sites[list + f];
         if s != NO_SITE && s as usize != j {
-            let xs = xyz(sites[s as usize]) - xj;
+            let xs = Vec3::from(between(&sites[s as usize], &xj));
             // |v - 0|² <= |v - xs|²  <=>  2 v·xs <= |xs|²
             let limit = xs.length_squared();
             let slack = 1e-5 * limit + 1e-12;
@@ -349,7 +349,7 @@ fn borders_unpaired<const P: usize, const V: usize>(
     poly: &Polyhedron<P, V>,
     j: usize,
     tv: &[Vec3; 4],
-    sites: &[[f32; 4]],
+    sites: &[SplitPoint],
     paired: Paired,
 ) -> bool {
     if paired.len == 0 {
@@ -362,15 +362,15 @@ fn borders_unpaired<const P: usize, const V: usize>(
     }
     // The centroid, relative to the site.
     let c = (tv[0] + tv[1] + tv[2] + tv[3]) * 0.25;
-    let xj = xyz(sites[j]);
-    let reach = (xyz(sites[last as usize]) - xj - c).length();
+    let xj = sites[j];
+    let reach = (Vec3::from(between(&sites[last as usize], &xj)) - c).length();
     let band = 1e-4 * reach + 1e-6;
     let faces = poly.face_mask();
     let mut q = 0;
     while q < poly.n_planes as usize {
         let id = poly.ids[q];
         if (faces >> q) & 1 != 0 && id != NO_ID {
-            let d = (xyz(sites[id as usize]) - xj - c).length();
+            let d = (Vec3::from(between(&sites[id as usize], &xj)) - c).length();
             if d > reach + band || (d >= reach - band && !paired.holds(id)) {
                 return true;
             }
@@ -395,8 +395,8 @@ pub fn finish_pair<const P: usize, const V: usize, A: AtomicSums, L: PairList, S
     c: &Clipped,
     paired: Paired,
     p: &ClipParams,
-    sites: &[[f32; 4]],
-    verts: &[[f32; 4]],
+    sites: &[SplitPoint],
+    verts: &[SplitPoint],
     tets: &[[u32; 4]],
     sums: &mut A,
     unfinished: &mut L,
@@ -437,13 +437,17 @@ pub fn add_tet_volume<A: AtomicSums>(t: usize, n_sites: u32, volume: f32, scale:
 pub fn piece_moments<const P: usize, const V: usize>(
     poly: &Polyhedron<P, V>,
     t: usize,
-    verts: &[[f32; 4]],
+    verts: &[SplitPoint],
     tets: &[[u32; 4]],
     tv: &[Vec3; 4],
 ) -> (Moments, f32) {
     let tet = tets[t];
-    let r =
-        [verts[tet[0] as usize][3], verts[tet[1] as usize][3], verts[tet[2] as usize][3], verts[tet[3] as usize][3]];
+    let r = [
+        verts[tet[0] as usize].hi[3],
+        verts[tet[1] as usize].hi[3],
+        verts[tet[2] as usize].hi[3],
+        verts[tet[3] as usize].hi[3],
+    ];
     if r[0] == r[1] && r[1] == r[2] && r[2] == r[3] {
         let m = poly.moments();
         let scaled = Moments { volume: m.volume * r[0], first: m.first * r[0], second: m.second * r[0] };
@@ -482,8 +486,8 @@ fn count<C: AtomicSums>(counters: &mut C, pieces: i64, nonempty: i64, c: &Clippe
 fn open_pair<C: AtomicSums>(
     i: usize,
     p: &ClipParams,
-    sites: &[[f32; 4]],
-    verts: &[[f32; 4]],
+    sites: &[SplitPoint],
+    verts: &[SplitPoint],
     tets: &[[u32; 4]],
     tet_sites: &[u32],
     tv: &mut [Vec3; 4],
@@ -501,7 +505,7 @@ fn open_pair<C: AtomicSums>(
         return none;
     }
     let j = j as usize;
-    *tv = tet_vertices(t, verts, tets, xyz(sites[j]));
+    *tv = tet_vertices(t, verts, tets, &sites[j]);
     if !may_meet(tv, j, i - i % k, p, sites, tet_sites) {
         counters.add(counter::PAIRS, 1);
         counters.add(counter::FILTERED, 1);
@@ -516,8 +520,8 @@ fn open_pair<C: AtomicSums>(
 pub fn tet_cell_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     i: usize,
     p: &ClipParams,
-    sites: &[[f32; 4]],
-    verts: &[[f32; 4]],
+    sites: &[SplitPoint],
+    verts: &[SplitPoint],
     tets: &[[u32; 4]],
     tet_sites: &[u32],
     site_nbrs: &[u32],
@@ -545,7 +549,7 @@ pub fn tet_cell_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
 pub fn voronoi_cell<O: OutBuf<[f32; 4]> + ?Sized, C: AtomicSums>(
     i: usize,
     p: &ClipParams,
-    sites: &[[f32; 4]],
+    sites: &[SplitPoint],
     site_nbrs: &[u32],
     cells: &mut O,
     counters: &mut C,
@@ -553,7 +557,7 @@ pub fn voronoi_cell<O: OutBuf<[f32; 4]> + ?Sized, C: AtomicSums>(
     if i >= p.n_sites as usize || !owns(p, i) {
         return;
     }
-    let xi = xyz(sites[i]);
+    let xi = xyz(sites[i].hi) + xyz(sites[i].lo);
     let lo = Vec3::new(p.box_lo_x, p.box_lo_y, p.box_lo_z) - xi;
     let hi = Vec3::new(p.box_hi_x, p.box_hi_y, p.box_hi_z) - xi;
     let mut poly = Cell::cuboid(lo, hi);
@@ -573,7 +577,7 @@ pub fn voronoi_cell<O: OutBuf<[f32; 4]> + ?Sized, C: AtomicSums>(
     if status == cell_status::SECURITY_MISSED && k > 0 && base != NO_LIST {
         let last = site_nbrs[base + k - 1];
         if last != NO_SITE {
-            exact_r2 = 0.2499 * (xyz(sites[last as usize]) - xi).length_squared();
+            exact_r2 = 0.2499 * between(&sites[last as usize], &sites[i]).length_squared();
         }
     }
     let base = i * CELL_RECORDS;
@@ -607,8 +611,8 @@ pub fn voronoi_cell<O: OutBuf<[f32; 4]> + ?Sized, C: AtomicSums>(
 pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     i: usize,
     p: &ClipParams,
-    sites: &[[f32; 4]],
-    verts: &[[f32; 4]],
+    sites: &[SplitPoint],
+    verts: &[SplitPoint],
     tets: &[[u32; 4]],
     tet_sites: &[u32],
     cells: &[[f32; 4]],
@@ -707,8 +711,8 @@ pub fn flood_tet<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     i: usize,
     p: &RefineParams,
     w: GridWalk,
-    sites: &[[f32; 4]],
-    verts: &[[f32; 4]],
+    sites: &[SplitPoint],
+    verts: &[SplitPoint],
     tets: &[[u32; 4]],
     tet_sites: &[u32],
     sums: &mut A,
@@ -751,8 +755,8 @@ pub fn flood<const P: usize, const V: usize, const Q: usize, F, A, C, L, S>(
     t: usize,
     start: u32,
     fixed_scale: f32,
-    sites: &[[f32; 4]],
-    verts: &[[f32; 4]],
+    sites: &[SplitPoint],
+    verts: &[SplitPoint],
     tets: &[[u32; 4]],
     mut piece: F,
     sums: &mut A,
@@ -779,7 +783,7 @@ pub fn flood<const P: usize, const V: usize, const Q: usize, F, A, C, L, S>(
     let mut poly = Polyhedron::<P, V>::empty();
     while ok && head < len {
         let j = queue[head] as usize;
-        let tv = tet_vertices(t, verts, tets, xyz(sites[j]));
+        let tv = tet_vertices(t, verts, tets, &sites[j]);
         if head == 0 {
             tet_volume = ((tv[1] - tv[0]).cross(tv[2] - tv[0]).dot(tv[3] - tv[0]) / 6.0).abs();
         }

@@ -5,7 +5,9 @@
 //! [`thread_index`]). Descriptor set 0 holds storage buffers in the order of
 //! the parameters; push constants hold the `*Params` struct.
 
-use crate::abi::{thread_index, ClipParams, GridBuildParams, KnnParams, LloydParams, QuantPoint, RefineParams};
+use crate::abi::{
+    thread_index, ClipParams, GridBuildParams, KnnParams, LloydParams, QuantPoint, RefineParams, SplitPoint,
+};
 use crate::buffers::{DeviceCounters, DeviceList, DeviceSums};
 use crate::clip::NoPieces;
 use crate::walk::GridWalk;
@@ -134,8 +136,8 @@ pub fn clip_tet_cell(
     #[spirv(global_invocation_id)] id: UVec3,
     #[spirv(num_workgroups)] groups: UVec3,
     #[spirv(push_constant)] p: &ClipParams,
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] sites: &[[f32; 4]],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] verts: &[[f32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] sites: &[SplitPoint],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] verts: &[SplitPoint],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] tets: &[[u32; 4]],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] tet_sites: &[u32],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] site_nbrs: &[u32],
@@ -165,7 +167,7 @@ pub fn voronoi_cells(
     #[spirv(global_invocation_id)] id: UVec3,
     #[spirv(num_workgroups)] groups: UVec3,
     #[spirv(push_constant)] p: &ClipParams,
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] sites: &[[f32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] sites: &[SplitPoint],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] site_nbrs: &[u32],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] cells: &mut [[f32; 4]],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] counters: &mut [i64],
@@ -180,8 +182,8 @@ pub fn clip_cell_tet(
     #[spirv(global_invocation_id)] id: UVec3,
     #[spirv(num_workgroups)] groups: UVec3,
     #[spirv(push_constant)] p: &ClipParams,
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] sites: &[[f32; 4]],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] verts: &[[f32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] sites: &[SplitPoint],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] verts: &[SplitPoint],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] tets: &[[u32; 4]],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] tet_sites: &[u32],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] cells: &[[f32; 4]],
@@ -211,8 +213,8 @@ pub fn clip_flood(
     #[spirv(global_invocation_id)] id: UVec3,
     #[spirv(num_workgroups)] groups: UVec3,
     #[spirv(push_constant)] p: &RefineParams,
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] sites: &[[f32; 4]],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] verts: &[[f32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] sites: &[SplitPoint],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] verts: &[SplitPoint],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] tets: &[[u32; 4]],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] tet_sites: &[u32],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] site_nbrs: &[u32],
@@ -246,8 +248,8 @@ pub fn refine(
     #[spirv(global_invocation_id)] id: UVec3,
     #[spirv(num_workgroups)] groups: UVec3,
     #[spirv(push_constant)] p: &RefineParams,
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] sites: &[[f32; 4]],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] verts: &[[f32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] sites: &[SplitPoint],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] verts: &[SplitPoint],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] tets: &[[u32; 4]],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] tet_sites: &[u32],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] list: &[u32],
@@ -286,7 +288,7 @@ pub fn move_sites(
     #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] sums: &[i64],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] unfinished: &[u32],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] still: &[u32],
-    #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] sites: &mut [[f32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] sites: &mut [SplitPoint],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] quant: &mut [QuantPoint],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] stats: &mut [i64],
 ) {

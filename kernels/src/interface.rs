@@ -6,7 +6,7 @@
 //!
 //! Host-only: not compiled for SPIR-V.
 
-use crate::abi::{ClipParams, GridBuildParams, KnnParams, LloydParams, RefineParams, WORKGROUP_SIZE};
+use crate::abi::{ClipParams, GridBuildParams, KnnParams, LloydParams, RefineParams, SplitPoint, WORKGROUP_SIZE};
 use crate::layout::{Layout, TypeLayout};
 
 /// The version of the kernels' binary interface: entry points, bindings,
@@ -14,10 +14,10 @@ use crate::layout::{Layout, TypeLayout};
 /// their meaning (records per stored cell, the markers in lists, sums per
 /// site). It changes with any of them;
 /// [`fingerprint`] is pinned by a test to make sure it does.
-pub const ABI_VERSION: u32 = 4;
+pub const ABI_VERSION: u32 = 5;
 
 /// The [`fingerprint`] of the interface of [`ABI_VERSION`].
-pub const ABI_FINGERPRINT: u64 = 0x577f_3ab9_9235_10c0;
+pub const ABI_FINGERPRINT: u64 = 0xc732_85cb_6c06_ecc4;
 
 /// How an entry point uses a storage buffer.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -87,6 +87,7 @@ use Access::{ReadOnly as R, ReadWrite as W};
 
 type Quant = [u32; 4];
 type Vec4 = [f32; 4];
+type Split = SplitPoint;
 
 /// What the clipping kernels' `site_nbrs` binding holds.
 const SITE_NBRS: &str =
@@ -191,8 +192,8 @@ pub const ENTRY_POINTS: &[EntryPoint] = &[
         "clip_tet_cell",
         "Tet-cell strategy, knn pairing: one thread per (tet, paired site), n_tets * k_tet threads.",
         &[
-            b::<Vec4>("sites", R, "n_sites normalised sites [x, y, z, 0]"),
-            b::<Vec4>("verts", R, "mesh vertices, normalised, [x, y, z, density (1 without one)]"),
+            b::<Split>("sites", R, "n_sites normalised sites, each as hi + lo ([x, y, z, 0] twice; abi::SplitPoint)"),
+            b::<Split>("verts", R, "mesh vertices, normalised, as hi + lo (abi::SplitPoint), the density (1 without one) in hi[3]"),
             b::<Quant>("tets", R, "n_tets: four vertex indices per tet"),
             b::<u32>("tet_sites", R, "(n_tets - tet_base) * k_tet: the sites paired with each tet of the part"),
             b::<u32>("site_nbrs", R, SITE_NBRS),
@@ -206,7 +207,7 @@ pub const ENTRY_POINTS: &[EntryPoint] = &[
         "voronoi_cells",
         "Cell-tet strategy: the Voronoi cell of each site (Algorithm 1). One thread per site.",
         &[
-            b::<Vec4>("sites", R, "n_sites normalised sites"),
+            b::<Split>("sites", R, "n_sites normalised sites (hi + lo)"),
             b::<u32>("site_nbrs", R, SITE_NBRS),
             b::<Vec4>("cells", W, "n_sites * CELL_RECORDS records: each site's cell"),
             b::<i64>("counters", W, "8 counters (atomic)"),
@@ -217,8 +218,8 @@ pub const ENTRY_POINTS: &[EntryPoint] = &[
         "clip_cell_tet",
         "Cell-tet strategy: clips each stored cell by a paired tet. One thread per (tet, paired site).",
         &[
-            b::<Vec4>("sites", R, "n_sites normalised sites"),
-            b::<Vec4>("verts", R, "mesh vertices, normalised, [x, y, z, density]"),
+            b::<Split>("sites", R, "n_sites normalised sites (hi + lo)"),
+            b::<Split>("verts", R, "mesh vertices, normalised (hi + lo), the density in hi[3]"),
             b::<Quant>("tets", R, "n_tets: four vertex indices per tet"),
             b::<u32>("tet_sites", R, "(n_tets - tet_base) * k_tet: the sites paired with each tet of the part"),
             b::<Vec4>("cells", R, "n_sites * CELL_RECORDS: the cells from voronoi_cells"),
@@ -232,8 +233,8 @@ pub const ENTRY_POINTS: &[EntryPoint] = &[
         "clip_flood",
         "Tet-cell strategy, flood pairing: one thread per tet, seeded with the site nearest its centroid; a piece its site's list does not settle walks the site grid.",
         &[
-            b::<Vec4>("sites", R, "n_sites normalised sites"),
-            b::<Vec4>("verts", R, "mesh vertices, normalised, [x, y, z, density]"),
+            b::<Split>("sites", R, "n_sites normalised sites (hi + lo)"),
+            b::<Split>("verts", R, "mesh vertices, normalised (hi + lo), the density in hi[3]"),
             b::<Quant>("tets", R, "n_tets: four vertex indices per tet"),
             b::<u32>("tet_sites", R, "n_tets - tet_base: the site nearest each tet's centroid (knn_grid with k = 1)"),
             b::<u32>("site_nbrs", R, SITE_NBRS),
@@ -250,8 +251,8 @@ pub const ENTRY_POINTS: &[EntryPoint] = &[
         "refine",
         "Second pass: redoes each unfinished entry by its neighbour list, then a grid walk. One thread per list slot (capacity threads).",
         &[
-            b::<Vec4>("sites", R, "n_sites normalised sites"),
-            b::<Vec4>("verts", R, "mesh vertices, normalised, [x, y, z, density]"),
+            b::<Split>("sites", R, "n_sites normalised sites (hi + lo)"),
+            b::<Split>("verts", R, "mesh vertices, normalised (hi + lo), the density in hi[3]"),
             b::<Quant>("tets", R, "n_tets: four vertex indices per tet"),
             b::<u32>("tet_sites", R, "the first pass's pairs"),
             b::<u32>("list", R, "the first pass's unfinished list"),
@@ -272,7 +273,7 @@ pub const ENTRY_POINTS: &[EntryPoint] = &[
             b::<i64>("sums", R, "n_sites * 5: the diagram's fixed-point sums"),
             b::<u32>("unfinished", R, "the first pass's unfinished list"),
             b::<u32>("still", R, "the second pass's unfinished list"),
-            b::<Vec4>("sites", W, "n_sites normalised sites, moved in place"),
+            b::<Split>("sites", W, "n_sites normalised sites (hi + lo), moved in place"),
             b::<Quant>("quant", W, "n_sites quantized sites, moved in place"),
             b::<i64>("stats", W, "iterations * 4 statistics (abi::lloyd_stat; atomic)"),
         ],

@@ -5,7 +5,7 @@
 //!
 //! Host-only: not compiled for SPIR-V.
 
-use crate::abi::{ClipParams, GridBuildParams, GridParams, KnnParams, LloydParams, RefineParams};
+use crate::abi::{ClipParams, GridBuildParams, GridParams, KnnParams, LloydParams, RefineParams, SplitPoint};
 use core::mem::{align_of, offset_of, size_of};
 
 /// What a type is made of.
@@ -101,6 +101,7 @@ macro_rules! structure {
     };
 }
 
+structure!(SplitPoint { hi: [f32; 4], lo: [f32; 4] });
 structure!(GridParams {
     dim_x: u32,
     dim_y: u32,
@@ -222,6 +223,7 @@ mod tests {
             ClipParams::describe(),
             RefineParams::describe(),
             LloydParams::describe(),
+            SplitPoint::describe(),
         ] {
             check(t);
         }

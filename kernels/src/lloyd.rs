@@ -2,20 +2,48 @@
 //! and its quantized copy (for the next k-NN) follows, so that a loop of
 //! iterations needs nothing from the host.
 
-use crate::abi::{lloyd_stat, LloydParams, QuantPoint, ACCUM_PER_SITE, QUANT_MAX};
+use crate::abi::{lloyd_stat, LloydParams, QuantPoint, SplitPoint, ACCUM_PER_SITE, QUANT_MAX};
 use crate::buffers::{AtomicSums, OutBuf};
 
-/// `x` quantized: `round((x - origin) * scale)` within `[0, QUANT_MAX]`.
+/// The coordinate `hi + lo` quantized: `round((hi + lo - origin) * scale)`
+/// within `[0, QUANT_MAX]`, to within one step (`scale` is a power of two,
+/// so the scaled f32 values are exact, and the parts are added where they
+/// are small).
 #[inline]
-fn quantize(x: f32, origin: f32, scale: f32) -> u32 {
-    let q = (x - origin) * scale + 0.5;
-    if q <= 0.0 {
+fn quantize(hi: f32, lo: f32, origin: f32, scale: f32) -> u32 {
+    // hi - origin = d + e exactly (two-sum).
+    let d = hi - origin;
+    let z = d - hi;
+    let e = (hi - (d - z)) - (origin + z);
+    let t = d * scale;
+    if t <= 0.0 {
+        return 0;
+    }
+    if t >= QUANT_MAX as f32 {
+        return QUANT_MAX;
+    }
+    let whole = t as u32;
+    let rest = (t - whole as f32) + (e + lo) * scale + 0.5;
+    let q = whole as i64 + if rest < 0.0 { -1 } else { rest as i64 };
+    if q <= 0 {
         0
-    } else if q >= QUANT_MAX as f32 {
+    } else if q >= QUANT_MAX as i64 {
         QUANT_MAX
     } else {
         q as u32
     }
+}
+
+/// `hi + lo + step`, as a new `(hi, lo)` pair: `hi + step` exactly (two-sum),
+/// its error added to `lo`, then the pair renormalised.
+#[inline]
+fn moved(hi: f32, lo: f32, step: f32) -> (f32, f32) {
+    let s = hi + step;
+    let z = s - hi;
+    let e = (hi - (s - z)) + (step - z);
+    let lo = lo + e;
+    let h = s + lo;
+    (h, lo - (h - s))
 }
 
 /// Thread `i`: moves site `i` to its cell's centroid (first moment over
@@ -34,7 +62,7 @@ pub fn move_site<S, Q, A>(
     quant: &mut Q,
     stats: &mut A,
 ) where
-    S: OutBuf<[f32; 4]> + ?Sized,
+    S: OutBuf<SplitPoint> + ?Sized,
     Q: OutBuf<QuantPoint> + ?Sized,
     A: AtomicSums,
 {
@@ -57,16 +85,19 @@ pub fn move_site<S, Q, A>(
     // The fixed-point scale cancels in first / volume.
     let v = s[0] as f32;
     let mut x = sites.read(i);
-    x[0] += s[1] as f32 / v;
-    x[1] += s[2] as f32 / v;
-    x[2] += s[3] as f32 / v;
+    let step = [s[1] as f32 / v, s[2] as f32 / v, s[3] as f32 / v];
+    let mut a = 0;
+    while a < 3 {
+        (x.hi[a], x.lo[a]) = moved(x.hi[a], x.lo[a], step[a]);
+        a += 1;
+    }
     sites.write(i, x);
     quant.write(
         i,
         [
-            quantize(x[0], p.quant_origin_x, p.quant_scale),
-            quantize(x[1], p.quant_origin_y, p.quant_scale),
-            quantize(x[2], p.quant_origin_z, p.quant_scale),
+            quantize(x.hi[0], x.lo[0], p.quant_origin_x, p.quant_scale),
+            quantize(x.hi[1], x.lo[1], p.quant_origin_y, p.quant_scale),
+            quantize(x.hi[2], x.lo[2], p.quant_origin_z, p.quant_scale),
             i as u32,
         ],
     );

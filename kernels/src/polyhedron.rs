@@ -11,6 +11,7 @@
 //! pairs alone). All coordinates are relative to a local origin (the
 //! site), so f32 keeps its precision.
 
+use crate::abi::SplitPoint;
 use spirv_std::glam::{Vec3, Vec4};
 
 /// A vertex position: a 16-byte SIMD vector on the CPU (its products and
@@ -36,6 +37,14 @@ pub fn point(v: [f32; 4]) -> Point {
 #[inline]
 pub fn point(v: [f32; 4]) -> Point {
     Vec3::new(v[0], v[1], v[2])
+}
+
+/// `a - b`, accurate to f32 relative to the difference (see
+/// [`SplitPoint`]): the vector from a site to a neighbour or to a tet
+/// vertex.
+#[inline]
+pub fn between(a: &SplitPoint, b: &SplitPoint) -> Point {
+    (point(a.hi) - point(b.hi)) + (point(a.lo) - point(b.lo))
 }
 
 /// The normal (`xyz`) of a plane `(n, d)`, as a [`Point`].

@@ -5,9 +5,9 @@
 //! alike. Only a polyhedron or a flood queue that is still too small leaves
 //! an entry unfinished, for the host.
 
-use crate::abi::{RefineParams, INCOMPLETE_TET, NO_SITE};
+use crate::abi::{RefineParams, SplitPoint, INCOMPLETE_TET, NO_SITE};
 use crate::buffers::{AtomicSums, PairList};
-use crate::clip::{finish_pair, flood, tet_vertices, xyz, Paired, PieceSink};
+use crate::clip::{finish_pair, flood, tet_vertices, Paired, PieceSink};
 use crate::polyhedron::{Cell, CELL_PLANES, CELL_VERTS};
 use crate::walk::{clip_to_cell, GridWalk};
 
@@ -26,8 +26,8 @@ pub fn refine_entry<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     e: usize,
     p: &RefineParams,
     w: GridWalk,
-    sites: &[[f32; 4]],
-    verts: &[[f32; 4]],
+    sites: &[SplitPoint],
+    verts: &[SplitPoint],
     tets: &[[u32; 4]],
     tet_sites: &[u32],
     list: &[u32],
@@ -74,8 +74,8 @@ pub fn refine_tet<const Q: usize, A: AtomicSums, C: AtomicSums, L: PairList, S: 
     start: u32,
     p: &RefineParams,
     w: GridWalk,
-    sites: &[[f32; 4]],
-    verts: &[[f32; 4]],
+    sites: &[SplitPoint],
+    verts: &[SplitPoint],
     tets: &[[u32; 4]],
     sums: &mut A,
     counters: &mut C,
@@ -107,15 +107,15 @@ pub fn refine_pair<A: AtomicSums, L: PairList, S: PieceSink>(
     paired: Paired,
     p: &RefineParams,
     w: GridWalk,
-    sites: &[[f32; 4]],
-    verts: &[[f32; 4]],
+    sites: &[SplitPoint],
+    verts: &[SplitPoint],
     tets: &[[u32; 4]],
     sums: &mut A,
     still: &mut L,
     sink: &mut S,
 ) {
     let mut poly = Cell::empty();
-    let tv = tet_vertices(t, verts, tets, xyz(sites[j]));
+    let tv = tet_vertices(t, verts, tets, &sites[j]);
     poly.set_tetrahedron(tv);
     let c = clip_to_cell(&mut poly, j, sites, w);
     finish_pair(t, j, &poly, &tv, &c, paired, &p.clip, sites, verts, tets, sums, still, sink);

@@ -10,10 +10,10 @@
 //! flood queue too small leaves a piece unfinished. Most pieces never walk:
 //! the list settles them, and a short list trades k-NN time for walks.
 
-use crate::abi::{GridParams, QuantPoint, RefineParams};
+use crate::abi::{GridParams, QuantPoint, RefineParams, SplitPoint};
 use crate::clip::{clip_by_bisectors, list_in, BisectorRun, Clipped, NO_LIST};
 use crate::grid::{cell_index, ring_row, ring_span};
-use crate::polyhedron::{point, Polyhedron};
+use crate::polyhedron::{between, point, Polyhedron};
 use spirv_std::glam::Vec3;
 
 /// What clipping a piece to its cell searches: the sites' neighbour
@@ -119,7 +119,7 @@ fn cell_gap2(w: &GridWalk, x: [f32; 3], c: [u32; 3]) -> f32 {
 pub fn clip_to_cell<const P: usize, const V: usize>(
     poly: &mut Polyhedron<P, V>,
     i: usize,
-    sites: &[[f32; 4]],
+    sites: &[SplitPoint],
     w: GridWalk,
 ) -> Clipped {
     let k = w.k_site as usize;
@@ -128,7 +128,8 @@ pub fn clip_to_cell<const P: usize, const V: usize>(
     if !listed.security_missed || listed.overflow || listed.broken {
         return listed;
     }
-    let xi = point(sites[i]);
+    let si = sites[i];
+    let xi = point(si.hi);
     // Sites clearly nearer than the list's last lie in the list (its
     // distances are exact on the quantized sites, which sit within
     // `margin` of these): clipped already.
@@ -136,7 +137,7 @@ pub fn clip_to_cell<const P: usize, const V: usize>(
         0.0
     } else {
         let last = w.site_nbrs[base + k - 1] as usize;
-        let d = (point(sites[last]) - xi).length() - 4.0 * w.margin;
+        let d = between(&sites[last], &si).length() - 4.0 * w.margin;
         if d > 0.0 {
             d * d
         } else {
@@ -180,7 +181,7 @@ pub fn clip_to_cell<const P: usize, const V: usize>(
                             if s as usize == i {
                                 continue;
                             }
-                            let n = point(sites[s as usize]) - xi;
+                            let n = between(&sites[s as usize], &si);
                             let d2 = n.length_squared();
                             // In the list, beyond twice the farthest vertex,
                             // or clear of the bounding box: the bisector

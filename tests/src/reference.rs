@@ -139,8 +139,8 @@ impl Poly {
 
 /// Volume and centroid of each site's cell clipped to the mesh; duplicate
 /// sites: the lowest index owns the cell.
-pub fn clipped_cells(mesh: &TetMesh, sites: &[[f32; 3]]) -> (Vec<f64>, Vec<[f64; 3]>) {
-    let x: Vec<P> = sites.iter().map(|p| p.map(|c| c as f64)).collect();
+pub fn clipped_cells(mesh: &TetMesh, sites: &[[f64; 3]]) -> (Vec<f64>, Vec<[f64; 3]>) {
+    let x: Vec<P> = sites.iter().map(|p| p.map(|c| c)).collect();
     let n = x.len();
     let mut vol = vec![0.0; n];
     let mut moment = vec![[0.0; 3]; n];
@@ -153,7 +153,7 @@ pub fn clipped_cells(mesh: &TetMesh, sites: &[[f32; 3]]) -> (Vec<f64>, Vec<[f64;
         })
         .collect();
     for tet in &mesh.tets {
-        let v = tet.map(|i| mesh.vertices[i as usize].map(|c| c as f64));
+        let v = tet.map(|i| mesh.vertices[i as usize].map(|c| c));
         for i in 0..n {
             if (0..i).any(|j| x[j] == x[i]) {
                 continue;

@@ -10,7 +10,7 @@ use cvd_tests::reference::clipped_cells;
 use cvd_tests::{assert_no_validation_errors, backends};
 
 /// Default settings (flood pairing), every backend, against the reference.
-fn check(what: &str, mesh: &TetMesh, sites: &[[f32; 3]]) {
+fn check(what: &str, mesh: &TetMesh, sites: &[[f64; 3]]) {
     let (vol, centroid) = clipped_cells(mesh, sites);
     for backend in backends() {
         let cells = ClippedVoronoi::new(mesh, sites)
@@ -39,7 +39,7 @@ fn assert_matches(what: &str, got: &Cells, vol: &[f64], centroid: &[[f64; 3]]) {
 }
 
 /// `mesh` moved by `offset` after scaling each axis by `scale`.
-fn transformed(mesh: &TetMesh, scale: [f32; 3], offset: [f32; 3]) -> TetMesh {
+fn transformed(mesh: &TetMesh, scale: [f64; 3], offset: [f64; 3]) -> TetMesh {
     let vertices = mesh.vertices.iter().map(|v| [0, 1, 2].map(|a| v[a] * scale[a] + offset[a])).collect();
     TetMesh { vertices, tets: mesh.tets.clone() }
 }
@@ -55,7 +55,7 @@ fn union(a: &TetMesh, b: &TetMesh) -> TetMesh {
 
 #[test]
 fn clustered_sites() {
-    let sites: Vec<[f32; 3]> =
+    let sites: Vec<[f64; 3]> =
         points::clustered(400, 4, 0.03, 7).into_iter().map(|p| p.map(|c| c.clamp(0.0, 1.0))).collect();
     check("4 tight blobs", &TetMesh::cube(5), &sites);
 }
@@ -70,13 +70,13 @@ fn perfect_lattice() {
     for k in 0..side {
         for j in 0..side {
             for i in 0..side {
-                sites.push([i, j, k].map(|c| (c as f32 + 0.5) / side as f32));
+                sites.push([i, j, k].map(|c| (c as f64 + 0.5) / side as f64));
             }
         }
     }
     check("lattice of cell centres", &TetMesh::cube(6), &sites);
     // Sites on the mesh's own vertices.
-    let mut sites: Vec<[f32; 3]> = Vec::new();
+    let mut sites: Vec<[f64; 3]> = Vec::new();
     for p in points::lattice(200, 5, 3) {
         let p = p.map(|c| c / 4.0);
         if !sites.contains(&p) {

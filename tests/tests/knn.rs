@@ -14,7 +14,7 @@ enum Layout {
     Lattice,
 }
 
-fn make_points(layout: Layout, n: usize, seed: u64) -> Vec<[f32; 3]> {
+fn make_points(layout: Layout, n: usize, seed: u64) -> Vec<[f64; 3]> {
     match layout {
         Layout::Uniform => points::uniform(n, seed),
         Layout::Clustered => points::clustered(n, 4, 0.01, seed),
@@ -76,7 +76,7 @@ proptest! {
     fn point_queries_agree(layout in layout(), n in size(), nq in 1usize..=500, k in 1usize..=128, seed in any::<u64>()) {
         let sites = make_points(layout, n, seed);
         // Queries spread wider than the sites, so some lie outside the grid.
-        let queries: Vec<[f32; 3]> = points::uniform(nq, seed ^ 1).iter().map(|p| p.map(|c| c * 1.4 - 0.2)).collect();
+        let queries: Vec<[f64; 3]> = points::uniform(nq, seed ^ 1).iter().map(|p| p.map(|c| c * 1.4 - 0.2)).collect();
         check_all(|m| KnnJob::points(&sites, &queries, k, m).unwrap());
     }
 }
@@ -98,28 +98,28 @@ fn large_k_returns_every_other_site() {
 
 #[test]
 fn tiny_inputs() {
-    let one = [[0.5f32, 0.5, 0.5]];
+    let one = [[0.5f64, 0.5, 0.5]];
     let nn = KnnJob::sites(&one, 5, KnnMethod::Grid).unwrap().run(&cpu()).unwrap();
     assert_eq!(nn.k, 0);
     assert!(nn.indices.is_empty());
-    let two = [[0.0f32, 0.0, 0.0], [1.0, 1.0, 1.0]];
+    let two = [[0.0f64, 0.0, 0.0], [1.0, 1.0, 1.0]];
     check_all(|m| KnnJob::sites(&two, 5, m).unwrap());
     check_all(|m| KnnJob::points(&two, &[[0.1, 0.1, 0.1], [5.0, 5.0, 5.0]], 1, m).unwrap());
 }
 
 #[test]
 fn bad_input_is_rejected_by_name() {
-    let nan = [[0.0f32, 0.0, 0.0], [f32::NAN, 0.0, 0.0]];
+    let nan = [[0.0f64, 0.0, 0.0], [f64::NAN, 0.0, 0.0]];
     let err = KnnJob::sites(&nan, 1, KnnMethod::Grid).unwrap_err().to_string();
     assert!(err.contains("site 1"), "{err}");
-    let err = KnnJob::sites(&[[0.0f32; 3]], 0, KnnMethod::Grid).unwrap_err().to_string();
+    let err = KnnJob::sites(&[[0.0f64; 3]], 0, KnnMethod::Grid).unwrap_err().to_string();
     assert!(err.contains("k must be at least 1"), "{err}");
 }
 
 #[test]
 fn flat_sites_keep_the_grid_small() {
     // All sites on a plane: the grid must not explode to millions of cells.
-    let sites: Vec<[f32; 3]> = points::uniform(5000, 3).iter().map(|p| [p[0], p[1], 0.25]).collect();
+    let sites: Vec<[f64; 3]> = points::uniform(5000, 3).iter().map(|p| [p[0], p[1], 0.25]).collect();
     let job = KnnJob::sites(&sites, 10, KnnMethod::Grid).unwrap();
     assert!(job.params.grid.n_cells as usize <= 2 * sites.len() + 64);
     check_all(|m| KnnJob::sites(&sites, 10, m).unwrap());

@@ -5,7 +5,7 @@ use cvd::cvt::CvtRun;
 use cvd::{points, Backend, ClippedVoronoi, TetMesh};
 use cvd_tests::{assert_no_validation_errors, backends};
 
-fn lloyd(mesh: &TetMesh, sites: &[[f32; 3]], iterations: usize, backend: &dyn Backend) -> CvtRun {
+fn lloyd(mesh: &TetMesh, sites: &[[f64; 3]], iterations: usize, backend: &dyn Backend) -> CvtRun {
     let mut calls = Vec::new();
     let run = ClippedVoronoi::new(mesh, sites)
         .backend(backend)
@@ -49,23 +49,23 @@ fn a_centroidal_lattice_is_a_fixed_point() {
     // sub-cube, whose centroid is the site (ties everywhere: a hard case).
     let n = 4;
     let mesh = TetMesh::cube(n);
-    let h = 1.0 / n as f32;
+    let h = 1.0 / n as f64;
     let mut sites = Vec::new();
     for k in 0..n {
         for j in 0..n {
             for i in 0..n {
-                sites.push([(i as f32 + 0.5) * h, (j as f32 + 0.5) * h, (k as f32 + 0.5) * h]);
+                sites.push([(i as f64 + 0.5) * h, (j as f64 + 0.5) * h, (k as f64 + 0.5) * h]);
             }
         }
     }
     for backend in backends() {
         let run = lloyd(&mesh, &sites, 1, backend);
         for (a, b) in sites.iter().zip(&run.sites) {
-            let d = (0..3).map(|c| (a[c] - b[c]).powi(2)).sum::<f32>().sqrt();
+            let d = (0..3).map(|c| (a[c] - b[c]).powi(2)).sum::<f64>().sqrt();
             assert!(d <= 1e-5 * h, "{}: site {a:?} moved to {b:?}", backend.name());
         }
         // E = n³ sub-cubes x h⁵ / 4 (∫|x|² over a cube of side h is h⁵/4).
-        let exact = (n * n * n) as f64 * (h as f64).powi(5) / 4.0;
+        let exact = (n * n * n) as f64 * h.powi(5) / 4.0;
         let e = run.iterations[0].energy;
         assert!((e - exact).abs() <= 1e-5 * exact, "{}: energy {e} vs {exact}", backend.name());
     }
@@ -84,9 +84,9 @@ fn backends_give_the_same_iterates() {
     for (a, b) in cpu.iterations.iter().zip(&gpu.iterations) {
         assert!((a.energy - b.energy).abs() <= 1e-5 * a.energy, "energies {} vs {}", a.energy, b.energy);
     }
-    let spacing = (1.0f32 / 300.0).cbrt();
+    let spacing = (1.0f64 / 300.0).cbrt();
     for (a, b) in cpu.sites.iter().zip(&gpu.sites) {
-        let d = (0..3).map(|c| (a[c] - b[c]).powi(2)).sum::<f32>().sqrt();
+        let d = (0..3).map(|c| (a[c] - b[c]).powi(2)).sum::<f64>().sqrt();
         assert!(d <= 1e-4 * spacing, "sites {a:?} vs {b:?}");
     }
     assert_no_validation_errors();
@@ -109,7 +109,7 @@ fn lbfgs_decreases_the_energy_and_ends_no_worse_than_lloyd() {
         assert!(e.windows(2).all(|w| w[1] < w[0]), "{}: L-BFGS energy did not decrease: {e:?}", backend.name());
         // Final energies: of the sites each run ends with.
         let final_energy =
-            |sites: &[[f32; 3]]| ClippedVoronoi::new(&mesh, sites).backend(backend).compute().unwrap().energy_total();
+            |sites: &[[f64; 3]]| ClippedVoronoi::new(&mesh, sites).backend(backend).compute().unwrap().energy_total();
         let (el, eb) = (final_energy(&lloyd.sites), final_energy(&lbfgs.sites));
         assert!(eb <= el * 1.005, "{}: L-BFGS {eb} vs Lloyd {el}", backend.name());
     }
@@ -123,9 +123,9 @@ fn a_linear_density_weights_cells_as_the_closed_form_says() {
     // sites splitting the cube at x = 1/2: the left half has mass 7/4 and
     // centre of mass x = (1/8 + 5/12) / (7/4).
     let mesh = TetMesh::cube(3);
-    let rho: Vec<f32> = mesh.vertices.iter().map(|v| 1.0 + 10.0 * v[0]).collect();
+    let rho: Vec<f64> = mesh.vertices.iter().map(|v| 1.0 + 10.0 * v[0]).collect();
     for backend in backends() {
-        let one = [[0.5f32, 0.5, 0.5]];
+        let one = [[0.5f64, 0.5, 0.5]];
         let cells = ClippedVoronoi::new(&mesh, &one).density(Some(&rho)).backend(backend).compute().unwrap();
         let what = backend.name();
         assert!((cells.volume[0] - 6.0).abs() < 1e-5, "{what}: mass {}", cells.volume[0]);
@@ -133,7 +133,7 @@ fn a_linear_density_weights_cells_as_the_closed_form_says() {
         let c = cells.centroid[0];
         assert!((c[0] - 23.0 / 36.0).abs() < 1e-5 && (c[1] - 0.5).abs() < 1e-5, "{what}: {c:?}");
         assert!((cells.energy[0] - 1.5).abs() < 1e-5, "{what}: energy {}", cells.energy[0]);
-        let two = [[0.25f32, 0.5, 0.5], [0.75, 0.5, 0.5]];
+        let two = [[0.25f64, 0.5, 0.5], [0.75, 0.5, 0.5]];
         let cells = ClippedVoronoi::new(&mesh, &two).density(Some(&rho)).backend(backend).compute().unwrap();
         assert!((cells.volume[0] - 1.75).abs() < 1e-5, "{what}: {:?}", cells.volume);
         let cx = (0.125 + 10.0 / 24.0) / 1.75;
@@ -141,7 +141,7 @@ fn a_linear_density_weights_cells_as_the_closed_form_says() {
         // Lloyd moves both sites toward the dense side.
         let run =
             ClippedVoronoi::new(&mesh, &two).density(Some(&rho)).backend(backend).lloyd(1, &mut |_, _| {}).unwrap();
-        assert!((run.sites[0][0] as f64 - cx).abs() < 1e-5, "{what}: {:?}", run.sites);
+        assert!((run.sites[0][0] - cx).abs() < 1e-5, "{what}: {:?}", run.sites);
     }
     assert_no_validation_errors();
 }

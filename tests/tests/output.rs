@@ -26,7 +26,7 @@ fn moved_ell() -> TetMesh {
     mesh
 }
 
-fn diagram(mesh: &TetMesh, sites: &[[f32; 3]]) -> (Cells, Vec<Piece>) {
+fn diagram(mesh: &TetMesh, sites: &[[f64; 3]]) -> (Cells, Vec<Piece>) {
     let cpu = CpuBackend::new(None).unwrap();
     ClippedVoronoi::new(mesh, sites).compute_with_pieces(&cpu).unwrap()
 }

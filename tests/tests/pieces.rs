@@ -93,7 +93,7 @@ fn barycentric_inside(mesh: &TetMesh, t: usize, p: P, tol: f64) -> bool {
 }
 
 /// Checks every property of `pieces` against `cells`, `mesh` and `sites`.
-fn assert_pieces(what: &str, mesh: &TetMesh, sites: &[[f32; 3]], cells: &Cells, pieces: &[Piece]) {
+fn assert_pieces(what: &str, mesh: &TetMesh, sites: &[[f64; 3]], cells: &Cells, pieces: &[Piece]) {
     let n = sites.len();
     let size = mesh.volume().cbrt();
     let mut per_site = vec![0.0; n];

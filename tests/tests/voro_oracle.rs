@@ -22,7 +22,7 @@ const CENTROID_TOL: f64 = 1e-4;
 
 /// Each site's Voronoi cell clipped to the unit cube, by voro++: volumes
 /// and absolute centroids, in input order.
-fn voro_cells(sites: &[[f32; 3]]) -> (Vec<f64>, Vec<[f64; 3]>) {
+fn voro_cells(sites: &[[f64; 3]]) -> (Vec<f64>, Vec<[f64; 3]>) {
     let mut con = ContainerStd::new([0.0; 3], [1.0; 3], [4, 4, 4], [false; 3]);
     for (i, p) in sites.iter().enumerate() {
         con.put(i as i32, p.map(f64::from), 0.0);
@@ -54,7 +54,7 @@ fn voro_cells(sites: &[[f32; 3]]) -> (Vec<f64>, Vec<[f64; 3]>) {
 
 /// The clipped cells on the CPU backend, every site paired with every
 /// tet, and `k_site` neighbours per site (`None`: the default).
-fn compute(mesh: &TetMesh, sites: &[[f32; 3]], strategy: Strategy, k_site: Option<usize>) -> Cells {
+fn compute(mesh: &TetMesh, sites: &[[f64; 3]], strategy: Strategy, k_site: Option<usize>) -> Cells {
     let cpu = CpuBackend::new(None).unwrap();
     let mut builder = ClippedVoronoi::new(mesh, sites).strategy(strategy).k(Some(N)).backend(&cpu);
     if let Some(k_site) = k_site {

@@ -12,7 +12,7 @@ fn mesh(shape: Shape) -> TetMesh {
     shape.mesh()
 }
 
-fn compute(mesh: &TetMesh, sites: &[[f32; 3]], strategy: Strategy, backend: &dyn Backend) -> Cells {
+fn compute(mesh: &TetMesh, sites: &[[f64; 3]], strategy: Strategy, backend: &dyn Backend) -> Cells {
     let n = sites.len();
     ClippedVoronoi::new(mesh, sites)
         .strategy(strategy)
@@ -40,7 +40,7 @@ fn assert_cells_match(what: &str, got: &Cells, vol: &[f64], centroid: &[[f64; 3]
     }
 }
 
-fn sites_in_box(n: usize, seed: u64) -> Vec<[f32; 3]> {
+fn sites_in_box(n: usize, seed: u64) -> Vec<[f64; 3]> {
     points::uniform(n, seed)
 }
 
@@ -174,7 +174,7 @@ fn duplicate_sites_lowest_index_owns_the_cell() {
 fn sites_outside_and_very_few_sites() {
     let mesh = mesh(Shape::Ell);
     for sites in [
-        vec![[0.5f32, 0.5, 0.5]],
+        vec![[0.5f64, 0.5, 0.5]],
         vec![[0.9, 0.9, 0.5], [0.1, 0.1, 0.1]],
         vec![[3.0, 3.0, 3.0], [-1.0, 0.2, 0.3]],
         // The last one is outside and crowded out by the first.
@@ -217,7 +217,7 @@ fn bad_input_is_rejected_by_name() {
         .unwrap_err()
         .to_string();
     assert!(err.contains("tet-cell"), "{err}");
-    let err = ClippedVoronoi::new(&mesh, &[[f32::NAN, 0.0, 0.0]]).compute().unwrap_err().to_string();
+    let err = ClippedVoronoi::new(&mesh, &[[f64::NAN, 0.0, 0.0]]).compute().unwrap_err().to_string();
     assert!(err.contains("site 0"), "{err}");
     assert!(ClippedVoronoi::new(&mesh, &[]).compute().is_err());
 }
@@ -269,8 +269,8 @@ fn short_lists_lose_nothing() {
 #[test]
 fn lattice_sites_tied_at_every_mesh_vertex() {
     let mesh = TetMesh::cube(4);
-    let c = |i: usize| (2 * i + 1) as f32 / 8.0;
-    let sites: Vec<[f32; 3]> = (0..64).map(|i| [c(i % 4), c(i / 4 % 4), c(i / 16)]).collect();
+    let c = |i: usize| (2 * i + 1) as f64 / 8.0;
+    let sites: Vec<[f64; 3]> = (0..64).map(|i| [c(i % 4), c(i / 4 % 4), c(i / 16)]).collect();
     let (vol, centroid) = clipped_cells(&mesh, &sites);
     for backend in backends() {
         for pairing in [Pairing::Flood, Pairing::Knn] {
@@ -388,12 +388,12 @@ fn a_memory_budget_splits_the_job_and_changes_nothing() {
 #[test]
 fn knn_pairing_misses_no_corner_however_small() {
     let mesh = TetMesh::cube(1);
-    let delta = 0.01f32;
+    let delta = 0.01f64;
     // The bisector is the plane x + y + z = 3 - δ.
     let b = 0.01;
     let (outside, inside) = (1.0 + b, 1.0 - b - 2.0 / 3.0 * delta);
     let sites = vec![[inside; 3], [outside; 3]];
-    let corner = (delta as f64).powi(3) / 6.0;
+    let corner = delta.powi(3) / 6.0;
     for backend in backends() {
         for strategy in [Strategy::TetCell, Strategy::CellTet] {
             let what = format!("{} {strategy:?}", backend.name());

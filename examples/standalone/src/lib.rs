@@ -32,13 +32,13 @@ pub struct Output {
 }
 
 /// The unit cube in `n`³ sub-cubes of six tets each, positively oriented.
-pub fn cube_mesh(n: u32) -> (Vec<[f32; 3]>, Vec<[u32; 4]>) {
+pub fn cube_mesh(n: u32) -> (Vec<[f64; 3]>, Vec<[u32; 4]>) {
     let id = |i: u32, j: u32, k: u32| (k * (n + 1) + j) * (n + 1) + i;
     let mut verts = Vec::new();
     for k in 0..=n {
         for j in 0..=n {
             for i in 0..=n {
-                verts.push([i, j, k].map(|c| c as f32 / n as f32));
+                verts.push([i, j, k].map(|c| c as f64 / n as f64));
             }
         }
     }
@@ -55,7 +55,7 @@ pub fn cube_mesh(n: u32) -> (Vec<[f32; 3]>, Vec<[u32; 4]>) {
                         c[axis] += 1;
                         t[s + 1] = id(c[0], c[1], c[2]);
                     }
-                    let p = t.map(|v| verts[v as usize].map(f64::from));
+                    let p = t.map(|v| verts[v as usize]);
                     let e = [1, 2, 3].map(|a| [0, 1, 2].map(|x| p[a][x] - p[0][x]));
                     let det = e[0][0] * (e[1][1] * e[2][2] - e[1][2] * e[2][1])
                         - e[0][1] * (e[1][0] * e[2][2] - e[1][2] * e[2][0])
@@ -72,7 +72,7 @@ pub fn cube_mesh(n: u32) -> (Vec<[f32; 3]>, Vec<[u32; 4]>) {
 }
 
 /// `n` pseudo-random sites inside the unit cube (a fixed sequence per seed).
-pub fn sites(n: usize, seed: u64) -> Vec<[f32; 3]> {
+pub fn sites(n: usize, seed: u64) -> Vec<[f64; 3]> {
     let mut state = seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) | 1;
     let mut unit = || {
         state ^= state << 13;
@@ -80,7 +80,7 @@ pub fn sites(n: usize, seed: u64) -> Vec<[f32; 3]> {
         state ^= state << 17;
         (state >> 11) as f64 / (1u64 << 53) as f64
     };
-    (0..n).map(|_| [0; 3].map(|_| (0.02 + 0.96 * unit()) as f32)).collect()
+    (0..n).map(|_| [0; 3].map(|_| 0.02 + 0.96 * unit())).collect()
 }
 
 type Result<T> = std::result::Result<T, String>;
@@ -497,7 +497,7 @@ fn named(prefix: &str, values: &[(&str, Num)]) -> Vec<(String, Num)> {
 /// The clipped Voronoi volumes of `sites` in the tet mesh (`verts`,
 /// `tets`; positively oriented tets), on the first Vulkan 1.2 device, from
 /// the modules and manifest in `spirv_dir`.
-pub fn run(spirv_dir: &Path, verts: &[[f32; 3]], tets: &[[u32; 4]], sites: &[[f32; 3]]) -> Result<Output> {
+pub fn run(spirv_dir: &Path, verts: &[[f64; 3]], tets: &[[u32; 4]], sites: &[[f64; 3]]) -> Result<Output> {
     use Num::{F, U};
     let manifest = Manifest::load(spirv_dir)?;
     let (n, nt) = (sites.len(), tets.len());
@@ -514,12 +514,12 @@ pub fn run(spirv_dir: &Path, verts: &[[f32; 3]], tets: &[[u32; 4]], sites: &[[f3
     let mut hi = [f64::NEG_INFINITY; 3];
     for p in verts {
         for a in 0..3 {
-            lo[a] = lo[a].min(p[a] as f64);
-            hi[a] = hi[a].max(p[a] as f64);
+            lo[a] = lo[a].min(p[a]);
+            hi[a] = hi[a].max(p[a]);
         }
     }
     let scale = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
-    let local = |p: &[f32; 3]| [0, 1, 2].map(|a| (p[a] as f64 - lo[a]) / scale);
+    let local = |p: &[f64; 3]| [0, 1, 2].map(|a| (p[a] - lo[a]) / scale);
     let sites_l: Vec<[f64; 3]> = sites.iter().map(local).collect();
     let verts_l: Vec<[f64; 3]> = verts.iter().map(local).collect();
     let centroids: Vec<[f64; 3]> =
@@ -607,8 +607,15 @@ pub fn run(spirv_dir: &Path, verts: &[[f32; 3]], tets: &[[u32; 4]], sites: &[[f3
     ];
     let (mut gpu, device) = Gpu::open(&manifest, &used)?;
     let g = &mut gpu;
-    let sites_f = g.buffer(0, &f32_bytes(sites_l.iter().flat_map(|p| [p[0] as f32, p[1] as f32, p[2] as f32, 0.0])))?;
-    let verts_f = g.buffer(0, &f32_bytes(verts_l.iter().flat_map(|p| [p[0] as f32, p[1] as f32, p[2] as f32, 1.0])))?;
+    // Points as hi + lo (the manifest's SplitPoint): f32 rounding, then
+    // what it left; w: 0 for sites, the density 1 for vertices.
+    let split = |p: &[f64; 3], w: f32| {
+        let hi = p.map(|c| c as f32);
+        let lo = [0, 1, 2].map(|a| (p[a] - hi[a] as f64) as f32);
+        [hi[0], hi[1], hi[2], w, lo[0], lo[1], lo[2], 0.0]
+    };
+    let sites_f = g.buffer(0, &f32_bytes(sites_l.iter().flat_map(|p| split(p, 0.0))))?;
+    let verts_f = g.buffer(0, &f32_bytes(verts_l.iter().flat_map(|p| split(p, 1.0))))?;
     let tets_b = g.buffer(0, &u32_bytes(tets.iter().flatten().copied()))?;
     let qsites_b = g.buffer(0, &u32_bytes(qsites.iter().flatten().copied()))?;
     let qcent_b = g.buffer(0, &u32_bytes(qcentroids.iter().flatten().copied()))?;

@@ -116,7 +116,7 @@ pub fn run(config: &Config) -> Result<Report> {
 
 /// What one measurement computes: section, model name, mesh, sites.
 #[derive(Clone, Copy)]
-struct Case<'m>(&'static str, &'m str, &'m TetMesh, &'m [[f32; 3]]);
+struct Case<'m>(&'static str, &'m str, &'m TetMesh, &'m [[f64; 3]]);
 
 struct Suite<'a> {
     config: &'a Config,
@@ -356,7 +356,7 @@ impl<'a> Suite<'a> {
                         row.iteration = Some(it);
                         rows.push(self.keep(row));
                         // Lloyd's step: every site to its cell's centroid.
-                        sites = cells.centroid.iter().map(|c| c.map(|v| v as f32)).collect();
+                        sites = cells.centroid.clone();
                     }
                 }
             }

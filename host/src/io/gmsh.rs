@@ -18,12 +18,12 @@ enum Version {
 /// arbitrary positive numbers).
 #[derive(Default)]
 struct Nodes {
-    vertices: Vec<[f32; 3]>,
+    vertices: Vec<[f64; 3]>,
     ids: HashMap<usize, u32>,
 }
 
 impl Nodes {
-    fn add(&mut self, tag: Tok, p: [f32; 3]) -> Result<()> {
+    fn add(&mut self, tag: Tok, p: [f64; 3]) -> Result<()> {
         let id = tag.count("a node tag")?;
         let index = u32::try_from(self.vertices.len()).map_err(|_| tag.error("more than 2^32 nodes"))?;
         if self.ids.insert(id, index).is_some() {
@@ -121,10 +121,10 @@ fn end(lex: &mut Lexer, close: &str, after: impl std::fmt::Display + Copy) -> Re
 }
 
 /// Reads x y z, the first three values of `line`.
-fn xyz(line: &mut Line, node: impl std::fmt::Display + Copy) -> Result<[f32; 3]> {
+fn xyz(line: &mut Line, node: impl std::fmt::Display + Copy) -> Result<[f64; 3]> {
     let mut p = [0.0; 3];
     for (c, axis) in p.iter_mut().zip(["x", "y", "z"]) {
-        *c = line.f32(format_args!("the {axis} coordinate of node {node}"))?;
+        *c = line.f64(format_args!("the {axis} coordinate of node {node}"))?;
     }
     Ok(p)
 }

@@ -41,7 +41,7 @@ const SKIPPED: &[(&str, usize)] = &[
 /// may be split across lines at will; `#` starts a comment.
 pub fn parse_medit(text: &str, path: &str) -> Result<TetMesh> {
     let mut lex = Lexer::new(text, path);
-    let mut vertices: Option<(Vec<[f32; 3]>, usize)> = None;
+    let mut vertices: Option<(Vec<[f64; 3]>, usize)> = None;
     let mut tets: Option<(TetList, usize)> = None;
     while let Some(kw) = lex.tok() {
         if kw.is("End") {
@@ -64,7 +64,7 @@ pub fn parse_medit(text: &str, path: &str) -> Result<TetMesh> {
             for i in 1..=n {
                 let mut p = [0.0; 3];
                 for (c, axis) in p.iter_mut().zip(["x", "y", "z"]) {
-                    *c = lex.f32(format_args!("the {axis} coordinate of vertex {i} of {n}"))?;
+                    *c = lex.f64(format_args!("the {axis} coordinate of vertex {i} of {n}"))?;
                 }
                 v.push(p);
                 lex.int(format_args!("the reference after x y z of vertex {i} of {n}"))?;

@@ -60,7 +60,7 @@ pub fn read_sites(path: &Path) -> Result<Vec<[f64; 3]>> {
 }
 
 /// Reads one number per line: see [`parse_values`].
-pub fn read_values(path: &Path) -> Result<Vec<f32>> {
+pub fn read_values(path: &Path) -> Result<Vec<f64>> {
     parse_values(&read_text(path)?, &path.display().to_string())
 }
 
@@ -131,7 +131,7 @@ impl TetList {
 
 /// The mesh, after the checks of [`TetMesh::new`] made here first so that
 /// errors name the tet's line (`base`: how the file numbers its vertices).
-fn build(path: &str, vertices: Vec<[f32; 3]>, list: TetList, base: u32, end_line: usize) -> Result<TetMesh> {
+fn build(path: &str, vertices: Vec<[f64; 3]>, list: TetList, base: u32, end_line: usize) -> Result<TetMesh> {
     if list.tets.is_empty() {
         return Err(parse_error(path, end_line, "expected tetrahedra, found none (a surface mesh?)"));
     }
@@ -190,6 +190,8 @@ mod tests {
             "nan",
             "inf",
             "1e40",
+            "1e300",
+            "1e400",
             "0.5",
             "4294967296",
             "1000000000000",

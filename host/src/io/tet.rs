@@ -18,7 +18,7 @@ pub fn parse_tet(text: &str, path: &str) -> Result<TetMesh> {
         line.expect_len(3, format_args!("3 coordinates x y z for vertex {i} of {n}"))?;
         let mut p = [0.0; 3];
         for (c, axis) in p.iter_mut().zip(["x", "y", "z"]) {
-            *c = line.f32(format_args!("the {axis} coordinate of vertex {i} of {n}"))?;
+            *c = line.f64(format_args!("the {axis} coordinate of vertex {i} of {n}"))?;
         }
         vertices.push(p);
     }
@@ -94,10 +94,10 @@ pub(super) mod tests {
 
     #[test]
     fn bad_numbers_and_indices() {
-        let (line, m) = parse_err(parse_tet(&VALID.replace("0 0 1\n", "0 0 1e40\n"), "b.tet"));
+        let (line, m) = parse_err(parse_tet(&VALID.replace("0 0 1\n", "0 0 1e400\n"), "b.tet"));
         assert_eq!(
             (line, m.as_str()),
-            (6, "expected the z coordinate of vertex 4 of 5 (a finite number), found \"1e40\"")
+            (6, "expected the z coordinate of vertex 4 of 5 (a finite number), found \"1e400\"")
         );
         let (line, m) = parse_err(parse_tet(&VALID.replace("4 1 2 3 4", "4 1 2 3 5"), "b.tet"));
         assert_eq!(

@@ -35,7 +35,7 @@ pub fn parse_tetgen(node: &str, node_path: &str, ele: &str, ele_path: &str) -> R
         }
         let mut p = [0.0; 3];
         for (c, axis) in p.iter_mut().zip(["x", "y", "z"]) {
-            *c = line.f32(format_args!("the {axis} coordinate of node {i} of {n}"))?;
+            *c = line.f64(format_args!("the {axis} coordinate of node {i} of {n}"))?;
         }
         vertices.push(p);
     }

@@ -44,13 +44,13 @@ pub fn parse_xyz(text: &str, path: &str) -> Result<Vec<[f64; 3]>> {
 
 /// Parses one number per line (per-vertex values such as a density); `#`
 /// starts a comment and blank lines are ignored.
-pub fn parse_values(text: &str, path: &str) -> Result<Vec<f32>> {
+pub fn parse_values(text: &str, path: &str) -> Result<Vec<f64>> {
     let mut lex = Lexer::new(text, path);
     let mut values = Vec::new();
     while let Some(mut line) = lex.line() {
         let i = values.len() + 1;
         line.expect_len(1, format_args!("one number (value {i})"))?;
-        values.push(line.f32(format_args!("value {i}"))?);
+        values.push(line.f64(format_args!("value {i}"))?);
     }
     Ok(values)
 }

@@ -122,7 +122,7 @@ pub fn stuff(shape: &Sdf, params: &Params) -> Result<TetMesh> {
             "stuffing produced no tets: lattice spacing {h} is too coarse for the shape"
         )));
     }
-    let vertices = out.positions.iter().map(|p| p.map(|c| c as f32)).collect();
+    let vertices = out.positions.clone();
     TetMesh::new(vertices, out.tets)
 }
 

@@ -18,7 +18,7 @@ use crate::timing::Timings;
 use crate::voronoi::{ClipJob, ClipOutput, Pairing, Strategy};
 use context::Context;
 use cvd_kernels::abi::{
-    counter, lloyd_stat, ClipParams, GridBuildParams, GridParams, KnnParams, RefineParams, ACCUM_PER_SITE,
+    counter, lloyd_stat, ClipParams, GridBuildParams, GridParams, KnnParams, RefineParams, SplitPoint, ACCUM_PER_SITE,
 };
 use cvd_kernels::clip::CELL_RECORDS;
 use cvd_kernels::scan;
@@ -138,7 +138,7 @@ impl Backend for VulkanBackend {
         let (sites, quant, tets, centroids) = match &slabs {
             None => (j.upload(&job.sites)?, j.upload(&sk.sites)?, j.upload(&job.tets)?, j.upload(&tk.queries)?),
             Some(s) => {
-                let sites: Vec<[f32; 4]> = s.sites.iter().map(|&old| job.sites[old as usize]).collect();
+                let sites: Vec<SplitPoint> = s.sites.iter().map(|&old| job.sites[old as usize]).collect();
                 let quant: Vec<[u32; 4]> = (0..s.sites.len())
                     .map(|new| {
                         let q = sk.sites[s.sites[new] as usize];
@@ -335,25 +335,25 @@ impl Slabs {
         let sites = &job.sites;
         let extent = |a: usize| {
             let (lo, hi) =
-                sites.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(l, h), p| (l.min(p[a]), h.max(p[a])));
+                sites.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(l, h), p| (l.min(p.hi[a]), h.max(p.hi[a])));
             hi - lo
         };
         let axis = (0..3).max_by(|&a, &b| extent(a).total_cmp(&extent(b))).unwrap_or(0);
         let mut along: Vec<u32> = (0..sites.len() as u32).collect();
-        along.sort_by(|&a, &b| sites[a as usize][axis].total_cmp(&sites[b as usize][axis]).then(a.cmp(&b)));
+        along.sort_by(|&a, &b| sites[a as usize].hi[axis].total_cmp(&sites[b as usize].hi[axis]).then(a.cmp(&b)));
         let mut slab_of = vec![0usize; sites.len()];
         for (rank, &i) in along.iter().enumerate() {
             slab_of[i as usize] = rank / slab;
         }
         // Where each slab ends along the axis.
-        let ends: Vec<f32> = along.chunks(slab).map(|c| sites[c[c.len() - 1] as usize][axis]).collect();
+        let ends: Vec<f32> = along.chunks(slab).map(|c| sites[c[c.len() - 1] as usize].hi[axis]).collect();
         let mut site_order: Vec<u32> = (0..sites.len() as u32).collect();
         site_order.sort_by_key(|&i| slab_of[i as usize]);
         let tet_slab: Vec<usize> = job
             .tets
             .iter()
             .map(|t| {
-                let c = t.iter().map(|&v| job.verts[v as usize][axis]).sum::<f32>() / 4.0;
+                let c = t.iter().map(|&v| job.verts[v as usize].hi[axis]).sum::<f32>() / 4.0;
                 ends.partition_point(|&e| e < c).min(ends.len() - 1)
             })
             .collect();
@@ -536,7 +536,7 @@ fn lloyd_on_device(
             progress(it + 1, j.read::<i64>(energy, 1)[0]);
         }
     }
-    let sites_back = j.download(sites, n * 16)?;
+    let sites_back = j.download(sites, n * std::mem::size_of::<SplitPoint>() as u64)?;
     let stats_back = j.download(stats, (iterations * lloyd_stat::COUNT) as u64 * 8)?;
     j.mark("download");
     let done = j.run()?;
