@@ -375,12 +375,14 @@ impl<'a> ClippedVoronoi<'a> {
         }
         let diag = (0..3).map(|a| (hi[a] - lo[a]).powi(2)).sum::<f64>().sqrt();
         let margin = 0.01 * diag.max(1e-3);
-        // Per-site sums are at most (mesh volume <= 1) x 3 (1 + diag)² x the
-        // largest density: keep
-        // them well inside i64 with a power-of-two scale.
+        // Per-site sums, and their total over all sites, are at most (mesh
+        // volume <= 1) x 3 (1 + diag)² x the largest density: the largest
+        // power-of-two scale that keeps them inside i64 with a bit to spare
+        // (about 2^56: a cell of 1e-9 of the frame gets 7e7 units, and each
+        // piece is rounded to one, so its volume keeps 1e-6 relative).
         let rho_max = self.density.map_or(1.0, |rho| rho.iter().fold(1.0, |a: f64, &b| a.max(b)));
         let bound = 3.0 * (1.0 + diag).powi(2) * rho_max;
-        let bits = (62.0 - bound.log2().ceil()).min(48.0);
+        let bits = 61.0 - bound.log2().ceil();
         let params = ClipParams {
             n_sites: n as u32,
             n_tets: mesh.tets.len() as u32,

@@ -287,15 +287,23 @@ impl PieceSink for NoPieces {
     fn discard_tet(&mut self, _tet: u32) {}
 }
 
+/// `x * scale` rounded to the nearest integer (unbiased: the sums of many
+/// pieces drift by the square root of their number, not by it).
+#[inline]
+fn fixed(x: f32, scale: f32) -> i64 {
+    let y = x * scale;
+    (if y < 0.0 { y - 0.5 } else { y + 0.5 }) as i64
+}
+
 /// Adds a piece's integrals to site `j`'s sums, in fixed point.
 #[inline]
 pub fn accumulate<A: AtomicSums>(j: usize, m: &Moments, scale: f32, sums: &mut A) {
     let base = j * ACCUM_PER_SITE;
-    sums.add(base, (m.volume * scale) as i64);
-    sums.add(base + 1, (m.first.x * scale) as i64);
-    sums.add(base + 2, (m.first.y * scale) as i64);
-    sums.add(base + 3, (m.first.z * scale) as i64);
-    sums.add(base + 4, (m.second * scale) as i64);
+    sums.add(base, fixed(m.volume, scale));
+    sums.add(base + 1, fixed(m.first.x, scale));
+    sums.add(base + 2, fixed(m.first.y, scale));
+    sums.add(base + 3, fixed(m.first.z, scale));
+    sums.add(base + 4, fixed(m.second, scale));
 }
 
 /// The sites paired with a tet (knn pairing): `list[start..start + len]`,
@@ -426,7 +434,7 @@ pub fn finish_pair<const P: usize, const V: usize, A: AtomicSums, L: PairList, S
 /// of it was not paired, and the host adds the missing pieces.
 #[inline]
 pub fn add_tet_volume<A: AtomicSums>(t: usize, n_sites: u32, volume: f32, scale: f32, sums: &mut A) {
-    sums.add(n_sites as usize * ACCUM_PER_SITE + t, (volume * scale) as i64);
+    sums.add(n_sites as usize * ACCUM_PER_SITE + t, fixed(volume, scale));
 }
 
 /// The integrals of a piece of tet `t` (vertices `tv`, relative to the

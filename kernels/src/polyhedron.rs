@@ -61,6 +61,22 @@ pub fn normal(plane: Vec4) -> Point {
     plane.truncate()
 }
 
+/// `plane` scaled exactly, by a power of two, so that its normal's largest
+/// component lies in `[1, 2)`: the products of normals the clips and the
+/// integrals form neither underflow nor overflow f32, however small the
+/// cell (a bisector's normal is the vector between two sites, 1e-6 of the
+/// frame in a tight cluster, and its cube would be 1e-18).
+#[inline]
+pub fn normalized(plane: Vec4) -> Vec4 {
+    let m = plane.x.abs().max(plane.y.abs()).max(plane.z.abs());
+    let e = (m.to_bits() >> 23) & 0xff;
+    if e == 0 || e > 253 {
+        // Zero, subnormal, infinite or NaN: left as it is.
+        return plane;
+    }
+    plane * f32::from_bits((254 - e) << 23)
+}
+
 /// Capacities: a Voronoi cell of a site (Algorithm 1) may have ~40 faces
 /// and ~80 vertices; a piece of a cell inside a tet has far fewer. A clip
 /// needs room for the new vertices before it drops the removed ones.
@@ -215,7 +231,7 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
             if n.dot(v[i] - a) > 0.0 {
                 n = -n;
             }
-            p.planes[i] = Vec3::from(n).extend(n.dot(a));
+            p.planes[i] = normalized(Vec3::from(n).extend(n.dot(a)));
             p.ids[i] = NO_ID;
             i += 1;
         }
@@ -337,6 +353,7 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
     /// Like [`Self::clip`], recording `id` as the new plane's maker.
     pub fn clip_as(&mut self, plane: Vec4, id: u32) -> Clip {
         let () = Self::PLANES_FIT;
+        let plane = normalized(plane);
         if self.n_planes as usize == P {
             self.recycle_planes();
             if self.n_planes as usize == P {

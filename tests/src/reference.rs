@@ -44,10 +44,11 @@ impl Poly {
         // A plane that removes nothing is skipped, so a repeated plane does
         // not add a second copy of a face.
         // Points this close to the plane count as on it: features thinner
-        // than the inputs' f32 precision would only make the cap's angular
-        // order meaningless (and add volume through misordered faces).
-        let size = self.faces.iter().flatten().map(|&p| norm(p)).fold(1.0, f64::max);
-        let tol = 1e-9 * norm(n) * size;
+        // than f64 rounding would only make the cap's angular order
+        // meaningless (and add volume through misordered faces). Relative
+        // to the polyhedron, whose coordinates are relative to its site.
+        let size = self.faces.iter().flatten().map(|&p| norm(p)).fold(0.0, f64::max);
+        let tol = 1e-12 * norm(n) * size;
         let side = |p: P| {
             let s = dot(n, p) - d;
             if s.abs() <= tol {
@@ -138,43 +139,67 @@ impl Poly {
 }
 
 /// Volume and centroid of each site's cell clipped to the mesh; duplicate
-/// sites: the lowest index owns the cell.
+/// sites: the lowest index owns the cell. Each cell is computed relative to
+/// its site (so its precision is relative to the cell), its pieces clipped
+/// by the other sites nearest first until the next is farther than twice
+/// the piece's farthest point (then no bisector can reach it).
 pub fn clipped_cells(mesh: &TetMesh, sites: &[[f64; 3]]) -> (Vec<f64>, Vec<[f64; 3]>) {
-    let x: Vec<P> = sites.iter().map(|p| p.map(|c| c)).collect();
+    let x: Vec<P> = sites.to_vec();
     let n = x.len();
     let mut vol = vec![0.0; n];
     let mut moment = vec![[0.0; 3]; n];
-    // Other sites nearest first, so that far pieces vanish early.
-    let order: Vec<Vec<usize>> = (0..n)
+    // Other sites nearest first.
+    let order: Vec<Vec<(f64, usize)>> = (0..n)
         .map(|i| {
-            let mut o: Vec<usize> = (0..n).filter(|&j| j != i).collect();
-            o.sort_by(|&a, &b| norm(sub(x[a], x[i])).total_cmp(&norm(sub(x[b], x[i]))));
+            let mut o: Vec<(f64, usize)> = (0..n).filter(|&j| j != i).map(|j| (norm(sub(x[j], x[i])), j)).collect();
+            o.sort_by(|a, b| a.0.total_cmp(&b.0));
             o
         })
         .collect();
-    for tet in &mesh.tets {
-        let v = tet.map(|i| mesh.vertices[i as usize].map(|c| c));
-        for i in 0..n {
-            if (0..i).any(|j| x[j] == x[i]) {
-                continue;
-            }
+    let cell = |i: usize| {
+        let (mut vol, mut moment) = (0.0, [0.0; 3]);
+        if (0..i).any(|j| x[j] == x[i]) {
+            return (vol, moment);
+        }
+        for tet in &mesh.tets {
+            let v = tet.map(|k| sub(mesh.vertices[k as usize], x[i]));
             let mut poly = Poly::tet(v);
-            for &j in &order[i] {
+            for &(dist, j) in &order[i] {
                 if x[j] == x[i] {
                     continue;
                 }
+                let reach = poly.faces.iter().flatten().map(|&p| norm(p)).fold(0.0, f64::max);
+                if dist > 2.0 * reach {
+                    break;
+                }
                 let nrm = sub(x[j], x[i]);
-                let mid = scale(add(x[i], x[j]), 0.5);
-                poly.clip(nrm, dot(nrm, mid));
+                poly.clip(nrm, 0.5 * dot(nrm, nrm));
                 if poly.faces.is_empty() {
                     break;
                 }
             }
             let (pv, pc) = poly.integrate();
-            vol[i] += pv;
-            moment[i] = add(moment[i], scale(pc, pv));
+            vol += pv;
+            moment = add(moment, scale(pc, pv));
         }
+        (vol, moment)
+    };
+    // The cells on every core, each thread taking every `threads`-th site.
+    let threads = std::thread::available_parallelism().map_or(1, |t| t.get());
+    let parts: Vec<Vec<(usize, (f64, P))>> = std::thread::scope(|s| {
+        let workers: Vec<_> = (0..threads)
+            .map(|t| {
+                let cell = &cell;
+                s.spawn(move || (t..n).step_by(threads).map(|i| (i, cell(i))).collect())
+            })
+            .collect();
+        workers.into_iter().map(|w| w.join().expect("a reference thread panicked")).collect()
+    });
+    for (i, (v, m)) in parts.into_iter().flatten() {
+        vol[i] = v;
+        moment[i] = m;
     }
-    let centroids = (0..n).map(|i| if vol[i] > 0.0 { scale(moment[i], 1.0 / vol[i]) } else { x[i] }).collect();
+    let centroids =
+        (0..n).map(|i| if vol[i] > 0.0 { add(x[i], scale(moment[i], 1.0 / vol[i])) } else { x[i] }).collect();
     (vol, centroids)
 }

@@ -572,7 +572,7 @@ pub fn run(spirv_dir: &Path, verts: &[[f64; 3]], tets: &[[u32; 4]], sites: &[[f6
     // Fixed-point scale of the sums and the box of Algorithm 1.
     let diag = (0..3).map(|a| (qhi[a] - qlo[a]).powi(2)).sum::<f64>().sqrt();
     let margin = 0.01 * diag.max(1e-3);
-    let bits = (62.0 - (3.0 * (1.0 + diag).powi(2)).log2().ceil()).min(48.0);
+    let bits = 61.0 - (3.0 * (1.0 + diag).powi(2)).log2().ceil();
     let fixed_scale = bits.exp2();
     let clip = [
         ("n_sites", U(n as u64)),
