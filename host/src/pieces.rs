@@ -183,7 +183,7 @@ pub(crate) fn to_world(
     pieces.par_iter_mut().for_each(|p| {
         let site = owner[p.site as usize];
         // Relative to the input site itself, whose position is exact.
-        let x = input[site as usize].map(f64::from);
+        let x = input[site as usize];
         for v in &mut p.vertices {
             *v = [0, 1, 2].map(|a| x[a] + frame.scale * v[a]);
         }

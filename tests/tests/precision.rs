@@ -227,3 +227,32 @@ fn a_cell_of_1e_9_of_the_domain_keeps_its_volume() {
     }
     assert_no_validation_errors();
 }
+
+/// Distinct f64 sites are never merged: two sites 1e-12 apart both get
+/// cells (half of a slab each); two whose difference is below what the
+/// kernels' `hi + lo` pairs hold (2^-53 of the frame, next to a remainder
+/// of 2^-26) are refused, by index; equal sites are duplicates.
+#[test]
+fn close_sites_are_kept_or_refused_by_name_never_merged() {
+    let mesh = TetMesh::cube(2);
+    let (a, b) = ([0.25, 0.5, 0.5], [0.75, 0.5, 0.5]);
+    let close = [a, b, [0.5, 0.5, 0.5], [0.5 + 1e-12, 0.5, 0.5]];
+    let cells = ClippedVoronoi::new(&mesh, &close).compute().unwrap();
+    assert_eq!(cells.counters.duplicate_sites, 0);
+    assert!(cells.volume[2] > 0.0 && cells.volume[3] > 0.0, "{:?}", cells.volume);
+    // The two close sites share the slab between the bisectors with a
+    // and b: x in [0.375, 0.625], split at their own bisector.
+    let slab = cells.volume[2] + cells.volume[3];
+    assert!((slab - 0.25).abs() <= 1e-6, "{slab}");
+    assert!((cells.volume[2] - 0.125).abs() <= 1e-6, "{}", cells.volume[2]);
+
+    let x = 0.5 + 2f64.powi(-26);
+    let inseparable = [a, b, [x, 0.5, 0.5], [x + 2f64.powi(-53), 0.5, 0.5]];
+    let err = ClippedVoronoi::new(&mesh, &inseparable).compute().unwrap_err().to_string();
+    assert!(err.contains("sites 2") && err.contains("and 3") && err.contains("too close"), "{err}");
+
+    let equal = [a, b, a];
+    let cells = ClippedVoronoi::new(&mesh, &equal).compute().unwrap();
+    assert_eq!(cells.counters.duplicate_sites, 1);
+    assert_eq!(cells.volume[2], 0.0);
+}
