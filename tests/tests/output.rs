@@ -219,7 +219,11 @@ fn meshio_reads_the_pieces_back() {
     })
     .unwrap();
     assert!(calls > 0, "no progress reported");
-    let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scripts").join("read_pieces.py");
+    // Where cargo runs this test from (the compile-time path may be another
+    // clone's when clones share a target directory).
+    let dir =
+        std::env::var_os("CARGO_MANIFEST_DIR").map_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")), PathBuf::from);
+    let script = dir.join("scripts").join("read_pieces.py");
     let run = Command::new("python3").arg(&script).arg(&path).output().unwrap();
     assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
     let read: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();

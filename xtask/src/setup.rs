@@ -29,9 +29,17 @@ impl Needs {
     }
 }
 
-/// The workspace's root (where `rust-toolchain.toml` is).
+/// The workspace's root (where `rust-toolchain.toml` is): the nearest
+/// folder holding it and `xtask/install-deps` from the current directory
+/// up (cargo runs `cargo xtask` from inside the workspace). The path this
+/// binary was compiled in is only the last resort: builds of several
+/// clones that share a target directory share this binary too.
 pub fn root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).parent().map_or_else(|| PathBuf::from("."), Path::to_path_buf)
+    let is_root = |d: &Path| d.join("rust-toolchain.toml").is_file() && d.join("xtask").join("install-deps").is_file();
+    let cwd = std::env::current_dir().unwrap_or_default();
+    cwd.ancestors().find(|d| is_root(d)).map(Path::to_path_buf).unwrap_or_else(|| {
+        Path::new(env!("CARGO_MANIFEST_DIR")).parent().map_or_else(|| PathBuf::from("."), Path::to_path_buf)
+    })
 }
 
 /// Checks (and where it can, installs) what `needs` asks for.
