@@ -48,7 +48,10 @@ mod kernels {
     }
 
     pub(super) fn build() {
-        let kernels = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..").join("kernels");
+        // Cargo's runtime value: this script's compile-time one may be
+        // another clone's when clones share a target directory.
+        let manifest = std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR");
+        let kernels = PathBuf::from(manifest).join("..").join("kernels");
         let single = builder(&kernels);
         let mut multi = builder(&kernels).multimodule(true).target_dir_path("spirv-builder-multimodule");
         // The single build forwards the compiler's warnings already.
