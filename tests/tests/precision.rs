@@ -256,3 +256,43 @@ fn close_sites_are_kept_or_refused_by_name_never_merged() {
     assert_eq!(cells.counters.duplicate_sites, 1);
     assert_eq!(cells.volume[2], 0.0);
 }
+
+/// The shared models (`../shared/models`, when present) with 2 000 sites
+/// (`CVD_PRECISION_SITES`) uniform inside, against the reference: every
+/// cell larger than 1e-3 of the mean. Minutes in a debug build: run with
+/// `cargo test --release -p cvd-tests --test precision -- --ignored --nocapture`
+/// (docs/BENCHMARKS.md, Precision, records the output).
+#[test]
+#[ignore = "minutes of reference clipping; a measurement, run by hand"]
+fn shared_models_against_the_reference() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/models");
+    for name in ["torus_8k", "bunny_10k", "fandisk_26k", "joint_31k"] {
+        let path = dir.join(format!("{name}.mesh"));
+        if !path.is_file() {
+            println!("{name}: not present, skipped");
+            continue;
+        }
+        let mesh = cvd::io::read_mesh(&path).unwrap();
+        let n = std::env::var("CVD_PRECISION_SITES").ok().and_then(|s| s.parse().ok()).unwrap_or(2000);
+        let sites = points::in_mesh(&mesh, n, 2020);
+        let (vol, centroid) = clipped_cells(&mesh, &sites);
+        for backend in backends() {
+            let cells = ClippedVoronoi::new(&mesh, &sites).backend(backend).compute().unwrap();
+            let at = PLACEMENTS[0];
+            let (dv, dc, i) = worst(&cells, at, &vol, &centroid);
+            let mean = vol.iter().sum::<f64>() / vol.len() as f64;
+            let over = |tol: f64| {
+                (0..vol.len())
+                    .filter(|&i| vol[i] > 1e-3 * mean && (cells.volume[i] - vol[i]).abs() > tol * vol[i])
+                    .count()
+            };
+            println!(
+                "{name}, {n} sites, on {}: worst volume {dv:.2e} (cell {i}), centroid {dc:.2e}, cells over 1e-6: {}, over 1e-5: {}, E_vol {:.2e}",
+                backend.name(),
+                over(1e-6),
+                over(1e-5),
+                cells.e_vol
+            );
+        }
+    }
+}
