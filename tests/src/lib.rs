@@ -95,3 +95,69 @@ impl Shape {
         }
     }
 }
+
+/// An input moved where f32 coordinates would fail: `x -> x * scale +
+/// offset`. Results computed on a placed input, mapped back with
+/// [`Placement::unplace`], must match the unplaced input's reference.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Placement {
+    /// Uniform scale.
+    pub scale: f64,
+    /// Then added to every coordinate.
+    pub offset: f64,
+}
+
+impl Placement {
+    /// As given.
+    pub const NONE: Placement = Placement { scale: 1.0, offset: 0.0 };
+    /// Translated by 1e6, scaled by 1e-6 and by 1e6.
+    pub const MOVED: [Placement; 3] = [
+        Placement { scale: 1.0, offset: 1e6 },
+        Placement { scale: 1e-6, offset: 0.0 },
+        Placement { scale: 1e6, offset: 0.0 },
+    ];
+
+    /// A point placed.
+    pub fn point(&self, p: &[f64; 3]) -> [f64; 3] {
+        p.map(|c| c * self.scale + self.offset)
+    }
+
+    /// A placed point mapped back.
+    pub fn back(&self, p: &[f64; 3]) -> [f64; 3] {
+        p.map(|c| (c - self.offset) / self.scale)
+    }
+
+    /// Every point placed.
+    pub fn points(&self, points: &[[f64; 3]]) -> Vec<[f64; 3]> {
+        points.iter().map(|p| self.point(p)).collect()
+    }
+
+    /// The mesh placed.
+    pub fn mesh(&self, mesh: &cvd::TetMesh) -> cvd::TetMesh {
+        cvd::TetMesh { vertices: self.points(&mesh.vertices), tets: mesh.tets.clone() }
+    }
+
+    /// The input as the placed one is, mapped back: equal to the input for
+    /// a scaling (up to 1e-16 of each coordinate, below any tolerance); a
+    /// translation rounds each point where it lies, and the reference
+    /// must see the rounded points.
+    pub fn seen(&self, mesh: &cvd::TetMesh, sites: &[[f64; 3]]) -> (cvd::TetMesh, Vec<[f64; 3]>) {
+        let placed = self.mesh(mesh);
+        let vertices = placed.vertices.iter().map(|p| self.back(p)).collect();
+        let sites = self.points(sites).iter().map(|p| self.back(p)).collect();
+        (cvd::TetMesh { vertices, tets: mesh.tets.clone() }, sites)
+    }
+
+    /// Cells computed on the placed input, mapped back to the input's frame.
+    pub fn unplace(&self, cells: &cvd::Cells) -> cvd::Cells {
+        let s3 = self.scale.powi(3);
+        cvd::Cells {
+            volume: cells.volume.iter().map(|v| v / s3).collect(),
+            centroid: cells.centroid.iter().map(|p| self.back(p)).collect(),
+            energy: cells.energy.iter().map(|e| e / (s3 * self.scale * self.scale)).collect(),
+            total_volume: cells.total_volume / s3,
+            mesh_volume: cells.mesh_volume / s3,
+            ..cells.clone()
+        }
+    }
+}

@@ -7,7 +7,7 @@
 
 use cvd::{points, Cells, ClippedVoronoi, TetMesh};
 use cvd_tests::reference::clipped_cells;
-use cvd_tests::{assert_no_validation_errors, backends};
+use cvd_tests::{assert_no_validation_errors, backends, Placement};
 
 /// Default settings (flood pairing), every backend, against the reference;
 /// then, on the CPU, the same input translated by 1e6 and scaled by 1e-6
@@ -25,32 +25,18 @@ fn check(what: &str, mesh: &TetMesh, sites: &[[f64; 3]]) {
         assert_matches(&what, &cells, &vol, &centroid);
     }
     assert_no_validation_errors();
-    for (scale, offset) in [(1.0, 1e6), (1e-6, 0.0), (1e6, 0.0)] {
-        let place = |p: &[f64; 3]| p.map(|c| c * scale + offset);
-        let back = |p: &[f64; 3]| p.map(|c| (c - offset) / scale);
-        let placed_mesh = TetMesh { vertices: mesh.vertices.iter().map(place).collect(), tets: mesh.tets.clone() };
-        let placed: Vec<[f64; 3]> = sites.iter().map(place).collect();
-        let what = format!("{what} scaled by {scale:e} and moved by {offset:e}");
-        let cells = ClippedVoronoi::new(&placed_mesh, &placed).compute().unwrap_or_else(|e| panic!("{what}: {e}"));
+    for at in Placement::MOVED {
+        let what = format!("{what} at {at:?}");
+        let cells =
+            ClippedVoronoi::new(&at.mesh(mesh), &at.points(sites)).compute().unwrap_or_else(|e| panic!("{what}: {e}"));
         assert_eq!(cells.counters.unresolved, 0, "{what}");
         assert!(cells.e_vol <= 1e-6, "{what}: E_vol {:e}", cells.e_vol);
-        let unplaced = Cells {
-            volume: cells.volume.iter().map(|v| v / scale.powi(3)).collect(),
-            centroid: cells.centroid.iter().map(back).collect(),
-            mesh_volume: cells.mesh_volume / scale.powi(3),
-            ..Cells::default()
-        };
-        if offset == 0.0 {
-            // Scaling moves the points by 1e-16 of themselves.
-            assert_matches(&what, &unplaced, &vol, &centroid);
+        if at.offset == 0.0 {
+            assert_matches(&what, &at.unplace(&cells), &vol, &centroid);
         } else {
-            // The translated points are rounded where they lie: the
-            // reference gets them mapped back, as the kernels saw them.
-            let seen_mesh =
-                TetMesh { vertices: placed_mesh.vertices.iter().map(back).collect(), tets: mesh.tets.clone() };
-            let seen: Vec<[f64; 3]> = placed.iter().map(back).collect();
+            let (seen_mesh, seen) = at.seen(mesh, sites);
             let (vol, centroid) = clipped_cells(&seen_mesh, &seen);
-            assert_matches(&what, &unplaced, &vol, &centroid);
+            assert_matches(&what, &at.unplace(&cells), &vol, &centroid);
         }
     }
 }

@@ -17,7 +17,7 @@
 
 use cvd::{points, Cells, ClippedVoronoi, TetMesh};
 use cvd_tests::reference::clipped_cells;
-use cvd_tests::{assert_no_validation_errors, backends};
+use cvd_tests::{assert_no_validation_errors, backends, Placement};
 use voro_rs::prelude::*;
 
 /// Largest volume error of a cell, relative to the cell.
@@ -98,28 +98,16 @@ fn cases() -> Vec<Case> {
     ]
 }
 
-/// A map `x -> x * scale + offset` applied to a case.
-#[derive(Clone, Copy, Debug)]
-struct Placement {
-    scale: f64,
-    offset: f64,
-}
-
-const PLACEMENTS: [Placement; 4] = [
-    Placement { scale: 1.0, offset: 0.0 },
-    Placement { scale: 1.0, offset: 1e6 },
-    Placement { scale: 1e-6, offset: 0.0 },
-    Placement { scale: 1e6, offset: 0.0 },
-];
+/// As given, then moved (see [`Placement`]).
+const PLACEMENTS: [Placement; 4] = [Placement::NONE, Placement::MOVED[0], Placement::MOVED[1], Placement::MOVED[2]];
 
 /// The mesh of the box `[0, 1]² x [0, depth]`, placed.
 fn box_mesh(depth: f64, at: Placement) -> TetMesh {
     let mut mesh = TetMesh::cube(3);
     for v in &mut mesh.vertices {
         v[2] *= depth;
-        *v = v.map(|c| c * at.scale + at.offset);
     }
-    mesh
+    at.mesh(&mesh)
 }
 
 /// Worst errors of `cells` (in the placed frame) against the exact cells
@@ -133,7 +121,7 @@ fn worst(cells: &Cells, at: Placement, vol: &[f64], centroid: &[[f64; 3]]) -> (f
             continue;
         }
         let v = cells.volume[i] / at.scale.powi(3);
-        let c = cells.centroid[i].map(|x| (x - at.offset) / at.scale);
+        let c = at.back(&cells.centroid[i]);
         let e = (v - vol[i]).abs() / vol[i];
         if e > dv {
             (dv, worst_cell) = (e, i);
@@ -160,13 +148,13 @@ fn cells_are_exact_relative_to_themselves_wherever_the_domain_is() {
             // The sites as placed (rounded to f64 there); the reference
             // gets them mapped back, so both see the same points (a scaling
             // moves them by 1e-16 of themselves: the unplaced result holds).
-            let placed: Vec<[f64; 3]> = case.sites.iter().map(|p| p.map(|c| c * at.scale + at.offset)).collect();
+            let placed = at.points(&case.sites);
             let moved;
             let (vol, centroid) = if at.offset == 0.0 {
                 (&exact.0, &exact.1)
             } else {
-                let back: Vec<[f64; 3]> = placed.iter().map(|p| p.map(|c| (c - at.offset) / at.scale)).collect();
-                moved = clipped_cells(&box_mesh(case.depth, PLACEMENTS[0]), &back);
+                let (seen_mesh, seen) = at.seen(&mesh, &case.sites);
+                moved = clipped_cells(&seen_mesh, &seen);
                 (&moved.0, &moved.1)
             };
             let mesh = box_mesh(case.depth, at);
