@@ -30,6 +30,7 @@ pub mod quantize;
 pub mod second_pass;
 pub mod site_grid;
 pub mod spirv;
+pub mod surface;
 pub mod timing;
 pub mod voronoi;
 pub mod vulkan;

@@ -1,7 +1,8 @@
 //! Reading tet meshes and site files, and writing them back.
 //!
 //! Meshes: Medit `.mesh`, TetGen `.node`/`.ele`, the `.tet` files of the
-//! paper's code and Gmsh `.msh` (2.2 and 4.1 ASCII). Sites: `.xyz`.
+//! paper's code and Gmsh `.msh` (2.2 and 4.1 ASCII). Surfaces: `.stl`,
+//! `.obj`, `.off`, `.ply` ([`read_surface`]). Sites: `.xyz`.
 //!
 //! A bad file is reported as [`Error::Parse`] naming its line and what was
 //! expected there; no input makes a reader panic, and counts read from a
@@ -10,6 +11,7 @@
 mod gmsh;
 mod lex;
 mod medit;
+mod surface;
 mod tet;
 mod tetgen;
 mod xyz;
@@ -19,6 +21,7 @@ mod fuzz;
 
 pub use gmsh::parse_gmsh;
 pub use medit::parse_medit;
+pub use surface::{parse_obj, parse_off, parse_ply, parse_stl, read_surface};
 pub use tet::parse_tet;
 pub use tetgen::parse_tetgen;
 pub use xyz::{parse_values, parse_xyz};
