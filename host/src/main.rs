@@ -53,6 +53,11 @@ struct RunArgs {
     /// A tet mesh file (.mesh, .node/.ele, .tet, .msh) instead of --model.
     #[arg(long)]
     mesh: Option<PathBuf>,
+    /// A closed triangle surface (.stl, .obj, .off, .ply) whose volume is
+    /// meshed into tets (isosurface stuffing, --resolution lattice cubes
+    /// along its longest side; default 32) instead of --model.
+    #[arg(long, conflicts_with = "mesh")]
+    surface: Option<PathBuf>,
     /// Built-in model resolution: lattice cells along the longest side
     /// (cube: sub-cubes per side; default: joint 37, others 16).
     #[arg(long)]
@@ -134,10 +139,50 @@ fn load_model(args: &RunArgs) -> cvd::Result<(String, TetMesh)> {
     Ok((name, mesh))
 }
 
+/// Reads, checks and meshes a closed surface, saying what was fixed and how
+/// good the mesh is.
+fn mesh_surface_file(path: &std::path::Path, resolution: Option<u32>) -> cvd::Result<(String, TetMesh)> {
+    let name = path.display().to_string();
+    let (surface, r) = cvd::io::read_surface(path)?.into_closed(&name)?;
+    let mut fixed = Vec::new();
+    for (n, what) in [
+        (r.dropped, "triangles with a repeated vertex dropped"),
+        (r.reoriented, "triangles turned to agree with their neighbours"),
+        (r.flipped_shells, "shells turned outward"),
+        (r.zero_area, "triangles of zero area"),
+    ] {
+        if n > 0 {
+            fixed.push(format!("{n} {what}"));
+        }
+    }
+    let holes = if r.holes > 0 { format!(" ({} holes)", r.holes) } else { String::new() };
+    println!(
+        "{name}: {} triangles, {} shells{holes}, volume {:.6e}{}",
+        r.triangles,
+        r.shells,
+        r.volume,
+        if fixed.is_empty() { String::new() } else { format!("; {}", fixed.join(", ")) }
+    );
+    let resolution = resolution.unwrap_or(32);
+    let mesh = cvd::mesher::mesh_surface(&surface, resolution)?;
+    let q = cvd::mesher::quality::Quality::of(&mesh);
+    println!(
+        "meshed at resolution {resolution}: {} tets, dihedral angles {:.1}..{:.1} degrees, volume {:+.3} % of the surface's",
+        mesh.tets.len(),
+        q.min_dihedral,
+        q.max_dihedral,
+        100.0 * (mesh.volume() - r.volume) / r.volume
+    );
+    Ok((name, mesh))
+}
+
 /// The model's mesh as found, before any repair.
 fn find_model(args: &RunArgs) -> cvd::Result<(String, TetMesh)> {
     if let Some(path) = &args.mesh {
         return Ok((path.display().to_string(), cvd::io::read_mesh(path)?));
+    }
+    if let Some(path) = &args.surface {
+        return mesh_surface_file(path, args.resolution);
     }
     let dir = args.models_dir.clone().or_else(|| std::env::var_os("CVD_MODELS").map(PathBuf::from));
     if let Some(dir) = dir {
@@ -157,6 +202,10 @@ fn find_model(args: &RunArgs) -> cvd::Result<(String, TetMesh)> {
         }
         if let Some(path) = candidates.into_iter().find(|p| p.is_file()) {
             return Ok((path.display().to_string(), cvd::io::read_mesh(&path)?));
+        }
+        let surfaces = ["stl", "obj", "off", "ply"].map(|e| dir.join(format!("{name}.{e}")));
+        if let Some(path) = surfaces.into_iter().find(|p| p.is_file()) {
+            return mesh_surface_file(&path, args.resolution);
         }
     }
     let name = args.model.as_str();

@@ -16,7 +16,7 @@ fn temp_dir(name: &str) -> PathBuf {
 /// model or a mesh), in folder `cwd`.
 fn cvd_run(cwd: &Path, args: &[&str]) -> Output {
     let model: &[&str] =
-        if args.iter().any(|a| *a == "--model" || *a == "--mesh") { &[] } else { &["--model", "cube"] };
+        if args.iter().any(|a| ["--model", "--mesh", "--surface"].contains(a)) { &[] } else { &["--model", "cube"] };
     Command::new(env!("CARGO_BIN_EXE_cvd"))
         .current_dir(cwd)
         .args(["run", "--backend", "cpu", "--threads", "2"])
@@ -242,4 +242,40 @@ fn a_sites_file_is_written_back_digit_for_digit() {
     let out = cvd_run(&dir, &["--mesh", "box.mesh", "--sites-file", "utm.xyz", "--no-pieces", "--out", "o"]);
     assert!(out.status.success(), "{}", text(&out.stderr));
     assert_eq!(cvd::io::read_sites(&dir.join("o/sites.xyz")).unwrap(), given);
+}
+
+/// A closed box as an OFF file; `open` leaves one triangle out.
+fn box_off(path: &Path, open: bool) {
+    let mut t = String::from("OFF\n8 12 0\n");
+    for i in 0..8 {
+        t += &format!("{} {} {}\n", i & 1, (i >> 1) & 1, (i >> 2) & 1);
+    }
+    let quads = [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]];
+    let tris: Vec<[u32; 3]> = quads.iter().flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]]).collect();
+    let n = if open { 11 } else { 12 };
+    t = t.replace("8 12 0", &format!("8 {n} 0"));
+    for f in &tris[..n] {
+        t += &format!("3 {} {} {}\n", f[0], f[1], f[2]);
+    }
+    std::fs::write(path, t).unwrap();
+}
+
+#[test]
+fn a_surface_is_meshed_and_an_open_one_refused() {
+    let dir = temp_dir("surface");
+    box_off(&dir.join("box.off"), false);
+    let out =
+        cvd_run(&dir, &["--surface", "box.off", "--resolution", "8", "--sites", "100", "--no-pieces", "--out", "o"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let stdout = text(&out.stdout);
+    assert!(stdout.contains("box.off: 12 triangles, 1 shells, volume 1.000000e0"), "{stdout}");
+    assert!(stdout.contains("meshed at resolution 8"), "{stdout}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("o/summary.json")).unwrap()).unwrap();
+    assert!(summary["e_vol"].as_f64().unwrap() <= 1e-6, "{summary}");
+    box_off(&dir.join("open.off"), true);
+    let out = cvd_run(&dir, &["--surface", "open.off", "--sites", "10", "--no-pieces"]);
+    assert_eq!(out.status.code(), Some(2));
+    let stderr = text(&out.stderr);
+    assert!(stderr.contains("open.off") && stderr.contains("3 boundary (open) edges"), "{stderr}");
 }

@@ -8,6 +8,25 @@
 //! which is all the mesher's root finding along lattice edges needs: a
 //! continuous function whose sign says inside or outside.
 
+/// What the mesher fills: a function negative inside the shape, zero on its
+/// surface, positive outside — continuous, with the magnitude a lower bound
+/// of the distance to the surface — and a box holding the shape.
+pub trait Shape: Sync {
+    /// The signed distance (or a lower bound of it) at `p`.
+    fn eval(&self, p: [f64; 3]) -> f64;
+    /// An axis-aligned box `(lower, upper)` holding the shape.
+    fn bounds(&self) -> ([f64; 3], [f64; 3]);
+}
+
+impl Shape for Sdf {
+    fn eval(&self, p: [f64; 3]) -> f64 {
+        Sdf::eval(self, p)
+    }
+    fn bounds(&self) -> ([f64; 3], [f64; 3]) {
+        Sdf::bounds(self)
+    }
+}
+
 /// A shape given by its signed distance (negative inside).
 #[derive(Clone, Debug, PartialEq)]
 pub enum Sdf {

@@ -48,7 +48,7 @@
 //! stencil is a valid tetrahedralization; a tet the warp turned over would
 //! show as inverted in [`Quality`](super::quality::Quality).
 
-use super::sdf::Sdf;
+use super::sdf::Shape;
 use crate::error::{Error, Result};
 use crate::TetMesh;
 use rayon::prelude::*;
@@ -92,7 +92,7 @@ impl Params {
 /// `[0, 0.5)`, an empty or unbounded shape box, a lattice above
 /// [`MAX_LATTICE_VERTICES`], a non-finite distance, or no tet at all (the
 /// spacing is too coarse for the shape).
-pub fn stuff(shape: &Sdf, params: &Params) -> Result<TetMesh> {
+pub fn stuff<S: Shape + ?Sized>(shape: &S, params: &Params) -> Result<TetMesh> {
     let h = params.spacing;
     if !(h.is_finite() && h > 0.0) {
         return Err(Error::InvalidInput(format!("lattice spacing must be positive and finite, got {h}")));
@@ -271,7 +271,12 @@ impl Lattice {
 type Cuts = HashMap<(u32, u32), [f64; 3]>;
 type Candidate = (u32, f64, u32, [f64; 3]);
 
-fn cut_points(shape: &Sdf, lattice: &Lattice, value: &[f64], params: &Params) -> (Cuts, Vec<Candidate>) {
+fn cut_points<S: Shape + ?Sized>(
+    shape: &S,
+    lattice: &Lattice,
+    value: &[f64],
+    params: &Params,
+) -> (Cuts, Vec<Candidate>) {
     let mut crossing = Vec::new();
     lattice.for_each_edge(|u, v, black| {
         let (fu, fv) = (value[u as usize], value[v as usize]);
@@ -581,6 +586,7 @@ fn reference_volume(lattice: &Lattice, tet: [Node; 4]) -> f64 {
 mod tests {
     use super::*;
     use crate::mesher::quality::{Conformity, Quality};
+    use crate::mesher::sdf::Sdf;
     use crate::points::Rng;
 
     /// The paper's bounds on the dihedral angles for the default `alpha`s.

@@ -1,0 +1,41 @@
+"""Writes closed surfaces with trimesh, apart from the library that reads
+them, in every format it exports (STL binary and ASCII, OBJ, OFF, PLY
+binary and ASCII), plus one open surface; prints as JSON each shape's
+files and the volume trimesh computes for it."""
+
+import json
+import os
+import sys
+
+import trimesh
+
+out = sys.argv[1]
+os.makedirs(out, exist_ok=True)
+shapes = {
+    "box": trimesh.creation.box(extents=[1.0, 2.0, 3.0]),
+    "sphere": trimesh.creation.icosphere(subdivisions=3, radius=1.0),
+    "cylinder": trimesh.creation.cylinder(radius=0.5, height=2.0, sections=48),
+    "capsule": trimesh.creation.capsule(height=1.0, radius=0.4, count=[24, 24]),
+}
+formats = {
+    "stl": dict(file_type="stl"),
+    "ascii.stl": dict(file_type="stl_ascii"),
+    "obj": dict(file_type="obj", include_normals=False, include_texture=False),
+    "off": dict(file_type="off"),
+    "ply": dict(file_type="ply", encoding="binary"),
+    "ascii.ply": dict(file_type="ply", encoding="ascii"),
+}
+listing = {}
+for name, mesh in shapes.items():
+    assert mesh.is_watertight, name
+    files = []
+    for ext, options in formats.items():
+        path = os.path.join(out, f"{name}.{ext}")
+        mesh.export(path, **options)
+        files.append(path)
+    listing[name] = {"volume": float(mesh.volume), "files": files}
+open_box = trimesh.creation.box(extents=[1.0, 1.0, 1.0])
+open_box.update_faces([i != 0 for i in range(len(open_box.faces))])
+open_path = os.path.join(out, "open_box.stl")
+open_box.export(open_path, file_type="stl")
+print(json.dumps({"shapes": listing, "open": open_path}))
