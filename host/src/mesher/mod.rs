@@ -32,7 +32,7 @@ pub fn mesh_surface(surface: &crate::surface::TriSurface, resolution: u32) -> cr
     let field = surface_field::SurfaceDistance::new(surface);
     let (lo, hi) = surface.bounding_box();
     let longest = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
-    if resolution == 0 || !(longest > 0.0) {
+    if resolution == 0 || !longest.is_finite() || longest <= 0.0 {
         return Err(crate::Error::InvalidInput(format!(
             "cannot mesh a surface of extent {longest} at resolution {resolution}"
         )));
