@@ -81,10 +81,11 @@ pub fn write_sites_xyz(path: &Path, sites: &[[f64; 3]]) -> Result<()> {
 }
 
 /// Writes a mesh as Medit ASCII `.mesh` (references 0 for vertices, 1 for
-/// tets), coordinates written so that they read back exactly.
+/// tets), coordinates written so that they read back exactly; version 2
+/// tells other readers the reals are double precision.
 pub fn write_medit(path: &Path, mesh: &TetMesh) -> Result<()> {
     write_file(path, |w| {
-        writeln!(w, "MeshVersionFormatted 1\n\nDimension 3\n\nVertices\n{}", mesh.vertices.len())?;
+        writeln!(w, "MeshVersionFormatted 2\n\nDimension 3\n\nVertices\n{}", mesh.vertices.len())?;
         for [x, y, z] in &mesh.vertices {
             writeln!(w, "{x} {y} {z} 0")?;
         }
@@ -98,10 +99,15 @@ pub fn write_medit(path: &Path, mesh: &TetMesh) -> Result<()> {
     })
 }
 
+/// A file's bytes; errors name the file.
+fn read_bytes(path: &Path) -> Result<Vec<u8>> {
+    std::fs::read(path).map_err(|source| Error::Io { path: path.display().to_string(), source })
+}
+
 /// A file's text. Bytes that are not UTF-8 become U+FFFD, so that a
 /// binary or Latin-1 file still gets a parse error naming a line.
 fn read_text(path: &Path) -> Result<String> {
-    let bytes = std::fs::read(path).map_err(|source| Error::Io { path: path.display().to_string(), source })?;
+    let bytes = read_bytes(path)?;
     Ok(String::from_utf8(bytes).unwrap_or_else(|e| String::from_utf8_lossy(e.as_bytes()).into_owned()))
 }
 

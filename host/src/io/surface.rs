@@ -20,7 +20,7 @@ use std::path::Path;
 pub fn read_surface(path: &Path) -> Result<TriSurface> {
     let name = path.display().to_string();
     let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
-    let bytes = std::fs::read(path).map_err(|e| Error::InvalidInput(format!("{name}: cannot read: {e}")))?;
+    let bytes = super::read_bytes(path)?;
     match ext.as_str() {
         "stl" => parse_stl(&bytes, &name),
         "obj" => parse_obj(&bytes, &name),
@@ -39,7 +39,7 @@ fn text<'a>(bytes: &'a [u8], name: &str) -> Result<&'a str> {
 
 /// Runs a third-party parser, turning its error or its panic into one
 /// naming the file and the format.
-fn guarded<T, E: std::fmt::Display>(
+pub(super) fn guarded<T, E: std::fmt::Display>(
     name: &str,
     format: &str,
     parse: impl FnOnce() -> std::result::Result<T, E>,
