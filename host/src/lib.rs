@@ -32,6 +32,7 @@ pub mod site_grid;
 pub mod spirv;
 pub mod surface;
 pub mod timing;
+pub mod vec3;
 pub mod voronoi;
 pub mod vulkan;
 

@@ -93,15 +93,7 @@ impl TetMesh {
 
     /// Lower and upper corners of the vertices' bounding box.
     pub fn bounding_box(&self) -> ([f64; 3], [f64; 3]) {
-        let mut lo = [f64::INFINITY; 3];
-        let mut hi = [f64::NEG_INFINITY; 3];
-        for v in &self.vertices {
-            for a in 0..3 {
-                lo[a] = lo[a].min(v[a]);
-                hi[a] = hi[a].max(v[a]);
-            }
-        }
-        (lo, hi)
+        crate::vec3::bounding_box(&self.vertices)
     }
 
     /// The unit cube cut into `n³` sub-cubes, each split into 6 tets.

@@ -45,20 +45,7 @@ pub struct SurfaceReport {
     pub volume: f64,
 }
 
-type P = [f64; 3];
-
-fn sub(a: P, b: P) -> P {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-fn cross(a: P, b: P) -> P {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-}
-fn dot(a: P, b: P) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-fn norm(a: P) -> f64 {
-    dot(a, a).sqrt()
-}
+use crate::vec3::{cross, dot, norm, sub, P};
 
 impl TriSurface {
     /// A surface from vertices and triangles, rejecting (by index)
@@ -105,15 +92,7 @@ impl TriSurface {
 
     /// Lower and upper corners of the vertices' bounding box.
     pub fn bounding_box(&self) -> (P, P) {
-        let mut lo = [f64::INFINITY; 3];
-        let mut hi = [f64::NEG_INFINITY; 3];
-        for v in &self.vertices {
-            for a in 0..3 {
-                lo[a] = lo[a].min(v[a]);
-                hi[a] = hi[a].max(v[a]);
-            }
-        }
-        (lo, hi)
+        crate::vec3::bounding_box(&self.vertices)
     }
 
     /// The generalised winding number of the surface at `p`: 1 inside a

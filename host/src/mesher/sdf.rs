@@ -8,6 +8,8 @@
 //! which is all the mesher's root finding along lattice edges needs: a
 //! continuous function whose sign says inside or outside.
 
+use crate::vec3::{dot, norm, sub};
+
 /// What the mesher fills: a function negative inside the shape, zero on its
 /// surface, positive outside — continuous, with the magnitude a lower bound
 /// of the distance to the surface — and a box holding the shape.
@@ -82,18 +84,6 @@ pub enum Sdf {
         /// The shape moved.
         shape: Box<Sdf>,
     },
-}
-
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-fn norm(a: [f64; 3]) -> f64 {
-    dot(a, a).sqrt()
 }
 
 fn normalized(a: [f64; 3]) -> [f64; 3] {

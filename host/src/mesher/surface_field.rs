@@ -18,31 +18,7 @@ use super::sdf::Shape;
 use crate::surface::TriSurface;
 use std::collections::HashMap;
 
-type P = [f64; 3];
-
-fn sub(a: P, b: P) -> P {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-fn add(a: P, b: P) -> P {
-    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
-}
-fn scale(a: P, s: f64) -> P {
-    [a[0] * s, a[1] * s, a[2] * s]
-}
-fn dot(a: P, b: P) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-fn cross(a: P, b: P) -> P {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
-}
-fn unit(a: P) -> P {
-    let n = dot(a, a).sqrt();
-    if n > 0.0 {
-        scale(a, 1.0 / n)
-    } else {
-        a
-    }
-}
+use crate::vec3::{add, cross, dot, scale, sub, unit, P};
 
 /// The feature of a triangle a point is nearest to.
 #[derive(Clone, Copy, Debug, PartialEq)]
