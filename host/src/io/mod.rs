@@ -1,7 +1,8 @@
 //! Reading tet meshes and site files, and writing them back.
 //!
 //! Meshes: Medit `.mesh`, TetGen `.node`/`.ele`, the `.tet` files of the
-//! paper's code and Gmsh `.msh` (2.2 and 4.1 ASCII). Surfaces: `.stl`,
+//! paper's code, Gmsh `.msh` (2.2 and 4.1 ASCII) and legacy VTK `.vtk`.
+//! Surfaces: `.stl`,
 //! `.obj`, `.off`, `.ply` ([`read_surface`]). Sites: `.xyz`.
 //!
 //! A bad file is reported as [`Error::Parse`] naming its line and what was
@@ -14,6 +15,7 @@ mod medit;
 mod surface;
 mod tet;
 mod tetgen;
+mod vtk;
 mod xyz;
 
 #[cfg(test)]
@@ -24,6 +26,7 @@ pub use medit::parse_medit;
 pub use surface::{parse_obj, parse_off, parse_ply, parse_stl, read_surface};
 pub use tet::parse_tet;
 pub use tetgen::parse_tetgen;
+pub use vtk::parse_vtk;
 pub use xyz::{parse_values, parse_xyz};
 
 use crate::error::{Error, Result};
@@ -34,7 +37,8 @@ use std::path::Path;
 
 /// Reads a tet mesh, choosing the format by the extension (any case):
 /// `.mesh` (Medit), `.node` or `.ele` (TetGen: both files are read),
-/// `.tet` (the paper's code), `.msh` (Gmsh 2.2 or 4.1 ASCII).
+/// `.tet` (the paper's code), `.msh` (Gmsh 2.2 or 4.1 ASCII), `.vtk`
+/// (legacy VTK unstructured grids, ASCII or binary, versions 2 to 5.1).
 pub fn read_mesh(path: &Path) -> Result<TetMesh> {
     let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
     let name = path.display().to_string();
@@ -42,6 +46,7 @@ pub fn read_mesh(path: &Path) -> Result<TetMesh> {
         "mesh" => parse_medit(&read_text(path)?, &name),
         "tet" => parse_tet(&read_text(path)?, &name),
         "msh" => parse_gmsh(&read_text(path)?, &name),
+        "vtk" => parse_vtk(&read_bytes(path)?, &name),
         "node" | "ele" => {
             // The sibling keeps the case of the given extension.
             let upper = ext.bytes().any(|b| b.is_ascii_uppercase());
@@ -52,7 +57,7 @@ pub fn read_mesh(path: &Path) -> Result<TetMesh> {
         }
         _ => Err(Error::InvalidInput(format!(
             "{name}: unknown mesh format; supported extensions: .mesh (Medit ASCII), .node/.ele (TetGen), \
-             .tet (the paper's code), .msh (Gmsh 2.2 or 4.1 ASCII)"
+             .tet (the paper's code), .msh (Gmsh 2.2 or 4.1 ASCII), .vtk (legacy VTK, ASCII or binary)"
         ))),
     }
 }
