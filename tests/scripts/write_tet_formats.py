@@ -1,5 +1,6 @@
 """Reads a Medit .mesh with meshio, apart from the library that wrote it,
-and writes it again as legacy VTK: versions 4.2 and 5.1, ASCII and binary;
+and writes it again as legacy VTK (versions 4.2 and 5.1, ASCII and
+binary) and Medit binary .meshb;
 plus a grid holding a hexahedron. Prints the written paths as JSON."""
 
 import json
@@ -19,6 +20,7 @@ for name, options in {
     "v42_binary.vtk": dict(file_format="vtk42", binary=True),
     "v51_ascii.vtk": dict(file_format="vtk", binary=False),
     "v51_binary.vtk": dict(file_format="vtk", binary=True),
+    "medit.meshb": dict(file_format="medit"),
 }.items():
     path = os.path.join(out, name)
     meshio.write(path, tets, **options)

@@ -1,7 +1,7 @@
 //! Tet meshes written by a real tool (meshio, installed from PyPI, apart
-//! from the library): legacy VTK 4.2 and 5.1, ASCII and binary, read back
-//! equal to the mesh they were made from; a volume cell other than a tet
-//! is a named error.
+//! from the library): legacy VTK 4.2 and 5.1, ASCII and binary, and Medit
+//! binary `.meshb`, read back equal to the mesh they were made from; a
+//! volume cell other than a tet is a named error.
 
 use cvd::TetMesh;
 use std::path::PathBuf;
@@ -36,14 +36,14 @@ fn vtk_files_written_by_meshio_read_back() {
         }
     };
     let expected: TetMesh = cvd::io::read_mesh(&source).unwrap();
-    for name in ["v42_ascii.vtk", "v42_binary.vtk", "v51_ascii.vtk", "v51_binary.vtk"] {
+    for name in ["v42_ascii.vtk", "v42_binary.vtk", "v51_ascii.vtk", "v51_binary.vtk", "medit.meshb"] {
         let path = PathBuf::from(listing[name].as_str().unwrap());
         let read = cvd::io::read_mesh(&path).unwrap_or_else(|e| panic!("{name}: {e}"));
         assert_eq!(read.tets, expected.tets, "{name}");
         assert_eq!(read.vertices.len(), expected.vertices.len(), "{name}");
         for (a, b) in read.vertices.iter().zip(&expected.vertices) {
             // ASCII holds as many digits as meshio prints; binary is exact.
-            let tol = if name.contains("binary") { 0.0 } else { 1e-9 };
+            let tol = if name.contains("ascii") { 1e-9 } else { 0.0 };
             assert!((0..3).all(|k| (a[k] - b[k]).abs() <= tol * b[k].abs()), "{name}: {a:?} vs {b:?}");
         }
     }

@@ -1,7 +1,8 @@
 //! Reading tet meshes and site files, and writing them back.
 //!
 //! Meshes: Medit `.mesh`, TetGen `.node`/`.ele`, the `.tet` files of the
-//! paper's code, Gmsh `.msh` (2.2 and 4.1 ASCII) and legacy VTK `.vtk`.
+//! paper's code, Gmsh `.msh` (2.2 and 4.1 ASCII), legacy VTK `.vtk` and
+//! Medit binary `.meshb`.
 //! Surfaces: `.stl`,
 //! `.obj`, `.off`, `.ply` ([`read_surface`]). Sites: `.xyz`.
 //!
@@ -12,6 +13,7 @@
 mod gmsh;
 mod lex;
 mod medit;
+mod meshb;
 mod surface;
 mod tet;
 mod tetgen;
@@ -23,6 +25,7 @@ mod fuzz;
 
 pub use gmsh::parse_gmsh;
 pub use medit::parse_medit;
+pub use meshb::parse_meshb;
 pub use surface::{parse_obj, parse_off, parse_ply, parse_stl, read_surface};
 pub use tet::parse_tet;
 pub use tetgen::parse_tetgen;
@@ -38,7 +41,8 @@ use std::path::Path;
 /// Reads a tet mesh, choosing the format by the extension (any case):
 /// `.mesh` (Medit), `.node` or `.ele` (TetGen: both files are read),
 /// `.tet` (the paper's code), `.msh` (Gmsh 2.2 or 4.1 ASCII), `.vtk`
-/// (legacy VTK unstructured grids, ASCII or binary, versions 2 to 5.1).
+/// (legacy VTK unstructured grids, ASCII or binary, versions 2 to 5.1),
+/// `.meshb` (Medit binary, versions 1 to 4).
 pub fn read_mesh(path: &Path) -> Result<TetMesh> {
     let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
     let name = path.display().to_string();
@@ -47,6 +51,7 @@ pub fn read_mesh(path: &Path) -> Result<TetMesh> {
         "tet" => parse_tet(&read_text(path)?, &name),
         "msh" => parse_gmsh(&read_text(path)?, &name),
         "vtk" => parse_vtk(&read_bytes(path)?, &name),
+        "meshb" => parse_meshb(&read_bytes(path)?, &name),
         "node" | "ele" => {
             // The sibling keeps the case of the given extension.
             let upper = ext.bytes().any(|b| b.is_ascii_uppercase());
@@ -57,7 +62,8 @@ pub fn read_mesh(path: &Path) -> Result<TetMesh> {
         }
         _ => Err(Error::InvalidInput(format!(
             "{name}: unknown mesh format; supported extensions: .mesh (Medit ASCII), .node/.ele (TetGen), \
-             .tet (the paper's code), .msh (Gmsh 2.2 or 4.1 ASCII), .vtk (legacy VTK, ASCII or binary)"
+             .tet (the paper's code), .msh (Gmsh 2.2 or 4.1 ASCII), .vtk (legacy VTK, ASCII or binary), \
+             .meshb (Medit binary)"
         ))),
     }
 }
