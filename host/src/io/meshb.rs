@@ -190,15 +190,14 @@ mod tests {
         b.extend(3i32.to_le_bytes());
         pos(&mut b, 4 + 4 + 4 + pw + 4);
         b.extend(3i32.to_le_bytes());
-        let start = b.len();
         b.extend(4i32.to_le_bytes());
         let patch = b.len();
         pos(&mut b, 0);
         int(&mut b, 5);
-        for p in [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 1.0, 1.0]] {
+        for p in [[0.0f64, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 1.0, 1.0]] {
             for c in p {
                 if version >= 2 {
-                    b.extend((c as f64).to_le_bytes())
+                    b.extend(c.to_le_bytes())
                 } else {
                     b.extend((c as f32).to_le_bytes())
                 }
@@ -207,7 +206,6 @@ mod tests {
         }
         let here = b.len();
         b[patch..patch + pw].copy_from_slice(&(here as i64).to_le_bytes()[..pw]);
-        let _ = start;
         b.extend(8i32.to_le_bytes());
         let patch = b.len();
         pos(&mut b, 0);
