@@ -1,6 +1,7 @@
 """Reads a Medit .mesh with meshio, apart from the library that wrote it,
 and writes it again as legacy VTK (versions 4.2 and 5.1, ASCII and
-binary) and Medit binary .meshb;
+binary), Medit binary .meshb and Gmsh .msh (2.2 binary, 4.1 binary and
+ASCII);
 plus a grid holding a hexahedron. Prints the written paths as JSON."""
 
 import json
@@ -21,6 +22,9 @@ for name, options in {
     "v51_ascii.vtk": dict(file_format="vtk", binary=False),
     "v51_binary.vtk": dict(file_format="vtk", binary=True),
     "medit.meshb": dict(file_format="medit"),
+    "v22_binary.msh": dict(file_format="gmsh22", binary=True),
+    "v41_binary.msh": dict(file_format="gmsh", binary=True),
+    "v41_ascii.msh": dict(file_format="gmsh", binary=False),
 }.items():
     path = os.path.join(out, name)
     meshio.write(path, tets, **options)

@@ -1,7 +1,8 @@
 //! Tet meshes written by a real tool (meshio, installed from PyPI, apart
-//! from the library): legacy VTK 4.2 and 5.1, ASCII and binary, and Medit
-//! binary `.meshb`, read back equal to the mesh they were made from; a
-//! volume cell other than a tet is a named error.
+//! from the library): legacy VTK 4.2 and 5.1, ASCII and binary, Medit
+//! binary `.meshb`, Gmsh `.msh` 2.2 binary and 4.1 binary and ASCII, read
+//! back equal to the mesh they were made from; a volume cell other than a
+//! tet is a named error.
 
 use cvd::TetMesh;
 use std::path::PathBuf;
@@ -36,7 +37,16 @@ fn vtk_files_written_by_meshio_read_back() {
         }
     };
     let expected: TetMesh = cvd::io::read_mesh(&source).unwrap();
-    for name in ["v42_ascii.vtk", "v42_binary.vtk", "v51_ascii.vtk", "v51_binary.vtk", "medit.meshb"] {
+    for name in [
+        "v42_ascii.vtk",
+        "v42_binary.vtk",
+        "v51_ascii.vtk",
+        "v51_binary.vtk",
+        "medit.meshb",
+        "v22_binary.msh",
+        "v41_binary.msh",
+        "v41_ascii.msh",
+    ] {
         let path = PathBuf::from(listing[name].as_str().unwrap());
         let read = cvd::io::read_mesh(&path).unwrap_or_else(|e| panic!("{name}: {e}"));
         assert_eq!(read.tets, expected.tets, "{name}");

@@ -1,7 +1,7 @@
 //! Reading tet meshes and site files, and writing them back.
 //!
 //! Meshes: Medit `.mesh`, TetGen `.node`/`.ele`, the `.tet` files of the
-//! paper's code, Gmsh `.msh` (2.2 and 4.1 ASCII), legacy VTK `.vtk` and
+//! paper's code, Gmsh `.msh` (2.2 and 4.1, ASCII and binary), legacy VTK `.vtk` and
 //! Medit binary `.meshb`.
 //! Surfaces: `.stl`,
 //! `.obj`, `.off`, `.ply` ([`read_surface`]). Sites: `.xyz`.
@@ -11,6 +11,7 @@
 //! file only reserve as much memory as the file could actually fill.
 
 mod gmsh;
+mod gmsh_binary;
 mod lex;
 mod medit;
 mod meshb;
@@ -24,6 +25,7 @@ mod xyz;
 mod fuzz;
 
 pub use gmsh::parse_gmsh;
+pub use gmsh_binary::parse_gmsh_binary;
 pub use medit::parse_medit;
 pub use meshb::parse_meshb;
 pub use surface::{parse_obj, parse_off, parse_ply, parse_stl, read_surface};
@@ -40,7 +42,7 @@ use std::path::Path;
 
 /// Reads a tet mesh, choosing the format by the extension (any case):
 /// `.mesh` (Medit), `.node` or `.ele` (TetGen: both files are read),
-/// `.tet` (the paper's code), `.msh` (Gmsh 2.2 or 4.1 ASCII), `.vtk`
+/// `.tet` (the paper's code), `.msh` (Gmsh 2.2 or 4.1, ASCII or binary), `.vtk`
 /// (legacy VTK unstructured grids, ASCII or binary, versions 2 to 5.1),
 /// `.meshb` (Medit binary, versions 1 to 4).
 pub fn read_mesh(path: &Path) -> Result<TetMesh> {
@@ -49,7 +51,14 @@ pub fn read_mesh(path: &Path) -> Result<TetMesh> {
     match ext.to_ascii_lowercase().as_str() {
         "mesh" => parse_medit(&read_text(path)?, &name),
         "tet" => parse_tet(&read_text(path)?, &name),
-        "msh" => parse_gmsh(&read_text(path)?, &name),
+        "msh" => {
+            let bytes = read_bytes(path)?;
+            if gmsh_binary::is_binary_gmsh(&bytes) {
+                parse_gmsh_binary(&bytes, &name)
+            } else {
+                parse_gmsh(&String::from_utf8_lossy(&bytes), &name)
+            }
+        }
         "vtk" => parse_vtk(&read_bytes(path)?, &name),
         "meshb" => parse_meshb(&read_bytes(path)?, &name),
         "node" | "ele" => {
@@ -62,7 +71,7 @@ pub fn read_mesh(path: &Path) -> Result<TetMesh> {
         }
         _ => Err(Error::InvalidInput(format!(
             "{name}: unknown mesh format; supported extensions: .mesh (Medit ASCII), .node/.ele (TetGen), \
-             .tet (the paper's code), .msh (Gmsh 2.2 or 4.1 ASCII), .vtk (legacy VTK, ASCII or binary), \
+             .tet (the paper's code), .msh (Gmsh 2.2 or 4.1, ASCII or binary), .vtk (legacy VTK, ASCII or binary), \
              .meshb (Medit binary)"
         ))),
     }
