@@ -96,14 +96,7 @@ pub fn in_mesh(mesh: &crate::TetMesh, n: usize, seed: u64) -> Vec<[f64; 3]> {
 /// space become neighbours in memory, which keeps caches (and GPU
 /// workgroups) on nearby data. Ties keep the input order.
 pub fn morton_order(points: &[[f64; 3]]) -> Vec<u32> {
-    let mut lo = [f64::INFINITY; 3];
-    let mut hi = [f64::NEG_INFINITY; 3];
-    for p in points {
-        for a in 0..3 {
-            lo[a] = lo[a].min(p[a]);
-            hi[a] = hi[a].max(p[a]);
-        }
-    }
+    let (lo, hi) = crate::vec3::bounding_box(points);
     let extent = (0..3).map(|a| hi[a] - lo[a]).fold(0.0f64, f64::max).max(f64::MIN_POSITIVE);
     // Spreads the low 10 bits of v to every third bit.
     let spread = |v: u32| {

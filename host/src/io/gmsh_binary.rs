@@ -7,6 +7,7 @@
 //! Sections other than `$MeshFormat`, `$Nodes` and `$Elements` are skipped
 //! up to their `$End` line.
 
+use super::binary::ByteReader;
 use crate::error::{Error, Result};
 use crate::mesh::TetMesh;
 use std::collections::HashMap;
@@ -37,59 +38,7 @@ fn element_kind(t: i64) -> Option<(usize, u8)> {
     })
 }
 
-struct Reader<'a> {
-    bytes: &'a [u8],
-    pos: usize,
-    little: bool,
-    name: &'a str,
-}
-
-impl<'a> Reader<'a> {
-    fn error(&self, message: impl Into<String>) -> Error {
-        Error::InvalidInput(format!("{}: at byte {}: {}", self.name, self.pos, message.into()))
-    }
-
-    fn take(&mut self, n: usize, what: &str) -> Result<&'a [u8]> {
-        let end = self.pos.checked_add(n).filter(|&e| e <= self.bytes.len());
-        let Some(end) = end else {
-            return Err(self.error(format!("expected {what}, found the end of the file")));
-        };
-        let s = &self.bytes[self.pos..end];
-        self.pos = end;
-        Ok(s)
-    }
-
-    fn int(&mut self, size: usize, what: &str) -> Result<i64> {
-        let b = self.take(size, what)?;
-        Ok(match (size, self.little) {
-            (4, true) => i32::from_le_bytes([b[0], b[1], b[2], b[3]]) as i64,
-            (4, false) => i32::from_be_bytes([b[0], b[1], b[2], b[3]]) as i64,
-            (_, true) => i64::from_le_bytes(b.try_into().unwrap_or([0; 8])),
-            (_, false) => i64::from_be_bytes(b.try_into().unwrap_or([0; 8])),
-        })
-    }
-
-    fn f64(&mut self, what: &str) -> Result<f64> {
-        let b: [u8; 8] = self.take(8, what)?.try_into().unwrap_or([0; 8]);
-        let x = if self.little { f64::from_le_bytes(b) } else { f64::from_be_bytes(b) };
-        if x.is_finite() {
-            Ok(x)
-        } else {
-            Err(self.error(format!("expected a finite number for {what}, found {x}")))
-        }
-    }
-
-    /// The next text line (without its newline).
-    fn line(&mut self) -> Option<&'a str> {
-        if self.pos >= self.bytes.len() {
-            return None;
-        }
-        let rest = &self.bytes[self.pos..];
-        let end = rest.iter().position(|&b| b == b'\n').unwrap_or(rest.len());
-        self.pos += (end + 1).min(rest.len());
-        Some(std::str::from_utf8(&rest[..end]).unwrap_or("").trim())
-    }
-
+impl ByteReader<'_> {
     /// A count that the rest of the file could hold at `bytes` each.
     fn count(&mut self, size: usize, bytes: usize, what: &str) -> Result<usize> {
         let n = self.int(size, what)?;
@@ -124,7 +73,7 @@ pub fn is_binary_gmsh(bytes: &[u8]) -> bool {
 
 /// A binary Gmsh `.msh` file, version 2.2 or 4.1.
 pub fn parse_gmsh_binary(bytes: &[u8], name: &str) -> Result<TetMesh> {
-    let mut r = Reader { bytes, pos: 0, little: true, name };
+    let mut r = ByteReader::new(bytes, name);
     r.line();
     let format = r.line().unwrap_or("");
     let words: Vec<&str> = format.split_ascii_whitespace().collect();
@@ -142,15 +91,7 @@ pub fn parse_gmsh_binary(bytes: &[u8], name: &str) -> Result<TetMesh> {
         Some(s @ (4 | 8)) => s,
         _ => return Err(r.error("expected a data size of 4 or 8 in $MeshFormat")),
     };
-    let check = r.take(4, "the byte-order check integer 1")?;
-    r.little = match (
-        i32::from_le_bytes([check[0], check[1], check[2], check[3]]),
-        i32::from_be_bytes([check[0], check[1], check[2], check[3]]),
-    ) {
-        (1, _) => true,
-        (_, 1) => false,
-        _ => return Err(r.error("the byte-order check integer is not 1")),
-    };
+    r.byte_order("the byte-order check integer")?;
     r.skip_to("$EndMeshFormat")?;
     let mut vertices: Vec<[f64; 3]> = Vec::new();
     let mut index: HashMap<i64, u32> = HashMap::new();
@@ -161,7 +102,7 @@ pub fn parse_gmsh_binary(bytes: &[u8], name: &str) -> Result<TetMesh> {
         match line {
             "" => {}
             "$Nodes" => {
-                let mut add = |r: &Reader, tag: i64, p: [f64; 3]| -> Result<()> {
+                let mut add = |r: &ByteReader, tag: i64, p: [f64; 3]| -> Result<()> {
                     let i = u32::try_from(vertices.len()).map_err(|_| r.error("more than 2^32 nodes"))?;
                     if index.insert(tag, i).is_some() {
                         return Err(r.error(format!("node tag {tag} appears twice")));
@@ -187,7 +128,8 @@ pub fn parse_gmsh_binary(bytes: &[u8], name: &str) -> Result<TetMesh> {
                             tags.push(r.int(size_t, "a node tag")?);
                         }
                         for tag in tags {
-                            let p = [r.f64("a coordinate")?, r.f64("a coordinate")?, r.f64("a coordinate")?];
+                            let p =
+                                [r.real(8, "a coordinate")?, r.real(8, "a coordinate")?, r.real(8, "a coordinate")?];
                             add(&r, tag, p)?;
                         }
                     }
@@ -199,7 +141,7 @@ pub fn parse_gmsh_binary(bytes: &[u8], name: &str) -> Result<TetMesh> {
                     }
                     for _ in 0..n {
                         let tag = r.int(4, "a node tag")?;
-                        let p = [r.f64("a coordinate")?, r.f64("a coordinate")?, r.f64("a coordinate")?];
+                        let p = [r.real(8, "a coordinate")?, r.real(8, "a coordinate")?, r.real(8, "a coordinate")?];
                         add(&r, tag, p)?;
                     }
                 }
@@ -207,7 +149,7 @@ pub fn parse_gmsh_binary(bytes: &[u8], name: &str) -> Result<TetMesh> {
             }
             "$Elements" => {
                 seen_elements = true;
-                let mut keep = |r: &Reader, kind: i64, nodes: &[i64]| -> Result<()> {
+                let mut keep = |r: &ByteReader, kind: i64, nodes: &[i64]| -> Result<()> {
                     let Some((_, dim)) = element_kind(kind) else {
                         return Err(r.error(format!("unknown element type {kind}")));
                     };

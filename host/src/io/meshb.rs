@@ -7,6 +7,7 @@
 //! keywords of lower dimension are skipped; hexahedra, prisms and pyramids
 //! are an error naming how many, so no part of a domain is lost silently.
 
+use super::binary::ByteReader;
 use crate::error::{Error, Result};
 use crate::mesh::TetMesh;
 
@@ -18,78 +19,28 @@ const PRISMS: u32 = 13;
 const PYRAMIDS: u32 = 49;
 const END: u32 = 54;
 
-struct Reader<'a> {
-    bytes: &'a [u8],
-    pos: usize,
-    little: bool,
-    name: &'a str,
-}
-
-impl Reader<'_> {
-    fn error(&self, message: impl Into<String>) -> Error {
-        Error::InvalidInput(format!("{}: at byte {}: {}", self.name, self.pos, message.into()))
-    }
-
-    fn take<const N: usize>(&mut self, what: &str) -> Result<[u8; N]> {
-        let end = self.pos.checked_add(N).filter(|&e| e <= self.bytes.len());
-        let Some(end) = end else {
-            return Err(self.error(format!("expected {what}, found the end of the file")));
-        };
-        let mut b = [0u8; N];
-        b.copy_from_slice(&self.bytes[self.pos..end]);
-        self.pos = end;
-        Ok(b)
-    }
-
-    fn i32(&mut self, what: &str) -> Result<i64> {
-        let b = self.take::<4>(what)?;
-        Ok(if self.little { i32::from_le_bytes(b) } else { i32::from_be_bytes(b) } as i64)
-    }
-
-    fn i64(&mut self, what: &str) -> Result<i64> {
-        let b = self.take::<8>(what)?;
-        Ok(if self.little { i64::from_le_bytes(b) } else { i64::from_be_bytes(b) })
-    }
-
-    fn f32(&mut self, what: &str) -> Result<f64> {
-        let b = self.take::<4>(what)?;
-        Ok(if self.little { f32::from_le_bytes(b) } else { f32::from_be_bytes(b) } as f64)
-    }
-
-    fn f64(&mut self, what: &str) -> Result<f64> {
-        let b = self.take::<8>(what)?;
-        Ok(if self.little { f64::from_le_bytes(b) } else { f64::from_be_bytes(b) })
-    }
-}
-
 /// A `.meshb` file.
 pub fn parse_meshb(bytes: &[u8], name: &str) -> Result<TetMesh> {
-    let mut r = Reader { bytes, pos: 0, little: true, name };
-    let code = r.take::<4>("the byte-order code 1")?;
-    r.little = match (u32::from_le_bytes(code), u32::from_be_bytes(code)) {
-        (1, _) => true,
-        (_, 1) => false,
-        _ => return Err(r.error("not a Medit binary file (its first integer is not 1 in either byte order)")),
-    };
-    let version = r.i32("the version")?;
+    let mut r = ByteReader::new(bytes, name);
+    r.byte_order("the first integer (1) of a Medit binary file")?;
+    let version = r.int(4, "the version")?;
     if !(1..=4).contains(&version) {
         return Err(r.error(format!("unsupported Medit binary version {version} (1 to 4 are)")));
     }
-    let int = |r: &mut Reader, what: &str| if version >= 4 { r.i64(what) } else { r.i32(what) };
-    let real = |r: &mut Reader, what: &str| if version >= 2 { r.f64(what) } else { r.f32(what) };
+    let int = |r: &mut ByteReader, what: &str| r.int(if version >= 4 { 8 } else { 4 }, what);
+    let real = |r: &mut ByteReader, what: &str| r.real(if version >= 2 { 8 } else { 4 }, what);
     let mut dimension = 3;
     let mut vertices: Option<Vec<[f64; 3]>> = None;
     let mut tets: Vec<[u32; 4]> = Vec::new();
     let mut others: Vec<(&str, i64)> = Vec::new();
     while r.pos < bytes.len() {
-        let keyword = r.i32("a keyword")? as u32;
+        let keyword = r.int(4, "a keyword")? as u32;
         if keyword == END {
             break;
         }
-        let next =
-            if version >= 3 { r.i64("the next keyword's position")? } else { r.i32("the next keyword's position")? };
+        let next = r.int(if version >= 3 { 8 } else { 4 }, "the next keyword's position")?;
         match keyword {
-            DIMENSION => dimension = r.i32("the dimension")?,
+            DIMENSION => dimension = r.int(4, "the dimension")?,
             VERTICES | TETRAHEDRA | HEXAHEDRA | PRISMS | PYRAMIDS => {
                 let count = int(&mut r, "a count")?;
                 // Each entry takes at least 8 bytes: a count beyond what
@@ -247,6 +198,6 @@ mod tests {
             }
         }
         let e = parse_meshb(b"\x02\0\0\0\x02\0\0\0", "x.meshb").unwrap_err().to_string();
-        assert!(e.contains("x.meshb") && e.contains("not a Medit binary file"), "{e}");
+        assert!(e.contains("x.meshb") && e.contains("of a Medit binary file is not 1"), "{e}");
     }
 }

@@ -10,6 +10,7 @@
 //! expected there; no input makes a reader panic, and counts read from a
 //! file only reserve as much memory as the file could actually fill.
 
+mod binary;
 mod gmsh;
 mod gmsh_binary;
 mod lex;
