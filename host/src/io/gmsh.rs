@@ -46,7 +46,8 @@ impl Nodes {
 
 /// Parses a Gmsh mesh in format 2.2 (also 2.0 and 2.1) or 4.1, ASCII. Of
 /// the elements, 4-node tets (type 4) are kept, and the corners of 10-node
-/// tets (type 11); the others are skipped, as are sections other than
+/// tets (type 11); those of lower dimension are skipped, other volume
+/// elements are an error; sections are skipped other than
 /// `$MeshFormat`, `$Nodes` and `$Elements`. Each entry is on its own line.
 pub fn parse_gmsh(text: &str, path: &str) -> Result<TetMesh> {
     let mut lex = Lexer::new(text, path);
@@ -138,6 +139,18 @@ fn tet_nodes(element_type: i64) -> Option<usize> {
     }
 }
 
+/// Elements of lower dimension are skipped; another volume element (a
+/// hexahedron, prism, pyramid, a higher-order one) is an error, so no part
+/// of the domain is lost silently.
+fn refuse_volume_element(line: &Line, ty: i64, id: &str) -> Result<()> {
+    match super::gmsh_binary::element_kind(ty) {
+        Some((_, 3)) => Err(line.error(format!(
+            "element {id} is of type {ty}, a volume element other than a tet: only tetrahedra are supported"
+        ))),
+        _ => Ok(()),
+    }
+}
+
 /// `$Nodes` of 2.2: the count, then `tag x y z` per line.
 fn nodes_v2(lex: &mut Lexer) -> Result<Nodes> {
     let n = lex.expect_line("the number of nodes after $Nodes")?.count("the number of nodes")?;
@@ -164,6 +177,7 @@ fn elements_v2(lex: &mut Lexer, nodes: &Nodes) -> Result<TetList> {
         let ty = line.int(format_args!("the type of element {id}"))?;
         let ntags = line.count(format_args!("the number of tags of element {id}"))?;
         let Some(corners) = tet_nodes(ty) else {
+            refuse_volume_element(&line, ty, id)?;
             continue;
         };
         let after = line.len().saturating_sub(3);
@@ -255,7 +269,10 @@ fn elements_v41(lex: &mut Lexer, nodes: &Nodes) -> Result<TetList> {
         let corners = tet_nodes(ty);
         for i in 1..=count {
             let mut line = lex.expect_line(format_args!("element {i} of {count} in entity block {b}"))?;
-            let Some(corners) = corners else { continue };
+            let Some(corners) = corners else {
+                refuse_volume_element(&line, ty, line.first().text)?;
+                continue;
+            };
             let id = line.first().text;
             line.expect_len(1 + corners, format_args!("a tag and {corners} node tags for element {id} of type {ty}"))?;
             line.tok();
@@ -291,6 +308,14 @@ pub(super) mod tests {
     #[test]
     fn valid_2_2() {
         assert_eq!(parse_gmsh(V22, "v.msh").unwrap(), two_tets());
+    }
+
+    #[test]
+    fn other_volume_elements_are_refused() {
+        let hexa = V22.replace("3 4 2 0 1 10 20 30 40", "3 5 2 0 1 10 20 30 40 50 10 20 30");
+        let (line, m) = parse_err(parse_gmsh(&hexa, "h.msh"));
+        assert_eq!(line, 20, "{m}");
+        assert!(m.contains("element 3 is of type 5"), "{m}");
     }
 
     #[test]

@@ -13,7 +13,7 @@ use crate::mesh::TetMesh;
 use std::collections::HashMap;
 
 /// Nodes per element of each Gmsh element type, and its dimension.
-fn element_kind(t: i64) -> Option<(usize, u8)> {
+pub(super) fn element_kind(t: i64) -> Option<(usize, u8)> {
     Some(match t {
         15 => (1, 0),
         1 => (2, 1),
