@@ -1,7 +1,7 @@
 """Reads a Medit .mesh with meshio, apart from the library that wrote it,
 and writes it again as legacy VTK (versions 4.2 and 5.1, ASCII and
-binary), Medit binary .meshb and Gmsh .msh (2.2 binary, 4.1 binary and
-ASCII);
+binary), VTK XML .vtu (ASCII, raw binary, zlib), Medit binary .meshb and
+Gmsh .msh (2.2 binary, 4.1 binary and ASCII);
 plus a grid holding a hexahedron. Prints the written paths as JSON."""
 
 import json
@@ -25,6 +25,9 @@ for name, options in {
     "v22_binary.msh": dict(file_format="gmsh22", binary=True),
     "v41_binary.msh": dict(file_format="gmsh", binary=True),
     "v41_ascii.msh": dict(file_format="gmsh", binary=False),
+    "ascii.vtu": dict(file_format="vtu", binary=False),
+    "raw.vtu": dict(file_format="vtu", binary=True, compression=None),
+    "zlib.vtu": dict(file_format="vtu", binary=True, compression="zlib"),
 }.items():
     path = os.path.join(out, name)
     meshio.write(path, tets, **options)

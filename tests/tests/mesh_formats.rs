@@ -1,6 +1,7 @@
 //! Tet meshes written by a real tool (meshio, installed from PyPI, apart
-//! from the library): legacy VTK 4.2 and 5.1, ASCII and binary, Medit
-//! binary `.meshb`, Gmsh `.msh` 2.2 binary and 4.1 binary and ASCII, read
+//! from the library): legacy VTK 4.2 and 5.1, ASCII and binary, VTK XML
+//! (ASCII, raw binary, zlib), Medit binary `.meshb`, Gmsh `.msh` 2.2
+//! binary and 4.1 binary and ASCII, read
 //! back equal to the mesh they were made from; a volume cell other than a
 //! tet is a named error.
 
@@ -46,6 +47,9 @@ fn vtk_files_written_by_meshio_read_back() {
         "v22_binary.msh",
         "v41_binary.msh",
         "v41_ascii.msh",
+        "ascii.vtu",
+        "raw.vtu",
+        "zlib.vtu",
     ] {
         let path = PathBuf::from(listing[name].as_str().unwrap());
         let read = cvd::io::read_mesh(&path).unwrap_or_else(|e| panic!("{name}: {e}"));

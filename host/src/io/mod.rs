@@ -1,8 +1,8 @@
 //! Reading tet meshes and site files, and writing them back.
 //!
 //! Meshes: Medit `.mesh`, TetGen `.node`/`.ele`, the `.tet` files of the
-//! paper's code, Gmsh `.msh` (2.2 and 4.1, ASCII and binary), legacy VTK `.vtk` and
-//! Medit binary `.meshb`.
+//! paper's code, Gmsh `.msh` (2.2 and 4.1, ASCII and binary), legacy VTK
+//! `.vtk`, VTK XML `.vtu` and Medit binary `.meshb`.
 //! Surfaces: `.stl`,
 //! `.obj`, `.off`, `.ply` ([`read_surface`]). Sites: `.xyz`.
 //!
@@ -20,6 +20,7 @@ mod surface;
 mod tet;
 mod tetgen;
 mod vtk;
+mod vtu;
 mod xyz;
 
 #[cfg(test)]
@@ -33,6 +34,7 @@ pub use surface::{parse_obj, parse_off, parse_ply, parse_stl, read_surface};
 pub use tet::parse_tet;
 pub use tetgen::parse_tetgen;
 pub use vtk::parse_vtk;
+pub use vtu::parse_vtu;
 pub use xyz::{parse_values, parse_xyz};
 
 use crate::error::{Error, Result};
@@ -45,7 +47,8 @@ use std::path::Path;
 /// `.mesh` (Medit), `.node` or `.ele` (TetGen: both files are read),
 /// `.tet` (the paper's code), `.msh` (Gmsh 2.2 or 4.1, ASCII or binary), `.vtk`
 /// (legacy VTK unstructured grids, ASCII or binary, versions 2 to 5.1),
-/// `.meshb` (Medit binary, versions 1 to 4).
+/// `.vtu` (VTK XML, inline ASCII or base64, raw or zlib), `.meshb` (Medit
+/// binary, versions 1 to 4).
 pub fn read_mesh(path: &Path) -> Result<TetMesh> {
     let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
     let name = path.display().to_string();
@@ -61,6 +64,7 @@ pub fn read_mesh(path: &Path) -> Result<TetMesh> {
             }
         }
         "vtk" => parse_vtk(&read_bytes(path)?, &name),
+        "vtu" => parse_vtu(&read_bytes(path)?, &name),
         "meshb" => parse_meshb(&read_bytes(path)?, &name),
         "node" | "ele" => {
             // The sibling keeps the case of the given extension.
@@ -73,7 +77,7 @@ pub fn read_mesh(path: &Path) -> Result<TetMesh> {
         _ => Err(Error::InvalidInput(format!(
             "{name}: unknown mesh format; supported extensions: .mesh (Medit ASCII), .node/.ele (TetGen), \
              .tet (the paper's code), .msh (Gmsh 2.2 or 4.1, ASCII or binary), .vtk (legacy VTK, ASCII or binary), \
-             .meshb (Medit binary)"
+             .vtu (VTK XML), .meshb (Medit binary)"
         ))),
     }
 }

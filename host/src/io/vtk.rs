@@ -4,8 +4,9 @@
 //! VTK 9 and meshio write by default).
 //!
 //! Read here rather than through a crate: the Rust crate for VTK files
-//! fails on version 5.1 and on meshio's files, and aborts (a stack
-//! overflow, which no caller can catch) on some malformed ones. Tetrahedra
+//! (`vtkio` 0.6) fails on version 5.1 and on meshio's `.vtu` files, and
+//! aborts (a stack overflow, which no caller can catch) on some malformed
+//! ones. Tetrahedra
 //! (cell type 10) become the mesh; cells of lower dimension (boundary
 //! triangles, edges, points) are skipped; any other volume cell is an error
 //! naming how many there are, so no part of a domain is lost silently.
@@ -15,9 +16,9 @@ use crate::error::{Error, Result};
 use crate::mesh::TetMesh;
 
 /// VTK cell types of dimension below 3 (skipped).
-const LOWER_DIMENSIONAL: [i64; 12] = [1, 2, 3, 4, 5, 6, 7, 8, 9, 21, 22, 23];
+pub(super) const LOWER_DIMENSIONAL: [i64; 12] = [1, 2, 3, 4, 5, 6, 7, 8, 9, 21, 22, 23];
 /// The tetrahedron.
-const TETRA: i64 = 10;
+pub(super) const TETRA: i64 = 10;
 
 /// The file as lines of text with binary blocks between them.
 struct Cursor<'a> {
