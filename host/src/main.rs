@@ -58,6 +58,10 @@ struct RunArgs {
     /// along its longest side; default 32) instead of --model.
     #[arg(long, conflicts_with = "mesh")]
     surface: Option<PathBuf>,
+    /// With --surface: about this many tets (sets the resolution; instead
+    /// of --resolution).
+    #[arg(long, conflicts_with = "resolution")]
+    tets: Option<usize>,
     /// Built-in model resolution: lattice cells along the longest side
     /// (cube: sub-cubes per side; default: joint 37, others 16).
     #[arg(long)]
@@ -141,7 +145,11 @@ fn load_model(args: &RunArgs) -> cvd::Result<(String, TetMesh)> {
 
 /// Reads, checks and meshes a closed surface, saying what was fixed and how
 /// good the mesh is.
-fn mesh_surface_file(path: &std::path::Path, resolution: Option<u32>) -> cvd::Result<(String, TetMesh)> {
+fn mesh_surface_file(
+    path: &std::path::Path,
+    resolution: Option<u32>,
+    tets: Option<usize>,
+) -> cvd::Result<(String, TetMesh)> {
     let name = path.display().to_string();
     let (surface, r) = cvd::io::read_surface(path)?.into_closed(&name)?;
     let mut fixed = Vec::new();
@@ -163,7 +171,11 @@ fn mesh_surface_file(path: &std::path::Path, resolution: Option<u32>) -> cvd::Re
         r.volume,
         if fixed.is_empty() { String::new() } else { format!("; {}", fixed.join(", ")) }
     );
-    let resolution = resolution.unwrap_or(32);
+    let resolution = match (resolution, tets) {
+        (Some(r), _) => r,
+        (None, Some(n)) => cvd::mesher::resolution_for_tets(&surface, n)?,
+        (None, None) => 32,
+    };
     let mesh = cvd::mesher::mesh_surface(&surface, resolution)?;
     let q = cvd::mesher::quality::Quality::of(&mesh);
     println!(
@@ -182,7 +194,7 @@ fn find_model(args: &RunArgs) -> cvd::Result<(String, TetMesh)> {
         return Ok((path.display().to_string(), cvd::io::read_mesh(path)?));
     }
     if let Some(path) = &args.surface {
-        return mesh_surface_file(path, args.resolution);
+        return mesh_surface_file(path, args.resolution, args.tets);
     }
     let dir = args.models_dir.clone().or_else(|| std::env::var_os("CVD_MODELS").map(PathBuf::from));
     if let Some(dir) = dir {
@@ -205,7 +217,7 @@ fn find_model(args: &RunArgs) -> cvd::Result<(String, TetMesh)> {
         }
         let surfaces = ["stl", "obj", "off", "ply"].map(|e| dir.join(format!("{name}.{e}")));
         if let Some(path) = surfaces.into_iter().find(|p| p.is_file()) {
-            return mesh_surface_file(&path, args.resolution);
+            return mesh_surface_file(&path, args.resolution, args.tets);
         }
     }
     let name = args.model.as_str();

@@ -273,6 +273,12 @@ fn a_surface_is_meshed_and_an_open_one_refused() {
     let summary: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("o/summary.json")).unwrap()).unwrap();
     assert!(summary["e_vol"].as_f64().unwrap() <= 1e-6, "{summary}");
+    let out = cvd_run(&dir, &["--surface", "box.off", "--tets", "20000", "--sites", "50", "--no-pieces", "--out", "t"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let tets = std::fs::read_to_string(dir.join("t/summary.json")).unwrap();
+    let tets: serde_json::Value = serde_json::from_str(&tets).unwrap();
+    let n = tets["tets"].as_f64().unwrap();
+    assert!((n - 20000.0).abs() < 0.3 * 20000.0, "--tets 20000 gave {n} tets");
     box_off(&dir.join("open.off"), true);
     let out = cvd_run(&dir, &["--surface", "open.off", "--sites", "10", "--no-pieces"]);
     assert_eq!(out.status.code(), Some(2));

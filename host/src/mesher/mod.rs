@@ -39,3 +39,13 @@ pub fn mesh_surface(surface: &crate::surface::TriSurface, resolution: u32) -> cr
     }
     stuffing::stuff(&field, &stuffing::Params::new(longest / resolution as f64))
 }
+
+/// The resolution at which [`mesh_surface`] gives about `tets` tets: the
+/// count at a coarse lattice, scaled by the cube root of the ratio (the
+/// count grows as the cube of the resolution).
+pub fn resolution_for_tets(surface: &crate::surface::TriSurface, tets: usize) -> crate::Result<u32> {
+    const PROBE: u32 = 12;
+    let probe = mesh_surface(surface, PROBE)?.tets.len().max(1);
+    let r = PROBE as f64 * (tets.max(1) as f64 / probe as f64).cbrt();
+    Ok(r.round().clamp(1.0, 4096.0) as u32)
+}
