@@ -365,14 +365,7 @@ impl<'a> ClippedVoronoi<'a> {
         let tet_knn = KnnJob::points_like(&site_knn, &centroids, k)?;
 
         // Box for Algorithm 1 (mesh and sites, with a margin).
-        let mut lo = [f64::INFINITY; 3];
-        let mut hi = [f64::NEG_INFINITY; 3];
-        for p in sites.iter().chain(&local_mesh.vertices) {
-            for a in 0..3 {
-                lo[a] = lo[a].min(p[a]);
-                hi[a] = hi[a].max(p[a]);
-            }
-        }
+        let (lo, hi) = crate::vec3::bounding_box(sites.iter().chain(&local_mesh.vertices));
         let diag = (0..3).map(|a| (hi[a] - lo[a]).powi(2)).sum::<f64>().sqrt();
         let margin = 0.01 * diag.max(1e-3);
         // Per-site sums, and their total over all sites, are at most (mesh

@@ -130,6 +130,32 @@ fn xyz(line: &mut Line, node: impl std::fmt::Display + Copy) -> Result<[f64; 3]>
     Ok(p)
 }
 
+/// Nodes per element of each Gmsh element type, and its dimension.
+pub(super) fn element_kind(t: i64) -> Option<(usize, u8)> {
+    Some(match t {
+        15 => (1, 0),
+        1 => (2, 1),
+        8 => (3, 1),
+        2 => (3, 2),
+        3 => (4, 2),
+        9 => (6, 2),
+        16 => (8, 2),
+        10 => (9, 2),
+        4 => (4, 3),
+        11 => (10, 3),
+        5 => (8, 3),
+        6 => (6, 3),
+        7 => (5, 3),
+        17 => (20, 3),
+        12 => (27, 3),
+        18 => (15, 3),
+        13 => (18, 3),
+        19 => (13, 3),
+        14 => (14, 3),
+        _ => return None,
+    })
+}
+
 /// How many node tags of an element type to read, and how many to keep.
 fn tet_nodes(element_type: i64) -> Option<usize> {
     match element_type {
@@ -143,7 +169,7 @@ fn tet_nodes(element_type: i64) -> Option<usize> {
 /// hexahedron, prism, pyramid, a higher-order one) is an error, so no part
 /// of the domain is lost silently.
 fn refuse_volume_element(line: &Line, ty: i64, id: &str) -> Result<()> {
-    match super::gmsh_binary::element_kind(ty) {
+    match element_kind(ty) {
         Some((_, 3)) => Err(line.error(format!(
             "element {id} is of type {ty}, a volume element other than a tet: only tetrahedra are supported"
         ))),

@@ -8,35 +8,10 @@
 //! up to their `$End` line.
 
 use super::binary::ByteReader;
+use super::gmsh::element_kind;
 use crate::error::{Error, Result};
 use crate::mesh::TetMesh;
 use std::collections::HashMap;
-
-/// Nodes per element of each Gmsh element type, and its dimension.
-pub(super) fn element_kind(t: i64) -> Option<(usize, u8)> {
-    Some(match t {
-        15 => (1, 0),
-        1 => (2, 1),
-        8 => (3, 1),
-        2 => (3, 2),
-        3 => (4, 2),
-        9 => (6, 2),
-        16 => (8, 2),
-        10 => (9, 2),
-        4 => (4, 3),
-        11 => (10, 3),
-        5 => (8, 3),
-        6 => (6, 3),
-        7 => (5, 3),
-        17 => (20, 3),
-        12 => (27, 3),
-        18 => (15, 3),
-        13 => (18, 3),
-        19 => (13, 3),
-        14 => (14, 3),
-        _ => return None,
-    })
-}
 
 impl ByteReader<'_> {
     /// A count that the rest of the file could hold at `bytes` each.

@@ -41,10 +41,9 @@ impl<'a> Cursor<'a> {
             let end = rest.iter().position(|&b| b == b'\n').unwrap_or(rest.len());
             self.pos += (end + 1).min(rest.len());
             self.line += 1;
-            let text = String::from_utf8_lossy(&rest[..end]);
-            if !text.trim().is_empty() {
-                // Lines are ASCII keywords: a lossy copy is never needed
-                // beyond the error message, so keep the raw slice.
+            if rest[..end].iter().any(|b| !b.is_ascii_whitespace()) {
+                // Keyword lines are ASCII; anything else reads as U+FFFD
+                // and is reported where a keyword was expected.
                 return Some(std::str::from_utf8(&rest[..end]).unwrap_or("\u{fffd}").trim());
             }
         }

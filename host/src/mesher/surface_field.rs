@@ -18,7 +18,7 @@ use super::sdf::Shape;
 use crate::surface::TriSurface;
 use std::collections::HashMap;
 
-use crate::vec3::{add, cross, dot, scale, sub, unit, P};
+use crate::vec3::{add, bounding_box, cross, dot, scale, sub, unit, P};
 
 /// The feature of a triangle a point is nearest to.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -82,9 +82,9 @@ struct Node {
 }
 
 /// The signed distance to a closed, outward-oriented triangle surface.
-pub struct SurfaceDistance {
-    vertices: Vec<P>,
-    triangles: Vec<[u32; 3]>,
+pub struct SurfaceDistance<'a> {
+    /// The surface.
+    surface: &'a TriSurface,
     /// Triangles in hierarchy order.
     order: Vec<u32>,
     nodes: Vec<Node>,
@@ -92,17 +92,15 @@ pub struct SurfaceDistance {
     /// Per triangle and edge `k` (corner k to k + 1): the edge's pseudo-normal.
     edge_normal: Vec<[P; 3]>,
     vertex_normal: Vec<P>,
-    lo: P,
-    hi: P,
 }
 
 const LEAF: usize = 4;
 
-impl SurfaceDistance {
+impl<'a> SurfaceDistance<'a> {
     /// The field of `surface`, which must be closed and oriented outward
     /// ([`TriSurface::into_closed`]).
-    pub fn new(surface: &TriSurface) -> Self {
-        let (vertices, triangles) = (surface.vertices.clone(), surface.triangles.clone());
+    pub fn new(surface: &'a TriSurface) -> Self {
+        let (vertices, triangles) = (&surface.vertices, &surface.triangles);
         let corners = |t: usize| triangles[t].map(|v| vertices[v as usize]);
         let face_normal: Vec<P> = (0..triangles.len())
             .map(|t| {
@@ -134,27 +132,16 @@ impl SurfaceDistance {
                 })
             })
             .collect();
-        let (lo, hi) = surface.bounding_box();
-        let mut field = Self {
-            vertices,
-            triangles,
-            order: Vec::new(),
-            nodes: Vec::new(),
-            face_normal,
-            edge_normal,
-            vertex_normal,
-            lo,
-            hi,
-        };
+        let mut field = Self { surface, order: Vec::new(), nodes: Vec::new(), face_normal, edge_normal, vertex_normal };
         field.build();
         field
     }
 
     fn build(&mut self) {
-        let n = self.triangles.len();
+        let n = self.surface.triangles.len();
         let centroid: Vec<P> = (0..n)
             .map(|t| {
-                let [a, b, c] = self.triangles[t].map(|v| self.vertices[v as usize]);
+                let [a, b, c] = self.surface.triangles[t].map(|v| self.surface.vertices[v as usize]);
                 scale(add(a, add(b, c)), 1.0 / 3.0)
             })
             .collect();
@@ -164,22 +151,11 @@ impl SurfaceDistance {
         while let Some(i) = stack.pop() {
             let (start, count) = (self.nodes[i].start as usize, self.nodes[i].count as usize);
             let range = start..start + count;
-            let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
-            let (mut clo, mut chi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
-            for &t in &self.order[range.clone()] {
-                for v in self.triangles[t as usize] {
-                    let p = self.vertices[v as usize];
-                    for a in 0..3 {
-                        lo[a] = lo[a].min(p[a]);
-                        hi[a] = hi[a].max(p[a]);
-                    }
-                }
-                let c = centroid[t as usize];
-                for a in 0..3 {
-                    clo[a] = clo[a].min(c[a]);
-                    chi[a] = chi[a].max(c[a]);
-                }
-            }
+            let (tris, verts) = (&self.surface.triangles, &self.surface.vertices);
+            let corners =
+                self.order[range.clone()].iter().flat_map(|&t| tris[t as usize].iter().map(|&v| &verts[v as usize]));
+            let (lo, hi) = bounding_box(corners);
+            let (clo, chi) = bounding_box(self.order[range.clone()].iter().map(|&t| &centroid[t as usize]));
             self.nodes[i].lo = lo;
             self.nodes[i].hi = hi;
             if count <= LEAF {
@@ -216,7 +192,7 @@ impl SurfaceDistance {
             }
             if node.count > 0 {
                 for &t in &self.order[node.start as usize..(node.start + node.count) as usize] {
-                    let [a, b, c] = self.triangles[t as usize].map(|v| self.vertices[v as usize]);
+                    let [a, b, c] = self.surface.triangles[t as usize].map(|v| self.surface.vertices[v as usize]);
                     let (q, f) = nearest_on_triangle(p, a, b, c);
                     let d2 = dot(sub(p, q), sub(p, q));
                     if d2 < best.0 {
@@ -246,7 +222,7 @@ impl SurfaceDistance {
         let n = match feature {
             Feature::Face => self.face_normal[t],
             Feature::Edge(k) => self.edge_normal[t][k],
-            Feature::Vertex(k) => self.vertex_normal[self.triangles[t][k] as usize],
+            Feature::Vertex(k) => self.vertex_normal[self.surface.triangles[t][k] as usize],
         };
         let d = d2.sqrt();
         if dot(sub(p, q), n) < 0.0 {
@@ -257,13 +233,13 @@ impl SurfaceDistance {
     }
 }
 
-impl Shape for SurfaceDistance {
+impl Shape for SurfaceDistance<'_> {
     fn eval(&self, p: P) -> f64 {
         self.distance(p)
     }
 
     fn bounds(&self) -> (P, P) {
-        (self.lo, self.hi)
+        self.surface.bounding_box()
     }
 }
 
