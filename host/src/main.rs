@@ -55,7 +55,7 @@ struct RunArgs {
     mesh: Option<PathBuf>,
     /// A closed triangle surface (.stl, .obj, .off, .ply) whose volume is
     /// meshed into tets (isosurface stuffing, --resolution lattice cubes
-    /// along its longest side; default 32) instead of --model.
+    /// along its longest side; default 40) instead of --model.
     #[arg(long, conflicts_with = "mesh")]
     surface: Option<PathBuf>,
     /// With --surface: about this many tets (sets the resolution; instead
@@ -174,7 +174,7 @@ fn mesh_surface_file(
     let resolution = match (resolution, tets) {
         (Some(r), _) => r,
         (None, Some(n)) => cvd::mesher::resolution_for_tets(&surface, n)?,
-        (None, None) => 32,
+        (None, None) => cvd::mesher::DEFAULT_SURFACE_RESOLUTION,
     };
     let mesh = cvd::mesher::mesh_surface(&surface, resolution)?;
     let q = cvd::mesher::quality::Quality::of(&mesh);

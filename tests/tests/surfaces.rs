@@ -117,13 +117,18 @@ fn a_diagram_on_a_meshed_surface_adds_up() {
 }
 
 /// The shared models' boundary surfaces (`../shared/models`, when present),
-/// meshed again at the default resolution: the volume against the
-/// surface's. A measurement (docs/BENCHMARKS.md): run with
+/// meshed again at resolutions 8 to 64: the volume against the surface's,
+/// printed, and drawn (`CVD_SURFACE_FIGURE`, default
+/// `surface_volume_gap.png` in the temporary folder; the figure in
+/// docs/images). A measurement (docs/BENCHMARKS.md): run with
 /// `cargo test --release -p cvd-tests --test surfaces -- --ignored --nocapture`.
 #[test]
 #[ignore = "a measurement on the shared models, run by hand"]
 fn shared_model_surfaces_mesh_again() {
+    const RESOLUTIONS: [u32; 8] = [8, 12, 16, 24, 32, 40, 48, 64];
+    const COLOURS: [[u8; 3]; 4] = [[31, 119, 180], [255, 127, 14], [44, 160, 44], [214, 39, 40]];
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/models");
+    let mut lines: Vec<(String, Vec<f64>)> = Vec::new();
     for name in ["torus_8k", "bunny_10k", "fandisk_26k", "joint_31k"] {
         let path = dir.join(format!("{name}.mesh"));
         if !path.is_file() {
@@ -144,20 +149,37 @@ fn shared_model_surfaces_mesh_again() {
         let triangles = faces.values().filter(|(n, _)| *n == 1).map(|(_, f)| *f).collect();
         let surface = cvd::surface::TriSurface::new(mesh.vertices.clone(), triangles).unwrap();
         let (surface, r) = surface.into_closed(name).unwrap();
-        let start = std::time::Instant::now();
-        let again = mesh_surface(&surface, 32).unwrap();
-        let seconds = start.elapsed().as_secs_f64();
-        let q = Quality::of(&again);
-        println!(
-            "{name}: {} triangles, volume {:.6} (tets {:.6}); again at resolution 32: {} tets in {seconds:.2} s, \
-             volume {:+.3} %, dihedral {:.1}..{:.1}",
-            r.triangles,
-            r.volume,
-            mesh.volume(),
-            again.tets.len(),
-            100.0 * (again.volume() - r.volume) / r.volume,
-            q.min_dihedral,
-            q.max_dihedral
-        );
+        println!("{name}: {} triangles, volume {:.6} (tets {:.6})", r.triangles, r.volume, mesh.volume());
+        let mut gaps = Vec::new();
+        for resolution in RESOLUTIONS {
+            let start = std::time::Instant::now();
+            let again = mesh_surface(&surface, resolution).unwrap();
+            let seconds = start.elapsed().as_secs_f64();
+            let q = Quality::of(&again);
+            let gap = (again.volume() - r.volume) / r.volume;
+            println!(
+                "  resolution {resolution:>2}: {:>7} tets in {seconds:.2} s, volume {:+.3} %, dihedral {:.1}..{:.1}",
+                again.tets.len(),
+                100.0 * gap,
+                q.min_dihedral,
+                q.max_dihedral
+            );
+            gaps.push(gap.abs());
+        }
+        lines.push((name.to_string(), gaps));
     }
+    if lines.is_empty() {
+        return;
+    }
+    let x: Vec<f64> = RESOLUTIONS.iter().map(|&r| r as f64).collect();
+    let series: Vec<cvd::output::Series> = lines
+        .iter()
+        .zip(COLOURS)
+        .map(|((name, gaps), rgb)| cvd::output::Series { name: name.as_str(), values: gaps, x: &x, rgb })
+        .collect();
+    let figure = std::env::var_os("CVD_SURFACE_FIGURE")
+        .map_or_else(|| std::env::temp_dir().join("surface_volume_gap.png"), PathBuf::from);
+    let axes = cvd::output::Axes { x_name: "resolution", y_name: "volume gap", log_y: true };
+    cvd::output::write_chart_png(&figure, &axes, &series).unwrap();
+    println!("figure: {}", figure.display());
 }
