@@ -32,8 +32,17 @@ can (xtask/install-deps; CVD_XTASK_NO_SETUP=1 skips this), and exits with the st
 
 /// Paths given after these options are made absolute: cargo runs benches
 /// from the package's folder, not from where the user typed the command.
-const PATH_OPTIONS: &[&str] =
-    &["--json", "--models-dir", "--mesh", "--surface", "--sites-file", "--output", "--out", "--plots", "--density-file"];
+const PATH_OPTIONS: &[&str] = &[
+    "--json",
+    "--models-dir",
+    "--mesh",
+    "--surface",
+    "--sites-file",
+    "--output",
+    "--out",
+    "--plots",
+    "--density-file",
+];
 
 fn absolute_paths(args: &[String]) -> Vec<String> {
     let cwd = std::env::current_dir().unwrap_or_default();

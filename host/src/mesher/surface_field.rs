@@ -1,10 +1,8 @@
 //! The signed distance to a closed triangle surface, for stuffing the
 //! volume it encloses.
 //!
-//! The distance is found through a bounding-volume hierarchy over the
-//! triangles (boxes split at the median of the longest axis, four
-//! triangles per leaf; a query visits nodes nearest first and skips those
-//! farther than the best so far). Its sign comes from the angle-weighted
+//! The distance is found through the surface's bounding-volume hierarchy
+//! ([`TriangleTree`]). Its sign comes from the angle-weighted
 //! pseudo-normal of the nearest feature (J. A. Bærentzen and H. Aanæs,
 //! *Signed distance computation using the angle weighted pseudonormal*,
 //! IEEE TVCG 2005): the face normal when the nearest point is inside a
@@ -18,7 +16,8 @@ use super::sdf::Shape;
 use crate::surface::TriSurface;
 use std::collections::HashMap;
 
-use crate::vec3::{add, bounding_box, cross, dot, scale, sub, unit, P};
+use crate::surface::bvh::TriangleTree;
+use crate::vec3::{add, cross, dot, scale, sub, unit, P};
 
 /// The feature of a triangle a point is nearest to.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -69,32 +68,16 @@ fn nearest_on_triangle(p: P, a: P, b: P, c: P) -> (P, Feature) {
     (add(a, add(scale(ab, v), scale(ac, w))), Feature::Face)
 }
 
-/// A node of the hierarchy: a box and either two children or a range of
-/// the ordered triangles.
-#[derive(Clone, Copy, Debug)]
-struct Node {
-    lo: P,
-    hi: P,
-    /// Leaf: first triangle (in `order`); inner: first child.
-    start: u32,
-    /// Leaf: triangle count; inner: 0.
-    count: u32,
-}
-
 /// The signed distance to a closed, outward-oriented triangle surface.
 pub struct SurfaceDistance<'a> {
     /// The surface.
     surface: &'a TriSurface,
-    /// Triangles in hierarchy order.
-    order: Vec<u32>,
-    nodes: Vec<Node>,
+    tree: TriangleTree,
     face_normal: Vec<P>,
     /// Per triangle and edge `k` (corner k to k + 1): the edge's pseudo-normal.
     edge_normal: Vec<[P; 3]>,
     vertex_normal: Vec<P>,
 }
-
-const LEAF: usize = 4;
 
 impl<'a> SurfaceDistance<'a> {
     /// The field of `surface`, which must be closed and oriented outward
@@ -132,87 +115,19 @@ impl<'a> SurfaceDistance<'a> {
                 })
             })
             .collect();
-        let mut field = Self { surface, order: Vec::new(), nodes: Vec::new(), face_normal, edge_normal, vertex_normal };
-        field.build();
-        field
-    }
-
-    fn build(&mut self) {
-        let n = self.surface.triangles.len();
-        let centroid: Vec<P> = (0..n)
-            .map(|t| {
-                let [a, b, c] = self.surface.triangles[t].map(|v| self.surface.vertices[v as usize]);
-                scale(add(a, add(b, c)), 1.0 / 3.0)
-            })
-            .collect();
-        self.order = (0..n as u32).collect();
-        self.nodes.push(Node { lo: [0.0; 3], hi: [0.0; 3], start: 0, count: n as u32 });
-        let mut stack = vec![0usize];
-        while let Some(i) = stack.pop() {
-            let (start, count) = (self.nodes[i].start as usize, self.nodes[i].count as usize);
-            let range = start..start + count;
-            let (tris, verts) = (&self.surface.triangles, &self.surface.vertices);
-            let corners =
-                self.order[range.clone()].iter().flat_map(|&t| tris[t as usize].iter().map(|&v| &verts[v as usize]));
-            let (lo, hi) = bounding_box(corners);
-            let (clo, chi) = bounding_box(self.order[range.clone()].iter().map(|&t| &centroid[t as usize]));
-            self.nodes[i].lo = lo;
-            self.nodes[i].hi = hi;
-            if count <= LEAF {
-                continue;
-            }
-            let axis = (0..3).max_by(|&a, &b| (chi[a] - clo[a]).total_cmp(&(chi[b] - clo[b]))).unwrap_or(0);
-            let mid = count / 2;
-            self.order[range].select_nth_unstable_by(mid, |&x, &y| {
-                centroid[x as usize][axis].total_cmp(&centroid[y as usize][axis])
-            });
-            let first = self.nodes.len();
-            self.nodes.push(Node { lo, hi, start: start as u32, count: mid as u32 });
-            self.nodes.push(Node { lo, hi, start: (start + mid) as u32, count: (count - mid) as u32 });
-            self.nodes[i].start = first as u32;
-            self.nodes[i].count = 0;
-            stack.push(first);
-            stack.push(first + 1);
-        }
-    }
-
-    fn box_dist2(node: &Node, p: P) -> f64 {
-        (0..3).map(|a| (node.lo[a] - p[a]).max(0.0).max(p[a] - node.hi[a]).powi(2)).sum()
+        Self { surface, tree: TriangleTree::new(surface), face_normal, edge_normal, vertex_normal }
     }
 
     /// The nearest point of the surface to `p`: squared distance,
     /// triangle and feature.
     fn nearest(&self, p: P) -> (f64, u32, Feature, P) {
-        let mut best = (f64::INFINITY, 0u32, Feature::Face, p);
-        let mut stack = vec![0usize];
-        while let Some(i) = stack.pop() {
-            let node = self.nodes[i];
-            if Self::box_dist2(&node, p) >= best.0 {
-                continue;
-            }
-            if node.count > 0 {
-                for &t in &self.order[node.start as usize..(node.start + node.count) as usize] {
-                    let [a, b, c] = self.surface.triangles[t as usize].map(|v| self.surface.vertices[v as usize]);
-                    let (q, f) = nearest_on_triangle(p, a, b, c);
-                    let d2 = dot(sub(p, q), sub(p, q));
-                    if d2 < best.0 {
-                        best = (d2, t, f, q);
-                    }
-                }
-            } else {
-                // The nearer child last, so that it is searched first.
-                let (l, r) = (node.start as usize, node.start as usize + 1);
-                let (dl, dr) = (Self::box_dist2(&self.nodes[l], p), Self::box_dist2(&self.nodes[r], p));
-                if dl < dr {
-                    stack.push(r);
-                    stack.push(l);
-                } else {
-                    stack.push(l);
-                    stack.push(r);
-                }
-            }
-        }
-        best
+        let nearest = self.tree.nearest(p, |t| {
+            let [a, b, c] = self.surface.triangles[t as usize].map(|v| self.surface.vertices[v as usize]);
+            let (q, f) = nearest_on_triangle(p, a, b, c);
+            (dot(sub(p, q), sub(p, q)), (f, q))
+        });
+        let (d2, t, (f, q)) = nearest.unwrap_or((f64::INFINITY, 0, (Feature::Face, p)));
+        (d2, t, f, q)
     }
 
     /// The signed distance at `p`: negative inside.

@@ -11,6 +11,8 @@
 //! Triangles with a repeated vertex are dropped and counted; triangles of
 //! zero area are counted.
 
+pub mod bvh;
+
 use crate::error::{Error, Result};
 use std::collections::HashMap;
 
@@ -65,7 +67,7 @@ impl TriSurface {
         Ok(Self { vertices, triangles })
     }
 
-    fn corners(&self, t: usize) -> [P; 3] {
+    pub(crate) fn corners(&self, t: usize) -> [P; 3] {
         self.triangles[t].map(|v| self.vertices[v as usize])
     }
 
