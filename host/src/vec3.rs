@@ -5,36 +5,43 @@
 pub type P = [f64; 3];
 
 /// `a - b`.
+#[inline]
 pub fn sub(a: P, b: P) -> P {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }
 
 /// `a + b`.
+#[inline]
 pub fn add(a: P, b: P) -> P {
     [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
 }
 
 /// `a * s`.
+#[inline]
 pub fn scale(a: P, s: f64) -> P {
     [a[0] * s, a[1] * s, a[2] * s]
 }
 
 /// `a · b`.
+#[inline]
 pub fn dot(a: P, b: P) -> f64 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
 /// `a × b`.
+#[inline]
 pub fn cross(a: P, b: P) -> P {
     [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
 }
 
 /// `|a|`.
+#[inline]
 pub fn norm(a: P) -> f64 {
     dot(a, a).sqrt()
 }
 
 /// `a / |a|` (`a` itself when it is zero).
+#[inline]
 pub fn unit(a: P) -> P {
     let n = norm(a);
     if n > 0.0 {

@@ -1,6 +1,6 @@
 """Writes closed surfaces with trimesh, apart from the library that reads
 them, in every format it exports (STL binary and ASCII, OBJ, OFF, PLY
-binary and ASCII), plus one open surface; prints as JSON each shape's
+binary and ASCII), plus one open surface and two overlapping boxes; prints as JSON each shape's
 files and the volume trimesh computes for it."""
 
 import json
@@ -38,4 +38,11 @@ open_box = trimesh.creation.box(extents=[1.0, 1.0, 1.0])
 open_box.update_faces([i != 0 for i in range(len(open_box.faces))])
 open_path = os.path.join(out, "open_box.stl")
 open_box.export(open_path, file_type="stl")
-print(json.dumps({"shapes": listing, "open": open_path}))
+# Two overlapping boxes left as two shells (a union not joined).
+overlap = trimesh.util.concatenate(
+    [trimesh.creation.box(extents=[1.0, 1.0, 1.0]),
+     trimesh.creation.box(extents=[1.0, 1.0, 1.0]).apply_translation([0.43, 0.31, 0.27])]
+)
+overlap_path = os.path.join(out, "overlapping_boxes.stl")
+overlap.export(overlap_path, file_type="stl")
+print(json.dumps({"shapes": listing, "open": open_path, "overlapping": overlap_path}))

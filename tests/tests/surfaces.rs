@@ -3,7 +3,8 @@
 //! with trimesh's volume; the enclosed volume is stuffed with tets whose
 //! dihedral angles keep the stuffing's bounds and whose volume approaches
 //! the surface's as the lattice refines; a clipped Voronoi diagram on it
-//! adds up to the mesh on both backends; an open surface is a named error.
+//! adds up to the mesh on both backends; an open surface and two overlapping
+//! shells are named errors.
 
 use cvd::mesher::mesh_surface;
 use cvd::mesher::quality::{Conformity, Quality};
@@ -68,6 +69,10 @@ fn surfaces_from_trimesh_read_check_and_mesh() {
     let surface = cvd::io::read_surface(Path::new(open)).unwrap();
     let e = surface.into_closed(open).unwrap_err().to_string();
     assert!(e.contains(open) && e.contains("boundary (open) edges"), "{e}");
+    let overlapping = listing["overlapping"].as_str().unwrap();
+    let surface = cvd::io::read_surface(Path::new(overlapping)).unwrap();
+    let e = surface.into_closed(overlapping).unwrap_err().to_string();
+    assert!(e.contains(overlapping) && e.contains("crosses itself") && e.contains("shells 0 and 1"), "{e}");
     std::fs::remove_dir_all(&dir).ok();
 }
 

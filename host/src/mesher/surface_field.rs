@@ -10,7 +10,8 @@
 //! angle-weighted normal at a vertex. For a closed, consistently oriented
 //! surface — what [`TriSurface::into_closed`] hands over — this sign is
 //! exact, however sharp the surface's creases and corners; a surface with
-//! cracks or self-touching parts is refused before it gets here.
+//! cracks, self-touching parts (non-manifold edges) or triangles crossing
+//! each other is refused before it gets here.
 
 use super::sdf::Shape;
 use crate::surface::TriSurface;
@@ -32,6 +33,7 @@ enum Feature {
 
 /// The point of triangle `a, b, c` nearest `p`, and its feature (C.
 /// Ericson, *Real-Time Collision Detection*, 5.1.5).
+#[inline(always)]
 fn nearest_on_triangle(p: P, a: P, b: P, c: P) -> (P, Feature) {
     let (ab, ac, ap) = (sub(b, a), sub(c, a), sub(p, a));
     let (d1, d2) = (dot(ab, ap), dot(ac, ap));

@@ -79,31 +79,34 @@ impl TriangleTree {
     /// nodes are visited nearest first and skipped when farther than the
     /// best so far. `None` for a surface without triangles.
     pub fn nearest<R>(&self, p: P, mut dist2: impl FnMut(u32) -> (f64, R)) -> Option<(f64, u32, R)> {
-        let mut best: Option<(f64, u32, R)> = None;
+        let (mut best_d2, mut best) = (f64::INFINITY, None);
         let mut stack = vec![0usize];
         while let Some(i) = stack.pop() {
             let node = &self.nodes[i];
-            if best.as_ref().is_some_and(|b| box_dist2(node, p) >= b.0) {
+            if box_dist2(node, p) >= best_d2 {
                 continue;
             }
             if node.count > 0 {
                 for &t in self.leaf(node) {
                     let (d2, r) = dist2(t);
-                    if best.as_ref().is_none_or(|b| d2 < b.0) {
-                        best = Some((d2, t, r));
+                    if d2 < best_d2 {
+                        best_d2 = d2;
+                        best = Some((t, r));
                     }
                 }
             } else {
                 // The nearer child last, so that it is searched first.
                 let (l, r) = (node.start as usize, node.start as usize + 1);
                 if box_dist2(&self.nodes[l], p) < box_dist2(&self.nodes[r], p) {
-                    stack.extend([r, l]);
+                    stack.push(r);
+                    stack.push(l);
                 } else {
-                    stack.extend([l, r]);
+                    stack.push(l);
+                    stack.push(r);
                 }
             }
         }
-        best
+        best.map(|(t, r)| (best_d2, t, r))
     }
 
     /// Calls `visit` with every triangle whose leaf's box overlaps the box

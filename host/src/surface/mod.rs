@@ -4,14 +4,16 @@
 //!
 //! [`TriSurface::into_closed`] says exactly what keeps a surface from
 //! enclosing a volume — boundary (open) edges, non-manifold edges, a
-//! non-orientable component — naming the file and an example edge; it
-//! fixes what has one meaning: triangles whose orientation disagrees with
-//! their neighbours' are turned, a shell facing inward is turned outward,
-//! and a shell nested inside another one is turned inward (a hole).
+//! non-orientable component, triangles crossing each other — naming the
+//! file and an example edge or pair of triangles; it fixes what has one
+//! meaning: triangles whose orientation disagrees with their neighbours'
+//! are turned, a shell facing inward is turned outward, and a shell nested
+//! inside another one is turned inward (a hole).
 //! Triangles with a repeated vertex are dropped and counted; triangles of
 //! zero area are counted.
 
 pub mod bvh;
+pub mod crossing;
 
 use crate::error::{Error, Result};
 use std::collections::HashMap;
@@ -208,6 +210,20 @@ impl TriSurface {
         }
         report.shells = shells as usize;
 
+        // A surface crossing itself has no one inside (see `crossing`).
+        if let (count, Some((t, u))) = crossing::crossings(&self, &bvh::TriangleTree::new(&self)) {
+            let (st, su) = (shell[t as usize], shell[u as usize]);
+            let whose = if st == su {
+                format!("both of shell {st}, which folds through itself")
+            } else {
+                format!("of shells {st} and {su}, which overlap: join them into one surface (their union)")
+            };
+            return Err(Error::InvalidInput(format!(
+                "{name}: the surface crosses itself, so its inside is ambiguous: {count} pairs of triangles \
+                 intersect (e.g. triangles {t} and {u}, {whose})"
+            )));
+        }
+
         // Each shell outward, then nested shells inward: a shell inside an
         // odd number of others is a hole.
         let mut volume = vec![0.0; shells as usize];
@@ -321,6 +337,16 @@ pub(crate) mod tests {
         let (c, r) = s.into_closed("box").unwrap();
         assert_eq!(r.flipped_shells, 1);
         assert!((c.signed_volume() - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn overlapping_shells_are_refused_by_name() {
+        let mut s = box_surface([0.0; 3], [2.0; 3]);
+        let b = box_surface([0.9, 1.2, 1.3], [3.1, 2.7, 3.3]);
+        s.vertices.extend(&b.vertices);
+        s.triangles.extend(b.triangles.iter().map(|t| t.map(|v| v + 8)));
+        let e = s.into_closed("two.stl").unwrap_err().to_string();
+        assert!(e.contains("two.stl: the surface crosses itself") && e.contains("shells 0 and 1"), "{e}");
     }
 
     #[test]
