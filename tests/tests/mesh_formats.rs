@@ -1,43 +1,63 @@
 //! Tet meshes written by a real tool (meshio, installed from PyPI, apart
 //! from the library): legacy VTK 4.2 and 5.1, ASCII and binary, VTK XML
 //! (ASCII, raw binary, zlib), Medit binary `.meshb`, Gmsh `.msh` 2.2
-//! binary and 4.1 binary and ASCII, read
-//! back equal to the mesh they were made from; a volume cell other than a
-//! tet is a named error.
+//! binary and 4.1 binary and ASCII; and by VTK itself (the `vtk` package,
+//! ParaView's writer): `.vtu` with appended raw or base64 data, with and
+//! without zlib, 32- and 64-bit headers. Each reads back equal to the mesh
+//! it was made from; a volume cell other than a tet is a named error.
 
 use cvd::TetMesh;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::Command;
 
-#[test]
-fn vtk_files_written_by_meshio_read_back() {
-    let dir = std::env::temp_dir().join(format!("cvd-mesh-formats-{}", std::process::id()));
+/// Runs `tests/scripts/SCRIPT SOURCE DIR` and returns the JSON listing it
+/// prints, or `None` (skipped, saying why) where python3 with `tool` is
+/// missing — a failure under `CI=true`.
+fn written_by(script: &str, tool: &str, source: &Path, dir: &Path) -> Option<serde_json::Value> {
+    let root =
+        std::env::var_os("CARGO_MANIFEST_DIR").map_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")), PathBuf::from);
+    let why = match Command::new("python3").arg(root.join("scripts").join(script)).arg(source).arg(dir).output() {
+        Ok(o) if o.status.success() => return Some(serde_json::from_slice(&o.stdout).expect("the script's JSON")),
+        Ok(o) => String::from_utf8_lossy(&o.stderr).trim().lines().last().unwrap_or("").to_string(),
+        Err(e) => format!("python3: {e}"),
+    };
+    if std::env::var("CI").is_ok_and(|v| v == "true") {
+        panic!("CI=true but python3 with {tool} cannot write the files: {why}");
+    }
+    eprintln!("SKIPPED (python3 with {tool} is missing: {why})");
+    None
+}
+
+/// A torus mesh with coordinates no format rounds the same way by chance,
+/// written as `.mesh` into a fresh folder.
+fn source(tag: &str) -> (TetMesh, PathBuf, PathBuf) {
+    let dir = std::env::temp_dir().join(format!("cvd-mesh-formats-{tag}-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let mut mesh = cvd::mesher::models::builtin("torus", Some(8)).unwrap();
-    // Coordinates no format rounds the same way by chance.
     for v in &mut mesh.vertices {
         *v = v.map(|c| c * 1.000_000_1 + 1e6);
     }
     let source = dir.join("source.mesh");
     cvd::io::write_medit(&source, &mesh).unwrap();
-    let root =
-        std::env::var_os("CARGO_MANIFEST_DIR").map_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")), PathBuf::from);
-    let script = root.join("scripts").join("write_tet_formats.py");
-    let listing: serde_json::Value = match Command::new("python3").arg(&script).arg(&source).arg(&dir).output() {
-        Ok(o) if o.status.success() => serde_json::from_slice(&o.stdout).unwrap(),
-        other => {
-            let why = match other {
-                Ok(o) => String::from_utf8_lossy(&o.stderr).trim().lines().last().unwrap_or("").to_string(),
-                Err(e) => format!("python3: {e}"),
-            };
-            if std::env::var("CI").is_ok_and(|v| v == "true") {
-                panic!("CI=true but python3 with meshio cannot write the files: {why}");
-            }
-            eprintln!("SKIPPED (python3 with meshio is missing: {why})");
-            return;
-        }
-    };
-    let expected: TetMesh = cvd::io::read_mesh(&source).unwrap();
+    let expected = cvd::io::read_mesh(&source).unwrap();
+    (expected, source, dir)
+}
+
+#[test]
+fn vtu_files_written_by_vtk_read_back_exactly() {
+    let (expected, source, dir) = source("vtk");
+    let Some(listing) = written_by("write_vtk_xml.py", "vtk", &source, &dir) else { return };
+    for (name, path) in listing.as_object().unwrap() {
+        let read = cvd::io::read_mesh(Path::new(path.as_str().unwrap())).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(read, expected, "{name}");
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn vtk_files_written_by_meshio_read_back() {
+    let (expected, source, dir) = source("meshio");
+    let Some(listing) = written_by("write_tet_formats.py", "meshio", &source, &dir) else { return };
     for name in [
         "v42_ascii.vtk",
         "v42_binary.vtk",

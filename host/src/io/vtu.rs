@@ -1,7 +1,8 @@
-//! VTK XML unstructured grids (`.vtu`): inline data arrays in ASCII or
-//! base64 binary, raw or zlib-compressed (what meshio and ParaView write),
-//! through `quick-xml` for the XML and `flate2` for zlib. Appended data
-//! and other compressors are refused by name. As for legacy `.vtk` files,
+//! VTK XML unstructured grids (`.vtu`): data arrays inline (ASCII or
+//! base64) or appended (raw binary, ParaView's default, or base64), raw or
+//! zlib-compressed — what meshio, VTK and ParaView write — through
+//! `quick-xml` for the XML and `flate2` for zlib. Other compressors (LZ4,
+//! LZMA) are refused by name. As for legacy `.vtk` files,
 //! tetrahedra become the mesh, cells of lower dimension are skipped, and
 //! other volume cells are an error naming how many.
 
@@ -25,6 +26,8 @@ struct Array {
     name: String,
     kind: String,
     format: String,
+    /// Where an appended array starts in the `AppendedData`.
+    offset: Option<usize>,
     text: String,
 }
 
@@ -76,35 +79,30 @@ fn base64(text: &str, name: &str) -> Result<Vec<u8>> {
     base64::engine::general_purpose::STANDARD.decode(text).map_err(|e| bad(name, format!("bad base64 data: {e}")))
 }
 
-/// The bytes of a binary array: a header with the byte count, or with the
-/// zlib blocks' sizes, then the data.
-fn decode(text: &str, enc: &Encoding, name: &str) -> Result<Vec<u8>> {
-    let s: String = text.chars().filter(|c| !c.is_ascii_whitespace()).collect();
+/// The data of a binary array from its raw bytes: a header with the byte
+/// count, or with the zlib blocks' sizes `[blocks, block size, last block
+/// size, compressed sizes...]`, then the data.
+fn unpack(raw: &[u8], enc: &Encoding, name: &str) -> Result<Vec<u8>> {
     let h = enc.header;
+    let short = || bad(name, "a binary array is shorter than its header says");
     if !enc.zlib {
-        let all = base64(&s, name)?;
-        let n = header_values(all.get(..h).unwrap_or(&[]), enc, name)?.first().copied().unwrap_or(0);
-        return all
-            .get(h..h + n)
-            .map(<[u8]>::to_vec)
-            .ok_or_else(|| bad(name, "a binary array is shorter than its header says"));
+        let n = header_values(raw.get(..h).unwrap_or(&[]), enc, name)?.first().copied().unwrap_or(0);
+        return raw.get(h..h.saturating_add(n)).map(<[u8]>::to_vec).ok_or_else(short);
     }
-    // The header is encoded apart: [blocks, block size, last block size,
-    // compressed sizes...].
-    let first = base64(s.get(..4 * h).unwrap_or(""), name)?;
-    let blocks = header_values(&first, enc, name)?.first().copied().unwrap_or(0);
-    if blocks > s.len() {
+    let blocks = header_values(raw.get(..h).unwrap_or(&[]), enc, name)?.first().copied().unwrap_or(0);
+    if blocks > raw.len() {
         return Err(bad(name, format!("a compressed array claims {blocks} blocks")));
     }
-    let header_chars = 4 * ((3 + blocks) * h).div_ceil(3);
-    let header = header_values(&base64(s.get(..header_chars).unwrap_or(""), name)?, enc, name)?;
-    let data = base64(s.get(header_chars..).unwrap_or(""), name)?;
+    let header_len = (3 + blocks) * h;
+    let header = header_values(raw.get(..header_len).ok_or_else(short)?, enc, name)?;
+    let data = &raw[header_len..];
     let (block, last) = (header.get(1).copied().unwrap_or(0), header.get(2).copied().unwrap_or(0));
     let mut out = Vec::new();
     let mut at = 0usize;
     for b in 0..blocks {
         let size = header.get(3 + b).copied().unwrap_or(0);
-        let chunk = data.get(at..at + size).ok_or_else(|| bad(name, "a compressed block runs past its array"))?;
+        let chunk =
+            data.get(at..at.saturating_add(size)).ok_or_else(|| bad(name, "a compressed block runs past its array"))?;
         at += size;
         // Never more than the block's own size: no zlib bomb.
         let limit = if b + 1 == blocks && last > 0 { last } else { block };
@@ -116,7 +114,70 @@ fn decode(text: &str, enc: &Encoding, name: &str) -> Result<Vec<u8>> {
     Ok(out)
 }
 
-fn numbers(a: &Array, enc: &Encoding, name: &str) -> Result<Vec<f64>> {
+/// The data of a base64 binary array: header and data encoded together,
+/// or (compressed) the header encoded apart from the data.
+fn decode(text: &[u8], enc: &Encoding, name: &str) -> Result<Vec<u8>> {
+    let s: String = text.iter().filter(|c| !c.is_ascii_whitespace()).map(|&c| c as char).collect();
+    if !enc.zlib {
+        return unpack(&base64(&s, name)?, enc, name);
+    }
+    let h = enc.header;
+    let first = base64(s.get(..4 * h).unwrap_or(""), name)?;
+    let blocks = header_values(&first, enc, name)?.first().copied().unwrap_or(0);
+    if blocks > s.len() {
+        return Err(bad(name, format!("a compressed array claims {blocks} blocks")));
+    }
+    let header_chars = 4 * ((3 + blocks) * h).div_ceil(3);
+    let mut raw = base64(s.get(..header_chars).unwrap_or(""), name)?;
+    raw.truncate((3 + blocks) * h);
+    raw.extend(base64(s.get(header_chars..).unwrap_or(""), name)?);
+    unpack(&raw, enc, name)
+}
+
+/// The file's `AppendedData`: its bytes after the `_` mark, whether they
+/// are base64 (else raw binary), and every array's offset into them.
+struct Appended<'a> {
+    bytes: &'a [u8],
+    base64: bool,
+    offsets: Vec<usize>,
+}
+
+fn find(hay: &[u8], needle: &[u8]) -> Option<usize> {
+    hay.windows(needle.len()).position(|w| w == needle)
+}
+
+fn rfind(hay: &[u8], needle: &[u8]) -> Option<usize> {
+    hay.windows(needle.len()).rposition(|w| w == needle)
+}
+
+/// Splits off the `AppendedData` section (raw binary is not XML): the XML
+/// around it, and the section.
+fn split_appended<'a>(bytes: &'a [u8], name: &str) -> Result<(std::borrow::Cow<'a, [u8]>, Option<Appended<'a>>)> {
+    let Some(start) = find(bytes, b"<AppendedData") else { return Ok((bytes.into(), None)) };
+    let tag_end = start + find(&bytes[start..], b">").ok_or_else(|| bad(name, "an unterminated AppendedData tag"))?;
+    let tag = String::from_utf8_lossy(&bytes[start..tag_end]);
+    let base64 = match tag.split("encoding=").nth(1).and_then(|v| v.split(['"', '\'']).nth(1)) {
+        Some("raw") => false,
+        Some("base64") => true,
+        other => return Err(bad(name, format!("AppendedData encoding {other:?}: raw or base64 expected"))),
+    };
+    let mark = tag_end + find(&bytes[tag_end..], b"_").ok_or_else(|| bad(name, "AppendedData without its '_' mark"))?;
+    let close = rfind(bytes, b"</AppendedData>")
+        .filter(|&i| i > mark)
+        .ok_or_else(|| bad(name, "AppendedData without its end tag"))?;
+    let mut xml = bytes[..start].to_vec();
+    xml.extend_from_slice(&bytes[close + b"</AppendedData>".len()..]);
+    let text = String::from_utf8_lossy(&xml);
+    let mut offsets: Vec<usize> = text
+        .split(" offset=\"")
+        .skip(1)
+        .filter_map(|v| v.split('"').next().and_then(|n| n.trim().parse().ok()))
+        .collect();
+    offsets.sort_unstable();
+    Ok((xml.into(), Some(Appended { bytes: &bytes[mark + 1..close], base64, offsets })))
+}
+
+fn numbers(a: &Array, enc: &Encoding, appended: Option<&Appended>, name: &str) -> Result<Vec<f64>> {
     match a.format.as_str() {
         "ascii" => a
             .text
@@ -127,15 +188,36 @@ fn numbers(a: &Array, enc: &Encoding, name: &str) -> Result<Vec<f64>> {
                 })
             })
             .collect(),
-        "binary" => values(&decode(&a.text, enc, name)?, &a.kind, enc.little, name),
-        "appended" => Err(bad(name, "appended data arrays are not supported (write the file with inline data)")),
+        "binary" => values(&decode(a.text.as_bytes(), enc, name)?, &a.kind, enc.little, name),
+        "appended" => {
+            let block = appended.ok_or_else(|| {
+                bad(name, format!("DataArray {} is appended, but the file has no AppendedData", a.name))
+            })?;
+            let at = a.offset.filter(|&o| o <= block.bytes.len()).ok_or_else(|| {
+                bad(name, format!("DataArray {} has no offset within the AppendedData ({:?})", a.name, a.offset))
+            })?;
+            let rest = &block.bytes[at..];
+            let data = if block.base64 {
+                // Up to the next array's offset, or the end.
+                let next = block.offsets.iter().find(|&&o| o > at);
+                let end = next.map_or(rest.len(), |&n| (n - at).min(rest.len()));
+                decode(&rest[..end], enc, name)?
+            } else {
+                unpack(rest, enc, name)?
+            };
+            values(&data, &a.kind, enc.little, name)
+        }
         other => Err(bad(name, format!("unknown DataArray format '{other}'"))),
     }
 }
 
 /// A `.vtu` file.
 pub fn parse_vtu(bytes: &[u8], name: &str) -> Result<TetMesh> {
-    let mut reader = quick_xml::Reader::from_reader(bytes);
+    let (xml, appended) = split_appended(bytes, name)?;
+    let appended = appended.as_ref();
+    let mut reader = quick_xml::Reader::from_reader(xml.as_ref());
+    // `<DataArray .../>` (appended) as a start and an end.
+    reader.config_mut().expand_empty_elements = true;
     let mut buf = Vec::new();
     let mut enc = Encoding { header: 4, little: true, zlib: false };
     let mut section = String::new();
@@ -145,9 +227,13 @@ pub fn parse_vtu(bytes: &[u8], name: &str) -> Result<TetMesh> {
     let mut tets: Vec<[u32; 4]> = Vec::new();
     let mut others = 0usize;
     let mut grid = false;
+    let mut nested = 0usize;
     loop {
         let event = reader.read_event_into(&mut buf).map_err(|e| bad(name, format!("not valid XML: {e}")))?;
         match event {
+            // Elements inside a DataArray (VTK's InformationKey) hold no data.
+            Event::Start(_) if array.is_some() => nested += 1,
+            Event::End(_) if nested > 0 => nested -= 1,
             Event::Start(e) | Event::Empty(e) => match e.name().as_ref() {
                 b"VTKFile" => {
                     grid = attr(&e, "type").as_deref() == Some("UnstructuredGrid");
@@ -167,12 +253,13 @@ pub fn parse_vtu(bytes: &[u8], name: &str) -> Result<TetMesh> {
                         name: attr(&e, "Name").unwrap_or_default(),
                         kind: attr(&e, "type").unwrap_or_default(),
                         format: attr(&e, "format").unwrap_or_else(|| "ascii".into()),
+                        offset: attr(&e, "offset").and_then(|o| o.trim().parse().ok()),
                         text: String::new(),
                     });
                 }
                 _ => {}
             },
-            Event::Text(t) => {
+            Event::Text(t) if nested == 0 => {
                 if let Some(a) = array.as_mut() {
                     a.text.push_str(&String::from_utf8_lossy(&t));
                 }
@@ -181,10 +268,10 @@ pub fn parse_vtu(bytes: &[u8], name: &str) -> Result<TetMesh> {
                 b"DataArray" => {
                     if let Some(a) = array.take() {
                         match (section.as_str(), a.name.as_str()) {
-                            ("Points", _) if points.is_none() => points = Some(numbers(&a, &enc, name)?),
-                            ("Cells", "connectivity") => connectivity = Some(numbers(&a, &enc, name)?),
-                            ("Cells", "offsets") => offsets = Some(numbers(&a, &enc, name)?),
-                            ("Cells", "types") => types = Some(numbers(&a, &enc, name)?),
+                            ("Points", _) if points.is_none() => points = Some(numbers(&a, &enc, appended, name)?),
+                            ("Cells", "connectivity") => connectivity = Some(numbers(&a, &enc, appended, name)?),
+                            ("Cells", "offsets") => offsets = Some(numbers(&a, &enc, appended, name)?),
+                            ("Cells", "types") => types = Some(numbers(&a, &enc, appended, name)?),
                             _ => {}
                         }
                     }
@@ -276,7 +363,52 @@ mod tests {
         let e = parse_vtu(TWO_TETS.replace(">10 10 5<", ">10 12 5<").as_bytes(), "hex.vtu").unwrap_err();
         assert!(e.to_string().contains("hex.vtu") && e.to_string().contains("1 others"), "{e}");
         let e = parse_vtu(TWO_TETS.replace("format=\"ascii\">4 8", "format=\"appended\">4 8").as_bytes(), "a.vtu");
-        assert!(e.unwrap_err().to_string().contains("appended"));
+        assert!(e.unwrap_err().to_string().contains("no AppendedData"));
+    }
+
+    /// Two tets with every array appended as raw binary (32-bit headers,
+    /// uncompressed), as VTK writes them.
+    fn appended_raw() -> Vec<u8> {
+        let mut data = Vec::new();
+        let mut arrays = String::new();
+        let mut add = |tag: &str, bytes: Vec<u8>| {
+            arrays += &format!("<DataArray {tag} format=\"appended\" offset=\"{}\"/>\n", data.len());
+            data.extend((bytes.len() as u32).to_le_bytes());
+            data.extend(bytes);
+        };
+        let points: Vec<f64> = vec![0., 0., 0., 1., 0., 0., 0., 1., 0., 0., 0., 1., 1., 1., 1.];
+        add("type=\"Float64\" NumberOfComponents=\"3\"", points.iter().flat_map(|x| x.to_le_bytes()).collect());
+        let ids = |v: &[i64]| v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>();
+        add("type=\"Int64\" Name=\"connectivity\"", ids(&[0, 1, 2, 3, 1, 2, 3, 4]));
+        add("type=\"Int64\" Name=\"offsets\"", ids(&[4, 8]));
+        add("type=\"UInt8\" Name=\"types\"", vec![10, 10]);
+        let (points, cells) = arrays.split_at(arrays.find("<DataArray type=\"Int64\"").unwrap());
+        let mut file = format!(
+            "<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" byte_order=\"LittleEndian\">\n\
+             <UnstructuredGrid><Piece NumberOfPoints=\"5\" NumberOfCells=\"2\">\n\
+             <Points>{points}</Points><Cells>{cells}</Cells></Piece></UnstructuredGrid>\n\
+             <AppendedData encoding=\"raw\">\n_"
+        )
+        .into_bytes();
+        file.extend(data);
+        file.extend(b"\n</AppendedData>\n</VTKFile>\n");
+        file
+    }
+
+    #[test]
+    fn appended_raw_data_is_read_and_no_mutation_panics() {
+        let file = appended_raw();
+        assert_eq!(parse_vtu(&file, "a.vtu").unwrap().tets, vec![[0, 1, 2, 3], [1, 2, 3, 4]]);
+        for cut in 0..file.len() {
+            let _ = parse_vtu(&file[..cut], "cut.vtu");
+        }
+        for i in 0..file.len() {
+            for x in [0u8, 1, 0x7f, 0xff, b'<', b'_'] {
+                let mut m = file.clone();
+                m[i] = x;
+                let _ = parse_vtu(&m, "flip.vtu");
+            }
+        }
     }
 
     #[test]
