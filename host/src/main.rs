@@ -163,6 +163,12 @@ fn mesh_surface_file(
             fixed.push(format!("{n} {what}"));
         }
     }
+    if r.open_edges > 0 {
+        fixed.push(format!(
+            "{} open edges in {} cracks up to {:.2e} across, let through (the sign across them is the winding number's)",
+            r.open_edges, r.cracks, r.widest_crack
+        ));
+    }
     let holes = if r.holes > 0 { format!(" ({} holes)", r.holes) } else { String::new() };
     println!(
         "{name}: {} triangles, {} shells{holes}, volume {:.6e}{}",

@@ -75,6 +75,28 @@ impl TetMesh {
         (0..self.tets.len()).map(|t| self.tet_volume(t).abs()).sum()
     }
 
+    /// The mesh's boundary: the tet faces no other tet shares, facing out
+    /// of their tet, on the mesh's vertices (unused ones included).
+    pub fn boundary(&self) -> crate::surface::TriSurface {
+        let mut faces: std::collections::HashMap<[u32; 3], (u32, [u32; 3])> = Default::default();
+        for (t, tet) in self.tets.iter().enumerate() {
+            let [a, b, c, d] = *tet;
+            // Faces counter-clockwise seen from outside a positive tet.
+            let mut fs = [[b, c, d], [a, d, c], [a, b, d], [a, c, b]];
+            if self.tet_volume(t) < 0.0 {
+                fs.iter_mut().for_each(|f| f.swap(1, 2));
+            }
+            for f in fs {
+                let mut key = f;
+                key.sort_unstable();
+                faces.entry(key).or_insert((0, f)).0 += 1;
+            }
+        }
+        let mut triangles: Vec<[u32; 3]> = faces.into_values().filter(|(n, _)| *n == 1).map(|(_, f)| f).collect();
+        triangles.sort_unstable();
+        crate::surface::TriSurface { vertices: self.vertices.clone(), triangles }
+    }
+
     /// Centroid of every tet.
     pub fn centroids(&self) -> Vec<[f64; 3]> {
         self.tets

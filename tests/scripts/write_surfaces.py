@@ -1,6 +1,7 @@
 """Writes closed surfaces with trimesh, apart from the library that reads
 them, in every format it exports (STL binary and ASCII, OBJ, OFF, PLY
-binary and ASCII), plus one open surface and two overlapping boxes; prints as JSON each shape's
+binary and ASCII), plus one open surface, two overlapping boxes and a sphere with a
+crack; prints as JSON each shape's
 files and the volume trimesh computes for it."""
 
 import json
@@ -38,6 +39,15 @@ open_box = trimesh.creation.box(extents=[1.0, 1.0, 1.0])
 open_box.update_faces([i != 0 for i in range(len(open_box.faces))])
 open_path = os.path.join(out, "open_box.stl")
 open_box.export(open_path, file_type="stl")
+# An icosphere with one triangle missing: a crack 0.6 % of its size, and
+# the same closed.
+closed = trimesh.creation.icosphere(subdivisions=6, radius=1.0)
+closed_path = os.path.join(out, "closed_sphere.stl")
+closed.export(closed_path, file_type="stl")
+cracked = closed.copy()
+cracked.update_faces([i != 100 for i in range(len(cracked.faces))])
+cracked_path = os.path.join(out, "cracked_sphere.stl")
+cracked.export(cracked_path, file_type="stl")
 # Two overlapping boxes left as two shells (a union not joined).
 overlap = trimesh.util.concatenate(
     [trimesh.creation.box(extents=[1.0, 1.0, 1.0]),
@@ -45,4 +55,5 @@ overlap = trimesh.util.concatenate(
 )
 overlap_path = os.path.join(out, "overlapping_boxes.stl")
 overlap.export(overlap_path, file_type="stl")
-print(json.dumps({"shapes": listing, "open": open_path, "overlapping": overlap_path}))
+print(json.dumps({"shapes": listing, "open": open_path, "overlapping": overlap_path,
+                  "closed_sphere": closed_path, "cracked_sphere": cracked_path}))

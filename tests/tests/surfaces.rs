@@ -3,8 +3,8 @@
 //! with trimesh's volume; the enclosed volume is stuffed with tets whose
 //! dihedral angles keep the stuffing's bounds and whose volume approaches
 //! the surface's as the lattice refines; a clipped Voronoi diagram on it
-//! adds up to the mesh on both backends; an open surface and two overlapping
-//! shells are named errors.
+//! adds up to the mesh on both backends; a cracked sphere meshes as the
+//! closed one; an open surface and two overlapping shells are named errors.
 
 use cvd::mesher::mesh_surface;
 use cvd::mesher::quality::{Conformity, Quality};
@@ -69,6 +69,16 @@ fn surfaces_from_trimesh_read_check_and_mesh() {
     let surface = cvd::io::read_surface(Path::new(open)).unwrap();
     let e = surface.into_closed(open).unwrap_err().to_string();
     assert!(e.contains(open) && e.contains("boundary (open) edges"), "{e}");
+    // A crack (one triangle missing): let through, and meshed as if closed.
+    let mesh_of = |key: &str| {
+        let path = listing[key].as_str().unwrap();
+        let (surface, report) = cvd::io::read_surface(Path::new(path)).unwrap().into_closed(path).unwrap();
+        (mesh_surface(&surface, 16).unwrap(), report)
+    };
+    let ((closed, _), (cracked, report)) = (mesh_of("closed_sphere"), mesh_of("cracked_sphere"));
+    assert_eq!((report.open_edges, report.cracks), (3, 1), "{report:?}");
+    assert_eq!(closed.tets.len(), cracked.tets.len());
+    assert!((closed.volume() - cracked.volume()).abs() <= 1e-9 * closed.volume());
     let overlapping = listing["overlapping"].as_str().unwrap();
     let surface = cvd::io::read_surface(Path::new(overlapping)).unwrap();
     let e = surface.into_closed(overlapping).unwrap_err().to_string();
@@ -140,19 +150,8 @@ fn shared_model_surfaces_mesh_again() {
             println!("{name}: not present, skipped");
             continue;
         }
-        let mut mesh = cvd::io::read_mesh(&path).unwrap();
-        mesh.orient_positively();
-        // The boundary: the faces of one tet only, facing out of it.
-        let mut faces: std::collections::HashMap<[u32; 3], (usize, [u32; 3])> = Default::default();
-        for t in &mesh.tets {
-            for f in [[t[1], t[2], t[3]], [t[0], t[3], t[2]], [t[0], t[1], t[3]], [t[0], t[2], t[1]]] {
-                let mut key = f;
-                key.sort_unstable();
-                faces.entry(key).or_insert((0, f)).0 += 1;
-            }
-        }
-        let triangles = faces.values().filter(|(n, _)| *n == 1).map(|(_, f)| *f).collect();
-        let surface = cvd::surface::TriSurface::new(mesh.vertices.clone(), triangles).unwrap();
+        let mesh = cvd::io::read_mesh(&path).unwrap();
+        let surface = mesh.boundary();
         let (surface, r) = surface.into_closed(name).unwrap();
         println!("{name}: {} triangles, volume {:.6} (tets {:.6})", r.triangles, r.volume, mesh.volume());
         let mut gaps = Vec::new();

@@ -8,10 +8,13 @@
 //! IEEE TVCG 2005): the face normal when the nearest point is inside a
 //! triangle, the sum of the two faces' normals on an edge, the
 //! angle-weighted normal at a vertex. For a closed, consistently oriented
-//! surface — what [`TriSurface::into_closed`] hands over — this sign is
-//! exact, however sharp the surface's creases and corners; a surface with
-//! cracks, self-touching parts (non-manifold edges) or triangles crossing
-//! each other is refused before it gets here.
+//! surface this sign is exact, however sharp the surface's creases and
+//! corners. [`TriSurface::into_closed`] also lets through small cracks
+//! (open edges around gaps narrower than [`crate::surface::MAX_CRACK`]);
+//! where the nearest feature lies on a crack's rim, the sign is the
+//! generalised winding number's instead (inside above 1/2), which a small
+//! gap barely moves. Self-touching parts (non-manifold edges) and
+//! triangles crossing each other are refused before they get here.
 
 use super::sdf::Shape;
 use crate::surface::TriSurface;
@@ -79,6 +82,9 @@ pub struct SurfaceDistance<'a> {
     /// Per triangle and edge `k` (corner k to k + 1): the edge's pseudo-normal.
     edge_normal: Vec<[P; 3]>,
     vertex_normal: Vec<P>,
+    /// Per triangle: bit `k` when its edge `k` is open (a crack's rim),
+    /// bit `3 + k` when its corner `k` lies on such an edge.
+    on_crack: Vec<u8>,
 }
 
 impl<'a> SurfaceDistance<'a> {
@@ -94,7 +100,8 @@ impl<'a> SurfaceDistance<'a> {
             })
             .collect();
         let mut vertex_normal = vec![[0.0; 3]; vertices.len()];
-        let mut edge_sum: HashMap<(u32, u32), P> = HashMap::with_capacity(3 * triangles.len() / 2);
+        // Per undirected edge: the sum of its triangles' normals, and how many.
+        let mut edge_sum: HashMap<(u32, u32), (P, u32)> = HashMap::with_capacity(3 * triangles.len() / 2);
         for (t, tri) in triangles.iter().enumerate() {
             let p = corners(t);
             for k in 0..3 {
@@ -104,8 +111,8 @@ impl<'a> SurfaceDistance<'a> {
                 let n = &mut vertex_normal[tri[k] as usize];
                 *n = add(*n, scale(face_normal[t], angle));
                 let (a, b) = (tri[k], tri[(k + 1) % 3]);
-                let e = edge_sum.entry((a.min(b), a.max(b))).or_insert([0.0; 3]);
-                *e = add(*e, face_normal[t]);
+                let e = edge_sum.entry((a.min(b), a.max(b))).or_insert(([0.0; 3], 0));
+                *e = (add(e.0, face_normal[t]), e.1 + 1);
             }
         }
         let edge_normal = triangles
@@ -113,11 +120,32 @@ impl<'a> SurfaceDistance<'a> {
             .map(|tri| {
                 [0, 1, 2].map(|k| {
                     let (a, b) = (tri[k], tri[(k + 1) % 3]);
-                    edge_sum[&(a.min(b), a.max(b))]
+                    edge_sum[&(a.min(b), a.max(b))].0
                 })
             })
             .collect();
-        Self { surface, tree: TriangleTree::new(surface), face_normal, edge_normal, vertex_normal }
+        // Open edges: their one triangle's normal alone says nothing of the
+        // other side of the crack.
+        let mut rim = vec![false; vertices.len()];
+        let open = |tri: &[u32; 3], k: usize| {
+            let (a, b) = (tri[k], tri[(k + 1) % 3]);
+            edge_sum[&(a.min(b), a.max(b))].1 == 1
+        };
+        for tri in triangles {
+            for k in 0..3 {
+                if open(tri, k) {
+                    rim[tri[k] as usize] = true;
+                    rim[tri[(k + 1) % 3] as usize] = true;
+                }
+            }
+        }
+        let on_crack = triangles
+            .iter()
+            .map(|tri| {
+                (0..3).fold(0u8, |bits, k| bits | (open(tri, k) as u8) << k | (rim[tri[k] as usize] as u8) << (3 + k))
+            })
+            .collect();
+        Self { surface, tree: TriangleTree::new(surface), face_normal, edge_normal, vertex_normal, on_crack }
     }
 
     /// The nearest point of the surface to `p`: squared distance,
@@ -136,13 +164,16 @@ impl<'a> SurfaceDistance<'a> {
     pub fn distance(&self, p: P) -> f64 {
         let (d2, t, feature, q) = self.nearest(p);
         let t = t as usize;
-        let n = match feature {
-            Feature::Face => self.face_normal[t],
-            Feature::Edge(k) => self.edge_normal[t][k],
-            Feature::Vertex(k) => self.vertex_normal[self.surface.triangles[t][k] as usize],
+        let (n, on_crack) = match feature {
+            Feature::Face => (self.face_normal[t], false),
+            Feature::Edge(k) => (self.edge_normal[t][k], self.on_crack[t] & (1 << k) != 0),
+            Feature::Vertex(k) => {
+                (self.vertex_normal[self.surface.triangles[t][k] as usize], self.on_crack[t] & (8 << k) != 0)
+            }
         };
+        let inside = if on_crack { self.tree.winding_number(self.surface, p) > 0.5 } else { dot(sub(p, q), n) < 0.0 };
         let d = d2.sqrt();
-        if dot(sub(p, q), n) < 0.0 {
+        if inside {
             -d
         } else {
             d
@@ -180,6 +211,39 @@ mod tests {
         // On the corners, edges and faces themselves: zero.
         assert_eq!(f.distance([1.0, 2.0, 3.0]), 0.0);
         assert_eq!(f.distance([0.5, 0.0, 0.0]), 0.0);
+    }
+
+    /// A crack in the surface (a missing triangle) changes no sign: the
+    /// distance's sign at the lattice's points and the mesh are those of
+    /// the closed surface.
+    #[test]
+    fn a_crack_changes_no_sign() {
+        let closed = crate::surface::tests::fine_box(100);
+        let mut cracked = closed.clone();
+        // Triangles on the face x = 0 and on the edge x = 0, y = 0.
+        let on =
+            |s: &TriSurface, t: usize, f: &dyn Fn(P) -> bool| s.triangles[t].iter().any(|&v| f(s.vertices[v as usize]));
+        let face = (0..cracked.triangles.len()).find(|&t| on(&cracked, t, &|p| p[0] == 0.0 && p[1] == 0.5)).unwrap();
+        cracked.triangles.remove(face);
+        let edge = (0..cracked.triangles.len())
+            .find(|&t| on(&cracked, t, &|p| p[0] == 0.0 && p[1] == 0.0 && p[2] == 0.5))
+            .unwrap();
+        cracked.triangles.remove(edge);
+        let (cracked, r) = cracked.into_closed("cracked").unwrap();
+        assert_eq!(r.cracks, 2);
+        let (f, g) = (SurfaceDistance::new(&closed), SurfaceDistance::new(&cracked));
+        let mut rng = Rng::new(8);
+        for _ in 0..20000 {
+            // Near the cracks above all.
+            let p = [0; 3].map(|_| 0.1 * rng.unit() - 0.05);
+            let p = [p[0], p[1] + if rng.unit() < 0.5 { 0.5 } else { 0.0 }, p[2] + 0.5];
+            let (a, b) = (f.distance(p), g.distance(p));
+            assert!(a.signum() == b.signum() || a.abs() < 1e-12, "at {p:?}: {a} vs {b}");
+        }
+        let (m, n) =
+            (super::super::mesh_surface(&closed, 10).unwrap(), super::super::mesh_surface(&cracked, 10).unwrap());
+        assert_eq!(m.tets.len(), n.tets.len());
+        assert!((m.volume() - n.volume()).abs() < 1e-12);
     }
 
     #[test]
