@@ -13,8 +13,10 @@
 //! (open edges around gaps narrower than [`crate::surface::MAX_CRACK`]);
 //! where the nearest feature lies on a crack's rim, the sign is the
 //! generalised winding number's instead (inside above 1/2), which a small
-//! gap barely moves. Self-touching parts (non-manifold edges) and
-//! triangles crossing each other are refused before they get here.
+//! gap barely moves. Shells touching at a vertex keep the pseudo-normal
+//! (the two cones' normals add; tested around a box and a slanted tet);
+//! parts touching along an edge (non-manifold edges) and triangles
+//! crossing each other are refused before they get here.
 
 use super::sdf::Shape;
 use crate::surface::TriSurface;
@@ -244,6 +246,38 @@ mod tests {
             (super::super::mesh_surface(&closed, 10).unwrap(), super::super::mesh_surface(&cracked, 10).unwrap());
         assert_eq!(m.tets.len(), n.tets.len());
         assert!((m.volume() - n.volume()).abs() < 1e-12);
+    }
+
+    /// A box and a slanted tetrahedron touching at one corner (one vertex,
+    /// two cones around it): the sign is right all around it.
+    #[test]
+    fn a_box_and_a_tet_touching_at_a_corner() {
+        let mut s = box_surface([0.0; 3], [1.0; 3]);
+        // The tet's apex is the box's corner 7, (1, 1, 1); its base far off.
+        let base = [[2.0, 1.6, 1.1], [2.1, 0.7, 1.3], [1.9, 1.2, 0.2]];
+        s.vertices.extend(base);
+        // Faces outward: the base seen from +x, then the three sides.
+        s.triangles.extend([[8, 9, 10], [7, 9, 8], [7, 10, 9], [7, 8, 10]]);
+        let (s, r) = s.into_closed("touching").unwrap();
+        assert_eq!((r.shells, r.holes, r.open_edges), (2, 0, 0), "{r:?}");
+        let f = SurfaceDistance::new(&s);
+        let tet = [[1.0; 3], base[0], base[1], base[2]];
+        let in_tet = |p: P| {
+            let v = |a: P, b: P, c: P, d: P| dot(sub(b, a), cross(sub(c, a), sub(d, a)));
+            let whole = v(tet[0], tet[1], tet[2], tet[3]);
+            (0..4).all(|k| {
+                let mut t = tet;
+                t[k] = p;
+                v(t[0], t[1], t[2], t[3]) / whole > 0.0
+            })
+        };
+        let inside = |p: P| (0..3).all(|a| p[a] > 0.0 && p[a] < 1.0) || in_tet(p);
+        let mut rng = Rng::new(9);
+        for _ in 0..20000 {
+            let p = [0; 3].map(|_| 1.0 + 0.2 * (rng.unit() - 0.5));
+            let d = f.distance(p);
+            assert!((d < 0.0) == inside(p) || d.abs() < 1e-12, "at {p:?}: {d}");
+        }
     }
 
     #[test]
