@@ -17,6 +17,9 @@ shapes = {
     "sphere": trimesh.creation.icosphere(subdivisions=3, radius=1.0),
     "cylinder": trimesh.creation.cylinder(radius=0.5, height=2.0, sections=48),
     "capsule": trimesh.creation.capsule(height=1.0, radius=0.4, count=[24, 24]),
+    "torus": trimesh.creation.torus(major_radius=1.0, minor_radius=0.35, major_sections=48, minor_sections=24),
+    # Non-convex with sharp edges: a thick ring.
+    "annulus": trimesh.creation.annulus(r_min=0.3, r_max=0.8, height=0.5, sections=48),
 }
 formats = {
     "stl": dict(file_type="stl"),

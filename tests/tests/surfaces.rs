@@ -55,12 +55,16 @@ fn surfaces_from_trimesh_read_check_and_mesh() {
             let q = Quality::of(&mesh);
             assert!(q.inverted == 0 && q.min_dihedral >= 10.7 && q.max_dihedral <= 164.8, "{what}: {q}");
             assert!(Conformity::of(&mesh).is_conforming(), "{what}");
-            // Every format gives the same mesh (up to the formats' rounding).
+            // Every format gives the same mesh: the same tets, with vertices
+            // where the formats' rounding (f32 in STL and binary PLY, 8 or
+            // 10 decimals in OBJ and OFF) puts them — a lattice point as near
+            // to two cut points (a flat face meeting a sharp circle) may snap
+            // to either, so volumes agree to 1e-3, not to the rounding.
             match first {
                 None => first = Some((mesh.tets.len(), mesh.volume())),
                 Some((tets, v)) => {
                     assert_eq!(mesh.tets.len(), tets, "{what}: not the same mesh as the first format");
-                    assert!((mesh.volume() - v).abs() <= 1e-5 * v, "{what}");
+                    assert!((mesh.volume() - v).abs() <= 1e-3 * v, "{what}: volume {} vs {v}", mesh.volume());
                 }
             }
         }
@@ -94,7 +98,7 @@ fn surfaces_from_trimesh_read_check_and_mesh() {
 fn the_volume_converges_as_the_lattice_refines() {
     let dir = std::env::temp_dir().join(format!("cvd-surfaces-conv-{}", std::process::id()));
     let Some(listing) = trimesh_files(&dir) else { return };
-    for name in ["box", "sphere"] {
+    for name in ["box", "sphere", "torus", "annulus"] {
         let file = PathBuf::from(listing["shapes"][name]["files"][0].as_str().unwrap());
         let (surface, report) = cvd::io::read_surface(&file).unwrap().into_closed(name).unwrap();
         let mut gaps = Vec::new();

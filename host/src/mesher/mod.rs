@@ -26,8 +26,8 @@ pub mod surface_field;
 
 /// The lattice resolution [`mesh_surface`] is used with when none is
 /// asked for: the shared models' surfaces (a torus, the bunny, the fandisk
-/// with its creases, the joint) come within 0.36 % of their enclosed volume
-/// at 40 (0.61 % at 32; docs/BENCHMARKS.md, Surfaces).
+/// with its creases, the joint) come within 0.38 % of their enclosed volume
+/// at 40 (0.47 % at 32; docs/BENCHMARKS.md, Surfaces).
 pub const DEFAULT_SURFACE_RESOLUTION: u32 = 40;
 
 /// Fills the volume a closed, outward-oriented triangle surface encloses
@@ -43,7 +43,15 @@ pub fn mesh_surface(surface: &crate::surface::TriSurface, resolution: u32) -> cr
             "cannot mesh a surface of extent {longest} at resolution {resolution}"
         )));
     }
-    stuffing::stuff(&field, &stuffing::Params::new(longest / resolution as f64))
+    // Users' parts have faces on round coordinates, which a lattice centred
+    // on their box would often meet exactly: off by irrational-looking
+    // fractions of a cell, the faces cross lattice edges instead of holding
+    // lattice points, and the mesh does not jump with the formats' rounding.
+    let params = stuffing::Params {
+        shift: [0.190_983, 0.127_322, 0.055_728],
+        ..stuffing::Params::new(longest / resolution as f64)
+    };
+    stuffing::stuff(&field, &params)
 }
 
 /// The resolution at which [`mesh_surface`] gives about `tets` tets: the

@@ -76,12 +76,15 @@ pub struct Params {
     pub alpha_long: f64,
     /// Warping threshold on red edges (fraction of the edge length).
     pub alpha_short: f64,
+    /// Shift of the lattice from centred on the shape's box, in lattice
+    /// spacings per axis (each in `[0, 1)`).
+    pub shift: [f64; 3],
 }
 
 impl Params {
     /// Lattice spacing `spacing` and the paper's warping thresholds.
     pub fn new(spacing: f64) -> Self {
-        Self { spacing, alpha_long: ALPHA_LONG, alpha_short: ALPHA_SHORT }
+        Self { spacing, alpha_long: ALPHA_LONG, alpha_short: ALPHA_SHORT, shift: [0.0; 3] }
     }
 }
 
@@ -102,7 +105,7 @@ pub fn stuff<S: Shape + ?Sized>(shape: &S, params: &Params) -> Result<TetMesh> {
             return Err(Error::InvalidInput(format!("{name} must be in [0, 0.5), got {alpha}")));
         }
     }
-    let lattice = Lattice::around(shape.bounds(), h)?;
+    let lattice = Lattice::around(shape.bounds(), h, params.shift)?;
     let mut value: Vec<f64> =
         (0..lattice.len() as u32).into_par_iter().map(|v| shape.eval(lattice.position(v))).collect();
     if let Some(v) = value.iter().position(|f| !f.is_finite()) {
@@ -137,7 +140,7 @@ struct Lattice {
 impl Lattice {
     /// The lattice covering `bounds` with `MARGIN` cells to spare on each
     /// side, centred on the box.
-    fn around((lo, hi): ([f64; 3], [f64; 3]), h: f64) -> Result<Self> {
+    fn around((lo, hi): ([f64; 3], [f64; 3]), h: f64, shift: [f64; 3]) -> Result<Self> {
         if !(0..3).all(|a| lo[a].is_finite() && hi[a].is_finite() && lo[a] <= hi[a]) {
             return Err(Error::InvalidInput(format!("the shape's bounding box {lo:?}..{hi:?} is empty or unbounded")));
         }
@@ -150,7 +153,7 @@ impl Lattice {
             )));
         }
         let n = cells.map(|c| c as usize);
-        let origin = [0, 1, 2].map(|a| (lo[a] + hi[a]) / 2.0 - n[a] as f64 * h / 2.0);
+        let origin = [0, 1, 2].map(|a| (lo[a] + hi[a]) / 2.0 - n[a] as f64 * h / 2.0 + shift[a] * h);
         Ok(Self { origin, h, n })
     }
 
