@@ -6,6 +6,11 @@
 //! are an error naming how many, so no part of a domain is lost silently.
 //! Sections other than `$MeshFormat`, `$Nodes` and `$Elements` are skipped
 //! up to their `$End` line.
+//!
+//! Read here rather than through a crate: the Rust crate for these files
+//! (`mshio` 0.4, last released in 2020) reads version 4.1 only, not the
+//! 2.2 that meshio, older Gmsh and many pipelines still write, and does not
+//! check that elements refer to nodes that exist.
 
 use super::binary::ByteReader;
 use super::gmsh::element_kind;

@@ -6,6 +6,8 @@
 //! after. Vertices (keyword 4) and tetrahedra (keyword 8) make the mesh;
 //! keywords of lower dimension are skipped; hexahedra, prisms and pyramids
 //! are an error naming how many, so no part of a domain is lost silently.
+//!
+//! Read here: no Rust crate on crates.io reads libMeshb files.
 
 use super::binary::ByteReader;
 use crate::error::{Error, Result};
