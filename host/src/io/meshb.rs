@@ -7,7 +7,7 @@
 //! keywords of lower dimension are skipped; hexahedra, prisms and pyramids
 //! are an error naming how many, so no part of a domain is lost silently.
 //!
-//! Read here: no Rust crate on crates.io reads libMeshb files.
+//! Read here: there is no Rust crate for libMeshb files on crates.io.
 
 use super::binary::ByteReader;
 use crate::error::{Error, Result};
