@@ -145,6 +145,10 @@ pub struct Polyhedron<const P: usize, const V: usize> {
     pub n_planes: u32,
     /// Vertices in use.
     pub n_verts: u32,
+    /// The largest squared distance of the starting shape's vertices from
+    /// the local origin (0: none given): how far the first clips' vertices
+    /// may have come from.
+    pub start_radius2: f32,
 }
 
 #[inline]
@@ -179,6 +183,7 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
             tris: [0; V],
             n_planes: 0,
             n_verts: 0,
+            start_radius2: 0.0,
         }
     }
 
@@ -236,6 +241,8 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
             i += 1;
         }
         p.n_planes = 4;
+        p.start_radius2 =
+            v[0].length_squared().max(v[1].length_squared()).max(v[2].length_squared()).max(v[3].length_squared());
         let mut i = 0u32;
         while i < 4 {
             // Vertex i lies on the three faces other than face i.
@@ -255,6 +262,7 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
         p.planes[4] = Vec4::new(0.0, 0.0, -1.0, -lo.z);
         p.planes[5] = Vec4::new(0.0, 0.0, 1.0, hi.z);
         p.n_planes = 6;
+        p.start_radius2 = lo.length_squared().max(hi.length_squared()) * 3.0;
         let mut corner = 0u32;
         while corner < 8 {
             let sx = corner & 1;
@@ -458,6 +466,64 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
         Clip::Cut
     }
 
+    /// Vertex `i`, moved onto its three planes (normals `n`, and `x` their
+    /// crosses `n_a × n_b, n_b × n_c, n_c × n_a`): one step of iterative
+    /// refinement, `v + N⁻¹ (d - N v)` by Cramer's rule. A vertex made by
+    /// sliding along an edge from a far one (a tet's corner, `L` away)
+    /// carries an error `~ε L`, where its planes (bisectors, accurate
+    /// relative to the cell) and the vertex itself (`|v| ~ h`, the cell's
+    /// size) give residuals accurate to `ε h`: the step brings it to `~ε h`.
+    /// Left as it is where its planes are nearly dependent, where the step
+    /// is not small against the polyhedron (`radius2`, its squared radius),
+    /// and where `radius2` is 0 ([`Self::refine_below`]).
+    #[inline]
+    fn refined(&self, i: usize, radius2: f32, [na, nb, nc]: [Point; 3], [ab, bc, ca]: [Point; 3]) -> Point {
+        let v = self.verts[i];
+        if radius2 == 0.0 {
+            return v;
+        }
+        let [a, b, c] = unpack(self.tris[i]);
+        // Normals are scaled so that their largest component is in [1, 2)
+        // (`normalized`): |det| <= 42, and below 1e-2 the planes are
+        // nearly dependent.
+        let det = na.dot(bc);
+        if !(det * det > 1e-4) {
+            return v;
+        }
+        let (ra, rb, rc) = (
+            self.planes[a as usize].w - na.dot(v),
+            self.planes[b as usize].w - nb.dot(v),
+            self.planes[c as usize].w - nc.dot(v),
+        );
+        let step = (bc * ra + ca * rb + ab * rc) / det;
+        if step.length_squared() < 1e-6 * radius2 {
+            v + step
+        } else {
+            v
+        }
+    }
+
+    /// The squared radius `r²` of the polyhedron (its farthest vertex from
+    /// the local origin) when it is less than a quarter of its starting
+    /// shape's, else 0: vertices slid from the start's corners carry errors
+    /// `~ε` of the start's size, which matter only relative to a much
+    /// smaller result; a piece about as large as its tet (most of them) is
+    /// not refined.
+    #[inline]
+    fn refine_below(&self) -> f32 {
+        let mut r = 0.0f32;
+        let mut i = 0;
+        while i < (self.n_verts as usize).min(V) {
+            r = r.max(self.verts[i].length_squared());
+            i += 1;
+        }
+        if 16.0 * r < self.start_radius2 {
+            r
+        } else {
+            0.0
+        }
+    }
+
     /// Volume, first and second moments, from vertex-local pieces only
     /// (no adjacency search): each face is fanned from the foot `c_x` of
     /// the perpendicular from the site to its plane, and each fan triangle
@@ -479,17 +545,19 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
         // Summed as 6 V, 24 ∫x and 60 ∫|x|²: the cones' constant factors
         // are applied once, at the end.
         let mut m = Sums::default();
+        let radius2 = self.refine_below();
         let mut i = 0;
         while i < (self.n_verts as usize).min(V) {
-            let v = self.verts[i];
-            let vv = v.length_squared();
             let [a, b, c] = unpack(self.tris[i]);
             let (na, nb, nc) =
                 (normal(self.planes[a as usize]), normal(self.planes[b as usize]), normal(self.planes[c as usize]));
+            let (ab, bc, ca) = (na.cross(nb), nb.cross(nc), nc.cross(na));
+            let v = self.refined(i, radius2, [na, nb, nc], [ab, bc, ca]);
+            let vv = v.length_squared();
             let (va, vb, vc) = (v.dot(na), v.dot(nb), v.dot(nc));
-            add_corner_edge(&mut m, &feet, v, vv, (a, na, va), (b, nb, vb));
-            add_corner_edge(&mut m, &feet, v, vv, (b, nb, vb), (c, nc, vc));
-            add_corner_edge(&mut m, &feet, v, vv, (c, nc, vc), (a, na, va));
+            add_corner_edge(&mut m, &feet, v, vv, (a, na, va), (b, nb, vb), ab);
+            add_corner_edge(&mut m, &feet, v, vv, (b, nb, vb), (c, nc, vc), bc);
+            add_corner_edge(&mut m, &feet, v, vv, (c, nc, vc), (a, na, va), ca);
             i += 1;
         }
         Moments { volume: m.volume / 6.0, first: Vec3::from(m.first) / 24.0, second: m.second / 60.0 }
@@ -497,7 +565,7 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
 }
 
 /// The two cones of vertex `v` at its edge `x -> y` (each plane with its
-/// normal `n` and `v·n`), added as 6 V, 24 ∫x and 60 ∫|x|². Every point of
+/// normal `n` and `v·n`; `u = n_x × n_y`), added as 6 V, 24 ∫x and 60 ∫|x|². Every point of
 /// a cone's base triangle lies on the base's plane and `f` is the foot on
 /// the edge line, so the cross terms of the second moment reduce: `c·v =
 /// c·f = |c|²` and `f·v = |f|²`; with `u = n_x × n_y`, `f = v - s u`,
@@ -511,11 +579,11 @@ fn add_corner_edge<const P: usize>(
     vv: f32,
     (x, nx, vx): (u32, Point, f32),
     (y, ny, vy): (u32, Point, f32),
+    u: Point,
 ) {
     let cx = feet[x as usize];
     let cy = feet[y as usize];
     let (cx3, cy3) = (normal(cx), normal(cy));
-    let u = nx.cross(ny);
     let uu = u.length_squared();
     let vu = v.dot(u);
     let s = if uu > 0.0 { vu / uu } else { 0.0 };
@@ -548,10 +616,16 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
             p += 1;
         }
         let mut acc = Linear::default();
+        let radius2 = self.refine_below();
         let mut i = 0;
         while i < (self.n_verts as usize).min(V) {
-            let v = Vec3::from(self.verts[i]);
             let t = unpack(self.tris[i]);
+            let (na, nb, nc) = (
+                normal(self.planes[t[0] as usize]),
+                normal(self.planes[t[1] as usize]),
+                normal(self.planes[t[2] as usize]),
+            );
+            let v = Vec3::from(self.refined(i, radius2, [na, nb, nc], [na.cross(nb), nb.cross(nc), nc.cross(na)]));
             let mut e = 0;
             while e < 3 {
                 let (x, y) = (t[e], t[(e + 1) % 3]);
@@ -649,6 +723,30 @@ mod tests {
         let (plain, (lin, v)) = (q.moments(), q.moments_linear(2.5, Vec3::ZERO));
         assert!(close(lin.volume, 2.5 * plain.volume, 1e-5) && close(v, plain.volume, 1e-5));
         assert!((lin.first - plain.first * 2.5).length() < 1e-5 && close(lin.second, 2.5 * plain.second, 1e-5));
+    }
+
+    /// A cell of size 1 cut out of a tet 1 000 times larger: its vertices
+    /// slid from corners 1 000 away, off by about `ε · 1000`; refined onto
+    /// their planes before the moments, the cell is exact to f32.
+    #[test]
+    fn a_small_cell_in_a_big_tet_is_refined() {
+        let big = [
+            Vec3::new(-1000.0, -1000.0, -1000.0),
+            Vec3::new(3000.0, -900.0, -1100.0),
+            Vec3::new(-800.0, 2900.0, -950.0),
+            Vec3::new(-1050.0, -1020.0, 3100.0),
+        ];
+        let mut p = Cell::tetrahedron(big);
+        // A slanted box: three pairs of planes, |x·n| <= 0.5 along a frame.
+        let (a, b) = (Vec3::new(0.8, 0.6, 0.0), Vec3::new(-0.36, 0.48, 0.8));
+        let frame = [a, b, a.cross(b)];
+        for n in frame {
+            assert_eq!(p.clip(n.extend(0.5)), Clip::Cut);
+            assert_eq!(p.clip((-n).extend(0.5)), Clip::Cut);
+        }
+        let m = p.moments();
+        assert!(close(m.volume, 1.0, 1e-6), "{m:?}");
+        assert!(m.first.length() < 1e-6 && close(m.second, 0.25, 1e-6), "{m:?}");
     }
 
     #[test]
