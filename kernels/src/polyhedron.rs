@@ -487,7 +487,8 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
         // (`normalized`): |det| <= 42, and below 1e-2 the planes are
         // nearly dependent.
         let det = na.dot(bc);
-        if !(det * det > 1e-4) {
+        let well_conditioned = det * det > 1e-4;
+        if !well_conditioned {
             return v;
         }
         let (ra, rb, rc) = (
