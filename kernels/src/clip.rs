@@ -21,7 +21,9 @@
 
 use crate::abi::{counter, ClipParams, RefineParams, SplitPoint, ACCUM_PER_SITE, INCOMPLETE_TET, NO_SITE};
 use crate::buffers::{AtomicSums, OutBuf, PairList};
-use crate::polyhedron::{between, Cell, Clip, Moments, Piece, Point, Polyhedron, CELL_PLANES, CELL_VERTS, NO_ID};
+use crate::polyhedron::{
+    between, made_by_site, Cell, Clip, Moments, Piece, Point, Polyhedron, CELL_PLANES, CELL_VERTS, TET_FACE,
+};
 use crate::walk::{clip_to_cell, GridWalk};
 use spirv_std::glam::{Vec3, Vec4};
 
@@ -377,7 +379,7 @@ fn borders_unpaired<const P: usize, const V: usize>(
     let mut q = 0;
     while q < poly.n_planes as usize {
         let id = poly.ids[q];
-        if (faces >> q) & 1 != 0 && id != NO_ID {
+        if (faces >> q) & 1 != 0 && made_by_site(id) {
             let d = (Vec3::from(between(&sites[id as usize], &xj)) - c).length();
             if d > reach + band || (d >= reach - band && !paired.holds(id)) {
                 return true;
@@ -677,7 +679,7 @@ pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     let mut c = Clipped::default();
     let mut f = 0;
     while f < 4 && !poly.is_empty() {
-        match poly.clip(faces.planes[f]) {
+        match poly.clip_as(faces.planes[f], TET_FACE + f as u32) {
             Clip::Cut | Clip::Empty => c.clips += 1,
             Clip::Unchanged => {}
             Clip::Overflow => c.overflow = true,
@@ -815,7 +817,7 @@ pub fn flood<const P: usize, const V: usize, const Q: usize, F, A, C, L, S>(
             let mut q = 0;
             while q < poly.n_planes as usize {
                 let id = poly.ids[q];
-                if (faces >> q) & 1 != 0 && id != NO_ID {
+                if (faces >> q) & 1 != 0 && made_by_site(id) {
                     let mut seen = false;
                     let mut s = 0;
                     while s < len {

@@ -87,6 +87,17 @@ pub const CELL_PLANES: usize = 64;
 pub const CELL_VERTS: usize = 128;
 /// The id of planes no site made.
 pub const NO_ID: u32 = u32::MAX;
+/// The id of the face of a tet opposite its vertex `f` is `TET_FACE + f`
+/// (the starting planes of [`Polyhedron::set_tetrahedron`]): a piece knows
+/// which of its tet's faces bound it.
+pub const TET_FACE: u32 = u32::MAX - 4;
+
+/// Whether a plane's id names the site whose bisector it is (not a tet's
+/// face, nor another plane no site made).
+#[inline]
+pub fn made_by_site(id: u32) -> bool {
+    id < TET_FACE
+}
 
 /// A Voronoi cell.
 pub type Cell = Polyhedron<CELL_PLANES, CELL_VERTS>;
@@ -134,8 +145,8 @@ struct Sums {
 pub struct Polyhedron<const P: usize, const V: usize> {
     /// Planes `(n, d)`: the inside is `n·x <= d`.
     pub planes: [Vec4; P],
-    /// Who made each plane (the neighbour site of a bisector), or
-    /// [`NO_ID`] for the starting shape's planes.
+    /// Who made each plane: the neighbour site of a bisector, a tet's face
+    /// ([`TET_FACE`] + the opposite vertex), or [`NO_ID`].
     pub ids: [u32; P],
     /// Vertex positions.
     pub verts: [Point; V],
@@ -237,7 +248,7 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
                 n = -n;
             }
             p.planes[i] = normalized(Vec3::from(n).extend(n.dot(a)));
-            p.ids[i] = NO_ID;
+            p.ids[i] = TET_FACE + i as u32;
             i += 1;
         }
         p.n_planes = 4;
@@ -525,6 +536,49 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
         }
     }
 
+    /// The area of each face, by plane number (the planes no vertex uses
+    /// get 0), from the same vertex-local triangles as [`Self::moments`]:
+    /// vertex `v` with edge `x -> y` owns the triangles `(c_x, f, v)` on face
+    /// `x` and `(c_y, v, f)` on face `y`. As `c_x` is parallel to `n_x`, the
+    /// first's area along `n̂_x` is `½ (f × v)·n̂_x`, and `f × v = w` of
+    /// [`add_corner_edge`]: each edge adds `½ w·n_x` to face `x` and takes
+    /// `½ w·n_y` from face `y`, scaled by `1/|n|` once per face.
+    pub fn face_areas(&self) -> [f32; P] {
+        let mut area = [0.0f32; P];
+        let radius2 = self.refine_below();
+        let mut i = 0;
+        while i < (self.n_verts as usize).min(V) {
+            let t = unpack(self.tris[i]);
+            let n = [
+                normal(self.planes[t[0] as usize]),
+                normal(self.planes[t[1] as usize]),
+                normal(self.planes[t[2] as usize]),
+            ];
+            let x = [n[0].cross(n[1]), n[1].cross(n[2]), n[2].cross(n[0])];
+            let v = self.refined(i, radius2, n, x);
+            let mut e = 0;
+            while e < 3 {
+                let (a, b) = (e, (e + 1) % 3);
+                let u = x[e];
+                let uu = u.length_squared();
+                let s = if uu > 0.0 { v.dot(u) / uu } else { 0.0 };
+                let (va, vb) = (v.dot(n[a]), v.dot(n[b]));
+                let w = (n[a] * vb - n[b] * va) * s;
+                area[t[a] as usize] += 0.5 * w.dot(n[a]);
+                area[t[b] as usize] -= 0.5 * w.dot(n[b]);
+                e += 1;
+            }
+            i += 1;
+        }
+        let mut p = 0;
+        while p < (self.n_planes as usize).min(P) {
+            let len = normal(self.planes[p]).length();
+            area[p] = if len > 0.0 { area[p] / len } else { 0.0 };
+            p += 1;
+        }
+        area
+    }
+
     /// Volume, first and second moments, from vertex-local pieces only
     /// (no adjacency search): each face is fanned from the foot `c_x` of
     /// the perpendicular from the site to its plane, and each fan triangle
@@ -748,6 +802,39 @@ mod tests {
         let m = p.moments();
         assert!(close(m.volume, 1.0, 1e-6), "{m:?}");
         assert!(m.first.length() < 1e-6 && close(m.second, 0.25, 1e-6), "{m:?}");
+    }
+
+    /// Face areas: a unit cube's six are 1; a cell clipped many times is
+    /// closed (its faces' area vectors sum to zero) and its volume is a
+    /// third of the sum of its faces' areas times their distances from the
+    /// origin (the divergence theorem), as the moments say.
+    #[test]
+    fn face_areas_close_and_agree_with_the_volume() {
+        let cube = Cell::cuboid(Vec3::splat(-0.5), Vec3::splat(0.5));
+        let a = cube.face_areas();
+        assert!((0..6).all(|f| close(a[f], 1.0, 1e-6)), "{:?}", &a[..6]);
+        let mut p = Cell::cuboid(Vec3::splat(-1.0), Vec3::splat(1.0));
+        let mut seed = 12345u32;
+        let mut unit = || {
+            seed = seed.wrapping_mul(1664525).wrapping_add(1013904223);
+            (seed >> 8) as f32 / (1u32 << 24) as f32
+        };
+        for _ in 0..30 {
+            let n = Vec3::new(unit() - 0.5, unit() - 0.5, unit() - 0.5).normalize();
+            p.clip(n.extend(0.3 + 0.6 * unit()));
+        }
+        // The origin outside, as for most pieces of a cell.
+        assert_eq!(p.clip(Vec4::new(1.0, 0.2, 0.0, -0.1)), Clip::Cut);
+        let a = p.face_areas();
+        let (mut flux, mut cone) = (Vec3::ZERO, 0.0f32);
+        for (plane, area) in p.planes.iter().zip(a).take(p.n_planes as usize) {
+            let len = plane.truncate().length();
+            flux += plane.truncate() / len * area;
+            cone += area * plane.w / len / 3.0;
+        }
+        let m = p.moments();
+        assert!(flux.length() < 1e-5, "{flux:?}");
+        assert!(close(cone, m.volume, 1e-5), "{cone} vs {}", m.volume);
     }
 
     #[test]
