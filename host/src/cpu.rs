@@ -7,9 +7,9 @@ use crate::error::{Error, Result};
 use crate::knn::{KnnJob, KnnMethod, Neighbors};
 use crate::timing::{timed, Timings};
 use crate::voronoi::{ClipJob, ClipOutput, Pairing, Strategy};
-use cvd_kernels::abi::{counter, lloyd_stat, QuantPoint, RefineParams, ACCUM_PER_SITE};
+use cvd_kernels::abi::{counter, lloyd_stat, ClipParams, QuantPoint, RefineParams, ACCUM_PER_SITE};
 use cvd_kernels::buffers::{DeviceSums, OutBuf, PairList, Window};
-use cvd_kernels::clip::{self, NoPieces, PieceSink, CELL_RECORDS};
+use cvd_kernels::clip::{self, FaceInputs, NoPieces, PieceSink, CELL_RECORDS};
 use cvd_kernels::walk::GridWalk;
 use cvd_kernels::{grid, knn, lloyd, refine, scan};
 use rayon::prelude::*;
@@ -53,7 +53,8 @@ impl CpuBackend {
             timings.push("knn", site_nn.timings.total() + tet_nn.timings.total());
             // The sites' sums, then one volume sum per tet (knn pairing's
             // certificate).
-            let n_sums = p.n_sites as usize * ACCUM_PER_SITE + p.n_tets as usize;
+            let n_sums = p.n_sites as usize * ACCUM_PER_SITE + p.n_tets as usize + job.face_sums_len();
+            let faces = FaceInputs { site_nbrs: &site_nn.indices, tet_faces: &job.tet_faces };
             let sums: Vec<AtomicI64> = (0..n_sums).map(|_| AtomicI64::new(0)).collect();
             let totals: Vec<AtomicI64> = (0..counter::COUNT).map(|_| AtomicI64::new(0)).collect();
             let unfinished = Mutex::new(Vec::new());
@@ -77,7 +78,20 @@ impl CpuBackend {
                             &unfinished,
                             sinks,
                             |t, s, c, u, k| {
-                                clip::flood_tet(t, &job.refine, w, sites, verts, tets, &tet_nn.indices, s, c, u, k)
+                                clip::flood_tet(
+                                    t,
+                                    &job.refine,
+                                    w,
+                                    sites,
+                                    verts,
+                                    tets,
+                                    &tet_nn.indices,
+                                    faces,
+                                    s,
+                                    c,
+                                    u,
+                                    k,
+                                )
                             },
                         )
                     });
@@ -86,8 +100,8 @@ impl CpuBackend {
                 Strategy::TetCell => {
                     let (_, t) = timed(|| {
                         par_indices(n_pairs, CHUNK / 4, &sums, &totals, &unfinished, sinks, |pair, s, c, u, k| {
-                            let nbrs = &site_nn.indices;
-                            clip::tet_cell_pair(pair, p, sites, verts, tets, &tet_nn.indices, nbrs, s, c, u, k)
+                            let (nbrs, tf) = (&site_nn.indices, &job.tet_faces);
+                            clip::tet_cell_pair(pair, p, sites, verts, tets, &tet_nn.indices, nbrs, tf, s, c, u, k)
                         })
                     });
                     timings.push("clip", t);
@@ -108,7 +122,22 @@ impl CpuBackend {
                     timings.push("cells", t);
                     let (_, t) = timed(|| {
                         par_indices(n_pairs, CHUNK / 4, &sums, &totals, &unfinished, sinks, |pair, s, c, u, k| {
-                            clip::cell_tet_pair(pair, p, sites, verts, tets, &tet_nn.indices, &cells, s, c, u, k)
+                            let (nbrs, tf) = (&site_nn.indices, &job.tet_faces);
+                            clip::cell_tet_pair(
+                                pair,
+                                p,
+                                sites,
+                                verts,
+                                tets,
+                                &tet_nn.indices,
+                                &cells,
+                                nbrs,
+                                tf,
+                                s,
+                                c,
+                                u,
+                                k,
+                            )
                         })
                     });
                     timings.push("clip", t);
@@ -122,12 +151,15 @@ impl CpuBackend {
                     let g = grid();
                     let mut list = vec![first.len() as u32];
                     list.extend(first.iter().flatten());
-                    let rp = RefineParams { capacity: first.len() as u32, ..job.refine };
+                    let rp = RefineParams {
+                        clip: ClipParams { capacity: first.len() as u32, ..job.refine.clip },
+                        ..job.refine
+                    };
                     let w = GridWalk::new(&rp, &site_nn.indices, &g.cell_start, &g.cell_count, &g.sorted);
                     let ignored: Vec<AtomicI64> = (0..counter::COUNT).map(|_| AtomicI64::new(0)).collect();
                     let again = Mutex::new(Vec::new());
                     par_indices(first.len(), 1, &sums, &ignored, &again, sinks, |e, s, c, u, k| {
-                        refine::refine_entry(e, &rp, w, sites, verts, tets, &tet_nn.indices, &list, s, c, u, k)
+                        refine::refine_entry(e, &rp, w, sites, verts, tets, &tet_nn.indices, &list, faces, s, c, u, k)
                     });
                     still = again.into_inner().unwrap_or_else(|e| e.into_inner());
                     still.sort_unstable();
@@ -135,10 +167,14 @@ impl CpuBackend {
                 timings.push("second pass", t);
             }
             let mut sums: Vec<i64> = sums.into_iter().map(AtomicI64::into_inner).collect();
-            let tet_volumes = sums.split_off(p.n_sites as usize * ACCUM_PER_SITE);
+            let mut tet_volumes = sums.split_off(p.n_sites as usize * ACCUM_PER_SITE);
+            let faces = tet_volumes.split_off(p.n_tets as usize);
+            let site_lists = if faces.is_empty() { Vec::new() } else { site_nn.indices.clone() };
             Ok(ClipOutput {
                 sums,
                 tet_volumes,
+                faces,
+                site_lists,
                 counters: totals.into_iter().map(AtomicI64::into_inner).collect(),
                 refined: (first.len() - still.len()) as u64,
                 chunks: 1,

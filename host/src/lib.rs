@@ -19,6 +19,7 @@ pub mod cpu;
 pub mod cvt;
 pub mod density;
 pub mod error;
+pub mod faces;
 pub mod io;
 pub mod knn;
 pub mod mesh;

@@ -124,6 +124,10 @@ struct RunArgs {
     /// Skip picture.png (the cells cut by the plane through the middle of the mesh).
     #[arg(long)]
     no_picture: bool,
+    /// Skip neighbors.csv: the faces the cells share and their areas, and
+    /// each cell's area on the domain's boundary (summed with the diagram).
+    #[arg(long)]
+    no_neighbors: bool,
     /// Compute the diagram once more before the timed run (caches, memory,
     /// the driver's kernel compilation), as benchmarks do.
     #[arg(long)]
@@ -399,7 +403,8 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
         .strategy(args.strategy)
         .k(args.k)
         .k_site(args.k_site)
-        .density(density.as_deref());
+        .density(density.as_deref())
+        .faces(!args.no_neighbors);
     if let Some(pairing) = args.pairing {
         cv = cv.pairing(pairing);
     }
@@ -422,6 +427,9 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
         dir.join(name)
     };
     output::write_cells_csv(&file("cells.csv"), &cells)?;
+    if let Some(adjacency) = cells.adjacency() {
+        output::write_neighbors_csv(&file("neighbors.csv"), adjacency)?;
+    }
     // The sites of the diagram: as given, or where the iterations moved them.
     cvd::io::write_sites_xyz(&file("sites.xyz"), &sites)?;
     if !args.no_pieces {

@@ -21,7 +21,7 @@ use crate::knn::KnnJob;
 use crate::site_grid::SiteGrid;
 use crate::voronoi::{ClipJob, ClipOutput};
 use cvd_kernels::abi::{counter, KnnParams, INCOMPLETE_TET, NO_SITE};
-use cvd_kernels::clip::Paired;
+use cvd_kernels::clip::{FaceInputs, Paired};
 use cvd_kernels::refine;
 use cvd_kernels::walk::GridWalk;
 use std::cell::OnceCell;
@@ -59,7 +59,11 @@ pub(crate) fn run<S: TaskSink>(job: &ClipJob, out: &mut ClipOutput, sinks: &Mute
     let grid = SiteGrid::new(&job.sites);
     // The sites' sums, then the tets' volumes, as the kernels lay them out.
     let n_site_sums = out.sums.len();
-    let sums: Vec<AtomicI64> = out.sums.iter().chain(&out.tet_volumes).map(|&s| AtomicI64::new(s)).collect();
+    let sums: Vec<AtomicI64> =
+        out.sums.iter().chain(&out.tet_volumes).chain(&out.faces).map(|&s| AtomicI64::new(s)).collect();
+    // No neighbour lists here: the faces these pieces have are summed as
+    // outside their site's list, and the host completes those sites.
+    let faces = FaceInputs { site_nbrs: &[], tet_faces: &job.tet_faces };
     let mut tets = Vec::new();
     let mut pairs = Vec::new();
     let mut incomplete = Vec::new();
@@ -87,6 +91,7 @@ pub(crate) fn run<S: TaskSink>(job: &ClipJob, out: &mut ClipOutput, sinks: &Mute
             sites,
             verts,
             tets,
+            faces,
             sums,
             counters,
             failed,
@@ -124,6 +129,7 @@ pub(crate) fn run<S: TaskSink>(job: &ClipJob, out: &mut ClipOutput, sinks: &Mute
                 sites,
                 verts,
                 tets,
+                faces,
                 sums,
                 &mut again,
                 sink,
@@ -175,7 +181,9 @@ pub(crate) fn run<S: TaskSink>(job: &ClipJob, out: &mut ClipOutput, sinks: &Mute
     }
     redone.unresolved = unresolved.into_inner();
     let mut all: Vec<i64> = sums.into_iter().map(AtomicI64::into_inner).collect();
-    out.tet_volumes = all.split_off(n_site_sums);
+    let mut volumes = all.split_off(n_site_sums);
+    out.faces = volumes.split_off(out.tet_volumes.len());
+    out.tet_volumes = volumes;
     out.sums = all;
     Ok(redone)
 }

@@ -101,6 +101,21 @@ pub struct ClipJob {
     pub strategy: Strategy,
     /// How tets and sites are paired.
     pub pairing: Pairing,
+    /// Which faces of each tet lie on the mesh's boundary, as the kernels
+    /// read them ([`crate::faces::boundary_bits`]; one word of zeros when
+    /// no faces are summed).
+    pub tet_faces: Vec<u32>,
+}
+
+impl ClipJob {
+    /// How many face sums follow the tets' volumes (0: none).
+    pub fn face_sums_len(&self) -> usize {
+        if self.params.faces_base == 0 {
+            0
+        } else {
+            self.params.n_sites as usize * (self.params.k_site as usize + cvd_kernels::clip::FACE_SUMS_EXTRA)
+        }
+    }
 }
 
 /// What a backend returns for a [`ClipJob`].
@@ -111,6 +126,12 @@ pub struct ClipOutput {
     /// Fixed-point volume of the pieces found in each tet (knn pairing;
     /// zero with flood pairing, whose certificate is in the kernel).
     pub tet_volumes: Vec<i64>,
+    /// The face sums ([`ClipJob::face_sums_len`]; empty without faces).
+    pub faces: Vec<i64>,
+    /// With faces: every site's neighbour list as the kernels read it
+    /// (`k_site` per site; empty if the backend did not keep them whole,
+    /// and the host computes them again).
+    pub site_lists: Vec<u32>,
     /// The kernels' counters (see `cvd_kernels::abi::counter`).
     pub counters: Vec<i64>,
     /// `(tet, site)` entries the kernels could not finish even in their
@@ -191,9 +212,19 @@ pub struct Cells {
     pub chunks: u64,
     /// Time per phase.
     pub timings: Timings,
+    /// The cells' faces and neighbours, when asked for
+    /// ([`ClippedVoronoi::faces`]).
+    pub adjacency: Option<crate::faces::Adjacency>,
 }
 
 impl Cells {
+    /// The clipped Voronoi adjacency (shared faces, their areas and
+    /// normals; each cell's boundary area), when asked for
+    /// ([`ClippedVoronoi::faces`]).
+    pub fn adjacency(&self) -> Option<&crate::faces::Adjacency> {
+        self.adjacency.as_ref()
+    }
+
     /// The CVT energy `Σ_i ∫ |x - x_i|²`.
     pub fn energy_total(&self) -> f64 {
         self.energy.iter().sum()
@@ -211,6 +242,7 @@ pub struct ClippedVoronoi<'a> {
     pub(crate) k_site: Option<usize>,
     pub(crate) backend: Option<&'a dyn Backend>,
     pub(crate) density: Option<&'a [f64]>,
+    pub(crate) faces: bool,
 }
 
 impl<'a> ClippedVoronoi<'a> {
@@ -225,7 +257,16 @@ impl<'a> ClippedVoronoi<'a> {
             k_site: None,
             backend: None,
             density: None,
+            faces: false,
         }
+    }
+
+    /// Also sums each cell's faces: the sites it shares a face with, each
+    /// face's area and normal, and its area on the domain's boundary
+    /// ([`Cells::adjacency`]).
+    pub fn faces(mut self, on: bool) -> Self {
+        self.faces = on;
+        self
     }
 
     /// Tet-cell or cell-tet.
@@ -376,6 +417,16 @@ impl<'a> ClippedVoronoi<'a> {
         let rho_max = self.density.map_or(1.0, |rho| rho.iter().fold(1.0, |a: f64, &b| a.max(b)));
         let bound = 3.0 * (1.0 + diag).powi(2) * rho_max;
         let bits = 61.0 - bound.log2().ceil();
+        // Faces: after the sites' sums and the tets' volumes; a slot holds
+        // at most a cell's surface (inside the unit box: 6) plus the
+        // mesh's boundary area.
+        let (tet_faces, faces_base, area_bits) = if self.faces {
+            let bits = crate::faces::boundary_bits(&local_mesh);
+            let boundary: f64 = local_mesh.boundary().area();
+            (bits, (n * ACCUM_PER_SITE + local_mesh.tets.len()) as u32, 61.0 - (8.0 + boundary).log2().ceil())
+        } else {
+            (vec![0], 0, 0.0)
+        };
         let params = ClipParams {
             n_sites: n as u32,
             n_tets: mesh.tets.len() as u32,
@@ -393,11 +444,15 @@ impl<'a> ClippedVoronoi<'a> {
             box_hi_x: (hi[0] + margin) as f32,
             box_hi_y: (hi[1] + margin) as f32,
             box_hi_z: (hi[2] + margin) as f32,
+            faces_base,
+            area_scale: if self.faces { area_bits.exp2() as f32 } else { 0.0 },
+            // A site lies within a few quantization steps of its cell, plus
+            // f32 rounding of coordinates of order 1.
+            walk_margin: (4.0 / site_knn.quantizer.scale() + 1e-6) as f32,
+            capacity: 0,
         };
         let q = &site_knn.quantizer;
         let lo = q.origin();
-        // A site lies within a few quantization steps of its cell, plus f32
-        // rounding of coordinates of order 1.
         let refine = RefineParams {
             clip: params,
             grid: site_knn.params.grid,
@@ -405,9 +460,6 @@ impl<'a> ClippedVoronoi<'a> {
             grid_lo_y: lo[1] as f32,
             grid_lo_z: lo[2] as f32,
             cell_len: (site_knn.params.grid.cell_size as f64 / q.scale()) as f32,
-            margin: (4.0 / q.scale() + 1e-6) as f32,
-            capacity: 0,
-            _pad: [0; 2],
         };
         let job = ClipJob {
             refine,
@@ -426,6 +478,7 @@ impl<'a> ClippedVoronoi<'a> {
             params,
             strategy: self.strategy,
             pairing,
+            tet_faces,
         };
         Ok((job, map, frame))
     }
@@ -473,11 +526,57 @@ impl<'a> ClippedVoronoi<'a> {
             out.timings.push("host pass", t);
         }
         let refined = out.refined;
+        let adjacency = if job.face_sums_len() > 0 {
+            let (adjacency, t) = crate::timing::timed(|| self.adjacency(job, map, frame, &out));
+            out.timings.push("faces", t);
+            Some(adjacency?)
+        } else {
+            None
+        };
         let mut cells = finish(self.mesh, self.density, self.sites, job, map, frame, out);
+        cells.adjacency = adjacency;
         cells.counters.second_pass = refined + redone.finished;
         cells.counters.unresolved = redone.unresolved;
         cells.counters.missed_tets = redone.missed_tets;
         Ok(cells)
+    }
+}
+
+impl ClippedVoronoi<'_> {
+    /// The adjacency from the kernels' face sums: each site's neighbour
+    /// list again (the same exact k-NN, on the CPU), the slots read
+    /// through it; the sites with faces outside their list get theirs from
+    /// the kernels' bodies on the CPU.
+    fn adjacency(
+        &self,
+        job: &ClipJob,
+        map: &[Option<usize>],
+        frame: &Frame,
+        out: &ClipOutput,
+    ) -> Result<crate::faces::Adjacency> {
+        let k = job.params.k_site as usize;
+        let mut cpu = None;
+        let again;
+        let lists = if out.site_lists.len() == job.params.n_sites as usize * k {
+            &out.site_lists
+        } else {
+            let c = cpu.insert(crate::cpu::CpuBackend::new(None)?);
+            again = job.site_knn.run(c)?.indices;
+            &again
+        };
+        let (mut faces, incomplete) = crate::faces::from_sums(&out.faces, lists, k, job.params.area_scale as f64);
+        if !incomplete.is_empty() {
+            let cpu = match cpu {
+                Some(c) => c,
+                None => crate::cpu::CpuBackend::new(None)?,
+            };
+            let sinks = Mutex::new(Vec::new());
+            let mut again = cpu.clip_into::<crate::faces::FaceCollector>(job, &sinks)?;
+            crate::second_pass::run(job, &mut again, &sinks)?;
+            let all = sinks.into_inner().unwrap_or_else(|e| e.into_inner());
+            crate::faces::complete(&mut faces, &incomplete, &all, &job.tet_faces);
+        }
+        Ok(crate::faces::assemble(&faces, map, self.sites, frame.scale))
     }
 }
 

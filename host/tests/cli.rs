@@ -37,9 +37,29 @@ fn run_writes_every_output() {
     let out = cvd_run(&dir, &["--sites", "150", "--resolution", "3", "--json", json.to_str().unwrap()]);
     assert!(out.status.success(), "{}", text(&out.stderr));
     let folder = dir.join("out").join("cube");
-    for file in ["cells.csv", "sites.xyz", "pieces.vtu", "picture.png", "summary.json"] {
+    for file in ["cells.csv", "neighbors.csv", "sites.xyz", "pieces.vtu", "picture.png", "summary.json"] {
         assert!(folder.join(file).is_file(), "{file} missing");
     }
+    // neighbors.csv: each shared face from both sides with one area; the
+    // boundary rows cover the cube's surface.
+    let text_of = std::fs::read_to_string(folder.join("neighbors.csv")).unwrap();
+    let mut lines = text_of.lines();
+    assert_eq!(lines.next(), Some("site,neighbor,area,nx,ny,nz"));
+    let mut faces = std::collections::HashMap::new();
+    let mut boundary = 0.0;
+    for line in lines {
+        let f: Vec<&str> = line.split(',').collect();
+        assert_eq!(f.len(), 6, "{line}");
+        let (i, j, area): (u32, i64, f64) = (f[0].parse().unwrap(), f[1].parse().unwrap(), f[2].parse().unwrap());
+        if j < 0 {
+            boundary += area;
+        } else {
+            faces.insert((i, j as u32), f[2].to_string());
+        }
+    }
+    assert!(!faces.is_empty() && faces.iter().all(|(&(i, j), a)| faces.get(&(j, i)) == Some(a)));
+    let surface = cvd::mesher::models::builtin("cube", Some(3)).unwrap().boundary().area();
+    assert!((boundary - surface).abs() < 1e-5 * surface, "boundary {boundary} vs {surface}");
     let rows = cvd::output::read_cells_csv(&folder.join("cells.csv")).unwrap();
     assert_eq!(rows.len(), 150);
     let sites = cvd::io::read_sites(&folder.join("sites.xyz")).unwrap();
@@ -62,6 +82,8 @@ fn no_pieces_skips_the_pieces_and_the_picture() {
     let folder = dir.join("here");
     assert!(folder.join("cells.csv").is_file() && folder.join("summary.json").is_file());
     assert!(!folder.join("pieces.vtu").exists() && !folder.join("picture.png").exists());
+    let out = cvd_run(&dir, &["--sites", "50", "--resolution", "2", "--out", "plain", "--no-neighbors"]);
+    assert!(out.status.success() && !dir.join("plain/neighbors.csv").exists(), "{}", text(&out.stderr));
     let out = cvd_run(&dir, &["--sites", "50", "--resolution", "2", "--out", "there", "--no-picture"]);
     assert!(out.status.success(), "{}", text(&out.stderr));
     assert!(dir.join("there/pieces.vtu").is_file() && !dir.join("there/picture.png").exists());

@@ -211,6 +211,17 @@ pub struct ClipParams {
     pub own_lo: u32,
     /// See `own_lo`.
     pub own_hi: u32,
+    /// Where the faces' sums begin in `sums` ([`crate::clip::add_faces`]),
+    /// or 0: no faces are summed.
+    pub faces_base: u32,
+    /// Fixed-point scale of the face areas (a power of two).
+    pub area_scale: f32,
+    /// How far a site may sit outside its site-grid cell in the clipping
+    /// frame (quantization and rounding), subtracted from every gap of a
+    /// grid walk.
+    pub walk_margin: f32,
+    /// Capacity of the second pass's entry lists, in entries.
+    pub capacity: u32,
 }
 
 /// Push constants of the second pass ([`crate::refine`]): the clipping
@@ -230,13 +241,6 @@ pub struct RefineParams {
     pub grid_lo_z: f32,
     /// Side of a grid cell in the clipping frame.
     pub cell_len: f32,
-    /// How far a site may sit outside its cell in the clipping frame
-    /// (quantization and rounding), subtracted from every gap.
-    pub margin: f32,
-    /// Capacity of the entry lists, in entries.
-    pub capacity: u32,
-    /// Padding to a 16-byte multiple.
-    pub _pad: [u32; 2],
 }
 
 /// Per-iteration statistics of a Lloyd run (`i64` each), by index within

@@ -22,7 +22,7 @@
 use crate::abi::{counter, ClipParams, RefineParams, SplitPoint, ACCUM_PER_SITE, INCOMPLETE_TET, NO_SITE};
 use crate::buffers::{AtomicSums, OutBuf, PairList};
 use crate::polyhedron::{
-    between, made_by_site, Cell, Clip, Moments, Piece, Point, Polyhedron, CELL_PLANES, CELL_VERTS, TET_FACE,
+    between, made_by_site, Cell, Clip, Moments, Piece, Point, Polyhedron, CELL_PLANES, CELL_VERTS, NO_ID, TET_FACE,
 };
 use crate::walk::{clip_to_cell, GridWalk};
 use spirv_std::glam::{Vec3, Vec4};
@@ -308,6 +308,78 @@ pub fn accumulate<A: AtomicSums>(j: usize, m: &Moments, scale: f32, sums: &mut A
     sums.add(base + 4, fixed(m.second, scale));
 }
 
+/// Sums per site of the faces' region after its `k_site` neighbour slots:
+/// the area on the domain's boundary, then the area of bisector faces whose
+/// maker is not in the site's list (the host finishes those sites).
+pub const FACE_SUMS_EXTRA: usize = 2;
+
+/// What [`add_faces`] reads: each site's neighbour list (`site_nbrs`, as
+/// for the clips) and, per tet, which faces lie on the domain's boundary
+/// (`tet_faces`: 4 bits per tet, 8 tets per word, bit `f` for the face
+/// opposite vertex `f`).
+#[derive(Clone, Copy)]
+pub struct FaceInputs<'a> {
+    /// The neighbour lists of sites `nbr_base..nbr_end`.
+    pub site_nbrs: &'a [u32],
+    /// The boundary bits of every tet.
+    pub tet_faces: &'a [u32],
+}
+
+/// Adds the faces of site `j`'s piece of tet `t` to the site's face sums
+/// (`sign` = 1), or takes them back (`-1`), when `p.faces_base` is not 0:
+/// from `faces_base + j * (k_site + FACE_SUMS_EXTRA)`, the area shared with
+/// each neighbour of the site's list (the bisector face that neighbour
+/// made), then the area on the domain's boundary (the faces of the tet
+/// flagged in `tet_faces`), then the area of bisector faces made by sites
+/// outside the list. Internal faces of the mesh add nothing: the pieces on
+/// either side belong to the same cell.
+#[inline]
+pub fn add_faces<const P: usize, const V: usize, A: AtomicSums>(
+    j: usize,
+    t: usize,
+    poly: &Polyhedron<P, V>,
+    p: &ClipParams,
+    inputs: FaceInputs,
+    sign: i64,
+    sums: &mut A,
+) {
+    if p.faces_base == 0 {
+        return;
+    }
+    let k = p.k_site as usize;
+    let base = p.faces_base as usize + j * (k + FACE_SUMS_EXTRA);
+    let list = list_start(p, j);
+    let boundary = inputs.tet_faces[t / 8] >> (4 * (t % 8));
+    let areas = poly.face_areas();
+    let mut q = 0;
+    while q < (poly.n_planes as usize).min(P) {
+        let area = areas[q];
+        let id = poly.ids[q];
+        if area != 0.0 {
+            let a = sign * fixed(area, p.area_scale);
+            if made_by_site(id) {
+                let mut slot = k + 1;
+                // Without the site's list (the host's pass has none), the
+                // face is summed apart and the host completes the site.
+                if list != NO_LIST && list + k <= inputs.site_nbrs.len() {
+                    let mut s = 0;
+                    while s < k {
+                        if inputs.site_nbrs[list + s] == id {
+                            slot = s;
+                            s = k;
+                        }
+                        s += 1;
+                    }
+                }
+                sums.add(base + slot, a);
+            } else if (TET_FACE..NO_ID).contains(&id) && (boundary >> (id - TET_FACE)) & 1 != 0 {
+                sums.add(base + k, a);
+            }
+        }
+        q += 1;
+    }
+}
+
 /// The sites paired with a tet (knn pairing): `list[start..start + len]`,
 /// nearest the tet's centroid first. `len == 0`: no list to check against
 /// (the pair's site was found otherwise).
@@ -408,6 +480,7 @@ pub fn finish_pair<const P: usize, const V: usize, A: AtomicSums, L: PairList, S
     sites: &[SplitPoint],
     verts: &[SplitPoint],
     tets: &[[u32; 4]],
+    faces: FaceInputs,
     sums: &mut A,
     unfinished: &mut L,
     sink: &mut S,
@@ -421,6 +494,7 @@ pub fn finish_pair<const P: usize, const V: usize, A: AtomicSums, L: PairList, S
     }
     let (m, volume) = piece_moments(poly, t, verts, tets, tv);
     accumulate(j, &m, p.fixed_scale, sums);
+    add_faces(j, t, poly, p, faces, 1, sums);
     add_tet_volume(t, p.n_sites, volume, p.fixed_scale, sums);
     sink.piece(t as u32, j as u32, poly);
     if borders_unpaired(poly, j, tv, sites, paired) {
@@ -535,6 +609,7 @@ pub fn tet_cell_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     tets: &[[u32; 4]],
     tet_sites: &[u32],
     site_nbrs: &[u32],
+    tet_faces: &[u32],
     sums: &mut A,
     counters: &mut C,
     unfinished: &mut L,
@@ -549,7 +624,22 @@ pub fn tet_cell_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     let k = p.k_site as usize;
     let c = clip_by_bisectors(&mut poly, j, p.n_sites, sites, site_nbrs, list_start(p, j), k);
     let paired = Paired::around(tet_sites, i, p.k_tet as usize);
-    let nonempty = finish_pair(t, j, &poly, &tv, &c, paired, p, sites, verts, tets, sums, unfinished, sink);
+    let nonempty = finish_pair(
+        t,
+        j,
+        &poly,
+        &tv,
+        &c,
+        paired,
+        p,
+        sites,
+        verts,
+        tets,
+        FaceInputs { site_nbrs, tet_faces },
+        sums,
+        unfinished,
+        sink,
+    );
     count(counters, 1, nonempty as i64, &c);
 }
 
@@ -626,6 +716,8 @@ pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     tets: &[[u32; 4]],
     tet_sites: &[u32],
     cells: &[[f32; 4]],
+    site_nbrs: &[u32],
+    tet_faces: &[u32],
     sums: &mut A,
     counters: &mut C,
     unfinished: &mut L,
@@ -691,7 +783,22 @@ pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
         f += 1;
     }
     let paired = Paired::around(tet_sites, i, p.k_tet as usize);
-    let nonempty = finish_pair(t, j, &poly, &tv, &c, paired, p, sites, verts, tets, sums, unfinished, sink);
+    let nonempty = finish_pair(
+        t,
+        j,
+        &poly,
+        &tv,
+        &c,
+        paired,
+        p,
+        sites,
+        verts,
+        tets,
+        FaceInputs { site_nbrs, tet_faces },
+        sums,
+        unfinished,
+        sink,
+    );
     count(counters, 1, nonempty as i64, &c);
 }
 
@@ -725,6 +832,7 @@ pub fn flood_tet<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     verts: &[SplitPoint],
     tets: &[[u32; 4]],
     tet_sites: &[u32],
+    faces: FaceInputs,
     sums: &mut A,
     counters: &mut C,
     unfinished: &mut L,
@@ -739,10 +847,11 @@ pub fn flood_tet<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     flood::<32, 64, FLOOD_CAP, _, _, _, _, _>(
         t,
         tet_sites[i],
-        p.clip.fixed_scale,
+        &p.clip,
         sites,
         verts,
         tets,
+        faces,
         move |j: usize, poly: &mut Piece| clip_to_cell(poly, j, sites, w),
         sums,
         counters,
@@ -764,10 +873,11 @@ pub fn flood_tet<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
 pub fn flood<const P: usize, const V: usize, const Q: usize, F, A, C, L, S>(
     t: usize,
     start: u32,
-    fixed_scale: f32,
+    p: &ClipParams,
     sites: &[SplitPoint],
     verts: &[SplitPoint],
     tets: &[[u32; 4]],
+    faces: FaceInputs,
     mut piece: F,
     sums: &mut A,
     counters: &mut C,
@@ -812,6 +922,7 @@ pub fn flood<const P: usize, const V: usize, const Q: usize, F, A, C, L, S>(
             total += volume;
             // Given now, while the piece exists; taken back if the flood fails.
             sink.piece(t as u32, j as u32, &poly);
+            add_faces(j, t, &poly, p, faces, 1, sums);
             // Planes a clip made but a later one cut away are no faces.
             let faces = poly.face_mask();
             let mut q = 0;
@@ -847,7 +958,7 @@ pub fn flood<const P: usize, const V: usize, const Q: usize, F, A, C, L, S>(
         let mut i = 0;
         while i < len {
             if found[i].volume != 0.0 {
-                accumulate(queue[i] as usize, &found[i], fixed_scale, sums);
+                accumulate(queue[i] as usize, &found[i], p.fixed_scale, sums);
                 nonempty += 1;
             }
             i += 1;
@@ -855,6 +966,20 @@ pub fn flood<const P: usize, const V: usize, const Q: usize, F, A, C, L, S>(
     } else {
         sink.discard_tet(t as u32);
         unfinished.push(t as u32, NO_SITE);
+        // Take back the faces given so far: the same pieces again (the clip
+        // is deterministic), subtracted.
+        if p.faces_base != 0 {
+            let mut h = 0;
+            while h < head {
+                if found[h].volume != 0.0 {
+                    let j = queue[h] as usize;
+                    poly.set_tetrahedron(tet_vertices(t, verts, tets, &sites[j]));
+                    piece(j, &mut poly);
+                    add_faces(j, t, &poly, p, faces, -1, sums);
+                }
+                h += 1;
+            }
+        }
     }
     count(counters, head as i64, nonempty, &c);
 }

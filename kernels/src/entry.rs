@@ -9,7 +9,7 @@ use crate::abi::{
     thread_index, ClipParams, GridBuildParams, KnnParams, LloydParams, QuantPoint, RefineParams, SplitPoint,
 };
 use crate::buffers::{DeviceCounters, DeviceList, DeviceSums};
-use crate::clip::NoPieces;
+use crate::clip::{FaceInputs, NoPieces};
 use crate::walk::GridWalk;
 use crate::{clip, grid, knn, lloyd, refine, scan};
 use spirv_std::glam::UVec3;
@@ -144,6 +144,7 @@ pub fn clip_tet_cell(
     #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] sums: &mut [i64],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 6)] counters: &mut [i64],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 7)] unfinished: &mut [u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] tet_faces: &[u32],
 ) {
     let pair = thread_index(id.x, id.y, groups.x);
     clip::tet_cell_pair(
@@ -154,6 +155,7 @@ pub fn clip_tet_cell(
         tets,
         tet_sites,
         site_nbrs,
+        tet_faces,
         &mut DeviceSums(sums),
         &mut DeviceSums(counters),
         &mut DeviceList(unfinished),
@@ -190,6 +192,8 @@ pub fn clip_cell_tet(
     #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] sums: &mut [i64],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 6)] counters: &mut [i64],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 7)] unfinished: &mut [u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] site_nbrs: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] tet_faces: &[u32],
 ) {
     let pair = thread_index(id.x, id.y, groups.x);
     clip::cell_tet_pair(
@@ -200,6 +204,8 @@ pub fn clip_cell_tet(
         tets,
         tet_sites,
         cells,
+        site_nbrs,
+        tet_faces,
         &mut DeviceSums(sums),
         &mut DeviceSums(counters),
         &mut DeviceList(unfinished),
@@ -224,6 +230,7 @@ pub fn clip_flood(
     #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] sums: &mut [i64],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] counters: &mut [i64],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] unfinished: &mut [u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 11)] tet_faces: &[u32],
 ) {
     let t = thread_index(id.x, id.y, groups.x);
     let w = GridWalk::new(p, site_nbrs, cell_start, cell_count, sorted);
@@ -235,6 +242,7 @@ pub fn clip_flood(
         verts,
         tets,
         tet_sites,
+        FaceInputs { site_nbrs, tet_faces },
         &mut DeviceSums(sums),
         &mut DeviceSums(counters),
         &mut DeviceList(unfinished),
@@ -260,6 +268,7 @@ pub fn refine(
     #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] sums: &mut [i64],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] counters: &mut [i64],
     #[spirv(storage_buffer, descriptor_set = 0, binding = 11)] still: &mut [u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 12)] tet_faces: &[u32],
 ) {
     let e = thread_index(id.x, id.y, groups.x);
     let w = GridWalk::new(p, site_nbrs, cell_start, cell_count, sorted);
@@ -272,6 +281,7 @@ pub fn refine(
         tets,
         tet_sites,
         list,
+        FaceInputs { site_nbrs, tet_faces },
         &mut DeviceSums(sums),
         &mut DeviceSums(counters),
         &mut DeviceList(still),

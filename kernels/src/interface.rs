@@ -14,10 +14,10 @@ use crate::layout::{Layout, TypeLayout};
 /// their meaning (records per stored cell, the markers in lists, sums per
 /// site). It changes with any of them;
 /// [`fingerprint`] is pinned by a test to make sure it does.
-pub const ABI_VERSION: u32 = 5;
+pub const ABI_VERSION: u32 = 6;
 
 /// The [`fingerprint`] of the interface of [`ABI_VERSION`].
-pub const ABI_FINGERPRINT: u64 = 0xc732_85cb_6c06_ecc4;
+pub const ABI_FINGERPRINT: u64 = 0xfa08_0b82_2fe4_0d87;
 
 /// How an entry point uses a storage buffer.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -92,6 +92,8 @@ type Split = SplitPoint;
 /// What the clipping kernels' `site_nbrs` binding holds.
 const SITE_NBRS: &str =
     "(nbr_end - nbr_base) * k_site: the k_site nearest other sites of each site in nbr_base..nbr_end";
+/// What the clipping kernels' `tet_faces` binding holds.
+const TET_FACES: &str = "ceil(n_tets / 8): 4 bits per tet, bit f set when the face opposite vertex f is on the domain's boundary (for the face sums)";
 /// What a site-grid walk's bindings hold.
 const CELL_START: &str = "n_cells: first sorted slot of each cell of the site grid";
 /// See [`CELL_START`].
@@ -197,9 +199,10 @@ pub const ENTRY_POINTS: &[EntryPoint] = &[
             b::<Quant>("tets", R, "n_tets: four vertex indices per tet"),
             b::<u32>("tet_sites", R, "(n_tets - tet_base) * k_tet: the sites paired with each tet of the part"),
             b::<u32>("site_nbrs", R, SITE_NBRS),
-            b::<i64>("sums", W, "n_sites * 5 + n_tets: fixed-point sums per site, then per-tet volumes (atomic)"),
+            b::<i64>("sums", W, "n_sites * 5 + n_tets: fixed-point sums per site, then per-tet volumes, then the face sums from faces_base (atomic)"),
             b::<i64>("counters", W, "8 counters (abi::counter; atomic)"),
             b::<u32>("unfinished", W, "1 + 2 * capacity: count, then (tet, site) entries left for the second pass"),
+            b::<u32>("tet_faces", R, TET_FACES),
         ],
     ),
     ep!(
@@ -223,9 +226,11 @@ pub const ENTRY_POINTS: &[EntryPoint] = &[
             b::<Quant>("tets", R, "n_tets: four vertex indices per tet"),
             b::<u32>("tet_sites", R, "(n_tets - tet_base) * k_tet: the sites paired with each tet of the part"),
             b::<Vec4>("cells", R, "n_sites * CELL_RECORDS: the cells from voronoi_cells"),
-            b::<i64>("sums", W, "n_sites * 5 + n_tets: fixed-point sums (atomic)"),
+            b::<i64>("sums", W, "n_sites * 5 + n_tets: fixed-point sums, then the face sums (atomic)"),
             b::<i64>("counters", W, "8 counters (atomic)"),
             b::<u32>("unfinished", W, "1 + 2 * capacity: entries left for the second pass"),
+            b::<u32>("site_nbrs", R, SITE_NBRS),
+            b::<u32>("tet_faces", R, TET_FACES),
         ],
     ),
     ep!(
@@ -241,9 +246,10 @@ pub const ENTRY_POINTS: &[EntryPoint] = &[
             b::<u32>("cell_start", R, CELL_START),
             b::<u32>("cell_count", R, CELL_COUNT),
             b::<Quant>("sorted", R, SORTED),
-            b::<i64>("sums", W, "n_sites * 5 (+ n_tets, unused): fixed-point sums per site (atomic)"),
+            b::<i64>("sums", W, "n_sites * 5 (+ n_tets, unused): fixed-point sums per site, then the face sums (atomic)"),
             b::<i64>("counters", W, "8 counters (atomic)"),
             b::<u32>("unfinished", W, "1 + 2 * n_tets: count, then (tet, site or NO_SITE) entries"),
+            b::<u32>("tet_faces", R, TET_FACES),
         ],
     ),
     ep!(
@@ -263,6 +269,7 @@ pub const ENTRY_POINTS: &[EntryPoint] = &[
             b::<i64>("sums", W, "the first pass's sums, added to (atomic)"),
             b::<i64>("counters", W, "8 counters (atomic; the host passes a scratch buffer)"),
             b::<u32>("still", W, "1 + 2 * capacity: entries even this pass could not finish"),
+            b::<u32>("tet_faces", R, TET_FACES),
         ],
     ),
     ep!(
@@ -296,6 +303,7 @@ pub fn fingerprint() -> u64 {
         crate::abi::NO_SITE as u64,
         crate::abi::INCOMPLETE_TET as u64,
         crate::abi::ACCUM_PER_SITE as u64,
+        crate::clip::FACE_SUMS_EXTRA as u64,
     ] {
         h.num(c);
     }

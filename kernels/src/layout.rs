@@ -137,7 +137,11 @@ structure!(ClipParams {
     nbr_base: u32,
     nbr_end: u32,
     own_lo: u32,
-    own_hi: u32
+    own_hi: u32,
+    faces_base: u32,
+    area_scale: f32,
+    walk_margin: f32,
+    capacity: u32
 });
 structure!(RefineParams {
     clip: ClipParams,
@@ -146,9 +150,6 @@ structure!(RefineParams {
     grid_lo_y: f32,
     grid_lo_z: f32,
     cell_len: f32,
-    margin: f32,
-    capacity: u32,
-    _pad: [u32; 2],
 });
 structure!(LloydParams {
     n_sites: u32,

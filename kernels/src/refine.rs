@@ -7,7 +7,7 @@
 
 use crate::abi::{RefineParams, SplitPoint, INCOMPLETE_TET, NO_SITE};
 use crate::buffers::{AtomicSums, PairList};
-use crate::clip::{finish_pair, flood, tet_vertices, Paired, PieceSink};
+use crate::clip::{finish_pair, flood, tet_vertices, FaceInputs, Paired, PieceSink};
 use crate::polyhedron::{Cell, CELL_PLANES, CELL_VERTS};
 use crate::walk::{clip_to_cell, GridWalk};
 
@@ -31,12 +31,13 @@ pub fn refine_entry<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     tets: &[[u32; 4]],
     tet_sites: &[u32],
     list: &[u32],
+    faces: FaceInputs,
     sums: &mut A,
     counters: &mut C,
     still: &mut L,
     sink: &mut S,
 ) {
-    if e >= list[0] as usize || e >= p.capacity as usize {
+    if e >= list[0] as usize || e >= p.clip.capacity as usize {
         return;
     }
     let t = list[1 + 2 * e] as usize;
@@ -52,6 +53,7 @@ pub fn refine_entry<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
             sites,
             verts,
             tets,
+            faces,
             sums,
             counters,
             still,
@@ -61,7 +63,7 @@ pub fn refine_entry<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
         still.push(t as u32, INCOMPLETE_TET);
     } else {
         let paired = Paired::around(tet_sites, slot, k);
-        refine_pair(t, j as usize, paired, p, w, sites, verts, tets, sums, still, sink);
+        refine_pair(t, j as usize, paired, p, w, sites, verts, tets, faces, sums, still, sink);
     }
 }
 
@@ -77,6 +79,7 @@ pub fn refine_tet<const Q: usize, A: AtomicSums, C: AtomicSums, L: PairList, S: 
     sites: &[SplitPoint],
     verts: &[SplitPoint],
     tets: &[[u32; 4]],
+    faces: FaceInputs,
     sums: &mut A,
     counters: &mut C,
     still: &mut L,
@@ -85,10 +88,11 @@ pub fn refine_tet<const Q: usize, A: AtomicSums, C: AtomicSums, L: PairList, S: 
     flood::<CELL_PLANES, CELL_VERTS, Q, _, _, _, _, _>(
         t,
         start,
-        p.clip.fixed_scale,
+        &p.clip,
         sites,
         verts,
         tets,
+        faces,
         move |j: usize, poly: &mut Cell| clip_to_cell(poly, j, sites, w),
         sums,
         counters,
@@ -110,6 +114,7 @@ pub fn refine_pair<A: AtomicSums, L: PairList, S: PieceSink>(
     sites: &[SplitPoint],
     verts: &[SplitPoint],
     tets: &[[u32; 4]],
+    faces: FaceInputs,
     sums: &mut A,
     still: &mut L,
     sink: &mut S,
@@ -118,5 +123,5 @@ pub fn refine_pair<A: AtomicSums, L: PairList, S: PieceSink>(
     let tv = tet_vertices(t, verts, tets, &sites[j]);
     poly.set_tetrahedron(tv);
     let c = clip_to_cell(&mut poly, j, sites, w);
-    finish_pair(t, j, &poly, &tv, &c, paired, &p.clip, sites, verts, tets, sums, still, sink);
+    finish_pair(t, j, &poly, &tv, &c, paired, &p.clip, sites, verts, tets, faces, sums, still, sink);
 }

@@ -69,7 +69,7 @@ impl<'a> GridWalk<'a> {
             grid: p.grid,
             lo: Vec3::new(p.grid_lo_x, p.grid_lo_y, p.grid_lo_z),
             cell_len: p.cell_len,
-            margin: p.margin,
+            margin: p.clip.walk_margin,
             cell_start,
             cell_count,
             sorted,

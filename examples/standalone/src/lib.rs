@@ -592,6 +592,11 @@ pub fn run(spirv_dir: &Path, verts: &[[f64; 3]], tets: &[[u32; 4]], sites: &[[f6
         ("nbr_end", U(n as u64)),
         ("own_lo", U(0)),
         ("own_hi", U(n as u64)),
+        // No face sums (faces_base 0: `tet_faces` is bound but not read).
+        ("faces_base", U(0)),
+        ("area_scale", F(0.0)),
+        ("walk_margin", F(4.0 / qscale + 1e-6)),
+        ("capacity", U(nt as u64)),
     ];
 
     let used = [
@@ -634,6 +639,7 @@ pub fn run(spirv_dir: &Path, verts: &[[f64; 3]], tets: &[[u32; 4]], sites: &[[f6
     let unfinished = g.buffer((1 + 2 * nt) * 4, &[])?;
     let still = g.buffer((1 + 2 * nt) * 4, &[])?;
     let scratch = g.buffer(n_counters * 8, &[])?;
+    let tet_faces = g.buffer(4, &[])?;
 
     // 1. The site grid: count, prefix sum, scatter, order within cells.
     let mut build = named("grid.", &grid);
@@ -677,14 +683,17 @@ pub fn run(spirv_dir: &Path, verts: &[[f64; 3]], tets: &[[u32; 4]], sites: &[[f6
             ("grid_lo_y", F(qlo[1])),
             ("grid_lo_z", F(qlo[2])),
             ("cell_len", F(cell as f64 / qscale)),
-            ("margin", F(4.0 / qscale + 1e-6)),
-            ("capacity", U(nt as u64)),
         ],
     ));
-    let args = [sites_f, verts_f, tets_b, tet_sites, nbrs, cell_start, cell_count, sorted, sums, counters, unfinished];
+    let args = [
+        sites_f, verts_f, tets_b, tet_sites, nbrs, cell_start, cell_count, sorted, sums, counters, unfinished,
+        tet_faces,
+    ];
     g.dispatch(m, "clip_flood", &args, &refine, nt as u64)?;
-    let args =
-        [sites_f, verts_f, tets_b, tet_sites, unfinished, nbrs, cell_start, cell_count, sorted, sums, scratch, still];
+    let args = [
+        sites_f, verts_f, tets_b, tet_sites, unfinished, nbrs, cell_start, cell_count, sorted, sums, scratch, still,
+        tet_faces,
+    ];
     g.dispatch(m, "refine", &args, &refine, nt as u64)?;
     g.submit()?;
 

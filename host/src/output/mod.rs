@@ -10,12 +10,14 @@
 //! Writers that may take a while report their progress as `(done, total)`.
 
 pub mod cells_csv;
+pub mod neighbors_csv;
 pub mod picture;
 pub mod plot;
 pub mod summary;
 pub mod vtu;
 
 pub use cells_csv::{read_cells_csv, write_cells_csv, CellRow};
+pub use neighbors_csv::write_neighbors_csv;
 pub use picture::{write_section_png, Section};
 pub use plot::{write_chart_png, write_line_chart_png, Axes, Series};
 pub use summary::{value_name, CvtRecord, Summary, Times};

@@ -11,8 +11,11 @@ use cvd_kernels::abi::WORKGROUP_SIZE;
 
 /// Most timestamps one job writes.
 const MAX_MARKS: u32 = 64;
-/// Most storage buffers one kernel binds.
-const MAX_BINDINGS: u32 = 12;
+/// Storage buffers of the kernel that binds the most (the descriptor
+/// pool's size per dispatch).
+fn max_bindings() -> u32 {
+    cvd_kernels::interface::ENTRY_POINTS.iter().map(|e| e.bindings.len() as u32).max().unwrap_or(1)
+}
 /// Most workgroups along x in one dispatch (the minimum limit in Vulkan).
 const MAX_GROUPS_X: u64 = 65_535;
 
@@ -73,7 +76,7 @@ impl<'a> Job<'a> {
         job.cmd = unsafe { dev.allocate_command_buffers(&info) }.call("vkAllocateCommandBuffers")?[0];
         let sizes = [vk::DescriptorPoolSize::default()
             .ty(vk::DescriptorType::STORAGE_BUFFER)
-            .descriptor_count(max_dispatches * MAX_BINDINGS)];
+            .descriptor_count(max_dispatches * max_bindings())];
         let info = vk::DescriptorPoolCreateInfo::default().max_sets(max_dispatches).pool_sizes(&sizes);
         job.descriptors = unsafe { dev.create_descriptor_pool(&info, None) }.call("vkCreateDescriptorPool")?;
         let info = vk::QueryPoolCreateInfo::default().query_type(vk::QueryType::TIMESTAMP).query_count(MAX_MARKS);
@@ -236,7 +239,7 @@ impl<'a> Job<'a> {
     ) -> Result<()> {
         let kernel = self.pipelines.get(name)?;
         assert_eq!(buffers.len() as u32, kernel.spec.bindings, "kernel {name}: wrong number of buffers");
-        assert!(kernel.spec.bindings <= MAX_BINDINGS, "kernel {name}: too many buffers for the descriptor pool");
+        assert!(kernel.spec.bindings <= max_bindings(), "kernel {name}: too many buffers for the descriptor pool");
         assert_eq!(std::mem::size_of::<P>() as u32, kernel.spec.push_size, "kernel {name}: wrong push constants");
         if threads == 0 {
             return Ok(());

@@ -151,9 +151,18 @@ impl Backend for VulkanBackend {
             }
         };
         let verts = j.upload(&job.verts)?;
+        if slabs.is_some() && job.face_sums_len() > 0 {
+            return Err(Error::InvalidInput(format!(
+                "summing the cells' faces needs every site's neighbour list on the device at once, but this job \
+                 is split into {} windows of lists on '{}'; use the CPU backend or a larger --memory-budget",
+                windows.len(),
+                self.ctx.info().name
+            )));
+        }
+        let tet_faces = j.upload(&job.tet_faces)?;
         // The sites' sums, then one volume sum per tet (knn pairing's
-        // certificate).
-        let n_sums = n * ACCUM_PER_SITE as u64 + nt;
+        // certificate), then the faces' sums.
+        let n_sums = n * ACCUM_PER_SITE as u64 + nt + job.face_sums_len() as u64;
         let sums = j.zeroed(n_sums * 8)?;
         let counters = j.zeroed(counter::COUNT as u64 * 8)?;
         let site_nbrs = j.buffer((plan.window * ks).max(1) * 4)?;
@@ -254,15 +263,19 @@ impl Backend for VulkanBackend {
                 j.mark("tet knn");
                 // One thread per pair (flood: per tet, k_tet = 1).
                 let pairs = count * kt;
-                let rp = RefineParams { clip: cp, capacity: pairs as u32, ..job.refine };
+                let rp = RefineParams { clip: ClipParams { capacity: pairs as u32, ..cp }, ..job.refine };
                 if flood {
                     let args = [
                         sites, verts, tets, tet_sites, site_nbrs, g.start, g.count, g.sorted, sums, counters,
-                        unfinished,
+                        unfinished, tet_faces,
                     ];
                     j.dispatch(kernel, &args, &rp, pairs)?;
+                } else if cells.is_some() {
+                    let args =
+                        [sites, verts, tets, tet_sites, cell_input, sums, counters, unfinished, site_nbrs, tet_faces];
+                    j.dispatch(kernel, &args, &cp, pairs)?;
                 } else {
-                    let args = [sites, verts, tets, tet_sites, cell_input, sums, counters, unfinished];
+                    let args = [sites, verts, tets, tet_sites, cell_input, sums, counters, unfinished, tet_faces];
                     j.dispatch(kernel, &args, &cp, pairs)?;
                 }
                 j.mark("clip");
@@ -270,7 +283,7 @@ impl Backend for VulkanBackend {
                 // entries: those past its count return at once.
                 let args = [
                     sites, verts, tets, tet_sites, unfinished, site_nbrs, g.start, g.count, g.sorted, sums, ignored,
-                    still,
+                    still, tet_faces,
                 ];
                 j.dispatch("refine", &args, &rp, pairs)?;
                 j.mark("second pass");
@@ -289,6 +302,9 @@ impl Backend for VulkanBackend {
             }
         }
         let sums_back = j.download(sums, n_sums * 8)?;
+        // With faces and every list resident, the lists the slots refer to.
+        let whole_lists = job.face_sums_len() > 0 && windows.len() == 1;
+        let lists_back = if whole_lists { Some(j.download(site_nbrs, n * ks * 4)?) } else { None };
         let counters_back = j.download(counters, counter::COUNT as u64 * 8)?;
         j.mark("download");
         let done = j.run()?;
@@ -298,6 +314,7 @@ impl Backend for VulkanBackend {
         timings.phases.extend(done.timings.phases.iter().cloned());
         let mut sums: Vec<i64> = done.read(sums_back, n_sums as usize);
         let mut tet_volumes = sums.split_off(n as usize * ACCUM_PER_SITE);
+        let faces = tet_volumes.split_off(nt as usize);
         if let Some(s) = slabs {
             s.restore(&mut sums, &mut tet_volumes, &mut left);
         }
@@ -305,6 +322,8 @@ impl Backend for VulkanBackend {
         Ok(ClipOutput {
             sums,
             tet_volumes,
+            faces,
+            site_lists: lists_back.map_or_else(Vec::new, |b| done.read(b, (n * ks) as usize)),
             counters: done.read(counters_back, counter::COUNT),
             refined,
             chunks: plan.tet_parts * windows.len() as u64,
@@ -507,8 +526,11 @@ fn lloyd_on_device(
     let still = j.buffer(list_len * 4)?;
     let ignored = j.buffer(counter::COUNT as u64 * 8)?;
     let stats = j.zeroed((iterations * lloyd_stat::COUNT).max(1) as u64 * 8)?;
+    // No faces are summed in the loop (faces_base is 0): the binding is
+    // there, never read.
+    let tet_faces = j.upload(&[0u32])?;
     j.mark("upload");
-    let rp = RefineParams { capacity: nt as u32, ..job.refine };
+    let rp = RefineParams { clip: ClipParams { capacity: nt as u32, faces_base: 0, ..job.refine.clip }, ..job.refine };
     let mut seconds = Vec::with_capacity(iterations);
     for it in 0..iterations {
         for buf in [sums, counters, unfinished, still] {
@@ -521,10 +543,13 @@ fn lloyd_on_device(
         }
         j.dispatch("knn_grid", &[centroids, g.start, g.count, g.sorted, tet_sites, tet_d2], &tk.params, nt)?;
         j.barrier();
-        let args = [sites, verts, tets, tet_sites, nbr, g.start, g.count, g.sorted, sums, counters, unfinished];
+        let args =
+            [sites, verts, tets, tet_sites, nbr, g.start, g.count, g.sorted, sums, counters, unfinished, tet_faces];
         j.dispatch("clip_flood", &args, &rp, nt)?;
         j.barrier();
-        let args = [sites, verts, tets, tet_sites, unfinished, nbr, g.start, g.count, g.sorted, sums, ignored, still];
+        let args = [
+            sites, verts, tets, tet_sites, unfinished, nbr, g.start, g.count, g.sorted, sums, ignored, still, tet_faces,
+        ];
         j.dispatch("refine", &args, &rp, nt)?;
         j.barrier();
         let lp = crate::cvt::params(job, it);

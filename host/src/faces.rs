@@ -1,0 +1,220 @@
+//! The faces of the clipped cells: which sites' cells touch, over what
+//! area, and how much of each cell lies on the domain's boundary — the
+//! clipped Voronoi adjacency (the restricted Delaunay graph), from the
+//! kernels' face sums ([`cvd_kernels::clip::add_faces`]).
+//!
+//! The kernels add each piece's bisector faces to the slot of the
+//! neighbour that made them in the site's own neighbour list, and its
+//! faces on the mesh's boundary to one slot per site; a face whose maker
+//! is not in the list is summed apart, and the host gives such a site its
+//! faces from the same kernel bodies on the CPU ([`FaceCollector`]). Each
+//! shared face is then measured from both sides; the adjacency holds their
+//! mean, so `area(i, j) == area(j, i)` exactly.
+
+use crate::cpu::TaskSink;
+use crate::mesh::TetMesh;
+use cvd_kernels::clip::PieceSink;
+use cvd_kernels::polyhedron::{made_by_site, Polyhedron, NO_ID, TET_FACE};
+use std::collections::HashMap;
+use std::sync::Mutex;
+
+/// The clipped Voronoi adjacency, per input site (CSR): the sites whose
+/// cells share a face with its cell, the face's area and unit normal
+/// (from the site towards the neighbour), and the cell's area on the
+/// domain's boundary. A duplicated site's row is empty (its cell is the
+/// first copy's).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Adjacency {
+    /// Row `i` is `offsets[i]..offsets[i + 1]` of the arrays below.
+    pub offsets: Vec<usize>,
+    /// Neighbour sites (input indices), increasing within a row.
+    pub neighbors: Vec<u32>,
+    /// Area of each shared face, the same from either side.
+    pub areas: Vec<f64>,
+    /// Unit normal of each shared face, from the site towards the
+    /// neighbour (the bisector's).
+    pub normals: Vec<[f64; 3]>,
+    /// Each cell's area on the domain's boundary.
+    pub boundary: Vec<f64>,
+}
+
+impl Adjacency {
+    /// The faces site `i` shares: `(neighbour, area, normal)`.
+    pub fn of(&self, i: usize) -> impl Iterator<Item = (u32, f64, [f64; 3])> + '_ {
+        let r = self.offsets[i]..self.offsets[i + 1];
+        r.map(move |e| (self.neighbors[e], self.areas[e], self.normals[e]))
+    }
+
+    /// The surface area of cell `i`: its shared faces and its boundary.
+    pub fn surface_area(&self, i: usize) -> f64 {
+        self.areas[self.offsets[i]..self.offsets[i + 1]].iter().sum::<f64>() + self.boundary[i]
+    }
+
+    /// Number of sites (rows).
+    pub fn len(&self) -> usize {
+        self.boundary.len()
+    }
+
+    /// Whether there are no rows.
+    pub fn is_empty(&self) -> bool {
+        self.boundary.is_empty()
+    }
+}
+
+/// Which faces of each tet lie on the mesh's boundary: 4 bits per tet
+/// (bit `f` for the face opposite vertex `f`), 8 tets per word, as the
+/// kernels read them.
+pub(crate) fn boundary_bits(mesh: &TetMesh) -> Vec<u32> {
+    let mut seen: HashMap<[u32; 3], u32> = HashMap::with_capacity(2 * mesh.tets.len());
+    for t in &mesh.tets {
+        for f in 0..4 {
+            let mut key = [t[(f + 1) % 4], t[(f + 2) % 4], t[(f + 3) % 4]];
+            key.sort_unstable();
+            *seen.entry(key).or_insert(0) += 1;
+        }
+    }
+    let mut bits = vec![0u32; mesh.tets.len().div_ceil(8).max(1)];
+    for (i, t) in mesh.tets.iter().enumerate() {
+        for f in 0..4 {
+            let mut key = [t[(f + 1) % 4], t[(f + 2) % 4], t[(f + 3) % 4]];
+            key.sort_unstable();
+            if seen[&key] == 1 {
+                bits[i / 8] |= 1 << (4 * (i % 8) + f);
+            }
+        }
+    }
+    bits
+}
+
+/// Every face of every piece the kernels finish, as `(site, maker, area)`
+/// in the job's frame and indices; `maker` is a site, or [`TET_FACE`] + f.
+#[derive(Default)]
+pub(crate) struct FaceCollector(pub(crate) Vec<(u32, u32, f32, u32)>);
+
+impl PieceSink for FaceCollector {
+    fn piece<const P: usize, const V: usize>(&mut self, tet: u32, site: u32, poly: &Polyhedron<P, V>) {
+        let areas = poly.face_areas();
+        for (q, &area) in areas.iter().enumerate().take(poly.n_planes as usize) {
+            let id = poly.ids[q];
+            if area != 0.0 && id != NO_ID {
+                self.0.push((site, id, area, tet));
+            }
+        }
+    }
+
+    fn discard_tet(&mut self, tet: u32) {
+        while self.0.last().is_some_and(|f| f.3 == tet) {
+            self.0.pop();
+        }
+    }
+}
+
+impl TaskSink for FaceCollector {
+    fn hand_over(self, all: &Mutex<Vec<Self>>) {
+        if !self.0.is_empty() {
+            all.lock().unwrap_or_else(|e| e.into_inner()).push(self);
+        }
+    }
+}
+
+/// One site's faces in the job's frame: `(neighbour, area)` and boundary.
+pub(crate) type SiteFaces = (Vec<(u32, f64)>, f64);
+
+/// Each unique site's faces from the kernels' sums (`sums`, `k + 2` per
+/// site after `faces_base`, in units of `1 / area_scale`) and its list
+/// `lists[u * k..]`; the sites with faces outside their list are returned
+/// apart, to be completed.
+pub(crate) fn from_sums(sums: &[i64], lists: &[u32], k: usize, area_scale: f64) -> (Vec<SiteFaces>, Vec<u32>) {
+    let per = k + cvd_kernels::clip::FACE_SUMS_EXTRA;
+    let n = sums.len() / per;
+    let mut out = Vec::with_capacity(n);
+    let mut incomplete = Vec::new();
+    for u in 0..n {
+        let s = &sums[u * per..(u + 1) * per];
+        let faces = (0..k).filter(|&q| s[q] != 0).map(|q| (lists[u * k + q], s[q] as f64 / area_scale)).collect();
+        out.push((faces, s[k] as f64 / area_scale));
+        if s[k + 1] != 0 {
+            incomplete.push(u as u32);
+        }
+    }
+    (out, incomplete)
+}
+
+/// The faces of the sites `which` from every piece's faces (`all`, from a
+/// [`FaceCollector`]) and the tets' boundary bits, replacing theirs in
+/// `faces`.
+pub(crate) fn complete(faces: &mut [SiteFaces], which: &[u32], all: &[FaceCollector], bits: &[u32]) {
+    let wanted: std::collections::HashSet<u32> = which.iter().copied().collect();
+    let mut redone: HashMap<u32, (HashMap<u32, f64>, f64)> = which.iter().map(|&u| (u, Default::default())).collect();
+    for &(site, id, area, tet) in all.iter().flat_map(|c| &c.0) {
+        if !wanted.contains(&site) {
+            continue;
+        }
+        let entry = redone.get_mut(&site).expect("a wanted site");
+        if made_by_site(id) {
+            *entry.0.entry(id).or_insert(0.0) += area as f64;
+        } else if (TET_FACE..NO_ID).contains(&id) {
+            let t = tet as usize;
+            if (bits[t / 8] >> (4 * (t % 8) + (id - TET_FACE) as usize)) & 1 != 0 {
+                entry.1 += area as f64;
+            }
+        }
+    }
+    for (u, (nbrs, boundary)) in redone {
+        let mut list: Vec<(u32, f64)> = nbrs.into_iter().collect();
+        list.sort_unstable_by_key(|e| e.0);
+        faces[u as usize] = (list, boundary);
+    }
+}
+
+/// The adjacency per input site from each unique site's faces (job
+/// indices, job frame): shared faces averaged over their two sides,
+/// lengths scaled to the world (`scale`), normals along the sites'
+/// difference in the world (`sites`, input order; `map`: input to unique).
+pub(crate) fn assemble(faces: &[SiteFaces], map: &[Option<usize>], sites: &[[f64; 3]], scale: f64) -> Adjacency {
+    // The input index of each unique site (duplicates map to nothing).
+    let mut owner = vec![u32::MAX; faces.len()];
+    for (i, m) in map.iter().enumerate() {
+        if let Some(u) = *m {
+            owner[u] = i as u32;
+        }
+    }
+    // Both sides of each face.
+    let mut sides: HashMap<(u32, u32), [f64; 2]> = HashMap::new();
+    for (u, (list, _)) in faces.iter().enumerate() {
+        for &(v, area) in list {
+            let (a, b) = (u as u32, v);
+            let key = (a.min(b), a.max(b));
+            sides.entry(key).or_insert([0.0; 2])[(a > b) as usize] += area;
+        }
+    }
+    let mut rows: Vec<Vec<(u32, f64)>> = vec![Vec::new(); faces.len()];
+    for (&(a, b), s) in &sides {
+        let area = 0.5 * (s[0] + s[1]);
+        rows[a as usize].push((b, area));
+        rows[b as usize].push((a, area));
+    }
+    let l2 = scale * scale;
+    let mut adj = Adjacency { offsets: vec![0], ..Default::default() };
+    for (i, m) in map.iter().enumerate() {
+        // Duplicates map to nothing: their rows stay empty.
+        if let Some(u) = *m {
+            let mut row: Vec<(u32, f64)> = rows[u].iter().map(|&(v, a)| (owner[v as usize], a * l2)).collect();
+            row.sort_unstable_by_key(|e| e.0);
+            let p = sites[i];
+            for (j, area) in row {
+                let q = sites[j as usize];
+                let d = [q[0] - p[0], q[1] - p[1], q[2] - p[2]];
+                let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+                adj.neighbors.push(j);
+                adj.areas.push(area);
+                adj.normals.push(d.map(|c| c / len));
+            }
+            adj.boundary.push(faces[u].1 * l2);
+        } else {
+            adj.boundary.push(0.0);
+        }
+        adj.offsets.push(adj.neighbors.len());
+    }
+    adj
+}
