@@ -6,8 +6,10 @@
 //! The kernels add each piece's bisector faces to the slot of the
 //! neighbour that made them in the site's own neighbour list, and its
 //! faces on the mesh's boundary to one slot per site; a face whose maker
-//! is not in the list is summed apart, and the host gives such a site its
-//! faces from the same kernel bodies on the CPU ([`FaceCollector`]). Each
+//! is not in the list (a grid walk found it) goes to one of a few spill
+//! slots that maker claims, and when those run out it is summed apart and
+//! the host gives such a site its faces from the same kernel bodies on the
+//! CPU ([`FaceCollector`]). Each
 //! shared face is then measured from both sides; the adjacency holds their
 //! mean, so `area(i, j) == area(j, i)` exactly.
 
@@ -15,6 +17,7 @@ use crate::cpu::TaskSink;
 use crate::mesh::TetMesh;
 use cvd_kernels::clip::PieceSink;
 use cvd_kernels::polyhedron::{made_by_site, Polyhedron, NO_ID, TET_FACE};
+use rayon::prelude::*;
 use std::collections::HashMap;
 use std::sync::Mutex;
 
@@ -131,7 +134,15 @@ pub(crate) fn from_sums(sums: &[i64], lists: &[u32], k: usize, area_scale: f64) 
     let mut incomplete = Vec::new();
     for u in 0..n {
         let s = &sums[u * per..(u + 1) * per];
-        let faces = (0..k).filter(|&q| s[q] != 0).map(|q| (lists[u * k + q], s[q] as f64 / area_scale)).collect();
+        let mut faces: Vec<(u32, f64)> =
+            (0..k).filter(|&q| s[q] != 0).map(|q| (lists[u * k + q], s[q] as f64 / area_scale)).collect();
+        // Spilled: (maker + 1, area) pairs.
+        for spill in 0..cvd_kernels::clip::FACE_SPILLS {
+            let (key, area) = (s[k + 2 + 2 * spill], s[k + 3 + 2 * spill]);
+            if key != 0 && area != 0 {
+                faces.push(((key - 1) as u32, area as f64 / area_scale));
+            }
+        }
         out.push((faces, s[k] as f64 / area_scale));
         if s[k + 1] != 0 {
             incomplete.push(u as u32);
@@ -171,7 +182,7 @@ pub(crate) fn complete(faces: &mut [SiteFaces], which: &[u32], all: &[FaceCollec
 /// indices, job frame): shared faces averaged over their two sides,
 /// lengths scaled to the world (`scale`), normals along the sites'
 /// difference in the world (`sites`, input order; `map`: input to unique).
-pub(crate) fn assemble(faces: &[SiteFaces], map: &[Option<usize>], sites: &[[f64; 3]], scale: f64) -> Adjacency {
+pub(crate) fn assemble(mut faces: Vec<SiteFaces>, map: &[Option<usize>], sites: &[[f64; 3]], scale: f64) -> Adjacency {
     // The input index of each unique site (duplicates map to nothing).
     let mut owner = vec![u32::MAX; faces.len()];
     for (i, m) in map.iter().enumerate() {
@@ -179,41 +190,61 @@ pub(crate) fn assemble(faces: &[SiteFaces], map: &[Option<usize>], sites: &[[f64
             owner[u] = i as u32;
         }
     }
-    // Both sides of each face.
-    let mut sides: HashMap<(u32, u32), [f64; 2]> = HashMap::new();
-    for (u, (list, _)) in faces.iter().enumerate() {
-        for &(v, area) in list {
-            let (a, b) = (u as u32, v);
-            let key = (a.min(b), a.max(b));
-            sides.entry(key).or_insert([0.0; 2])[(a > b) as usize] += area;
-        }
-    }
-    let mut rows: Vec<Vec<(u32, f64)>> = vec![Vec::new(); faces.len()];
-    for (&(a, b), s) in &sides {
-        let area = 0.5 * (s[0] + s[1]);
-        rows[a as usize].push((b, area));
-        rows[b as usize].push((a, area));
-    }
+    faces.par_iter_mut().for_each(|(row, _)| row.sort_unstable_by_key(|e| e.0));
+    let faces = &faces;
+    let side = |v: u32, u: u32| {
+        let row = &faces[v as usize].0;
+        row.binary_search_by_key(&u, |e| e.0).ok().map(|at| row[at].1)
+    };
+    // Faces seen from one side only (the other side's rounded to nothing):
+    // half the area, on both rows.
+    let mut one_sided: Vec<(u32, u32, f64)> = (0..faces.len())
+        .into_par_iter()
+        .flat_map_iter(|u| {
+            faces[u].0.iter().filter(move |&&(v, _)| side(v, u as u32).is_none()).map(move |&(v, a)| (v, u as u32, a))
+        })
+        .collect();
+    one_sided.sort_unstable_by_key(|e| (e.0, e.1));
     let l2 = scale * scale;
-    let mut adj = Adjacency { offsets: vec![0], ..Default::default() };
-    for (i, m) in map.iter().enumerate() {
-        // Duplicates map to nothing: their rows stay empty.
-        if let Some(u) = *m {
-            let mut row: Vec<(u32, f64)> = rows[u].iter().map(|&(v, a)| (owner[v as usize], a * l2)).collect();
-            row.sort_unstable_by_key(|e| e.0);
+    // Each input site's row; duplicates map to nothing and keep an empty row.
+    type Row = (Vec<(u32, f64, [f64; 3])>, f64);
+    let per_site: Vec<Row> = map
+        .par_iter()
+        .enumerate()
+        .map(|(i, m)| {
+            let Some(u) = *m else { return (Vec::new(), 0.0) };
             let p = sites[i];
-            for (j, area) in row {
+            let normal = |v: u32, area: f64| {
+                let j = owner[v as usize];
                 let q = sites[j as usize];
                 let d = [q[0] - p[0], q[1] - p[1], q[2] - p[2]];
                 let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-                adj.neighbors.push(j);
-                adj.areas.push(area);
-                adj.normals.push(d.map(|c| c / len));
-            }
-            adj.boundary.push(faces[u].1 * l2);
-        } else {
-            adj.boundary.push(0.0);
+                (j, area * l2, d.map(|c| c / len))
+            };
+            let seen = faces[u].0.iter().map(|&(v, a)| normal(v, 0.5 * (a + side(v, u as u32).unwrap_or(0.0))));
+            let lo = one_sided.partition_point(|e| e.0 < u as u32);
+            let extra = one_sided[lo..].iter().take_while(|e| e.0 == u as u32).map(|&(_, v, a)| normal(v, 0.5 * a));
+            let mut row: Vec<(u32, f64, [f64; 3])> = seen.chain(extra).collect();
+            row.sort_unstable_by_key(|e| e.0);
+            (row, faces[u].1 * l2)
+        })
+        .collect();
+    let total = per_site.iter().map(|r| r.0.len()).sum();
+    let mut adj = Adjacency {
+        offsets: Vec::with_capacity(map.len() + 1),
+        neighbors: Vec::with_capacity(total),
+        areas: Vec::with_capacity(total),
+        normals: Vec::with_capacity(total),
+        boundary: Vec::with_capacity(map.len()),
+    };
+    adj.offsets.push(0);
+    for (row, boundary) in per_site {
+        for (j, a, n) in row {
+            adj.neighbors.push(j);
+            adj.areas.push(a);
+            adj.normals.push(n);
         }
+        adj.boundary.push(boundary);
         adj.offsets.push(adj.neighbors.len());
     }
     adj

@@ -576,7 +576,7 @@ impl ClippedVoronoi<'_> {
             let all = sinks.into_inner().unwrap_or_else(|e| e.into_inner());
             crate::faces::complete(&mut faces, &incomplete, &all, &job.tet_faces);
         }
-        Ok(crate::faces::assemble(&faces, map, self.sites, frame.scale))
+        Ok(crate::faces::assemble(faces, map, self.sites, frame.scale))
     }
 }
 

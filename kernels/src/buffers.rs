@@ -92,6 +92,9 @@ impl AtomicCounters for &[core::sync::atomic::AtomicU32] {
 pub trait AtomicSums {
     /// Adds `value` to sum `i`.
     fn add(&mut self, i: usize, value: i64);
+    /// Sets sum `i` to `key` if it is 0 (atomically); whether it holds
+    /// `key` now (set here or before): a slot claimed by one key.
+    fn claim(&mut self, i: usize, key: i64) -> bool;
 }
 
 /// A storage buffer of sums on the GPU.
@@ -116,6 +119,31 @@ impl AtomicSums for DeviceSums<'_> {
             self.0[i] = self.0[i].wrapping_add(value);
         }
     }
+
+    #[inline]
+    fn claim(&mut self, i: usize, key: i64) -> bool {
+        #[cfg(target_arch = "spirv")]
+        {
+            use spirv_std::memory::{Scope, Semantics};
+            // SAFETY: an atomic compare-exchange on a storage buffer element.
+            let was = unsafe {
+                spirv_std::arch::atomic_compare_exchange::<
+                    i64,
+                    { Scope::Device as u32 },
+                    { Semantics::NONE.bits() },
+                    { Semantics::NONE.bits() },
+                >(&mut self.0[i], key, 0)
+            };
+            was == 0 || was == key
+        }
+        #[cfg(not(target_arch = "spirv"))]
+        {
+            if self.0[i] == 0 {
+                self.0[i] = key;
+            }
+            self.0[i] == key
+        }
+    }
 }
 
 #[cfg(not(target_arch = "spirv"))]
@@ -123,6 +151,12 @@ impl AtomicSums for &[core::sync::atomic::AtomicI64] {
     #[inline]
     fn add(&mut self, i: usize, value: i64) {
         self[i].fetch_add(value, core::sync::atomic::Ordering::Relaxed);
+    }
+
+    #[inline]
+    fn claim(&mut self, i: usize, key: i64) -> bool {
+        use core::sync::atomic::Ordering::Relaxed;
+        self[i].compare_exchange(0, key, Relaxed, Relaxed).is_ok() || self[i].load(Relaxed) == key
     }
 }
 

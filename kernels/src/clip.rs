@@ -308,10 +308,15 @@ pub fn accumulate<A: AtomicSums>(j: usize, m: &Moments, scale: f32, sums: &mut A
     sums.add(base + 4, fixed(m.second, scale));
 }
 
+/// Spill slots per site for faces made by sites outside its list (a grid
+/// walk found them): `(maker + 1, area)` pairs, each claimed by one maker.
+pub const FACE_SPILLS: usize = 8;
+
 /// Sums per site of the faces' region after its `k_site` neighbour slots:
-/// the area on the domain's boundary, then the area of bisector faces whose
-/// maker is not in the site's list (the host finishes those sites).
-pub const FACE_SUMS_EXTRA: usize = 2;
+/// the area on the domain's boundary, the area of faces made by sites
+/// neither in the list nor in a spill slot (the host finishes those
+/// sites), then the [`FACE_SPILLS`] spill pairs.
+pub const FACE_SUMS_EXTRA: usize = 2 + 2 * FACE_SPILLS;
 
 /// What [`add_faces`] reads: each site's neighbour list (`site_nbrs`, as
 /// for the clips) and, per tet, which faces lie on the domain's boundary
@@ -360,7 +365,7 @@ pub fn add_faces<const P: usize, const V: usize, A: AtomicSums>(
             if made_by_site(id) {
                 let mut slot = k + 1;
                 // Without the site's list (the host's pass has none), the
-                // face is summed apart and the host completes the site.
+                // face goes to a spill slot or is summed apart.
                 if list != NO_LIST && list + k <= inputs.site_nbrs.len() {
                     let mut s = 0;
                     while s < k {
@@ -369,6 +374,17 @@ pub fn add_faces<const P: usize, const V: usize, A: AtomicSums>(
                             s = k;
                         }
                         s += 1;
+                    }
+                }
+                if slot == k + 1 {
+                    let mut spill = 0;
+                    while spill < FACE_SPILLS {
+                        let key = base + k + 2 + 2 * spill;
+                        if sums.claim(key, id as i64 + 1) {
+                            slot = k + 3 + 2 * spill;
+                            spill = FACE_SPILLS;
+                        }
+                        spill += 1;
                     }
                 }
                 sums.add(base + slot, a);
