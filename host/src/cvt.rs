@@ -74,7 +74,8 @@ impl ClippedVoronoi<'_> {
     /// one started from (on Vulkan, once per batch of iterations).
     /// Duplicate sites keep their place (their cells are empty).
     pub fn lloyd(&self, iterations: usize, progress: &mut dyn FnMut(usize, f64)) -> Result<CvtRun> {
-        let (job, map, frame) = self.job()?;
+        // The faces are the final diagram's business, not the iterations'.
+        let (job, map, frame) = self.faces(false).job()?;
         if job.pairing != crate::voronoi::Pairing::Flood {
             return Err(Error::InvalidInput("Lloyd iterations use flood pairing (tet-cell)".into()));
         }
@@ -142,7 +143,7 @@ impl ClippedVoronoi<'_> {
     fn evaluate(&self, x: &[f64]) -> Result<(Evaluation, f64)> {
         let sites = to_points(x);
         let start = std::time::Instant::now();
-        let cells = ClippedVoronoi { sites: &sites, ..*self }.compute()?;
+        let cells = ClippedVoronoi { sites: &sites, faces: false, ..*self }.compute()?;
         let seconds = start.elapsed().as_secs_f64();
         let mut gradient = vec![0.0; x.len()];
         let mut precondition = vec![0.0; x.len()];

@@ -330,7 +330,8 @@ pub struct FaceInputs<'a> {
     pub tet_faces: &'a [u32],
 }
 
-/// Adds the faces of site `j`'s piece of tet `t` to the site's face sums
+/// Adds the faces of site `j`'s piece of tet `t` (their `areas` by plane,
+/// from [`piece_moments`] or [`Polyhedron::face_areas`]) to the site's face sums
 /// (`sign` = 1), or takes them back (`-1`), when `p.faces_base` is not 0:
 /// from `faces_base + j * (k_site + FACE_SUMS_EXTRA)`, the area shared with
 /// each neighbour of the site's list (the bisector face that neighbour
@@ -343,6 +344,7 @@ pub fn add_faces<const P: usize, const V: usize, A: AtomicSums>(
     j: usize,
     t: usize,
     poly: &Polyhedron<P, V>,
+    areas: &[f32; P],
     p: &ClipParams,
     inputs: FaceInputs,
     sign: i64,
@@ -355,7 +357,6 @@ pub fn add_faces<const P: usize, const V: usize, A: AtomicSums>(
     let base = p.faces_base as usize + j * (k + FACE_SUMS_EXTRA);
     let list = list_start(p, j);
     let boundary = inputs.tet_faces[t / 8] >> (4 * (t % 8));
-    let areas = poly.face_areas();
     let mut q = 0;
     while q < (poly.n_planes as usize).min(P) {
         let area = areas[q];
@@ -508,9 +509,10 @@ pub fn finish_pair<const P: usize, const V: usize, A: AtomicSums, L: PairList, S
     if poly.is_empty() {
         return false;
     }
-    let (m, volume) = piece_moments(poly, t, verts, tets, tv);
+    let mut areas = [0.0f32; P];
+    let (m, volume) = piece_moments(poly, t, verts, tets, tv, p.faces_base != 0, &mut areas);
     accumulate(j, &m, p.fixed_scale, sums);
-    add_faces(j, t, poly, p, faces, 1, sums);
+    add_faces(j, t, poly, &areas, p, faces, 1, sums);
     add_tet_volume(t, p.n_sites, volume, p.fixed_scale, sums);
     sink.piece(t as u32, j as u32, poly);
     if borders_unpaired(poly, j, tv, sites, paired) {
@@ -532,7 +534,7 @@ pub fn add_tet_volume<A: AtomicSums>(t: usize, n_sites: u32, volume: f32, scale:
 /// The integrals of a piece of tet `t` (vertices `tv`, relative to the
 /// piece's site) under the mesh's density — the `w` of each vertex record,
 /// linear inside the tet; 1 everywhere without a density — and its plain
-/// volume.
+/// volume; `with_areas`: also its faces' areas, into `areas`.
 #[inline]
 pub fn piece_moments<const P: usize, const V: usize>(
     poly: &Polyhedron<P, V>,
@@ -540,6 +542,8 @@ pub fn piece_moments<const P: usize, const V: usize>(
     verts: &[SplitPoint],
     tets: &[[u32; 4]],
     tv: &[Vec3; 4],
+    with_areas: bool,
+    areas: &mut [f32; P],
 ) -> (Moments, f32) {
     let tet = tets[t];
     let r = [
@@ -549,7 +553,7 @@ pub fn piece_moments<const P: usize, const V: usize>(
         verts[tet[3] as usize].hi[3],
     ];
     if r[0] == r[1] && r[1] == r[2] && r[2] == r[3] {
-        let m = poly.moments();
+        let m = if with_areas { poly.moments_and_areas(areas) } else { poly.moments() };
         let scaled = Moments { volume: m.volume * r[0], first: m.first * r[0], second: m.second * r[0] };
         return (scaled, m.volume);
     }
@@ -558,6 +562,9 @@ pub fn piece_moments<const P: usize, const V: usize>(
     let (e1, e2, e3) = (tv[1] - tv[0], tv[2] - tv[0], tv[3] - tv[0]);
     let det = e1.dot(e2.cross(e3));
     let g = (e2.cross(e3) * (r[1] - r[0]) + e3.cross(e1) * (r[2] - r[0]) + e1.cross(e2) * (r[3] - r[0])) / det;
+    if with_areas {
+        *areas = poly.face_areas();
+    }
     poly.moments_linear(r[0] - g.dot(tv[0]), g)
 }
 
@@ -933,12 +940,13 @@ pub fn flood<const P: usize, const V: usize, const Q: usize, F, A, C, L, S>(
         if !ci.finished() {
             ok = false;
         } else if !poly.is_empty() {
-            let (m, volume) = piece_moments(&poly, t, verts, tets, &tv);
+            let mut areas = [0.0f32; P];
+            let (m, volume) = piece_moments(&poly, t, verts, tets, &tv, p.faces_base != 0, &mut areas);
             found[head] = m;
             total += volume;
             // Given now, while the piece exists; taken back if the flood fails.
             sink.piece(t as u32, j as u32, &poly);
-            add_faces(j, t, &poly, p, faces, 1, sums);
+            add_faces(j, t, &poly, &areas, p, faces, 1, sums);
             // Planes a clip made but a later one cut away are no faces.
             let faces = poly.face_mask();
             let mut q = 0;
@@ -991,7 +999,7 @@ pub fn flood<const P: usize, const V: usize, const Q: usize, F, A, C, L, S>(
                     let j = queue[h] as usize;
                     poly.set_tetrahedron(tet_vertices(t, verts, tets, &sites[j]));
                     piece(j, &mut poly);
-                    add_faces(j, t, &poly, p, faces, -1, sums);
+                    add_faces(j, t, &poly, &poly.face_areas(), p, faces, -1, sums);
                 }
                 h += 1;
             }

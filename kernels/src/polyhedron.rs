@@ -588,6 +588,18 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
     /// site (signed tets, so the site may lie outside). `|f| <= |v|`, so no
     /// far-away point enters the sums.
     pub fn moments(&self) -> Moments {
+        let mut unused = [0.0f32; P];
+        self.moments_with::<false>(&mut unused)
+    }
+
+    /// [`Self::moments`] and, in the same pass over the vertices, each
+    /// face's area by plane number as [`Self::face_areas`] gives it.
+    pub fn moments_and_areas(&self, areas: &mut [f32; P]) -> Moments {
+        self.moments_with::<true>(areas)
+    }
+
+    #[inline]
+    fn moments_with<const AREAS: bool>(&self, areas: &mut [f32; P]) -> Moments {
         // Per plane: the foot c and 3|c|².
         let mut feet = [Vec4::ZERO; P];
         let mut p = 0;
@@ -610,10 +622,25 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
             let v = self.refined(i, radius2, [na, nb, nc], [ab, bc, ca]);
             let vv = v.length_squared();
             let (va, vb, vc) = (v.dot(na), v.dot(nb), v.dot(nc));
-            add_corner_edge(&mut m, &feet, v, vv, (a, na, va), (b, nb, vb), ab);
-            add_corner_edge(&mut m, &feet, v, vv, (b, nb, vb), (c, nc, vc), bc);
-            add_corner_edge(&mut m, &feet, v, vv, (c, nc, vc), (a, na, va), ca);
+            let wab = add_corner_edge(&mut m, &feet, v, vv, (a, na, va), (b, nb, vb), ab);
+            let wbc = add_corner_edge(&mut m, &feet, v, vv, (b, nb, vb), (c, nc, vc), bc);
+            let wca = add_corner_edge(&mut m, &feet, v, vv, (c, nc, vc), (a, na, va), ca);
+            if AREAS {
+                // See `face_areas`: each edge x -> y adds ½ w·n_x to face x
+                // and takes ½ w·n_y from face y.
+                areas[a as usize] += 0.5 * (wab.dot(na) - wca.dot(na));
+                areas[b as usize] += 0.5 * (wbc.dot(nb) - wab.dot(nb));
+                areas[c as usize] += 0.5 * (wca.dot(nc) - wbc.dot(nc));
+            }
             i += 1;
+        }
+        if AREAS {
+            let mut p = 0;
+            while p < (self.n_planes as usize).min(P) {
+                let len = normal(self.planes[p]).length();
+                areas[p] = if len > 0.0 { areas[p] / len } else { 0.0 };
+                p += 1;
+            }
         }
         Moments { volume: m.volume / 6.0, first: Vec3::from(m.first) / 24.0, second: m.second / 60.0 }
     }
@@ -625,7 +652,7 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
 /// the edge line, so the cross terms of the second moment reduce: `c·v =
 /// c·f = |c|²` and `f·v = |f|²`; with `u = n_x × n_y`, `f = v - s u`,
 /// `|f|² = |v|² - s (v·u)` and `f × v = s (v × u) = s (n_x (v·n_y) - n_y
-/// (v·n_x))`.
+/// (v·n_x))`: returns that `w = f × v`.
 #[inline]
 fn add_corner_edge<const P: usize>(
     m: &mut Sums,
@@ -635,7 +662,7 @@ fn add_corner_edge<const P: usize>(
     (x, nx, vx): (u32, Point, f32),
     (y, ny, vy): (u32, Point, f32),
     u: Point,
-) {
+) -> Point {
     let cx = feet[x as usize];
     let cy = feet[y as usize];
     let (cx3, cy3) = (normal(cx), normal(cy));
@@ -652,6 +679,7 @@ fn add_corner_edge<const P: usize>(
     m.volume += vol;
     m.first += (f + v) * vol + cx3 * vol_x + cy3 * vol_y;
     m.second += vol_x * cx.w + vol_y * cy.w + vol * (2.0 * ff + vv);
+    w
 }
 
 impl<const P: usize, const V: usize> Polyhedron<P, V> {
@@ -835,6 +863,10 @@ mod tests {
         let m = p.moments();
         assert!(flux.length() < 1e-5, "{flux:?}");
         assert!(close(cone, m.volume, 1e-5), "{cone} vs {}", m.volume);
+        // The same in the moments' own pass.
+        let mut b = [0.0f32; CELL_PLANES];
+        assert_eq!(p.moments_and_areas(&mut b), m);
+        assert!(a.iter().zip(&b).all(|(x, y)| close(*x, *y, 1e-6)), "{a:?} vs {b:?}");
     }
 
     #[test]
