@@ -647,22 +647,8 @@ pub fn tet_cell_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     let k = p.k_site as usize;
     let c = clip_by_bisectors(&mut poly, j, p.n_sites, sites, site_nbrs, list_start(p, j), k);
     let paired = Paired::around(tet_sites, i, p.k_tet as usize);
-    let nonempty = finish_pair(
-        t,
-        j,
-        &poly,
-        &tv,
-        &c,
-        paired,
-        p,
-        sites,
-        verts,
-        tets,
-        FaceInputs { site_nbrs, tet_faces },
-        sums,
-        unfinished,
-        sink,
-    );
+    let faces = FaceInputs { site_nbrs, tet_faces };
+    let nonempty = finish_pair(t, j, &poly, &tv, &c, paired, p, sites, verts, tets, faces, sums, unfinished, sink);
     count(counters, 1, nonempty as i64, &c);
 }
 
@@ -806,22 +792,8 @@ pub fn cell_tet_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
         f += 1;
     }
     let paired = Paired::around(tet_sites, i, p.k_tet as usize);
-    let nonempty = finish_pair(
-        t,
-        j,
-        &poly,
-        &tv,
-        &c,
-        paired,
-        p,
-        sites,
-        verts,
-        tets,
-        FaceInputs { site_nbrs, tet_faces },
-        sums,
-        unfinished,
-        sink,
-    );
+    let faces = FaceInputs { site_nbrs, tet_faces };
+    let nonempty = finish_pair(t, j, &poly, &tv, &c, paired, p, sites, verts, tets, faces, sums, unfinished, sink);
     count(counters, 1, nonempty as i64, &c);
 }
 
