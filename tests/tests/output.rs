@@ -51,6 +51,19 @@ fn cells_csv_reads_back_exactly() {
     assert_eq!(rows[61].centroid, [5.0, 5.0, 5.0], "an empty cell's centroid is its site");
     let text = std::fs::read_to_string(&path).unwrap();
     assert!(text.starts_with("site,volume,cx,cy,cz,energy\n0,"), "{}", &text[..40]);
+    assert!(rows.iter().all(|r| r.area.is_none() && r.neighbors.is_none()));
+    // With the faces: each cell's surface area and neighbour count too.
+    let cells = ClippedVoronoi::new(&mesh, &sites).faces(true).compute().unwrap();
+    output::write_cells_csv(&path, &cells).unwrap();
+    let rows = output::read_cells_csv(&path).unwrap();
+    let adjacency = cells.adjacency().unwrap();
+    for (i, row) in rows.iter().enumerate() {
+        assert_eq!(row.area, Some(adjacency.surface_area(i)));
+        assert_eq!(row.neighbors, Some(adjacency.of(i).count()));
+    }
+    assert!(rows[5].neighbors.unwrap() > 3 && rows[60].neighbors == Some(0));
+    let text = std::fs::read_to_string(&path).unwrap();
+    assert!(text.starts_with("site,volume,cx,cy,cz,energy,area,neighbors\n0,"), "{}", &text[..50]);
 }
 
 #[test]
@@ -60,6 +73,8 @@ fn bad_cells_csv_names_the_line() {
         ("index,volume\n", 1, "expected the header"),
         ("site,volume,cx,cy,cz,energy\n0,1,2,3,4,5\n1,1,2,3\n", 3, "expected 6 comma-separated values"),
         ("site,volume,cx,cy,cz,energy\n0,1,2,x,4,5\n", 2, "column 4"),
+        ("site,volume,cx,cy,cz,energy,area,neighbors\n0,1,2,3,4,5,6\n", 2, "expected 8 comma-separated values"),
+        ("site,volume,cx,cy,cz,energy,area,neighbors\n0,1,2,3,4,5,6,-1\n", 2, "column 8"),
     ];
     for (k, (text, line, message)) in cases.into_iter().enumerate() {
         let path = dir.join(format!("{k}.csv"));
