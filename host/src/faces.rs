@@ -39,6 +39,10 @@ pub struct Adjacency {
     pub normals: Vec<[f64; 3]>,
     /// Each cell's area on the domain's boundary.
     pub boundary: Vec<f64>,
+    /// Each cell's boundary area vector `∫ n dA` over its part of the
+    /// domain's boundary (`n` the outward unit normal): its length is at
+    /// most the boundary area, equal where that part is flat.
+    pub boundary_vector: Vec<[f64; 3]>,
 }
 
 impl Adjacency {
@@ -89,24 +93,35 @@ pub(crate) fn boundary_bits(mesh: &TetMesh) -> Vec<u32> {
     bits
 }
 
-/// Every face of every piece the kernels finish, as `(site, maker, area)`
-/// in the job's frame and indices; `maker` is a site, or [`TET_FACE`] + f.
+/// One face of a piece: its site, its maker (a site, or [`TET_FACE`] +
+/// f), its area, its tet and its outward unit normal, in the job's frame
+/// and indices.
+pub(crate) struct PieceFace {
+    site: u32,
+    maker: u32,
+    area: f32,
+    tet: u32,
+    normal: [f32; 3],
+}
+
+/// Every face of every piece the kernels finish.
 #[derive(Default)]
-pub(crate) struct FaceCollector(pub(crate) Vec<(u32, u32, f32, u32)>);
+pub(crate) struct FaceCollector(pub(crate) Vec<PieceFace>);
 
 impl PieceSink for FaceCollector {
     fn piece<const P: usize, const V: usize>(&mut self, tet: u32, site: u32, poly: &Polyhedron<P, V>) {
         let areas = poly.face_areas();
         for (q, &area) in areas.iter().enumerate().take(poly.n_planes as usize) {
-            let id = poly.ids[q];
-            if area != 0.0 && id != NO_ID {
-                self.0.push((site, id, area, tet));
+            let maker = poly.ids[q];
+            if area != 0.0 && maker != NO_ID {
+                let n = poly.planes[q].truncate().normalize();
+                self.0.push(PieceFace { site, maker, area, tet, normal: n.to_array() });
             }
         }
     }
 
     fn discard_tet(&mut self, tet: u32) {
-        while self.0.last().is_some_and(|f| f.3 == tet) {
+        while self.0.last().is_some_and(|f| f.tet == tet) {
             self.0.pop();
         }
     }
@@ -120,8 +135,9 @@ impl TaskSink for FaceCollector {
     }
 }
 
-/// One site's faces in the job's frame: `(neighbour, area)` and boundary.
-pub(crate) type SiteFaces = (Vec<(u32, f64)>, f64);
+/// One site's faces in the job's frame: `(neighbour, area)`, the boundary
+/// area and the boundary's area vector.
+pub(crate) type SiteFaces = (Vec<(u32, f64)>, f64, [f64; 3]);
 
 /// Each unique site's faces from the kernels' sums (`sums`, `k + 2` per
 /// site after `faces_base`, in units of `1 / area_scale`) and its list
@@ -138,12 +154,12 @@ pub(crate) fn from_sums(sums: &[i64], lists: &[u32], k: usize, area_scale: f64) 
             (0..k).filter(|&q| s[q] != 0).map(|q| (lists[u * k + q], s[q] as f64 / area_scale)).collect();
         // Spilled: (maker + 1, area) pairs.
         for spill in 0..cvd_kernels::clip::FACE_SPILLS {
-            let (key, area) = (s[k + 2 + 2 * spill], s[k + 3 + 2 * spill]);
+            let (key, area) = (s[k + 5 + 2 * spill], s[k + 6 + 2 * spill]);
             if key != 0 && area != 0 {
                 faces.push(((key - 1) as u32, area as f64 / area_scale));
             }
         }
-        out.push((faces, s[k] as f64 / area_scale));
+        out.push((faces, s[k] as f64 / area_scale, [2, 3, 4].map(|c| s[k + c] as f64 / area_scale)));
         if s[k + 1] != 0 {
             incomplete.push(u as u32);
         }
@@ -156,25 +172,29 @@ pub(crate) fn from_sums(sums: &[i64], lists: &[u32], k: usize, area_scale: f64) 
 /// `faces`.
 pub(crate) fn complete(faces: &mut [SiteFaces], which: &[u32], all: &[FaceCollector], bits: &[u32]) {
     let wanted: std::collections::HashSet<u32> = which.iter().copied().collect();
-    let mut redone: HashMap<u32, (HashMap<u32, f64>, f64)> = which.iter().map(|&u| (u, Default::default())).collect();
-    for &(site, id, area, tet) in all.iter().flat_map(|c| &c.0) {
-        if !wanted.contains(&site) {
+    type Redone = (HashMap<u32, f64>, f64, [f64; 3]);
+    let mut redone: HashMap<u32, Redone> = which.iter().map(|&u| (u, Default::default())).collect();
+    for f in all.iter().flat_map(|c| &c.0) {
+        if !wanted.contains(&f.site) {
             continue;
         }
-        let entry = redone.get_mut(&site).expect("a wanted site");
-        if made_by_site(id) {
-            *entry.0.entry(id).or_insert(0.0) += area as f64;
-        } else if (TET_FACE..NO_ID).contains(&id) {
-            let t = tet as usize;
-            if (bits[t / 8] >> (4 * (t % 8) + (id - TET_FACE) as usize)) & 1 != 0 {
-                entry.1 += area as f64;
+        let entry = redone.get_mut(&f.site).expect("a wanted site");
+        if made_by_site(f.maker) {
+            *entry.0.entry(f.maker).or_insert(0.0) += f.area as f64;
+        } else if (TET_FACE..NO_ID).contains(&f.maker) {
+            let t = f.tet as usize;
+            if (bits[t / 8] >> (4 * (t % 8) + (f.maker - TET_FACE) as usize)) & 1 != 0 {
+                entry.1 += f.area as f64;
+                for (c, n) in entry.2.iter_mut().zip(f.normal) {
+                    *c += (n * f.area) as f64;
+                }
             }
         }
     }
-    for (u, (nbrs, boundary)) in redone {
+    for (u, (nbrs, boundary, vector)) in redone {
         let mut list: Vec<(u32, f64)> = nbrs.into_iter().collect();
         list.sort_unstable_by_key(|e| e.0);
-        faces[u as usize] = (list, boundary);
+        faces[u as usize] = (list, boundary, vector);
     }
 }
 
@@ -190,7 +210,7 @@ pub(crate) fn assemble(mut faces: Vec<SiteFaces>, map: &[Option<usize>], sites: 
             owner[u] = i as u32;
         }
     }
-    faces.par_iter_mut().for_each(|(row, _)| row.sort_unstable_by_key(|e| e.0));
+    faces.par_iter_mut().for_each(|(row, _, _)| row.sort_unstable_by_key(|e| e.0));
     let faces = &faces;
     let side = |v: u32, u: u32| {
         let row = &faces[v as usize].0;
@@ -207,12 +227,12 @@ pub(crate) fn assemble(mut faces: Vec<SiteFaces>, map: &[Option<usize>], sites: 
     one_sided.sort_unstable_by_key(|e| (e.0, e.1));
     let l2 = scale * scale;
     // Each input site's row; duplicates map to nothing and keep an empty row.
-    type Row = (Vec<(u32, f64, [f64; 3])>, f64);
+    type Row = (Vec<(u32, f64, [f64; 3])>, f64, [f64; 3]);
     let per_site: Vec<Row> = map
         .par_iter()
         .enumerate()
         .map(|(i, m)| {
-            let Some(u) = *m else { return (Vec::new(), 0.0) };
+            let Some(u) = *m else { return (Vec::new(), 0.0, [0.0; 3]) };
             let p = sites[i];
             let normal = |v: u32, area: f64| {
                 let j = owner[v as usize];
@@ -226,7 +246,7 @@ pub(crate) fn assemble(mut faces: Vec<SiteFaces>, map: &[Option<usize>], sites: 
             let extra = one_sided[lo..].iter().take_while(|e| e.0 == u as u32).map(|&(_, v, a)| normal(v, 0.5 * a));
             let mut row: Vec<(u32, f64, [f64; 3])> = seen.chain(extra).collect();
             row.sort_unstable_by_key(|e| e.0);
-            (row, faces[u].1 * l2)
+            (row, faces[u].1 * l2, faces[u].2.map(|c| c * l2))
         })
         .collect();
     let total = per_site.iter().map(|r| r.0.len()).sum();
@@ -236,15 +256,17 @@ pub(crate) fn assemble(mut faces: Vec<SiteFaces>, map: &[Option<usize>], sites: 
         areas: Vec::with_capacity(total),
         normals: Vec::with_capacity(total),
         boundary: Vec::with_capacity(map.len()),
+        boundary_vector: Vec::with_capacity(map.len()),
     };
     adj.offsets.push(0);
-    for (row, boundary) in per_site {
+    for (row, boundary, vector) in per_site {
         for (j, a, n) in row {
             adj.neighbors.push(j);
             adj.areas.push(a);
             adj.normals.push(n);
         }
         adj.boundary.push(boundary);
+        adj.boundary_vector.push(vector);
         adj.offsets.push(adj.neighbors.len());
     }
     adj

@@ -22,7 +22,8 @@
 use crate::abi::{counter, ClipParams, RefineParams, SplitPoint, ACCUM_PER_SITE, INCOMPLETE_TET, NO_SITE};
 use crate::buffers::{AtomicSums, OutBuf, PairList};
 use crate::polyhedron::{
-    between, made_by_site, Cell, Clip, Moments, Piece, Point, Polyhedron, CELL_PLANES, CELL_VERTS, NO_ID, TET_FACE,
+    between, made_by_site, normal, Cell, Clip, Moments, Piece, Point, Polyhedron, CELL_PLANES, CELL_VERTS, NO_ID,
+    TET_FACE,
 };
 use crate::walk::{clip_to_cell, GridWalk};
 use spirv_std::glam::{Vec3, Vec4};
@@ -315,8 +316,9 @@ pub const FACE_SPILLS: usize = 8;
 /// Sums per site of the faces' region after its `k_site` neighbour slots:
 /// the area on the domain's boundary, the area of faces made by sites
 /// neither in the list nor in a spill slot (the host finishes those
-/// sites), then the [`FACE_SPILLS`] spill pairs.
-pub const FACE_SUMS_EXTRA: usize = 2 + 2 * FACE_SPILLS;
+/// sites), the boundary's area vector `∫ n dA` (outward, x, y, z), then the
+/// [`FACE_SPILLS`] spill pairs.
+pub const FACE_SUMS_EXTRA: usize = 5 + 2 * FACE_SPILLS;
 
 /// What [`add_faces`] reads: each site's neighbour list (`site_nbrs`, as
 /// for the clips) and, per tet, which faces lie on the domain's boundary
@@ -336,9 +338,10 @@ pub struct FaceInputs<'a> {
 /// from `faces_base + j * (k_site + FACE_SUMS_EXTRA)`, the area shared with
 /// each neighbour of the site's list (the bisector face that neighbour
 /// made), then the area on the domain's boundary (the faces of the tet
-/// flagged in `tet_faces`), then the area of bisector faces made by sites
-/// outside the list. Internal faces of the mesh add nothing: the pieces on
-/// either side belong to the same cell.
+/// flagged in `tet_faces`), the area of bisector faces made by sites
+/// outside the list and in no spill slot, the boundary's area vector, and
+/// the spill slots ([`FACE_SUMS_EXTRA`]). Internal faces of the mesh add
+/// nothing: the pieces on either side belong to the same cell.
 #[inline]
 pub fn add_faces<const P: usize, const V: usize, A: AtomicSums>(
     j: usize,
@@ -380,9 +383,9 @@ pub fn add_faces<const P: usize, const V: usize, A: AtomicSums>(
                 if slot == k + 1 {
                     let mut spill = 0;
                     while spill < FACE_SPILLS {
-                        let key = base + k + 2 + 2 * spill;
+                        let key = base + k + 5 + 2 * spill;
                         if sums.claim(key, id as i64 + 1) {
-                            slot = k + 3 + 2 * spill;
+                            slot = k + 6 + 2 * spill;
                             spill = FACE_SPILLS;
                         }
                         spill += 1;
@@ -391,6 +394,13 @@ pub fn add_faces<const P: usize, const V: usize, A: AtomicSums>(
                 sums.add(base + slot, a);
             } else if (TET_FACE..NO_ID).contains(&id) && (boundary >> (id - TET_FACE)) & 1 != 0 {
                 sums.add(base + k, a);
+                // The face's outward unit normal (a tet's face faces out
+                // of it, and a boundary face out of the domain).
+                let n = normal(poly.planes[q]);
+                let scale = sign as f32 * area / n.length();
+                sums.add(base + k + 2, fixed(n.x * scale, p.area_scale));
+                sums.add(base + k + 3, fixed(n.y * scale, p.area_scale));
+                sums.add(base + k + 4, fixed(n.z * scale, p.area_scale));
             }
         }
         q += 1;

@@ -17,7 +17,7 @@ use crate::layout::{Layout, TypeLayout};
 pub const ABI_VERSION: u32 = 6;
 
 /// The [`fingerprint`] of the interface of [`ABI_VERSION`].
-pub const ABI_FINGERPRINT: u64 = 0x43e8_cbd9_3f92_1797;
+pub const ABI_FINGERPRINT: u64 = 0x71f5_7ed7_c153_1d1a;
 
 /// How an entry point uses a storage buffer.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -10,15 +10,15 @@ use cvd_tests::{assert_no_validation_errors, backends};
 use std::collections::HashMap;
 use voro_rs::prelude::*;
 
-/// Per cell, voro++'s faces in the unit box: neighbour → area, and the
-/// area on the box's walls.
-fn voro_faces(sites: &[[f64; 3]]) -> Vec<(HashMap<u32, f64>, f64)> {
+/// Per cell, voro++'s faces in the unit box: neighbour → area, the area
+/// on the box's walls, and the walls' area vector `∫ n dA`.
+fn voro_faces(sites: &[[f64; 3]]) -> Vec<(HashMap<u32, f64>, f64, [f64; 3])> {
     let blocks = [((sites.len() as f64 / 5.0).cbrt().ceil() as i32).clamp(1, 32); 3];
     let mut con = ContainerStd::new([0.0; 3], [1.0; 3], blocks, [false; 3]);
     for (i, &p) in sites.iter().enumerate() {
         con.put(i as i32, p, 0.0);
     }
-    let mut out = vec![(HashMap::new(), 0.0); sites.len()];
+    let mut out = vec![(HashMap::new(), 0.0, [0.0; 3]); sites.len()];
     let mut l = LoopAll::of_container_std(&mut con);
     assert!(l.start());
     loop {
@@ -28,7 +28,10 @@ fn voro_faces(sites: &[[f64; 3]]) -> Vec<(HashMap<u32, f64>, f64)> {
             if n >= 0 {
                 *out[id].0.entry(n as u32).or_insert(0.0) += a;
             } else {
+                // Walls -1..-6: x = 0, x = 1, y = 0, y = 1, z = 0, z = 1.
+                let wall = (-n - 1) as usize;
                 out[id].1 += a;
+                out[id].2[wall / 2] += if wall.is_multiple_of(2) { -a } else { a };
             }
         }
         if !l.inc() {
@@ -75,7 +78,7 @@ fn faces_match_voro_plus_plus_in_a_box() {
                     .unwrap();
                 let adj = cells.adjacency().expect("faces were asked for");
                 let mut worst = 0.0f64;
-                for (i, (faces, wall)) in exact.iter().enumerate() {
+                for (i, (faces, wall, wall_vector)) in exact.iter().enumerate() {
                     let ours: HashMap<u32, f64> = adj.of(i).map(|(j, a, _)| (j, a)).collect();
                     let surface: f64 = faces.values().sum::<f64>() + wall;
                     // Every face of voro++ above rounding, and no other.
@@ -87,6 +90,9 @@ fn faces_match_voro_plus_plus_in_a_box() {
                         assert!(faces.contains_key(&j) || a < 1e-6 * surface, "{what}: cell {i} has {j} ({a:e})");
                     }
                     worst = worst.max((adj.boundary[i] - wall).abs() / surface);
+                    for (ours, exact) in adj.boundary_vector[i].iter().zip(wall_vector) {
+                        worst = worst.max((ours - exact).abs() / surface);
+                    }
                     assert!(
                         (adj.surface_area(i) - surface).abs() <= 1e-5 * surface,
                         "{what}: cell {i} surface {} vs {surface}",

@@ -2,7 +2,8 @@
 //! one row per face a cell shares with a neighbour (each shared face
 //! appears twice, once from each side, with the same area and opposite
 //! normals), and one row per cell with area on the domain's boundary,
-//! `neighbor` = -1 and no normal. Rows by site, neighbours increasing, the
+//! `neighbor` = -1, its area and the unit direction of its area vector
+//! `∫ n dA` (the outward normal where that part of the boundary is flat). Rows by site, neighbours increasing, the
 //! boundary last; numbers read back exactly.
 
 use crate::error::Result;
@@ -21,9 +22,12 @@ pub fn write_neighbors_csv(path: &Path, adjacency: &Adjacency) -> Result<()> {
             for (j, area, n) in adjacency.of(i) {
                 writeln!(w, "{i},{j},{area:e},{},{},{}", n[0], n[1], n[2])?;
             }
-            let b = adjacency.boundary[i];
+            let (b, v) = (adjacency.boundary[i], adjacency.boundary_vector[i]);
             if b > 0.0 {
-                writeln!(w, "{i},-1,{b:e},,,")?;
+                // The boundary part's mean outward normal, made unit.
+                let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                let n = if len > 0.0 { v.map(|c| c / len) } else { [0.0; 3] };
+                writeln!(w, "{i},-1,{b:e},{},{},{}", n[0], n[1], n[2])?;
             }
         }
         Ok(())
