@@ -30,6 +30,32 @@ pub fn vulkan() -> Option<&'static VulkanBackend> {
     }
 }
 
+/// Runs `python3 args...` and returns what it printed, or `None` — a skip,
+/// saying why (the last line of its error: the module `tool` names is
+/// missing) — except under `CI=true`, where it fails. Tests whose inputs
+/// are written by other tools (meshio, trimesh, VTK) run them this way.
+pub fn python<S: AsRef<std::ffi::OsStr>>(args: &[S], tool: &str) -> Option<Vec<u8>> {
+    let why = match std::process::Command::new("python3").args(args).output() {
+        Ok(o) if o.status.success() => return Some(o.stdout),
+        Ok(o) => String::from_utf8_lossy(&o.stderr).trim().lines().last().unwrap_or("").to_string(),
+        Err(e) => format!("python3: {e}"),
+    };
+    if std::env::var("CI").is_ok_and(|v| v == "true") {
+        panic!("CI=true but python3 with {tool} cannot run: {why}");
+    }
+    eprintln!("SKIPPED (python3 with {tool} is missing: {why})");
+    None
+}
+
+/// `tests/scripts/NAME`: the scripts that write and read other tools'
+/// files (found from where cargo runs the tests: the compile-time path may
+/// be another clone's when clones share a target directory).
+pub fn script(name: &str) -> std::path::PathBuf {
+    let root = std::env::var_os("CARGO_MANIFEST_DIR")
+        .map_or_else(|| std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")), std::path::PathBuf::from);
+    root.join("scripts").join(name)
+}
+
 /// The CPU backend (all cores) and, when a device exists, the shared
 /// Vulkan backend.
 pub fn backends() -> Vec<&'static dyn Backend> {

@@ -8,24 +8,13 @@
 
 use cvd::TetMesh;
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 /// Runs `tests/scripts/SCRIPT SOURCE DIR` and returns the JSON listing it
-/// prints, or `None` (skipped, saying why) where python3 with `tool` is
-/// missing — a failure under `CI=true`.
+/// prints, or `None` where python3 with `tool` is missing (see
+/// [`cvd_tests::python`]).
 fn written_by(script: &str, tool: &str, source: &Path, dir: &Path) -> Option<serde_json::Value> {
-    let root =
-        std::env::var_os("CARGO_MANIFEST_DIR").map_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")), PathBuf::from);
-    let why = match Command::new("python3").arg(root.join("scripts").join(script)).arg(source).arg(dir).output() {
-        Ok(o) if o.status.success() => return Some(serde_json::from_slice(&o.stdout).expect("the script's JSON")),
-        Ok(o) => String::from_utf8_lossy(&o.stderr).trim().lines().last().unwrap_or("").to_string(),
-        Err(e) => format!("python3: {e}"),
-    };
-    if std::env::var("CI").is_ok_and(|v| v == "true") {
-        panic!("CI=true but python3 with {tool} cannot write the files: {why}");
-    }
-    eprintln!("SKIPPED (python3 with {tool} is missing: {why})");
-    None
+    let out = cvd_tests::python(&[cvd_tests::script(script).as_os_str(), source.as_os_str(), dir.as_os_str()], tool)?;
+    Some(serde_json::from_slice(&out).expect("the script's JSON"))
 }
 
 /// A torus mesh with coordinates no format rounds the same way by chance,

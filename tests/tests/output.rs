@@ -202,20 +202,10 @@ fn vtu_polyhedra_add_up_to_the_cells() {
     }
 }
 
-/// Whether `python3` with meshio and numpy runs here. Without them the
-/// test is skipped, saying so — except under `CI=true`, where it fails.
+/// Whether `python3` with meshio and numpy runs here (see
+/// [`cvd_tests::python`]).
 fn python_with_meshio() -> bool {
-    let why = match Command::new("python3").args(["-c", "import meshio, numpy"]).output() {
-        Ok(o) if o.status.success() => return true,
-        // The traceback's last line says what is missing.
-        Ok(o) => String::from_utf8_lossy(&o.stderr).trim().lines().last().unwrap_or("").to_string(),
-        Err(e) => format!("python3: {e}"),
-    };
-    if std::env::var("CI").is_ok_and(|v| v == "true") {
-        panic!("CI=true but python3 with meshio and numpy cannot run: {why}");
-    }
-    eprintln!("SKIPPED (python3 with meshio and numpy is missing: {why})");
-    false
+    cvd_tests::python(&["-c", "import meshio, numpy"], "meshio and numpy").is_some()
 }
 
 #[test]
@@ -234,11 +224,7 @@ fn meshio_reads_the_pieces_back() {
     })
     .unwrap();
     assert!(calls > 0, "no progress reported");
-    // Where cargo runs this test from (the compile-time path may be another
-    // clone's when clones share a target directory).
-    let dir =
-        std::env::var_os("CARGO_MANIFEST_DIR").map_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")), PathBuf::from);
-    let script = dir.join("scripts").join("read_pieces.py");
+    let script = cvd_tests::script("read_pieces.py");
     let run = Command::new("python3").arg(&script).arg(&path).output().unwrap();
     assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
     let read: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();

@@ -11,25 +11,13 @@ use cvd::mesher::quality::{Conformity, Quality};
 use cvd::{points, ClippedVoronoi};
 use cvd_tests::{assert_no_validation_errors, backends};
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 /// The files `tests/scripts/write_surfaces.py` wrote into `dir`, as JSON,
-/// or `None` (skipped, saying why) where python3 with trimesh is missing —
-/// a failure under `CI=true`.
+/// or `None` where python3 with trimesh is missing (see
+/// [`cvd_tests::python`]).
 fn trimesh_files(dir: &Path) -> Option<serde_json::Value> {
-    let root =
-        std::env::var_os("CARGO_MANIFEST_DIR").map_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")), PathBuf::from);
-    let script = root.join("scripts").join("write_surfaces.py");
-    let why = match Command::new("python3").arg(&script).arg(dir).output() {
-        Ok(o) if o.status.success() => return Some(serde_json::from_slice(&o.stdout).expect("the script's JSON")),
-        Ok(o) => String::from_utf8_lossy(&o.stderr).trim().lines().last().unwrap_or("").to_string(),
-        Err(e) => format!("python3: {e}"),
-    };
-    if std::env::var("CI").is_ok_and(|v| v == "true") {
-        panic!("CI=true but python3 with trimesh cannot write the surfaces: {why}");
-    }
-    eprintln!("SKIPPED (python3 with trimesh is missing: {why})");
-    None
+    let out = cvd_tests::python(&[cvd_tests::script("write_surfaces.py").as_os_str(), dir.as_os_str()], "trimesh")?;
+    Some(serde_json::from_slice(&out).expect("the script's JSON"))
 }
 
 #[test]
