@@ -121,7 +121,8 @@ struct RunArgs {
     /// most of a kilobyte each in pieces.vtu, all held in memory first.
     #[arg(long)]
     no_pieces: bool,
-    /// Skip picture.png (the cells cut by the plane through the middle of the mesh).
+    /// Skip picture.png and cells.png (the cells cut by the plane through the
+    /// middle of the mesh, and those below it in 3D).
     #[arg(long)]
     no_picture: bool,
     /// Skip neighbors.csv: the faces the cells share and their areas, and
@@ -443,6 +444,10 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
             let section = Section::middle(&mesh);
             with_bar("drawing picture.png", |progress| {
                 output::write_section_png(&path, &mesh, &pieces, section, PICTURE_SIZE, progress)
+            })?;
+            let path = file("cells.png");
+            with_bar("drawing cells.png", |progress| {
+                output::write_cells_view_png(&path, &pieces, &sites, section.z, PICTURE_SIZE, progress)
             })?;
         }
     }

@@ -37,7 +37,7 @@ fn run_writes_every_output() {
     let out = cvd_run(&dir, &["--sites", "150", "--resolution", "3", "--json", json.to_str().unwrap()]);
     assert!(out.status.success(), "{}", text(&out.stderr));
     let folder = dir.join("out").join("cube");
-    for file in ["cells.csv", "neighbors.csv", "sites.xyz", "pieces.vtu", "picture.png", "summary.json"] {
+    for file in ["cells.csv", "neighbors.csv", "sites.xyz", "pieces.vtu", "picture.png", "cells.png", "summary.json"] {
         assert!(folder.join(file).is_file(), "{file} missing");
     }
     // neighbors.csv: each shared face from both sides with one area; the
@@ -82,11 +82,13 @@ fn no_pieces_skips_the_pieces_and_the_picture() {
     let folder = dir.join("here");
     assert!(folder.join("cells.csv").is_file() && folder.join("summary.json").is_file());
     assert!(!folder.join("pieces.vtu").exists() && !folder.join("picture.png").exists());
+    assert!(!folder.join("cells.png").exists());
     let out = cvd_run(&dir, &["--sites", "50", "--resolution", "2", "--out", "plain", "--no-neighbors"]);
     assert!(out.status.success() && !dir.join("plain/neighbors.csv").exists(), "{}", text(&out.stderr));
     let out = cvd_run(&dir, &["--sites", "50", "--resolution", "2", "--out", "there", "--no-picture"]);
     assert!(out.status.success(), "{}", text(&out.stderr));
     assert!(dir.join("there/pieces.vtu").is_file() && !dir.join("there/picture.png").exists());
+    assert!(!dir.join("there/cells.png").exists());
 }
 
 #[test]

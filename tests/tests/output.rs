@@ -272,3 +272,35 @@ fn picture_shows_cells_and_the_hole() {
     assert!(a != white && b != white && a != b, "cells: {a:?} {b:?}");
     assert!(a.iter().all(|&c| c >= 110) && b.iter().all(|&c| c >= 110), "light cell colours: {a:?} {b:?}");
 }
+
+/// The 3D view of a holed block's lower cells: the corners are background,
+/// many cells show, each in several shades (its faces' orientations), and
+/// no cell is drawn whose site is above the cut.
+#[test]
+fn the_3d_view_shows_the_lower_cells_shaded() {
+    let mesh = TetMesh::voxels(5, |i, j, _| !(i == 2 && j == 2));
+    let sites = points::in_mesh(&mesh, 120, 2);
+    let (_, pieces) = diagram(&mesh, &sites);
+    let path = temp_dir("view").join("cells.png");
+    output::write_cells_view_png(&path, &pieces, &sites, 0.5, 300, &mut |_, _| {}).unwrap();
+    let decoder = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&path).unwrap()));
+    let mut reader = decoder.read_info().unwrap();
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    assert_eq!(info.width, 300);
+    let pixels: Vec<[u8; 3]> = buf.as_chunks::<3>().0.to_vec();
+    assert_eq!(pixels[0], [255; 3], "the background");
+    let colours: std::collections::HashSet<[u8; 3]> = pixels.iter().copied().filter(|&p| p != [255; 3]).collect();
+    // Each shown cell in a few shades (one per face orientation).
+    let shown = sites.iter().filter(|s| s[2] <= 0.5).count();
+    assert!(colours.len() > shown, "{} colours for {shown} cells", colours.len());
+    let drawn = pixels.iter().filter(|&&p| p != [255; 3]).count();
+    assert!(drawn > pixels.len() / 5, "{drawn} of {} pixels drawn", pixels.len());
+    // Only the cells below the cut: below every site, nothing is drawn.
+    output::write_cells_view_png(&path, &pieces, &sites, -1.0, 300, &mut |_, _| {}).unwrap();
+    let mut reader =
+        png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&path).unwrap())).read_info().unwrap();
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    reader.next_frame(&mut buf).unwrap();
+    assert!(buf.iter().all(|&c| c == 255), "nothing below the lowest site");
+}

@@ -14,6 +14,7 @@ pub mod neighbors_csv;
 pub mod picture;
 pub mod plot;
 pub mod summary;
+pub mod view;
 pub mod vtu;
 
 pub use cells_csv::{read_cells_csv, write_cells_csv, CellRow};
@@ -21,6 +22,7 @@ pub use neighbors_csv::write_neighbors_csv;
 pub use picture::{write_section_png, Section};
 pub use plot::{write_chart_png, write_line_chart_png, Axes, Series};
 pub use summary::{value_name, CvtRecord, Summary, Times};
+pub use view::write_cells_view_png;
 pub use vtu::write_pieces_vtu;
 
 /// A progress report: `(done, total)`, in units the writer chooses.

@@ -142,7 +142,7 @@ fn cut(piece: &Piece, z: f64) -> Vec<[f64; 2]> {
 }
 
 /// A light colour for each site, from a hash of its index.
-fn colour(site: u32) -> [u8; 3] {
+pub(super) fn colour(site: u32) -> [u8; 3] {
     let mut h = site as u64 ^ 0x9e37_79b9_7f4a_7c15;
     h = (h ^ (h >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
     h = (h ^ (h >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
