@@ -181,6 +181,9 @@ pub struct Counters {
     /// Knn pairing: tets a site owning part of them was not paired with
     /// (a piece bordered it), whose missing pieces the host added.
     pub missed_tets: u64,
+    /// With faces: sites whose faces made by sites beyond their list
+    /// outnumbered their spill slots, redone by the host on the CPU.
+    pub faces_redone: u64,
 }
 
 /// Per-site results and totals.
@@ -526,18 +529,20 @@ impl<'a> ClippedVoronoi<'a> {
             out.timings.push("host pass", t);
         }
         let refined = out.refined;
-        let adjacency = if job.face_sums_len() > 0 {
+        let (adjacency, faces_redone) = if job.face_sums_len() > 0 {
             let (adjacency, t) = crate::timing::timed(|| self.adjacency(job, map, frame, &out));
             out.timings.push("faces", t);
-            Some(adjacency?)
+            let (adjacency, redone) = adjacency?;
+            (Some(adjacency), redone)
         } else {
-            None
+            (None, 0)
         };
         let mut cells = finish(self.mesh, self.density, self.sites, job, map, frame, out);
         cells.adjacency = adjacency;
         cells.counters.second_pass = refined + redone.finished;
         cells.counters.unresolved = redone.unresolved;
         cells.counters.missed_tets = redone.missed_tets;
+        cells.counters.faces_redone = faces_redone as u64;
         Ok(cells)
     }
 }
@@ -553,7 +558,7 @@ impl ClippedVoronoi<'_> {
         map: &[Option<usize>],
         frame: &Frame,
         out: &ClipOutput,
-    ) -> Result<crate::faces::Adjacency> {
+    ) -> Result<(crate::faces::Adjacency, usize)> {
         let k = job.params.k_site as usize;
         let mut cpu = None;
         let again;
@@ -576,7 +581,7 @@ impl ClippedVoronoi<'_> {
             let all = sinks.into_inner().unwrap_or_else(|e| e.into_inner());
             crate::faces::complete(&mut faces, &incomplete, &all, &job.tet_faces);
         }
-        Ok(crate::faces::assemble(faces, map, self.sites, frame.scale))
+        Ok((crate::faces::assemble(faces, map, self.sites, frame.scale), incomplete.len()))
     }
 }
 
@@ -686,6 +691,7 @@ fn finish(
         second_pass: 0,
         unresolved: 0,
         missed_tets: 0,
+        faces_redone: 0,
     };
     cells.timings = out.timings;
     cells

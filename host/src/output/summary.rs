@@ -222,6 +222,13 @@ impl fmt::Display for Summary {
                 ),
             ),
         ];
+        let mut rows = rows.to_vec();
+        if c.faces_redone > 0 {
+            rows.push((
+                "faces",
+                format!("{} sites' faces redone on the CPU (beyond their spill slots)", c.faces_redone),
+            ));
+        }
         for (key, value) in rows {
             writeln!(f, "  {key:<11}{value}")?;
         }
