@@ -11,7 +11,7 @@
 use crate::cpu::TaskSink;
 use crate::voronoi::{ClipJob, Frame};
 use cvd_kernels::clip::PieceSink;
-use cvd_kernels::polyhedron::Polyhedron;
+use cvd_kernels::polyhedron::{made_by_site, Polyhedron, NO_ID, TET_FACE};
 use rayon::prelude::*;
 use std::sync::Mutex;
 
@@ -29,7 +29,16 @@ pub struct Piece {
     pub face_vertices: Vec<u32>,
     /// Where each face's loop ends in `face_vertices`.
     pub face_ends: Vec<u32>,
+    /// What made each face: the neighbouring site (input index) whose
+    /// bisector it lies on, [`ON_BOUNDARY`] for the domain's boundary, or
+    /// [`IN_MESH`] for a face between two tets (the cell goes on there).
+    pub face_makers: Vec<i64>,
 }
+
+/// A face of a piece on the domain's boundary (see [`Piece::face_makers`]).
+pub const ON_BOUNDARY: i64 = -1;
+/// A face of a piece on a face between two tets, inside the mesh.
+pub const IN_MESH: i64 = -2;
 
 impl Piece {
     /// The faces' vertex loops.
@@ -159,6 +168,8 @@ fn face_loops<const P: usize, const V: usize>(poly: &Polyhedron<P, V>, piece: &m
             piece.face_vertices.push(out[v]);
         }
         piece.face_ends.push(piece.face_vertices.len() as u32);
+        // The job's id for now; `to_world` makes it the input's.
+        piece.face_makers.push(poly.ids[plane as usize] as i64);
     }
 }
 
@@ -180,7 +191,22 @@ pub(crate) fn to_world(
         }
     }
     let mut pieces: Vec<Piece> = collected.into_iter().flat_map(|c| c.0).collect();
+    let local = crate::TetMesh { vertices: Vec::new(), tets: job.tets.clone() };
+    let bits = crate::faces::boundary_bits(&local);
     pieces.par_iter_mut().for_each(|p| {
+        let t = p.tet as usize;
+        for m in &mut p.face_makers {
+            let id = *m as u32;
+            *m = if made_by_site(id) {
+                owner[id as usize] as i64
+            } else if (TET_FACE..NO_ID).contains(&id)
+                && (bits[t / 8] >> (4 * (t % 8) + (id - TET_FACE) as usize)) & 1 != 0
+            {
+                ON_BOUNDARY
+            } else {
+                IN_MESH
+            };
+        }
         let site = owner[p.site as usize];
         // Relative to the input site itself, whose position is exact.
         let x = input[site as usize];

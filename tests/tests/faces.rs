@@ -168,3 +168,41 @@ fn faces_close_on_a_non_convex_domain() {
     }
     assert_no_validation_errors();
 }
+
+/// The pieces name what made each of their faces; summed over a cell's
+/// pieces, the faces on each neighbour's bisector and on the boundary have
+/// the adjacency's areas.
+#[test]
+fn the_pieces_faces_name_their_makers() {
+    let mesh = cvd::mesher::models::builtin("joint", Some(10)).unwrap();
+    let sites = points::in_mesh(&mesh, 200, 8);
+    let cpu = cvd::cpu::CpuBackend::new(None).unwrap();
+    let cv = ClippedVoronoi::new(&mesh, &sites).faces(true);
+    let (cells, pieces) = cv.compute_with_pieces(&cpu).unwrap();
+    let adj = cells.adjacency().unwrap();
+    let area = |piece: &cvd::Piece, face: &[u32]| {
+        let p: Vec<[f64; 3]> = face.iter().map(|&k| piece.vertices[k as usize]).collect();
+        let mut n = [0.0; 3];
+        for k in 1..p.len() - 1 {
+            let (a, b) = ([0, 1, 2].map(|c| p[k][c] - p[0][c]), [0, 1, 2].map(|c| p[k + 1][c] - p[0][c]));
+            n = [n[0] + a[1] * b[2] - a[2] * b[1], n[1] + a[2] * b[0] - a[0] * b[2], n[2] + a[0] * b[1] - a[1] * b[0]];
+        }
+        0.5 * (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt()
+    };
+    let mut sums: HashMap<(u32, i64), f64> = HashMap::new();
+    for piece in &pieces {
+        assert_eq!(piece.face_makers.len(), piece.face_ends.len());
+        for (face, &maker) in piece.faces().zip(&piece.face_makers) {
+            *sums.entry((piece.site, maker)).or_insert(0.0) += area(piece, face);
+        }
+    }
+    for i in 0..sites.len() {
+        let surface = adj.surface_area(i);
+        for (j, a, _) in adj.of(i) {
+            let got = sums.get(&(i as u32, j as i64)).copied().unwrap_or(0.0);
+            assert!((got - a).abs() <= 1e-5 * surface, "cell {i}, neighbour {j}: {got} vs {a}");
+        }
+        let boundary = sums.get(&(i as u32, cvd::pieces::ON_BOUNDARY)).copied().unwrap_or(0.0);
+        assert!((boundary - adj.boundary[i]).abs() <= 1e-5 * surface, "cell {i}: {boundary} vs {}", adj.boundary[i]);
+    }
+}
