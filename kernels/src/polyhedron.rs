@@ -542,41 +542,12 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
     /// `x` and `(c_y, v, f)` on face `y`. As `c_x` is parallel to `n_x`, the
     /// first's area along `n̂_x` is `½ (f × v)·n̂_x`, and `f × v = w` of
     /// [`add_corner_edge`]: each edge adds `½ w·n_x` to face `x` and takes
-    /// `½ w·n_y` from face `y`, scaled by `1/|n|` once per face.
+    /// `½ w·n_y` from face `y`, scaled by `1/|n|` once per face — in the
+    /// moments' own pass ([`Self::moments_and_areas`]).
     pub fn face_areas(&self) -> [f32; P] {
-        let mut area = [0.0f32; P];
-        let radius2 = self.refine_below();
-        let mut i = 0;
-        while i < (self.n_verts as usize).min(V) {
-            let t = unpack(self.tris[i]);
-            let n = [
-                normal(self.planes[t[0] as usize]),
-                normal(self.planes[t[1] as usize]),
-                normal(self.planes[t[2] as usize]),
-            ];
-            let x = [n[0].cross(n[1]), n[1].cross(n[2]), n[2].cross(n[0])];
-            let v = self.refined(i, radius2, n, x);
-            let mut e = 0;
-            while e < 3 {
-                let (a, b) = (e, (e + 1) % 3);
-                let u = x[e];
-                let uu = u.length_squared();
-                let s = if uu > 0.0 { v.dot(u) / uu } else { 0.0 };
-                let (va, vb) = (v.dot(n[a]), v.dot(n[b]));
-                let w = (n[a] * vb - n[b] * va) * s;
-                area[t[a] as usize] += 0.5 * w.dot(n[a]);
-                area[t[b] as usize] -= 0.5 * w.dot(n[b]);
-                e += 1;
-            }
-            i += 1;
-        }
-        let mut p = 0;
-        while p < (self.n_planes as usize).min(P) {
-            let len = normal(self.planes[p]).length();
-            area[p] = if len > 0.0 { area[p] / len } else { 0.0 };
-            p += 1;
-        }
-        area
+        let mut areas = [0.0f32; P];
+        self.moments_with::<true>(&mut areas);
+        areas
     }
 
     /// Volume, first and second moments, from vertex-local pieces only

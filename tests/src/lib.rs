@@ -47,13 +47,35 @@ pub fn python<S: AsRef<std::ffi::OsStr>>(args: &[S], tool: &str) -> Option<Vec<u
     None
 }
 
+/// The tests' folder, found from where cargo runs the tests (the
+/// compile-time path may be another clone's when clones share a target
+/// directory).
+fn tests_dir() -> std::path::PathBuf {
+    std::env::var_os("CARGO_MANIFEST_DIR")
+        .map_or_else(|| std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")), std::path::PathBuf::from)
+}
+
 /// `tests/scripts/NAME`: the scripts that write and read other tools'
-/// files (found from where cargo runs the tests: the compile-time path may
-/// be another clone's when clones share a target directory).
+/// files.
 pub fn script(name: &str) -> std::path::PathBuf {
-    let root = std::env::var_os("CARGO_MANIFEST_DIR")
-        .map_or_else(|| std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")), std::path::PathBuf::from);
-    root.join("scripts").join(name)
+    tests_dir().join("scripts").join(name)
+}
+
+/// The shared models present in `../shared/models` (torus_8k, bunny_10k,
+/// fandisk_26k, joint_31k), by name; an absent one is named and skipped.
+/// For the measurements run by hand on them.
+pub fn shared_models() -> Vec<(&'static str, cvd::TetMesh)> {
+    let dir = tests_dir().join("../../shared/models");
+    let mut models = Vec::new();
+    for name in ["torus_8k", "bunny_10k", "fandisk_26k", "joint_31k"] {
+        let path = dir.join(format!("{name}.mesh"));
+        if path.is_file() {
+            models.push((name, cvd::io::read_mesh(&path).expect("a shared model")));
+        } else {
+            println!("{name}: not present, skipped");
+        }
+    }
+    models
 }
 
 /// The CPU backend (all cores) and, when a device exists, the shared

@@ -253,14 +253,7 @@ fn close_sites_are_kept_or_refused_by_name_never_merged() {
 #[test]
 #[ignore = "minutes of reference clipping; a measurement, run by hand"]
 fn shared_models_against_the_reference() {
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/models");
-    for name in ["torus_8k", "bunny_10k", "fandisk_26k", "joint_31k"] {
-        let path = dir.join(format!("{name}.mesh"));
-        if !path.is_file() {
-            println!("{name}: not present, skipped");
-            continue;
-        }
-        let mesh = cvd::io::read_mesh(&path).unwrap();
+    for (name, mesh) in cvd_tests::shared_models() {
         let n = std::env::var("CVD_PRECISION_SITES").ok().and_then(|s| s.parse().ok()).unwrap_or(2000);
         let sites = points::in_mesh(&mesh, n, 2020);
         let (vol, centroid) = clipped_cells(&mesh, &sites);

@@ -134,15 +134,8 @@ fn a_diagram_on_a_meshed_surface_adds_up() {
 fn shared_model_surfaces_mesh_again() {
     const RESOLUTIONS: [u32; 8] = [8, 12, 16, 24, 32, 40, 48, 64];
     const COLOURS: [[u8; 3]; 4] = [[31, 119, 180], [255, 127, 14], [44, 160, 44], [214, 39, 40]];
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/models");
     let mut lines: Vec<(String, Vec<f64>)> = Vec::new();
-    for name in ["torus_8k", "bunny_10k", "fandisk_26k", "joint_31k"] {
-        let path = dir.join(format!("{name}.mesh"));
-        if !path.is_file() {
-            println!("{name}: not present, skipped");
-            continue;
-        }
-        let mesh = cvd::io::read_mesh(&path).unwrap();
+    for (name, mesh) in cvd_tests::shared_models() {
         let surface = mesh.boundary();
         let (surface, r) = surface.into_closed(name).unwrap();
         println!("{name}: {} triangles, volume {:.6} (tets {:.6})", r.triangles, r.volume, mesh.volume());
