@@ -3,10 +3,10 @@
 
 use crate::backend::Backend;
 use crate::cvt::LloydOutput;
+use crate::diagram::voronoi::{ClipJob, ClipOutput, Pairing, Strategy};
 use crate::error::{Error, Result};
 use crate::knn::{KnnJob, KnnMethod, Neighbors};
 use crate::timing::{timed, Timings};
-use crate::voronoi::{ClipJob, ClipOutput, Pairing, Strategy};
 use cvd_kernels::abi::{counter, lloyd_stat, ClipParams, QuantPoint, RefineParams, ACCUM_PER_SITE};
 use cvd_kernels::buffers::{DeviceSums, OutBuf, PairList, Window};
 use cvd_kernels::clip::{self, FaceInputs, NoPieces, PieceSink, CELL_RECORDS};
@@ -442,7 +442,7 @@ impl Backend for CpuBackend {
             let start = std::time::Instant::now();
             let mut out = self.clip(&job)?;
             let first = out.refined + out.unfinished.len() as u64;
-            let redone = crate::second_pass::run(&job, &mut out, &Mutex::new(Vec::<NoPieces>::new()))?;
+            let redone = crate::diagram::second_pass::run(&job, &mut out, &Mutex::new(Vec::<NoPieces>::new()))?;
             let p = crate::cvt::params(&job, it);
             let mut quant = job.site_knn.sites.clone();
             let (unfinished, still) = ([first as u32], [redone.unresolved as u32]);

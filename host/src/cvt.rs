@@ -11,8 +11,8 @@
 //!   accepts steps that lower the energy.
 
 use crate::backend::Backend;
+use crate::diagram::voronoi::{ClipJob, ClippedVoronoi, Frame};
 use crate::error::{Error, Result};
-use crate::voronoi::{ClipJob, ClippedVoronoi, Frame};
 use cvd_kernels::abi::{lloyd_stat, LloydParams, SplitPoint};
 
 /// What a backend returns for a Lloyd run, in the job's frame and order.
@@ -76,7 +76,7 @@ impl ClippedVoronoi<'_> {
     pub fn lloyd(&self, iterations: usize, progress: &mut dyn FnMut(usize, f64)) -> Result<CvtRun> {
         // The faces are the final diagram's business, not the iterations'.
         let (job, map, frame) = self.faces(false).job()?;
-        if job.pairing != crate::voronoi::Pairing::Flood {
+        if job.pairing != crate::diagram::voronoi::Pairing::Flood {
             return Err(Error::InvalidInput("Lloyd iterations use flood pairing (tet-cell)".into()));
         }
         let cpu;

@@ -202,7 +202,7 @@ fn the_pieces_faces_name_their_makers() {
             let got = sums.get(&(i as u32, j as i64)).copied().unwrap_or(0.0);
             assert!((got - a).abs() <= 1e-5 * surface, "cell {i}, neighbour {j}: {got} vs {a}");
         }
-        let boundary = sums.get(&(i as u32, cvd::pieces::ON_BOUNDARY)).copied().unwrap_or(0.0);
+        let boundary = sums.get(&(i as u32, cvd::diagram::pieces::ON_BOUNDARY)).copied().unwrap_or(0.0);
         assert!((boundary - adj.boundary[i]).abs() <= 1e-5 * surface, "cell {i}: {boundary} vs {}", adj.boundary[i]);
     }
 }

@@ -217,7 +217,7 @@ fn sites_outside_and_very_few_sites() {
 
 #[test]
 fn paper_k_follows_eq_6() {
-    use cvd::voronoi::paper_k;
+    use cvd::diagram::voronoi::paper_k;
     assert_eq!(paper_k(5, 1000), 5);
     assert_eq!(paper_k(19, 1000), 19);
     assert_eq!(paper_k(20, 100_000), 20);

@@ -7,9 +7,9 @@ mod choose;
 pub use choose::{auto_choice, choose, open, AutoChoice, Chosen};
 
 use crate::cvt::LloydOutput;
+use crate::diagram::voronoi::{ClipJob, ClipOutput};
 use crate::error::Result;
 use crate::knn::{KnnJob, Neighbors};
-use crate::voronoi::{ClipJob, ClipOutput};
 use crate::vulkan::VulkanOptions;
 
 /// Something that runs the kernels.

@@ -1,9 +1,9 @@
 //! The suite's measurements and how they are written: one JSON file with
 //! every row, one Markdown file with a table per section, PNG charts.
 
+use crate::diagram::voronoi::{Cells, Counters, Pairing, Strategy};
 use crate::error::{Error, Result};
 use crate::output::{write_chart_png, Axes, Series};
-use crate::voronoi::{Cells, Counters, Pairing, Strategy};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};

@@ -5,9 +5,9 @@
 //! volume 0 and the site as its centroid). Numbers are written so that
 //! they read back exactly.
 
+use crate::diagram::voronoi::Cells;
 use crate::error::{Error, Result};
 use crate::io::write_file;
-use crate::voronoi::Cells;
 use std::path::Path;
 
 /// The header line.

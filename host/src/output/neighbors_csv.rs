@@ -6,8 +6,8 @@
 //! `∫ n dA` (the outward normal where that part of the boundary is flat). Rows by site, neighbours increasing, the
 //! boundary last; numbers read back exactly.
 
+use crate::diagram::faces::Adjacency;
 use crate::error::Result;
-use crate::faces::Adjacency;
 use crate::io::write_file;
 use std::path::Path;
 

@@ -5,9 +5,9 @@
 //! black (the mesh's cross-section outline).
 
 use super::Progress;
+use crate::diagram::pieces::Piece;
 use crate::error::Result;
 use crate::mesh::TetMesh;
-use crate::pieces::Piece;
 use std::path::Path;
 
 /// The cutting plane `z = z`.

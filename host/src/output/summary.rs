@@ -3,11 +3,11 @@
 
 use crate::backend::Backend;
 use crate::cvt::Iteration;
+use crate::diagram::voronoi::{Cells, Counters};
 use crate::error::Result;
 use crate::io::write_file;
 use crate::mesh::TetMesh;
 use crate::timing::Timings;
-use crate::voronoi::{Cells, Counters};
 use std::fmt;
 use std::path::Path;
 

@@ -8,8 +8,8 @@
 
 use super::picture::colour;
 use super::Progress;
+use crate::diagram::pieces::Piece;
 use crate::error::Result;
-use crate::pieces::Piece;
 use std::path::Path;
 
 type V3 = [f64; 3];

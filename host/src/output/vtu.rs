@@ -9,8 +9,8 @@
 //! but their cell data by increasing count, which agree only then.
 
 use super::Progress;
+use crate::diagram::pieces::Piece;
 use crate::error::{Error, Result};
-use crate::pieces::Piece;
 use std::io::Write;
 use std::path::Path;
 

@@ -11,11 +11,11 @@ pub use pipelines::KERNELS_SPV;
 
 use crate::backend::Backend;
 use crate::cvt::LloydOutput;
+use crate::diagram::voronoi::{ClipJob, ClipOutput, Pairing, Strategy};
 use crate::error::{Error, Result};
 use crate::knn::{KnnJob, KnnMethod, Neighbors};
 use crate::timing::timed;
 use crate::timing::Timings;
-use crate::voronoi::{ClipJob, ClipOutput, Pairing, Strategy};
 use context::Context;
 use cvd_kernels::abi::{
     counter, lloyd_stat, ClipParams, GridBuildParams, GridParams, KnnParams, RefineParams, SplitPoint, ACCUM_PER_SITE,
@@ -226,7 +226,7 @@ impl Backend for VulkanBackend {
         let (mut refined, mut left, mut timings) = (0, Vec::new(), Timings::default());
         // Entries the second pass finished, and those left, of a part.
         let mut collect = |first: u32, list: &[u32]| {
-            let still = crate::voronoi::pair_list(list);
+            let still = crate::diagram::voronoi::pair_list(list);
             refined += first as u64 - still.len() as u64;
             left.extend(still);
         };

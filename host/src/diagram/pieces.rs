@@ -9,7 +9,7 @@
 //! [`Polyhedron::vertex_planes`]).
 
 use crate::cpu::TaskSink;
-use crate::voronoi::{ClipJob, Frame};
+use crate::diagram::voronoi::{ClipJob, Frame};
 use cvd_kernels::clip::PieceSink;
 use cvd_kernels::polyhedron::{made_by_site, Polyhedron, NO_ID, TET_FACE};
 use rayon::prelude::*;
@@ -192,7 +192,7 @@ pub(crate) fn to_world(
     }
     let mut pieces: Vec<Piece> = collected.into_iter().flat_map(|c| c.0).collect();
     let local = crate::TetMesh { vertices: Vec::new(), tets: job.tets.clone() };
-    let bits = crate::faces::boundary_bits(&local);
+    let bits = crate::diagram::faces::boundary_bits(&local);
     pieces.par_iter_mut().for_each(|p| {
         let t = p.tet as usize;
         for m in &mut p.face_makers {

@@ -16,10 +16,10 @@
 //!   nearest.
 
 use crate::cpu::{build_grid, par_indices, CpuBackend, LocalPairs, TaskSink};
+use crate::diagram::voronoi::{ClipJob, ClipOutput};
 use crate::error::Result;
 use crate::knn::KnnJob;
 use crate::site_grid::SiteGrid;
-use crate::voronoi::{ClipJob, ClipOutput};
 use cvd_kernels::abi::{counter, KnnParams, INCOMPLETE_TET, NO_SITE};
 use cvd_kernels::clip::{FaceInputs, Paired};
 use cvd_kernels::refine;
@@ -48,7 +48,7 @@ pub struct Redone {
 /// Finishes `out.unfinished`, adding the pieces to `out.sums` and handing
 /// them to the tasks' sinks, which end up in `sinks`.
 pub(crate) fn run<S: TaskSink>(job: &ClipJob, out: &mut ClipOutput, sinks: &Mutex<Vec<S>>) -> Result<Redone> {
-    let knn = job.pairing == crate::voronoi::Pairing::Knn;
+    let knn = job.pairing == crate::diagram::voronoi::Pairing::Knn;
     if out.unfinished.is_empty() && !knn {
         return Ok(Redone::default());
     }

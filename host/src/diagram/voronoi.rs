@@ -3,10 +3,10 @@
 
 use crate::backend::Backend;
 use crate::cpu::TaskSink;
+use crate::diagram::pieces::{Piece, PieceCollector};
 use crate::error::{Error, Result};
 use crate::knn::{KnnJob, KnnMethod};
 use crate::mesh::TetMesh;
-use crate::pieces::{Piece, PieceCollector};
 use crate::points;
 use crate::timing::Timings;
 use cvd_kernels::abi::{counter, ClipParams, RefineParams, SplitPoint, ACCUM_PER_SITE};
@@ -102,7 +102,7 @@ pub struct ClipJob {
     /// How tets and sites are paired.
     pub pairing: Pairing,
     /// Which faces of each tet lie on the mesh's boundary, as the kernels
-    /// read them ([`crate::faces::boundary_bits`]; one word of zeros when
+    /// read them ([`crate::diagram::faces::boundary_bits`]; one word of zeros when
     /// no faces are summed).
     pub tet_faces: Vec<u32>,
 }
@@ -217,14 +217,14 @@ pub struct Cells {
     pub timings: Timings,
     /// The cells' faces and neighbours, when asked for
     /// ([`ClippedVoronoi::faces`]).
-    pub adjacency: Option<crate::faces::Adjacency>,
+    pub adjacency: Option<crate::diagram::faces::Adjacency>,
 }
 
 impl Cells {
     /// The clipped Voronoi adjacency (shared faces, their areas and
     /// normals; each cell's boundary area), when asked for
     /// ([`ClippedVoronoi::faces`]).
-    pub fn adjacency(&self) -> Option<&crate::faces::Adjacency> {
+    pub fn adjacency(&self) -> Option<&crate::diagram::faces::Adjacency> {
         self.adjacency.as_ref()
     }
 
@@ -424,7 +424,7 @@ impl<'a> ClippedVoronoi<'a> {
         // at most a cell's surface (inside the unit box: 6) plus the
         // mesh's boundary area.
         let (tet_faces, faces_base, area_bits) = if self.faces {
-            let bits = crate::faces::boundary_bits(&local_mesh);
+            let bits = crate::diagram::faces::boundary_bits(&local_mesh);
             let boundary: f64 = local_mesh.boundary().area();
             (bits, (n * ACCUM_PER_SITE + local_mesh.tets.len()) as u32, 61.0 - (8.0 + boundary).log2().ceil())
         } else {
@@ -511,7 +511,7 @@ impl<'a> ClippedVoronoi<'a> {
         let out = cpu.clip_into::<PieceCollector>(&job, &sinks)?;
         let cells = self.finish_job(&job, &map, &frame, out, &sinks)?;
         let collected = sinks.into_inner().unwrap_or_else(|e| e.into_inner());
-        Ok((cells, crate::pieces::to_world(collected, &job, &map, &frame, self.sites)))
+        Ok((cells, crate::diagram::pieces::to_world(collected, &job, &map, &frame, self.sites)))
     }
 
     /// The second pass, then the per-site results.
@@ -523,7 +523,7 @@ impl<'a> ClippedVoronoi<'a> {
         mut out: ClipOutput,
         sinks: &Mutex<Vec<S>>,
     ) -> Result<Cells> {
-        let (redone, t) = crate::timing::timed(|| crate::second_pass::run(job, &mut out, sinks));
+        let (redone, t) = crate::timing::timed(|| crate::diagram::second_pass::run(job, &mut out, sinks));
         let redone = redone?;
         if redone.finished + redone.unresolved + redone.missed_tets > 0 {
             out.timings.push("host pass", t);
@@ -558,7 +558,7 @@ impl ClippedVoronoi<'_> {
         map: &[Option<usize>],
         frame: &Frame,
         out: &ClipOutput,
-    ) -> Result<(crate::faces::Adjacency, usize)> {
+    ) -> Result<(crate::diagram::faces::Adjacency, usize)> {
         let k = job.params.k_site as usize;
         let mut cpu = None;
         let again;
@@ -569,19 +569,20 @@ impl ClippedVoronoi<'_> {
             again = job.site_knn.run(c)?.indices;
             &again
         };
-        let (mut faces, incomplete) = crate::faces::from_sums(&out.faces, lists, k, job.params.area_scale as f64);
+        let (mut faces, incomplete) =
+            crate::diagram::faces::from_sums(&out.faces, lists, k, job.params.area_scale as f64);
         if !incomplete.is_empty() {
             let cpu = match cpu {
                 Some(c) => c,
                 None => crate::cpu::CpuBackend::new(None)?,
             };
             let sinks = Mutex::new(Vec::new());
-            let mut again = cpu.clip_into::<crate::faces::FaceCollector>(job, &sinks)?;
-            crate::second_pass::run(job, &mut again, &sinks)?;
+            let mut again = cpu.clip_into::<crate::diagram::faces::FaceCollector>(job, &sinks)?;
+            crate::diagram::second_pass::run(job, &mut again, &sinks)?;
             let all = sinks.into_inner().unwrap_or_else(|e| e.into_inner());
-            crate::faces::complete(&mut faces, &incomplete, &all, &job.tet_faces);
+            crate::diagram::faces::complete(&mut faces, &incomplete, &all, &job.tet_faces);
         }
-        Ok((crate::faces::assemble(faces, map, self.sites, frame.scale), incomplete.len()))
+        Ok((crate::diagram::faces::assemble(faces, map, self.sites, frame.scale), incomplete.len()))
     }
 }
 

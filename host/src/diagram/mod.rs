@@ -1,0 +1,9 @@
+//! The clipped Voronoi diagram: the job and its results
+//! ([`voronoi`]), the second pass that finishes what the kernels could
+//! not ([`second_pass`]), each site's faces and neighbours ([`faces`]),
+//! and the pieces of each cell inside each tet ([`pieces`]).
+
+pub mod faces;
+pub mod pieces;
+pub mod second_pass;
+pub mod voronoi;
