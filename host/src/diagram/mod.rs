@@ -1,9 +1,11 @@
 //! The clipped Voronoi diagram: the job and its results
 //! ([`voronoi`]), the second pass that finishes what the kernels could
 //! not ([`second_pass`]), each site's faces and neighbours ([`faces`]),
-//! and the pieces of each cell inside each tet ([`pieces`]).
+//! the pieces of each cell inside each tet ([`pieces`]) and each cell as
+//! one polyhedron ([`polyhedra`]).
 
 pub mod faces;
 pub mod pieces;
+pub mod polyhedra;
 pub mod second_pass;
 pub mod voronoi;

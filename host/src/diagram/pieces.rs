@@ -43,29 +43,12 @@ pub const IN_MESH: i64 = -2;
 impl Piece {
     /// The faces' vertex loops.
     pub fn faces(&self) -> impl Iterator<Item = &[u32]> + '_ {
-        let starts = std::iter::once(0).chain(self.face_ends.iter().copied());
-        starts.zip(&self.face_ends).map(|(a, &b)| &self.face_vertices[a as usize..b as usize])
+        crate::diagram::polyhedra::loops(&self.face_vertices, &self.face_ends)
     }
 
     /// The volume, by the divergence theorem over the face loops.
     pub fn volume(&self) -> f64 {
-        // Relative to the first vertex, for precision far from the origin.
-        let Some(&o) = self.vertices.first() else { return 0.0 };
-        let rel = |i: u32| {
-            let p = self.vertices[i as usize];
-            [p[0] - o[0], p[1] - o[1], p[2] - o[2]]
-        };
-        let mut six = 0.0;
-        for face in self.faces() {
-            let a = rel(face[0]);
-            for w in face[1..].windows(2) {
-                let (b, c) = (rel(w[0]), rel(w[1]));
-                six += a[0] * (b[1] * c[2] - b[2] * c[1])
-                    + a[1] * (b[2] * c[0] - b[0] * c[2])
-                    + a[2] * (b[0] * c[1] - b[1] * c[0]);
-            }
-        }
-        six / 6.0
+        crate::diagram::polyhedra::enclosed_volume(&self.vertices, self.faces())
     }
 }
 

@@ -4,6 +4,7 @@
 use crate::backend::Backend;
 use crate::cpu::TaskSink;
 use crate::diagram::pieces::{Piece, PieceCollector};
+use crate::diagram::polyhedra::{merge_pieces, CellPolyhedron};
 use crate::error::{Error, Result};
 use crate::knn::{KnnJob, KnnMethod};
 use crate::mesh::TetMesh;
@@ -218,6 +219,9 @@ pub struct Cells {
     /// The cells' faces and neighbours, when asked for
     /// ([`ClippedVoronoi::faces`]).
     pub adjacency: Option<crate::diagram::faces::Adjacency>,
+    /// Each cell as one closed polyhedron, when asked for
+    /// ([`ClippedVoronoi::compute_with_polyhedra`]).
+    pub polyhedra: Option<Vec<CellPolyhedron>>,
 }
 
 impl Cells {
@@ -226,6 +230,13 @@ impl Cells {
     /// ([`ClippedVoronoi::faces`]).
     pub fn adjacency(&self) -> Option<&crate::diagram::faces::Adjacency> {
         self.adjacency.as_ref()
+    }
+
+    /// Each cell that has a volume as one closed polyhedron, in site
+    /// order (see [`crate::diagram::polyhedra`]), when asked for
+    /// ([`ClippedVoronoi::compute_with_polyhedra`]).
+    pub fn polyhedra(&self) -> Option<&[CellPolyhedron]> {
+        self.polyhedra.as_deref()
     }
 
     /// The CVT energy `Σ_i ∫ |x - x_i|²`.
@@ -512,6 +523,17 @@ impl<'a> ClippedVoronoi<'a> {
         let cells = self.finish_job(&job, &map, &frame, out, &sinks)?;
         let collected = sinks.into_inner().unwrap_or_else(|e| e.into_inner());
         Ok((cells, crate::diagram::pieces::to_world(collected, &job, &map, &frame, self.sites)))
+    }
+
+    /// Computes the clipped cells on the CPU backend `cpu`, as
+    /// [`Self::compute_with_pieces`], with each cell as one closed
+    /// polyhedron ([`Cells::polyhedra`]): its pieces merged.
+    pub fn compute_with_polyhedra(&self, cpu: &crate::cpu::CpuBackend) -> Result<(Cells, Vec<Piece>)> {
+        let (mut cells, pieces) = self.compute_with_pieces(cpu)?;
+        let (polyhedra, t) = crate::timing::timed(|| merge_pieces(&pieces));
+        cells.polyhedra = Some(polyhedra);
+        cells.timings.push("polyhedra", t);
+        Ok((cells, pieces))
     }
 
     /// The second pass, then the per-site results.
