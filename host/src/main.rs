@@ -116,11 +116,15 @@ struct RunArgs {
     /// Also write summary.json to PATH.
     #[arg(long, value_name = "PATH")]
     json: Option<PathBuf>,
-    /// Skip pieces.vtu and picture.png. The pieces (each site's cell inside
-    /// each tet) take one more run on the CPU and are large: several per tet,
-    /// most of a kilobyte each in pieces.vtu, all held in memory first.
-    #[arg(long)]
-    no_pieces: bool,
+    /// Skip the cells' geometry: cells.vtu, walls.ply and the pictures.
+    /// The geometry takes one more run on the CPU, which keeps every piece
+    /// (each site's cell inside each tet) in memory to merge them.
+    #[arg(long, alias = "no-pieces")]
+    no_geometry: bool,
+    /// Also write pieces.vtu: every piece (each site's cell inside each tet)
+    /// as a VTK polyhedron (ASCII, several per tet: large).
+    #[arg(long, conflicts_with = "no_geometry")]
+    pieces: bool,
     /// Skip picture.png and cells.png (the cells cut by the plane through the
     /// middle of the mesh, and those below it in 3D).
     #[arg(long)]
@@ -433,12 +437,20 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
     }
     // The sites of the diagram: as given, or where the iterations moved them.
     cvd::io::write_sites_xyz(&file("sites.xyz"), &sites)?;
-    if !args.no_pieces {
+    if !args.no_geometry {
         let cpu = CpuBackend::new(args.backend.threads)?;
-        let (_, pieces) = with_spinner("pieces, on the CPU", || cv.compute_with_pieces(&cpu))?;
+        let (with_polyhedra, pieces) =
+            with_spinner("cells' polyhedra, on the CPU", || cv.compute_with_polyhedra(&cpu))?;
         summary.pieces = Some(pieces.len());
-        let path = file("pieces.vtu");
-        with_bar("writing pieces.vtu", |progress| output::write_pieces_vtu(&path, &pieces, progress))?;
+        let polyhedra = with_polyhedra.polyhedra().unwrap_or_default();
+        summary.lids = Some(polyhedra.iter().map(|p| p.repaired_holes as u64).sum());
+        let path = file("cells.vtu");
+        with_bar("writing cells.vtu", |progress| output::write_cells_vtu(&path, &cells, polyhedra, progress))?;
+        output::write_walls_ply(&file("walls.ply"), polyhedra)?;
+        if args.pieces {
+            let path = file("pieces.vtu");
+            with_bar("writing pieces.vtu", |progress| output::write_pieces_vtu(&path, &pieces, progress))?;
+        }
         if !args.no_picture {
             let path = file("picture.png");
             let section = Section::middle(&mesh);

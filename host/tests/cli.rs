@@ -37,9 +37,11 @@ fn run_writes_every_output() {
     let out = cvd_run(&dir, &["--sites", "150", "--resolution", "3", "--json", json.to_str().unwrap()]);
     assert!(out.status.success(), "{}", text(&out.stderr));
     let folder = dir.join("out").join("cube");
-    for file in ["cells.csv", "neighbors.csv", "sites.xyz", "pieces.vtu", "picture.png", "cells.png", "summary.json"] {
+    for file in ["cells.csv", "neighbors.csv", "sites.xyz", "cells.vtu", "walls.ply", "picture.png", "cells.png"] {
         assert!(folder.join(file).is_file(), "{file} missing");
     }
+    assert!(folder.join("summary.json").is_file());
+    assert!(!folder.join("pieces.vtu").exists(), "pieces.vtu only with --pieces");
     // neighbors.csv: each shared face from both sides with one area; the
     // boundary rows cover the cube's surface.
     let text_of = std::fs::read_to_string(folder.join("neighbors.csv")).unwrap();
@@ -75,19 +77,26 @@ fn run_writes_every_output() {
 }
 
 #[test]
-fn no_pieces_skips_the_pieces_and_the_picture() {
-    let dir = temp_dir("no-pieces");
-    let out = cvd_run(&dir, &["--sites", "50", "--resolution", "2", "--out", "here", "--no-pieces"]);
+fn no_geometry_skips_the_polyhedra_and_the_pictures() {
+    let dir = temp_dir("no-geometry");
+    // `--no-pieces`, its name before the cells' polyhedra, still works.
+    for (flag, out) in [("--no-geometry", "here"), ("--no-pieces", "also")] {
+        let run = cvd_run(&dir, &["--sites", "50", "--resolution", "2", "--out", out, flag]);
+        assert!(run.status.success(), "{}", text(&run.stderr));
+        let folder = dir.join(out);
+        assert!(folder.join("cells.csv").is_file() && folder.join("summary.json").is_file());
+        for file in ["cells.vtu", "walls.ply", "pieces.vtu", "picture.png", "cells.png"] {
+            assert!(!folder.join(file).exists(), "{flag} wrote {file}");
+        }
+    }
+    let out = cvd_run(&dir, &["--sites", "50", "--resolution", "2", "--out", "all", "--pieces", "--no-picture"]);
     assert!(out.status.success(), "{}", text(&out.stderr));
-    let folder = dir.join("here");
-    assert!(folder.join("cells.csv").is_file() && folder.join("summary.json").is_file());
-    assert!(!folder.join("pieces.vtu").exists() && !folder.join("picture.png").exists());
-    assert!(!folder.join("cells.png").exists());
+    assert!(dir.join("all/pieces.vtu").is_file() && dir.join("all/cells.vtu").is_file());
     let out = cvd_run(&dir, &["--sites", "50", "--resolution", "2", "--out", "plain", "--no-neighbors"]);
     assert!(out.status.success() && !dir.join("plain/neighbors.csv").exists(), "{}", text(&out.stderr));
     let out = cvd_run(&dir, &["--sites", "50", "--resolution", "2", "--out", "there", "--no-picture"]);
     assert!(out.status.success(), "{}", text(&out.stderr));
-    assert!(dir.join("there/pieces.vtu").is_file() && !dir.join("there/picture.png").exists());
+    assert!(dir.join("there/cells.vtu").is_file() && !dir.join("there/picture.png").exists());
     assert!(!dir.join("there/cells.png").exists());
 }
 

@@ -144,3 +144,94 @@ fn merged_cells_are_closed_on_a_non_convex_domain() {
     let surface = mesh.boundary().area();
     assert!((boundary - surface).abs() < 1e-6 * surface, "boundary faces {boundary} against the mesh's {surface}");
 }
+
+/// The joint's cells, written as `cells.vtu` and read back by VTK: one
+/// polyhedron per cell with a volume, whose faces enclose, by VTK's own
+/// `vtkMassProperties`, the cell's volume.
+#[test]
+fn vtk_reads_cells_vtu_back() {
+    let mesh = cvd::mesher::models::builtin("joint", Some(16)).unwrap();
+    let sites = points::in_mesh(&mesh, 600, 5);
+    let cpu = cvd::cpu::CpuBackend::new(None).unwrap();
+    let (cells, _) = ClippedVoronoi::new(&mesh, &sites).faces(true).compute_with_polyhedra(&cpu).unwrap();
+    let dir = std::env::temp_dir().join(format!("cvd-polyhedra-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("cells.vtu");
+    let polyhedra = cells.polyhedra().unwrap();
+    cvd::output::write_cells_vtu(&path, &cells, polyhedra, &mut |_, _| {}).unwrap();
+    let script = cvd_tests::script("read_cells_vtu.py");
+    let Some(out) = cvd_tests::python(&[script.as_os_str(), path.as_os_str()], "vtk") else { return };
+    let read: serde_json::Value = serde_json::from_slice(&out).unwrap();
+    let read = read["cells"].as_array().unwrap();
+    assert_eq!(read.len(), polyhedra.len());
+    let mut worst = 0.0f64;
+    for c in read {
+        let i = c["site"].as_u64().unwrap() as usize;
+        assert_eq!(c["volume"].as_f64(), Some(cells.volume[i]), "site {i}: the stored volume");
+        let p = polyhedra.iter().find(|p| p.site as usize == i).unwrap();
+        assert_eq!(c["faces"].as_u64(), Some(p.face_ends.len() as u64), "site {i}: faces");
+        worst = worst.max((c["vtk_volume"].as_f64().unwrap() - cells.volume[i]).abs() / cells.volume[i]);
+    }
+    println!("VTK's volumes against the cells': {worst:.2e}");
+    assert!(worst < 1e-6, "VTK measures the cells' volumes to {worst:.2e}");
+}
+
+/// `walls.ply`, read back by `ply-rs`: each wall once, the walls between
+/// two cells with the adjacency's areas, the boundary's adding up to the
+/// mesh's surface.
+#[test]
+fn walls_ply_has_every_wall_once() {
+    use ply_rs::parser::Parser;
+    use ply_rs::ply::{DefaultElement, Property};
+    let mesh = cvd::mesher::models::builtin("joint", Some(16)).unwrap();
+    let sites = points::in_mesh(&mesh, 400, 8);
+    let cpu = cvd::cpu::CpuBackend::new(None).unwrap();
+    let (cells, _) = ClippedVoronoi::new(&mesh, &sites).faces(true).compute_with_polyhedra(&cpu).unwrap();
+    let dir = std::env::temp_dir().join(format!("cvd-walls-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("walls.ply");
+    let written = cvd::output::write_walls_ply(&path, cells.polyhedra().unwrap()).unwrap();
+    let mut file = std::io::BufReader::new(std::fs::File::open(&path).unwrap());
+    let ply = Parser::<DefaultElement>::new().read_ply(&mut file).unwrap();
+    let xyz = |e: &DefaultElement| {
+        ["x", "y", "z"].map(|k| match e[k] {
+            Property::Double(v) => v,
+            _ => panic!("{k}"),
+        })
+    };
+    let vertices: Vec<[f64; 3]> = ply.payload["vertex"].iter().map(xyz).collect();
+    let faces = &ply.payload["face"];
+    assert_eq!(faces.len(), written);
+    let int = |e: &DefaultElement, k: &str| match e[k] {
+        Property::Int(v) => v,
+        _ => panic!("{k}"),
+    };
+    let mut by_pair: HashMap<(i32, i32), f64> = HashMap::new();
+    for f in faces {
+        let Property::ListInt(ref ring) = f["vertex_indices"] else { panic!("vertex_indices") };
+        let (a, b) = (int(f, "site"), int(f, "neighbor"));
+        assert!(b == -1 || a < b, "wall {a}-{b} written from the higher site");
+        let o = vertices[ring[0] as usize];
+        let mut n = [0.0; 3];
+        for k in 1..ring.len() - 1 {
+            let (p, q) = (vertices[ring[k] as usize], vertices[ring[k + 1] as usize]);
+            n = cvd::vec3::add(n, cvd::vec3::cross(cvd::vec3::sub(p, o), cvd::vec3::sub(q, o)));
+        }
+        *by_pair.entry((a, b)).or_insert(0.0) += cvd::vec3::norm(n) / 2.0;
+    }
+    let adj = cells.adjacency().unwrap();
+    let mut worst = 0.0f64;
+    for i in 0..sites.len() {
+        for (j, area, _) in adj.of(i).filter(|&(j, _, _)| j as usize > i) {
+            let ours = by_pair.remove(&(i as i32, j as i32)).unwrap_or(0.0);
+            worst = worst.max((ours - area).abs() / adj.surface_area(i));
+        }
+    }
+    let boundary: f64 = by_pair.iter().filter(|((_, b), _)| *b == -1).map(|(_, a)| a).sum();
+    by_pair.retain(|(_, b), _| *b != -1);
+    assert!(by_pair.values().all(|&a| a < 1e-9), "walls not in the adjacency: {by_pair:?}");
+    let surface = mesh.boundary().area();
+    println!("walls against the adjacency: {worst:.2e}; boundary {boundary} of {surface}");
+    assert!(worst < 5e-6, "wall areas off by {worst:.2e}");
+    assert!((boundary - surface).abs() < 1e-6 * surface);
+}

@@ -22,7 +22,7 @@
 use crate::diagram::pieces::{Piece, IN_MESH, ON_BOUNDARY};
 use crate::vec3::{add, bounding_box, cross, dot, norm, sub};
 use rayon::prelude::*;
-use std::collections::{HashMap, HashSet};
+use std::collections::HashMap;
 
 /// Points of one cell closer than this, relative to the diagonal of the
 /// cell's bounding box, are one point: the kernels compute a vertex in
@@ -276,45 +276,36 @@ fn join(points: &[[f64; 3]], group: &[&[u32]]) -> Option<Vec<Vec<u32>>> {
     if group.len() == 1 {
         return Some(vec![group[0].to_vec()]);
     }
-    let mut edges: HashMap<(u32, u32), i32> = HashMap::new();
-    for ring in group {
-        for k in 0..ring.len() {
-            let (a, b) = (ring[k], ring[(k + 1) % ring.len()]);
-            match edges.get_mut(&(b, a)) {
-                Some(c) if *c > 0 => *c -= 1,
-                _ => *edges.entry((a, b)).or_insert(0) += 1,
-            }
-        }
+    // The outline's edges, sorted by their first point: one per point, or
+    // the outline passes it twice.
+    let mut outline = unmatched(group.iter().copied());
+    outline.sort_unstable();
+    if outline.windows(2).any(|w| w[0].0 == w[1].0) {
+        return None;
     }
-    let mut next: HashMap<u32, u32> = HashMap::new();
-    for (&(a, b), &c) in &edges {
-        for _ in 0..c {
-            if next.insert(a, b).is_some() {
-                return None;
-            }
-        }
-    }
+    let next = |v: u32| outline.binary_search_by_key(&v, |e| e.0).ok();
     let mut reference = [0.0; 3];
     for ring in group {
         reference = add(reference, newell(points, ring));
     }
-    let mut starts: Vec<u32> = next.keys().copied().collect();
-    starts.sort_unstable();
-    let mut used: HashSet<u32> = HashSet::new();
+    let mut used = vec![false; outline.len()];
     let mut out = Vec::new();
-    for s in starts {
-        if used.contains(&s) {
+    for start in 0..outline.len() {
+        if used[start] {
             continue;
         }
-        let mut ring = vec![s];
-        used.insert(s);
-        let mut v = next[&s];
-        while v != s {
-            if !used.insert(v) {
+        let mut ring = Vec::new();
+        let mut e = start;
+        loop {
+            used[e] = true;
+            ring.push(outline[e].0);
+            e = next(outline[e].1)?;
+            if e == start {
+                break;
+            }
+            if used[e] {
                 return None;
             }
-            ring.push(v);
-            v = *next.get(&v)?;
         }
         if ring.len() >= 3 {
             if dot(newell(points, &ring), reference) <= 0.0 {
@@ -324,6 +315,36 @@ fn join(points: &[[f64; 3]], group: &[&[u32]]) -> Option<Vec<Vec<u32>>> {
         }
     }
     Some(out)
+}
+
+/// The directed edges of `rings` less those met once each way, each as
+/// many times as it outnumbers its reverse.
+fn unmatched<'a>(rings: impl Iterator<Item = &'a [u32]>) -> Vec<(u32, u32)> {
+    // Each edge under its lower point first, +1 along, -1 against.
+    let mut edges: Vec<(u64, i32)> = Vec::new();
+    for ring in rings {
+        for k in 0..ring.len() {
+            let (a, b) = (ring[k], ring[(k + 1) % ring.len()]);
+            let key = ((a.min(b) as u64) << 32) | a.max(b) as u64;
+            edges.push((key, if a < b { 1 } else { -1 }));
+        }
+    }
+    edges.sort_unstable_by_key(|e| e.0);
+    let mut out = Vec::new();
+    let mut k = 0;
+    while k < edges.len() {
+        let key = edges[k].0;
+        let mut net = 0;
+        while k < edges.len() && edges[k].0 == key {
+            net += edges[k].1;
+            k += 1;
+        }
+        let (lo, hi) = ((key >> 32) as u32, key as u32);
+        for _ in 0..net.abs() {
+            out.push(if net > 0 { (lo, hi) } else { (hi, lo) });
+        }
+    }
+    out
 }
 
 /// Closes the cracks: points on edges without their reverse (where the
@@ -429,22 +450,7 @@ fn close_holes(faces: &mut Vec<(Wall, Vec<u32>)>) -> (u32, u32) {
 /// The directed edges of `faces` without their reverse (as many times as
 /// they outnumber it).
 fn open_edges(faces: &[(Wall, Vec<u32>)]) -> Vec<(u32, u32)> {
-    let mut edges: HashMap<(u32, u32), i32> = HashMap::new();
-    for (_, ring) in faces {
-        for k in 0..ring.len() {
-            let (a, b) = (ring[k], ring[(k + 1) % ring.len()]);
-            *edges.entry((a, b)).or_insert(0) += 1;
-            *edges.entry((b, a)).or_insert(0) -= 1;
-        }
-    }
-    let mut open = Vec::new();
-    for (&e, &n) in &edges {
-        for _ in 0..n.max(0) {
-            open.push(e);
-        }
-    }
-    open.sort_unstable();
-    open
+    unmatched(faces.iter().map(|(_, ring)| ring.as_slice()))
 }
 
 /// Takes out the points on exactly two faces of different walls that lie
@@ -453,7 +459,7 @@ fn open_edges(faces: &[(Wall, Vec<u32>)]) -> Vec<(u32, u32)> {
 fn drop_edge_points(points: &[[f64; 3]], faces: &mut [(Wall, Vec<u32>)], tolerance: f64) {
     // Per point: faces, first and last wall, and whether it ever is a
     // corner.
-    let mut seen: HashMap<u32, (u32, Wall, Wall, bool)> = HashMap::new();
+    let mut seen: Vec<(u32, Wall, Wall, bool)> = vec![(0, Wall::Lid, Wall::Lid, false); points.len()];
     for (wall, ring) in faces.iter() {
         for k in 0..ring.len() {
             let v = ring[k];
@@ -461,7 +467,10 @@ fn drop_edge_points(points: &[[f64; 3]], faces: &mut [(Wall, Vec<u32>)], toleran
             let (p, a, b) = (points[v as usize], points[before as usize], points[after as usize]);
             let ab = sub(b, a);
             let off_line = norm(cross(sub(p, a), ab)) > tolerance * norm(ab);
-            let e = seen.entry(v).or_insert((0, *wall, *wall, false));
+            let e = &mut seen[v as usize];
+            if e.0 == 0 {
+                e.1 = *wall;
+            }
             e.0 += 1;
             e.2 = *wall;
             e.3 |= off_line;
@@ -475,7 +484,7 @@ fn drop_edge_points(points: &[[f64; 3]], faces: &mut [(Wall, Vec<u32>)], toleran
             .iter()
             .copied()
             .filter(|v| {
-                let (count, first, last, corner) = seen[v];
+                let (count, first, last, corner) = seen[*v as usize];
                 corner || count != 2 || first == last
             })
             .collect();

@@ -2,7 +2,11 @@
 //!
 //! * `cells.csv` — per input site: volume, centroid, energy ([`cells_csv`]);
 //! * `sites.xyz` — the sites, readable back by [`crate::io::read_sites`];
-//! * `pieces.vtu` — every piece as a VTK polyhedron ([`vtu`]);
+//! * `neighbors.csv` — the faces the cells share ([`neighbors_csv`]);
+//! * `cells.vtu` — each cell as one VTK polyhedron, binary ([`cells_vtu`]);
+//! * `walls.ply` — every wall of the diagram once ([`walls_ply`]);
+//! * `pieces.vtu` — every piece (a cell inside one tet) as a VTK
+//!   polyhedron, on request ([`vtu`]);
 //! * `picture.png` — the cells cut by a plane ([`picture`]);
 //! * `summary.json` — the run in numbers ([`summary`]), also shown as a
 //!   table on the terminal.
@@ -10,20 +14,24 @@
 //! Writers that may take a while report their progress as `(done, total)`.
 
 pub mod cells_csv;
+pub mod cells_vtu;
 pub mod neighbors_csv;
 pub mod picture;
 pub mod plot;
 pub mod summary;
 pub mod view;
 pub mod vtu;
+pub mod walls_ply;
 
 pub use cells_csv::{read_cells_csv, write_cells_csv, CellRow};
+pub use cells_vtu::write_cells_vtu;
 pub use neighbors_csv::write_neighbors_csv;
 pub use picture::{write_section_png, Section};
 pub use plot::{write_chart_png, write_line_chart_png, Axes, Series};
 pub use summary::{value_name, CvtRecord, Summary, Times};
 pub use view::write_cells_view_png;
 pub use vtu::write_pieces_vtu;
+pub use walls_ply::write_walls_ply;
 
 /// A progress report: `(done, total)`, in units the writer chooses.
 pub type Progress<'a> = &'a mut dyn FnMut(u64, u64);

@@ -45,9 +45,14 @@ pub struct Summary {
     pub times: Times,
     /// What the kernels and the second pass counted.
     pub counters: Counters,
-    /// Pieces exported (absent when they were not).
+    /// Pieces merged into the cells' polyhedra (absent when they were not).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub pieces: Option<usize>,
+    /// Lids the polyhedra needed: holes where a corner of a cell poked into
+    /// a tet by a sliver the flood did not reach (see
+    /// [`crate::diagram::polyhedra::CellPolyhedron::repaired_holes`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub lids: Option<u64>,
     /// The optimiser's record, when CVT iterations moved the sites before
     /// this diagram (absent otherwise).
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -159,6 +164,7 @@ impl Summary {
             times: Times { kernel_compile_s: backend.kernel_compile_seconds(), ..Times::of(&cells.timings) },
             counters: cells.counters,
             pieces: None,
+            lids: None,
             cvt: None,
         }
     }
@@ -234,6 +240,9 @@ impl fmt::Display for Summary {
         }
         if let Some(n) = self.pieces {
             writeln!(f, "  {:<11}{n}", "pieces")?;
+        }
+        if let Some(n) = self.lids.filter(|&n| n > 0) {
+            writeln!(f, "  {:<11}{n} holes in the cells' polyhedra closed by lids", "lids")?;
         }
         if let Some(r) = &self.cvt {
             let empty = r.empty_cells.iter().max().copied().unwrap_or(0);
