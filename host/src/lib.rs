@@ -35,7 +35,7 @@ pub mod vec3;
 pub mod vulkan;
 
 pub use backend::{Backend, BackendKind, BackendOptions};
-pub use diagram::pieces::Piece;
+pub use diagram::pieces::{Piece, Pieces};
 pub use diagram::voronoi::{Cells, ClippedVoronoi, Counters, Pairing, Strategy};
 pub use error::{Error, Result};
 pub use knn::{KnnJob, KnnMethod, Neighbors};

@@ -439,14 +439,11 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
     cvd::io::write_sites_xyz(&file("sites.xyz"), &sites)?;
     if !args.no_geometry {
         let cpu = CpuBackend::new(args.backend.threads)?;
+        // The adjacency came with the diagram above; the polyhedra's run
+        // needs only the pieces.
         let (with_polyhedra, pieces) =
-            with_spinner("cells' polyhedra, on the CPU", || cv.compute_with_polyhedra(&cpu))?;
+            with_spinner("cells' polyhedra, on the CPU", || cv.faces(false).compute_with_polyhedra(&cpu))?;
         summary.pieces = Some(pieces.len());
-        let polyhedra = with_polyhedra.polyhedra().unwrap_or_default();
-        summary.lids = Some(polyhedra.iter().map(|p| p.repaired_holes as u64).sum());
-        let path = file("cells.vtu");
-        with_bar("writing cells.vtu", |progress| output::write_cells_vtu(&path, &cells, polyhedra, progress))?;
-        output::write_walls_ply(&file("walls.ply"), polyhedra)?;
         if args.pieces {
             let path = file("pieces.vtu");
             with_bar("writing pieces.vtu", |progress| output::write_pieces_vtu(&path, &pieces, progress))?;
@@ -462,6 +459,12 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
                 output::write_cells_view_png(&path, &pieces, &sites, section.z, PICTURE_SIZE, progress)
             })?;
         }
+        drop(pieces);
+        let polyhedra = with_polyhedra.polyhedra().unwrap_or_default();
+        summary.lids = Some(polyhedra.iter().map(|p| p.repaired_holes as u64).sum());
+        let path = file("cells.vtu");
+        with_bar("writing cells.vtu", |progress| output::write_cells_vtu(&path, &cells, polyhedra, progress))?;
+        output::write_walls_ply(&file("walls.ply"), polyhedra)?;
     }
     summary.write_json(&file("summary.json"))?;
     print!("{summary}");

@@ -190,10 +190,10 @@ fn the_pieces_faces_name_their_makers() {
         0.5 * (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt()
     };
     let mut sums: HashMap<(u32, i64), f64> = HashMap::new();
-    for piece in &pieces {
+    for piece in pieces.iter() {
         assert_eq!(piece.face_makers.len(), piece.face_ends.len());
         for (face, &maker) in piece.faces().zip(&piece.face_makers) {
-            *sums.entry((piece.site, maker)).or_insert(0.0) += area(piece, face);
+            *sums.entry((piece.site, maker)).or_insert(0.0) += area(&piece, face);
         }
     }
     for i in 0..sites.len() {

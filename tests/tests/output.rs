@@ -4,7 +4,7 @@
 
 use cvd::cpu::CpuBackend;
 use cvd::output::{self, Section, Summary};
-use cvd::{points, Cells, ClippedVoronoi, Error, Piece, Strategy, TetMesh};
+use cvd::{points, Cells, ClippedVoronoi, Error, Pieces, Strategy, TetMesh};
 use std::path::PathBuf;
 use std::process::Command;
 
@@ -26,7 +26,7 @@ fn moved_ell() -> TetMesh {
     mesh
 }
 
-fn diagram(mesh: &TetMesh, sites: &[[f64; 3]]) -> (Cells, Vec<Piece>) {
+fn diagram(mesh: &TetMesh, sites: &[[f64; 3]]) -> (Cells, Pieces) {
     let cpu = CpuBackend::new(None).unwrap();
     ClippedVoronoi::new(mesh, sites).compute_with_pieces(&cpu).unwrap()
 }

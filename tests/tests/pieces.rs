@@ -157,7 +157,7 @@ fn pieces_of(cv: ClippedVoronoi<'_>) -> (Cells, Vec<Piece>) {
     // Fixed-point sums: the same pieces give the same bits.
     assert_eq!(cells.volume, plain.volume);
     assert_eq!(cells.energy, plain.energy);
-    (cells, pieces)
+    (cells, pieces.to_vec())
 }
 
 proptest! {

@@ -52,10 +52,158 @@ impl Piece {
     }
 }
 
+/// Every piece of a diagram, packed: the kernels' own f32 vertices
+/// (relative to the site, in the job's frame) and one byte per corner of a
+/// face, a few hundred bytes a piece, with no allocation of its own. A
+/// [`Piece`] in world coordinates is made on request ([`Pieces::get`]).
+/// Pieces are numbered by site, then tet.
+#[derive(Clone, Debug, Default)]
+pub struct Pieces {
+    /// Per piece: site and tet (input indices, once [`to_world`] ran).
+    sites: Vec<u32>,
+    tets: Vec<u32>,
+    /// Per piece: where its vertices and its faces end.
+    vertex_ends: Vec<u32>,
+    face_ends: Vec<u32>,
+    /// Per vertex: relative to the piece's site, in the job's frame.
+    vertices: Vec<[f32; 3]>,
+    /// Per face: where its loop ends in `corners`, and its maker.
+    loop_ends: Vec<u32>,
+    makers: Vec<i32>,
+    /// Per corner: the vertex, within its piece.
+    corners: Vec<u8>,
+    /// Each site's position (input order) and the frame's scale: a vertex
+    /// `v` of a piece of site `i` is at `origins[i] + scale * v`.
+    origins: Vec<[f64; 3]>,
+    scale: f64,
+    /// The pieces in (site, tet) order.
+    order: Vec<u32>,
+}
+
+impl Pieces {
+    /// Number of pieces.
+    pub fn len(&self) -> usize {
+        self.order.len()
+    }
+
+    /// Whether there are none.
+    pub fn is_empty(&self) -> bool {
+        self.order.is_empty()
+    }
+
+    /// The site of piece `k`.
+    pub fn site(&self, k: usize) -> u32 {
+        self.sites[self.order[k] as usize]
+    }
+
+    /// Piece `k`, in world coordinates.
+    pub fn get(&self, k: usize) -> Piece {
+        let p = self.order[k] as usize;
+        let mut piece = Piece { site: self.sites[p], tet: self.tets[p], ..Piece::default() };
+        let x = self.origins[piece.site as usize];
+        let (v0, f0) = self.starts(p);
+        piece.vertices = self.vertices[v0..self.vertex_ends[p] as usize]
+            .iter()
+            .map(|v| [0, 1, 2].map(|a| x[a] + self.scale * v[a] as f64))
+            .collect();
+        for f in f0..self.face_ends[p] as usize {
+            let c0 = if f == 0 { 0 } else { self.loop_ends[f - 1] as usize };
+            piece.face_vertices.extend(self.corners[c0..self.loop_ends[f] as usize].iter().map(|&c| c as u32));
+            piece.face_ends.push(piece.face_vertices.len() as u32);
+            piece.face_makers.push(self.makers[f] as i64);
+        }
+        piece
+    }
+
+    /// Every piece, in world coordinates, made one after another.
+    pub fn iter(&self) -> impl Iterator<Item = Piece> + '_ {
+        (0..self.len()).map(|k| self.get(k))
+    }
+
+    /// Every piece in world coordinates, all at once.
+    pub fn to_vec(&self) -> Vec<Piece> {
+        (0..self.len()).into_par_iter().map(|k| self.get(k)).collect()
+    }
+
+    /// Where piece `p`'s (storage order) vertices and faces start.
+    fn starts(&self, p: usize) -> (usize, usize) {
+        if p == 0 {
+            (0, 0)
+        } else {
+            (self.vertex_ends[p - 1] as usize, self.face_ends[p - 1] as usize)
+        }
+    }
+
+    /// The ranges of the numbering that hold one site's pieces each.
+    pub(crate) fn by_site(&self) -> Vec<std::ops::Range<usize>> {
+        let mut runs = Vec::new();
+        let mut start = 0;
+        for k in 1..=self.len() {
+            if k == self.len() || self.site(k) != self.site(start) {
+                runs.push(start..k);
+                start = k;
+            }
+        }
+        runs
+    }
+
+    /// Piece `k`'s vertices in world coordinates, appended to `out`, and
+    /// its faces as (loop, maker), the loop's vertices numbered from
+    /// `base`.
+    pub(crate) fn unpack_into(
+        &self,
+        k: usize,
+        out: &mut Vec<[f64; 3]>,
+        mut face: impl FnMut(&mut dyn Iterator<Item = u32>, i64),
+    ) {
+        let p = self.order[k] as usize;
+        let x = self.origins[self.sites[p] as usize];
+        let (v0, f0) = self.starts(p);
+        let base = out.len() as u32;
+        out.extend(
+            self.vertices[v0..self.vertex_ends[p] as usize]
+                .iter()
+                .map(|v| [0, 1, 2].map(|a| x[a] + self.scale * v[a] as f64)),
+        );
+        for f in f0..self.face_ends[p] as usize {
+            let c0 = if f == 0 { 0 } else { self.loop_ends[f - 1] as usize };
+            let mut ring = self.corners[c0..self.loop_ends[f] as usize].iter().map(|&c| base + c as u32);
+            face(&mut ring, self.makers[f] as i64);
+        }
+    }
+
+    /// Appends `other`'s pieces (storage order).
+    fn append(&mut self, other: Pieces) {
+        let (nv, nf, nc) = (self.vertices.len() as u32, self.loop_ends.len() as u32, self.corners.len() as u32);
+        self.sites.extend(other.sites);
+        self.tets.extend(other.tets);
+        self.vertex_ends.extend(other.vertex_ends.iter().map(|e| e + nv));
+        self.face_ends.extend(other.face_ends.iter().map(|e| e + nf));
+        self.vertices.extend(other.vertices);
+        self.loop_ends.extend(other.loop_ends.iter().map(|e| e + nc));
+        self.makers.extend(other.makers);
+        self.corners.extend(other.corners);
+    }
+
+    /// Forgets the last piece.
+    fn pop(&mut self) {
+        self.sites.pop();
+        self.tets.pop();
+        self.vertex_ends.pop();
+        self.face_ends.pop();
+        let (v, f) =
+            (self.vertex_ends.last().map_or(0, |&e| e as usize), self.face_ends.last().map_or(0, |&e| e as usize));
+        self.vertices.truncate(v);
+        self.loop_ends.truncate(f);
+        self.makers.truncate(f);
+        self.corners.truncate(self.loop_ends.last().map_or(0, |&e| e as usize));
+    }
+}
+
 /// A task's pieces as the kernels give them: job indices, vertices
 /// relative to the site in the job's normalised frame.
 #[derive(Default)]
-pub(crate) struct PieceCollector(Vec<Piece>);
+pub(crate) struct PieceCollector(Pieces);
 
 impl PieceSink for PieceCollector {
     fn piece<const P: usize, const V: usize>(&mut self, tet: u32, site: u32, poly: &Polyhedron<P, V>) {
@@ -63,14 +211,22 @@ impl PieceSink for PieceCollector {
         if poly.moments().volume == 0.0 {
             return;
         }
-        let mut piece = Piece { site, tet, ..Piece::default() };
-        face_loops(poly, &mut piece);
-        self.0.push(piece);
+        face_loops(poly, &mut self.0);
+        let all = &mut self.0;
+        if all.loop_ends.len() as u32 == all.face_ends.last().copied().unwrap_or(0) {
+            // No face closed: no piece.
+            all.vertices.truncate(all.vertex_ends.last().map_or(0, |&e| e as usize));
+            return;
+        }
+        all.sites.push(site);
+        all.tets.push(tet);
+        all.vertex_ends.push(all.vertices.len() as u32);
+        all.face_ends.push(all.loop_ends.len() as u32);
     }
 
     fn discard_tet(&mut self, tet: u32) {
         // A tet's pieces are given one after another by one task.
-        while self.0.last().is_some_and(|p| p.tet == tet) {
+        while self.0.tets.last() == Some(&tet) {
             self.0.pop();
         }
     }
@@ -78,17 +234,20 @@ impl PieceSink for PieceCollector {
 
 impl TaskSink for PieceCollector {
     fn hand_over(self, all: &Mutex<Vec<Self>>) {
-        if !self.0.is_empty() {
+        if !self.0.sites.is_empty() {
             all.lock().unwrap_or_else(|e| e.into_inner()).push(self);
         }
     }
 }
 
-/// Fills `piece`'s vertices (in the polyhedron's own coordinates) and face
-/// loops. Vertices at exactly the same position (a plane through a vertex
-/// leaves two there, joined by an edge of length zero) become one, and a
-/// face left with fewer than 3 corners is dropped.
-fn face_loops<const P: usize, const V: usize>(poly: &Polyhedron<P, V>, piece: &mut Piece) {
+/// Appends `poly`'s vertices (in the polyhedron's own coordinates) and face
+/// loops to `out` (the piece's entry is the caller's). Vertices at exactly
+/// the same position (a plane through a vertex leaves two there, joined by
+/// an edge of length zero) become one, and a face left with fewer than 3
+/// corners is dropped.
+fn face_loops<const P: usize, const V: usize>(poly: &Polyhedron<P, V>, out: &mut Pieces) {
+    // A vertex's number within its piece is a byte.
+    const { assert!(V < 255) };
     let n = (poly.n_verts as usize).min(V);
     // The first vertex at each position.
     let mut same = [0usize; V];
@@ -96,7 +255,8 @@ fn face_loops<const P: usize, const V: usize>(poly: &Polyhedron<P, V>, piece: &m
         *s = (0..i).find(|&k| poly.verts[k] == poly.verts[i]).unwrap_or(i);
     }
     // Output index of each kept vertex, given on first use.
-    let mut out = [u32::MAX; V];
+    let mut number = [u8::MAX; V];
+    let mut kept = 0u8;
     let mut on_face: Vec<(usize, u32, u32)> = Vec::with_capacity(16);
     let mut ring: Vec<u32> = Vec::with_capacity(16);
     for plane in 0..poly.n_planes.min(P as u32) {
@@ -143,21 +303,22 @@ fn face_loops<const P: usize, const V: usize>(poly: &Polyhedron<P, V>, piece: &m
         }
         for &v in ring.iter() {
             let v = v as usize;
-            if out[v] == u32::MAX {
-                out[v] = piece.vertices.len() as u32;
+            if number[v] == u8::MAX {
+                number[v] = kept;
+                kept += 1;
                 let p = poly.verts[v];
-                piece.vertices.push([p.x as f64, p.y as f64, p.z as f64]);
+                out.vertices.push([p.x, p.y, p.z]);
             }
-            piece.face_vertices.push(out[v]);
+            out.corners.push(number[v]);
         }
-        piece.face_ends.push(piece.face_vertices.len() as u32);
+        out.loop_ends.push(out.corners.len() as u32);
         // The job's id for now; `to_world` makes it the input's.
-        piece.face_makers.push(poly.ids[plane as usize] as i64);
+        out.makers.push(poly.ids[plane as usize] as i32);
     }
 }
 
-/// The collected pieces in world coordinates, with input site and tet
-/// indices, sorted by site and tet. `map` sends each input site to its
+/// The collected pieces with input site and tet indices and the sites'
+/// positions, numbered by site and tet. `map` sends each input site to its
 /// job site (`None` for a duplicate), as [`ClippedVoronoi::job`](crate::ClippedVoronoi::job) gives it.
 pub(crate) fn to_world(
     collected: Vec<PieceCollector>,
@@ -165,7 +326,7 @@ pub(crate) fn to_world(
     map: &[Option<usize>],
     frame: &Frame,
     input: &[[f64; 3]],
-) -> Vec<Piece> {
+) -> Pieces {
     // The input index that owns each job site: the lowest.
     let mut owner = vec![u32::MAX; job.sites.len()];
     for (i, m) in map.iter().enumerate().rev() {
@@ -173,32 +334,48 @@ pub(crate) fn to_world(
             owner[u] = i as u32;
         }
     }
-    let mut pieces: Vec<Piece> = collected.into_iter().flat_map(|c| c.0).collect();
+    let mut pieces = Pieces::default();
+    let total = |f: fn(&Pieces) -> usize| collected.iter().map(|c| f(&c.0)).sum::<usize>();
+    pieces.sites.reserve_exact(total(|p| p.sites.len()));
+    pieces.tets.reserve_exact(total(|p| p.tets.len()));
+    pieces.vertex_ends.reserve_exact(total(|p| p.vertex_ends.len()));
+    pieces.face_ends.reserve_exact(total(|p| p.face_ends.len()));
+    pieces.vertices.reserve_exact(total(|p| p.vertices.len()));
+    pieces.loop_ends.reserve_exact(total(|p| p.loop_ends.len()));
+    pieces.makers.reserve_exact(total(|p| p.makers.len()));
+    pieces.corners.reserve_exact(total(|p| p.corners.len()));
+    for c in collected {
+        pieces.append(c.0);
+    }
     let local = crate::TetMesh { vertices: Vec::new(), tets: job.tets.clone() };
     let bits = crate::diagram::faces::boundary_bits(&local);
-    pieces.par_iter_mut().for_each(|p| {
-        let t = p.tet as usize;
-        for m in &mut p.face_makers {
-            let id = *m as u32;
-            *m = if made_by_site(id) {
-                owner[id as usize] as i64
-            } else if (TET_FACE..NO_ID).contains(&id)
-                && (bits[t / 8] >> (4 * (t % 8) + (id - TET_FACE) as usize)) & 1 != 0
-            {
-                ON_BOUNDARY
-            } else {
-                IN_MESH
-            };
-        }
-        let site = owner[p.site as usize];
-        // Relative to the input site itself, whose position is exact.
-        let x = input[site as usize];
-        for v in &mut p.vertices {
-            *v = [0, 1, 2].map(|a| x[a] + frame.scale * v[a]);
-        }
-        p.site = site;
-        p.tet = job.tet_order[p.tet as usize];
+    // Each face's maker: the input site, or where the face lies.
+    let mut tet_of_face = vec![0u32; pieces.makers.len()];
+    for p in 0..pieces.sites.len() {
+        let (_, f0) = pieces.starts(p);
+        tet_of_face[f0..pieces.face_ends[p] as usize].fill(pieces.tets[p]);
+    }
+    pieces.makers.par_iter_mut().zip(&tet_of_face).for_each(|(m, &t)| {
+        let (id, t) = (*m as u32, t as usize);
+        *m = if made_by_site(id) {
+            owner[id as usize] as i32
+        } else if (TET_FACE..NO_ID).contains(&id) && (bits[t / 8] >> (4 * (t % 8) + (id - TET_FACE) as usize)) & 1 != 0
+        {
+            ON_BOUNDARY as i32
+        } else {
+            IN_MESH as i32
+        };
     });
-    pieces.par_sort_unstable_by_key(|p| (p.site, p.tet));
+    for s in &mut pieces.sites {
+        *s = owner[*s as usize];
+    }
+    for t in &mut pieces.tets {
+        *t = job.tet_order[*t as usize];
+    }
+    pieces.origins = input.to_vec();
+    pieces.scale = frame.scale;
+    let mut order: Vec<u32> = (0..pieces.sites.len() as u32).collect();
+    order.par_sort_unstable_by_key(|&p| (pieces.sites[p as usize], pieces.tets[p as usize]));
+    pieces.order = order;
     pieces
 }

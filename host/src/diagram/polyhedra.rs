@@ -1,5 +1,5 @@
 //! Each clipped cell as one polyhedron: its pieces (one per tet, see
-//! [`Piece`]) merged into the cell's own boundary.
+//! [`Pieces`]) merged into the cell's own boundary.
 //!
 //! A cell's pieces meet on the faces between tets; those faces are inside
 //! the cell and are dropped. What is left lies on bisectors (one face per
@@ -19,7 +19,7 @@
 //! (each a face with the same neighbour), so that every face is a simple
 //! polygon.
 
-use crate::diagram::pieces::{Piece, IN_MESH, ON_BOUNDARY};
+use crate::diagram::pieces::{Pieces, IN_MESH, ON_BOUNDARY};
 use crate::vec3::{add, bounding_box, cross, dot, norm, sub};
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -109,19 +109,8 @@ pub fn enclosed_volume<'a>(vertices: &[[f64; 3]], faces: impl Iterator<Item = &'
 }
 
 /// Every cell with pieces, merged (see the module's text), in site order.
-/// `pieces` are sorted by site, as
-/// [`ClippedVoronoi::compute_with_pieces`](crate::ClippedVoronoi::compute_with_pieces)
-/// gives them.
-pub fn merge_pieces(pieces: &[Piece]) -> Vec<CellPolyhedron> {
-    let mut runs = Vec::new();
-    let mut start = 0;
-    for i in 1..=pieces.len() {
-        if i == pieces.len() || pieces[i].site != pieces[start].site {
-            runs.push(start..i);
-            start = i;
-        }
-    }
-    runs.into_par_iter().map(|r| merge_cell(&pieces[r])).collect()
+pub fn merge_pieces(pieces: &Pieces) -> Vec<CellPolyhedron> {
+    pieces.by_site().into_par_iter().map(|r| merge_cell(pieces, r)).collect()
 }
 
 /// What a face of a cell lies on: a neighbour's bisector, or one plane of
@@ -134,55 +123,50 @@ enum Wall {
     Lid,
 }
 
-/// One cell's pieces (all of one site) merged into one polyhedron.
-pub fn merge_cell(pieces: &[Piece]) -> CellPolyhedron {
-    let site = pieces.first().map_or(0, |p| p.site);
+/// The pieces `range` (all of one site) merged into one polyhedron.
+fn merge_cell(pieces: &Pieces, range: std::ops::Range<usize>) -> CellPolyhedron {
+    let site = pieces.site(range.start);
     let mut points: Vec<[f64; 3]> = Vec::new();
-    for p in pieces {
-        points.extend_from_slice(&p.vertices);
+    // The faces not between two tets, with their makers.
+    let mut kept: Vec<(i64, Vec<u32>)> = Vec::new();
+    for k in range {
+        pieces.unpack_into(k, &mut points, |ring, maker| {
+            if maker != IN_MESH {
+                kept.push((maker, ring.collect()));
+            }
+        });
     }
     let (weld, tolerance) = weld(&points);
-    // Every polygon not between two tets, welded, by the wall it is on.
-    let mut polygons: Vec<(Wall, Vec<u32>)> = Vec::new();
-    let mut planes: Vec<([f64; 3], f64)> = Vec::new();
-    let mut base = 0usize;
-    for p in pieces {
-        for (face, &maker) in p.faces().zip(&p.face_makers) {
-            if maker == IN_MESH {
-                continue;
-            }
-            let mut ring: Vec<u32> = face.iter().map(|&v| weld[base + v as usize]).collect();
-            ring.dedup();
-            while ring.len() > 1 && ring.first() == ring.last() {
-                ring.pop();
-            }
-            if ring.len() < 3 {
-                continue;
-            }
-            let wall = if maker == ON_BOUNDARY {
-                Wall::Boundary(boundary_plane(&points, &ring, tolerance, &mut planes))
-            } else {
-                Wall::Site(maker as u32)
-            };
-            polygons.push((wall, ring));
-        }
-        base += p.vertices.len();
-    }
-    close_cracks(&mut points, &mut polygons, tolerance * (CRACK / WELD_TOLERANCE));
-    polygons.sort_by_key(|(wall, _)| *wall);
 
-    // Join each wall's polygons.
-    let mut faces: Vec<(Wall, Vec<u32>)> = Vec::new();
-    let mut at = 0;
-    while at < polygons.len() {
-        let wall = polygons[at].0;
-        let end = at + polygons[at..].iter().take_while(|(w, _)| *w == wall).count();
-        let group: Vec<&[u32]> = polygons[at..end].iter().map(|(_, r)| r.as_slice()).collect();
-        match join(&points, &group) {
-            Some(joined) => faces.extend(joined.into_iter().map(|r| (wall, r))),
-            None => faces.extend(group.iter().map(|r| (wall, r.to_vec()))),
+    // Every polygon, welded, by the wall it is on.
+    let mut polygons: Vec<(Wall, Vec<u32>)> = Vec::with_capacity(kept.len());
+    let mut planes: Vec<([f64; 3], f64)> = Vec::new();
+    for (maker, mut ring) in kept {
+        for v in ring.iter_mut() {
+            *v = weld[*v as usize];
         }
-        at = end;
+        ring.dedup();
+        while ring.len() > 1 && ring.first() == ring.last() {
+            ring.pop();
+        }
+        if ring.len() < 3 {
+            continue;
+        }
+        let wall = if maker == ON_BOUNDARY {
+            Wall::Boundary(boundary_plane(&points, &ring, tolerance, &mut planes))
+        } else {
+            Wall::Site(maker as u32)
+        };
+        polygons.push((wall, ring));
+    }
+    polygons.sort_by_key(|(wall, _)| *wall);
+    let mut faces = join_walls(&points, &polygons);
+    if !open_edges(&faces).is_empty() {
+        // Rare: copies of a point the weld left apart; made one, then the
+        // walls joined again.
+        close_cracks(&mut points, &mut polygons, tolerance * (CRACK / WELD_TOLERANCE));
+        polygons.sort_by_key(|(wall, _)| *wall);
+        faces = join_walls(&points, &polygons);
     }
     let (repaired, open) = close_holes(&mut faces);
     drop_edge_points(&points, &mut faces, tolerance * (COLLINEAR / WELD_TOLERANCE));
@@ -207,6 +191,24 @@ pub fn merge_cell(pieces: &[Piece]) -> CellPolyhedron {
         });
     }
     cell
+}
+
+/// Each wall's polygons (sorted by wall) joined into its faces (see
+/// [`join`]; a wall that cannot be keeps its polygons).
+fn join_walls(points: &[[f64; 3]], polygons: &[(Wall, Vec<u32>)]) -> Vec<(Wall, Vec<u32>)> {
+    let mut faces = Vec::new();
+    let mut at = 0;
+    while at < polygons.len() {
+        let wall = polygons[at].0;
+        let end = at + polygons[at..].iter().take_while(|(w, _)| *w == wall).count();
+        let group: Vec<&[u32]> = polygons[at..end].iter().map(|(_, r)| r.as_slice()).collect();
+        match join(points, &group) {
+            Some(joined) => faces.extend(joined.into_iter().map(|r| (wall, r))),
+            None => faces.extend(group.iter().map(|r| (wall, r.to_vec()))),
+        }
+        at = end;
+    }
+    faces
 }
 
 /// Each point's representative and the tolerance: see [`weld_within`],

@@ -3,7 +3,7 @@
 
 use crate::backend::Backend;
 use crate::cpu::TaskSink;
-use crate::diagram::pieces::{Piece, PieceCollector};
+use crate::diagram::pieces::{PieceCollector, Pieces};
 use crate::diagram::polyhedra::{merge_pieces, CellPolyhedron};
 use crate::error::{Error, Result};
 use crate::knn::{KnnJob, KnnMethod};
@@ -514,9 +514,10 @@ impl<'a> ClippedVoronoi<'a> {
 
     /// Computes the clipped cells on the CPU backend `cpu` (whatever
     /// [`Self::backend`] says) and also returns every non-empty piece — a
-    /// site's cell inside one tet — in world coordinates, sorted by site
-    /// and tet. The cells are those [`Self::compute`] returns on `cpu`.
-    pub fn compute_with_pieces(&self, cpu: &crate::cpu::CpuBackend) -> Result<(Cells, Vec<Piece>)> {
+    /// site's cell inside one tet — numbered by site and tet, each given in
+    /// world coordinates on request ([`Pieces::get`]). The cells are those
+    /// [`Self::compute`] returns on `cpu`.
+    pub fn compute_with_pieces(&self, cpu: &crate::cpu::CpuBackend) -> Result<(Cells, Pieces)> {
         let (job, map, frame) = self.job()?;
         let sinks = Mutex::new(Vec::new());
         let out = cpu.clip_into::<PieceCollector>(&job, &sinks)?;
@@ -528,7 +529,7 @@ impl<'a> ClippedVoronoi<'a> {
     /// Computes the clipped cells on the CPU backend `cpu`, as
     /// [`Self::compute_with_pieces`], with each cell as one closed
     /// polyhedron ([`Cells::polyhedra`]): its pieces merged.
-    pub fn compute_with_polyhedra(&self, cpu: &crate::cpu::CpuBackend) -> Result<(Cells, Vec<Piece>)> {
+    pub fn compute_with_polyhedra(&self, cpu: &crate::cpu::CpuBackend) -> Result<(Cells, Pieces)> {
         let (mut cells, pieces) = self.compute_with_pieces(cpu)?;
         let (polyhedra, t) = crate::timing::timed(|| merge_pieces(&pieces));
         cells.polyhedra = Some(polyhedra);

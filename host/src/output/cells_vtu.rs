@@ -33,7 +33,14 @@ pub fn write_cells_vtu(path: &Path, cells: &Cells, polyhedra: &[CellPolyhedron],
     order.sort_by_key(|p| (p.vertices.len(), p.site));
     let n_points: usize = order.iter().map(|p| p.vertices.len()).sum();
 
+    // Each array compressed as soon as it is made: (type, name,
+    // components, zlib blocks).
     let mut arrays: Vec<(&str, &str, usize, Vec<u8>)> = Vec::new();
+    let total = 11;
+    let mut push = |kind, name, components, raw: Vec<u8>| {
+        arrays.push((kind, name, components, compress(&raw)));
+        progress(arrays.len() as u64, total);
+    };
     let mut bytes = Vec::with_capacity(n_points * 24);
     for p in &order {
         for v in &p.vertices {
@@ -42,20 +49,25 @@ pub fn write_cells_vtu(path: &Path, cells: &Cells, polyhedra: &[CellPolyhedron],
             }
         }
     }
-    arrays.push(("Float64", "Points", 3, bytes));
-    let i64s = |values: &mut dyn Iterator<Item = i64>| values.flat_map(|v| v.to_le_bytes()).collect::<Vec<u8>>();
-    arrays.push(("Int64", "connectivity", 1, i64s(&mut (0..n_points as i64))));
+    push("Float64", "Points", 3, bytes);
+    // Indices in 32 bits (VTK widens them on reading) where they fit.
+    let wide = n_points > i32::MAX as usize / 2;
+    let ids = |values: &mut dyn Iterator<Item = i64>| -> Vec<u8> {
+        if wide {
+            values.flat_map(|v| v.to_le_bytes()).collect()
+        } else {
+            values.flat_map(|v| (v as i32).to_le_bytes()).collect()
+        }
+    };
+    let id_type = if wide { "Int64" } else { "Int32" };
+    push(id_type, "connectivity", 1, ids(&mut (0..n_points as i64)));
     let mut end = 0i64;
-    arrays.push((
-        "Int64",
-        "offsets",
-        1,
-        i64s(&mut order.iter().map(|p| {
-            end += p.vertices.len() as i64;
-            end
-        })),
-    ));
-    arrays.push(("UInt8", "types", 1, vec![VTK_POLYHEDRON; order.len()]));
+    let offsets = ids(&mut order.iter().map(|p| {
+        end += p.vertices.len() as i64;
+        end
+    }));
+    push(id_type, "offsets", 1, offsets);
+    push("UInt8", "types", 1, vec![VTK_POLYHEDRON; order.len()]);
     // Per polyhedron: its face count, then each face as its point count
     // and points (numbered over the whole file).
     let mut faces = Vec::new();
@@ -70,30 +82,24 @@ pub fn write_cells_vtu(path: &Path, cells: &Cells, polyhedra: &[CellPolyhedron],
         first += p.vertices.len() as i64;
         faceoffsets.push(faces.len() as i64);
     }
-    arrays.push(("Int64", "faces", 1, i64s(&mut faces.into_iter())));
-    arrays.push(("Int64", "faceoffsets", 1, i64s(&mut faceoffsets.into_iter())));
-    let n_cell_arrays = arrays.len();
+    push(id_type, "faces", 1, ids(&mut faces.into_iter()));
+    push(id_type, "faceoffsets", 1, ids(&mut faceoffsets.into_iter()));
 
     let site = |p: &&CellPolyhedron| p.site as usize;
-    arrays.push(("Int32", "site", 1, order.iter().flat_map(|p| (p.site as i32).to_le_bytes()).collect()));
+    push("Int32", "site", 1, order.iter().flat_map(|p| (p.site as i32).to_le_bytes()).collect());
     let f64s = |values: &mut dyn Iterator<Item = f64>| values.flat_map(|v| v.to_le_bytes()).collect::<Vec<u8>>();
-    arrays.push(("Float64", "volume", 1, f64s(&mut order.iter().map(|p| cells.volume[site(p)]))));
-    arrays.push(("Float64", "centroid", 3, f64s(&mut order.iter().flat_map(|p| cells.centroid[site(p)]))));
-    arrays.push(("Float64", "energy", 1, f64s(&mut order.iter().map(|p| cells.energy[site(p)]))));
+    push("Float64", "volume", 1, f64s(&mut order.iter().map(|p| cells.volume[site(p)])));
+    push("Float64", "centroid", 3, f64s(&mut order.iter().flat_map(|p| cells.centroid[site(p)])));
+    push("Float64", "energy", 1, f64s(&mut order.iter().map(|p| cells.energy[site(p)])));
     let neighbors = |p: &&CellPolyhedron| {
         let mut n: Vec<i64> = p.face_neighbors.iter().copied().filter(|&j| j >= 0).collect();
         n.sort_unstable();
         n.dedup();
         n.len() as i32
     };
-    arrays.push(("Int32", "neighbors", 1, order.iter().flat_map(|p| neighbors(p).to_le_bytes()).collect()));
-
-    let total = arrays.len() as u64;
-    let mut compressed = Vec::with_capacity(arrays.len());
-    for (k, (_, _, _, raw)) in arrays.iter().enumerate() {
-        compressed.push(compress(raw));
-        progress(k as u64 + 1, total);
-    }
+    push("Int32", "neighbors", 1, order.iter().flat_map(|p| neighbors(p).to_le_bytes()).collect());
+    // The first 6 arrays describe the cells; the rest are cell data.
+    let n_cell_arrays = 6;
 
     let io = |source| Error::Write { path: path.display().to_string(), source };
     let file = std::fs::File::create(path).map_err(io)?;
@@ -118,11 +124,11 @@ pub fn write_cells_vtu(path: &Path, cells: &Cells, polyhedra: &[CellPolyhedron],
                 w,
                 r#"<DataArray type="{kind}" Name="{name}" NumberOfComponents="{components}" format="appended" offset="{offset}"/>"#
             )?;
-            offset += compressed[k].len();
+            offset += arrays[k].3.len();
         }
         writeln!(w, "</CellData>\n</Piece>\n</UnstructuredGrid>")?;
         write!(w, "<AppendedData encoding=\"raw\">\n_")?;
-        for c in &compressed {
+        for (_, _, _, c) in &arrays {
             w.write_all(c)?;
         }
         writeln!(w, "\n</AppendedData>\n</VTKFile>")?;

@@ -5,7 +5,7 @@
 //! black (the mesh's cross-section outline).
 
 use super::Progress;
-use crate::diagram::pieces::Piece;
+use crate::diagram::pieces::{Piece, Pieces};
 use crate::error::Result;
 use crate::mesh::TetMesh;
 use std::path::Path;
@@ -156,7 +156,7 @@ pub(super) fn colour(site: u32) -> [u8; 3] {
 pub fn write_section_png(
     path: &Path,
     mesh: &TetMesh,
-    pieces: &[Piece],
+    pieces: &Pieces,
     section: Section,
     size: usize,
     progress: Progress<'_>,
@@ -167,7 +167,7 @@ pub fn write_section_png(
         let (lo, hi) =
             piece.vertices.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v[2]), b.max(v[2])));
         if lo <= section.z && section.z <= hi {
-            let poly = cut(piece, section.z);
+            let poly = cut(&piece, section.z);
             if !poly.is_empty() {
                 raster.fill(&poly, piece.site);
             }

@@ -8,7 +8,7 @@
 
 use super::picture::colour;
 use super::Progress;
-use crate::diagram::pieces::Piece;
+use crate::diagram::pieces::Pieces;
 use crate::error::Result;
 use std::path::Path;
 
@@ -57,17 +57,17 @@ impl Camera {
 /// `z <= cut` into a PNG `size` pixels wide, reporting progress in pieces.
 pub fn write_cells_view_png(
     path: &Path,
-    pieces: &[Piece],
+    pieces: &Pieces,
     sites: &[[f64; 3]],
     cut: f64,
     size: usize,
     progress: Progress<'_>,
 ) -> Result<()> {
     let camera = Camera::new();
-    let shown = |p: &Piece| sites.get(p.site as usize).is_some_and(|s| s[2] <= cut);
+    let shown = |k: &usize| sites.get(pieces.site(*k) as usize).is_some_and(|s| s[2] <= cut);
     // The image's extent: every shown vertex, projected.
     let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
-    for p in pieces.iter().filter(|p| shown(p)) {
+    for p in (0..pieces.len()).filter(shown).map(|k| pieces.get(k)) {
         for &v in &p.vertices {
             let s = camera.project(v);
             for a in 0..2 {
@@ -87,13 +87,14 @@ pub fn write_cells_view_png(
     let mut rgb = vec![255u8; width * height * 3];
     let light = unit([-0.5, 0.3, 1.0]);
     let total = pieces.len() as u64;
-    for (i, piece) in pieces.iter().enumerate() {
+    for i in 0..pieces.len() {
         if i % 4096 == 4095 {
             progress(i as u64 + 1, total);
         }
-        if !shown(piece) {
+        if !shown(&i) {
             continue;
         }
+        let piece = pieces.get(i);
         let base = colour(piece.site);
         for face in piece.faces() {
             let corners: Vec<V3> = face.iter().map(|&k| piece.vertices[k as usize]).collect();

@@ -9,7 +9,7 @@
 //! but their cell data by increasing count, which agree only then.
 
 use super::Progress;
-use crate::diagram::pieces::Piece;
+use crate::diagram::pieces::{Piece, Pieces};
 use crate::error::{Error, Result};
 use std::io::Write;
 use std::path::Path;
@@ -19,7 +19,8 @@ const VTK_POLYHEDRON: u8 = 42;
 
 /// Writes `pieces` to `path`, reporting progress in pieces written, four
 /// passes over them in all.
-pub fn write_pieces_vtu(path: &Path, pieces: &[Piece], progress: Progress<'_>) -> Result<()> {
+pub fn write_pieces_vtu(path: &Path, pieces: &Pieces, progress: Progress<'_>) -> Result<()> {
+    let pieces = pieces.to_vec();
     let mut order: Vec<&Piece> = pieces.iter().collect();
     order.sort_by_key(|p| p.vertices.len());
     let io = |source| Error::Write { path: path.display().to_string(), source };
