@@ -54,11 +54,24 @@ impl Piece {
 
 /// Every piece of a diagram, packed: the kernels' own f32 vertices
 /// (relative to the site, in the job's frame) and one byte per corner of a
-/// face, a few hundred bytes a piece, with no allocation of its own. A
-/// [`Piece`] in world coordinates is made on request ([`Pieces::get`]).
-/// Pieces are numbered by site, then tet.
+/// face, a few hundred bytes a piece, with no allocation of its own, kept
+/// in the parts the CPU's tasks collected them in. A [`Piece`] in world
+/// coordinates is made on request ([`Pieces::get`]). Pieces are numbered
+/// by site, then tet.
 #[derive(Clone, Debug, Default)]
 pub struct Pieces {
+    parts: Vec<Part>,
+    /// Each site's position (input order) and the frame's scale: a vertex
+    /// `v` of a piece of site `i` is at `origins[i] + scale * v`.
+    origins: Vec<[f64; 3]>,
+    scale: f64,
+    /// The pieces in (site, tet) order, as (part, piece in the part).
+    order: Vec<(u32, u32)>,
+}
+
+/// One task's pieces, packed.
+#[derive(Clone, Debug, Default)]
+struct Part {
     /// Per piece: site and tet (input indices, once [`to_world`] ran).
     sites: Vec<u32>,
     tets: Vec<u32>,
@@ -72,12 +85,6 @@ pub struct Pieces {
     makers: Vec<i32>,
     /// Per corner: the vertex, within its piece.
     corners: Vec<u8>,
-    /// Each site's position (input order) and the frame's scale: a vertex
-    /// `v` of a piece of site `i` is at `origins[i] + scale * v`.
-    origins: Vec<[f64; 3]>,
-    scale: f64,
-    /// The pieces in (site, tet) order.
-    order: Vec<u32>,
 }
 
 impl Pieces {
@@ -93,25 +100,20 @@ impl Pieces {
 
     /// The site of piece `k`.
     pub fn site(&self, k: usize) -> u32 {
-        self.sites[self.order[k] as usize]
+        let (part, p) = self.order[k];
+        self.parts[part as usize].sites[p as usize]
     }
 
     /// Piece `k`, in world coordinates.
     pub fn get(&self, k: usize) -> Piece {
-        let p = self.order[k] as usize;
-        let mut piece = Piece { site: self.sites[p], tet: self.tets[p], ..Piece::default() };
-        let x = self.origins[piece.site as usize];
-        let (v0, f0) = self.starts(p);
-        piece.vertices = self.vertices[v0..self.vertex_ends[p] as usize]
-            .iter()
-            .map(|v| [0, 1, 2].map(|a| x[a] + self.scale * v[a] as f64))
-            .collect();
-        for f in f0..self.face_ends[p] as usize {
-            let c0 = if f == 0 { 0 } else { self.loop_ends[f - 1] as usize };
-            piece.face_vertices.extend(self.corners[c0..self.loop_ends[f] as usize].iter().map(|&c| c as u32));
+        let (part, p) = self.order[k];
+        let (part, p) = (&self.parts[part as usize], p as usize);
+        let mut piece = Piece { site: part.sites[p], tet: part.tets[p], ..Piece::default() };
+        part.unpack(p, self.origins[piece.site as usize], self.scale, &mut piece.vertices, |ring, maker| {
+            piece.face_vertices.extend(ring);
             piece.face_ends.push(piece.face_vertices.len() as u32);
-            piece.face_makers.push(self.makers[f] as i64);
-        }
+            piece.face_makers.push(maker);
+        });
         piece
     }
 
@@ -123,15 +125,6 @@ impl Pieces {
     /// Every piece in world coordinates, all at once.
     pub fn to_vec(&self) -> Vec<Piece> {
         (0..self.len()).into_par_iter().map(|k| self.get(k)).collect()
-    }
-
-    /// Where piece `p`'s (storage order) vertices and faces start.
-    fn starts(&self, p: usize) -> (usize, usize) {
-        if p == 0 {
-            (0, 0)
-        } else {
-            (self.vertex_ends[p - 1] as usize, self.face_ends[p - 1] as usize)
-        }
     }
 
     /// The ranges of the numbering that hold one site's pieces each.
@@ -148,41 +141,52 @@ impl Pieces {
     }
 
     /// Piece `k`'s vertices in world coordinates, appended to `out`, and
-    /// its faces as (loop, maker), the loop's vertices numbered from
-    /// `base`.
+    /// its faces given to `face` as (loop, maker), the loop numbering
+    /// `out`.
     pub(crate) fn unpack_into(
         &self,
         k: usize,
         out: &mut Vec<[f64; 3]>,
+        face: impl FnMut(&mut dyn Iterator<Item = u32>, i64),
+    ) {
+        let (part, p) = self.order[k];
+        let (part, p) = (&self.parts[part as usize], p as usize);
+        part.unpack(p, self.origins[part.sites[p] as usize], self.scale, out, face);
+    }
+}
+
+impl Part {
+    /// Where piece `p`'s vertices and faces start.
+    fn starts(&self, p: usize) -> (usize, usize) {
+        if p == 0 {
+            (0, 0)
+        } else {
+            (self.vertex_ends[p - 1] as usize, self.face_ends[p - 1] as usize)
+        }
+    }
+
+    /// Piece `p`'s vertices at `x + scale * v`, appended to `out`, and its
+    /// faces given to `face` as (loop, maker), the loop numbering `out`.
+    fn unpack(
+        &self,
+        p: usize,
+        x: [f64; 3],
+        scale: f64,
+        out: &mut Vec<[f64; 3]>,
         mut face: impl FnMut(&mut dyn Iterator<Item = u32>, i64),
     ) {
-        let p = self.order[k] as usize;
-        let x = self.origins[self.sites[p] as usize];
         let (v0, f0) = self.starts(p);
         let base = out.len() as u32;
         out.extend(
             self.vertices[v0..self.vertex_ends[p] as usize]
                 .iter()
-                .map(|v| [0, 1, 2].map(|a| x[a] + self.scale * v[a] as f64)),
+                .map(|v| [0, 1, 2].map(|a| x[a] + scale * v[a] as f64)),
         );
         for f in f0..self.face_ends[p] as usize {
             let c0 = if f == 0 { 0 } else { self.loop_ends[f - 1] as usize };
             let mut ring = self.corners[c0..self.loop_ends[f] as usize].iter().map(|&c| base + c as u32);
             face(&mut ring, self.makers[f] as i64);
         }
-    }
-
-    /// Appends `other`'s pieces (storage order).
-    fn append(&mut self, other: Pieces) {
-        let (nv, nf, nc) = (self.vertices.len() as u32, self.loop_ends.len() as u32, self.corners.len() as u32);
-        self.sites.extend(other.sites);
-        self.tets.extend(other.tets);
-        self.vertex_ends.extend(other.vertex_ends.iter().map(|e| e + nv));
-        self.face_ends.extend(other.face_ends.iter().map(|e| e + nf));
-        self.vertices.extend(other.vertices);
-        self.loop_ends.extend(other.loop_ends.iter().map(|e| e + nc));
-        self.makers.extend(other.makers);
-        self.corners.extend(other.corners);
     }
 
     /// Forgets the last piece.
@@ -203,7 +207,7 @@ impl Pieces {
 /// A task's pieces as the kernels give them: job indices, vertices
 /// relative to the site in the job's normalised frame.
 #[derive(Default)]
-pub(crate) struct PieceCollector(Pieces);
+pub(crate) struct PieceCollector(Part);
 
 impl PieceSink for PieceCollector {
     fn piece<const P: usize, const V: usize>(&mut self, tet: u32, site: u32, poly: &Polyhedron<P, V>) {
@@ -245,7 +249,7 @@ impl TaskSink for PieceCollector {
 /// the same position (a plane through a vertex leaves two there, joined by
 /// an edge of length zero) become one, and a face left with fewer than 3
 /// corners is dropped.
-fn face_loops<const P: usize, const V: usize>(poly: &Polyhedron<P, V>, out: &mut Pieces) {
+fn face_loops<const P: usize, const V: usize>(poly: &Polyhedron<P, V>, out: &mut Part) {
     // A vertex's number within its piece is a byte.
     const { assert!(V < 255) };
     let n = (poly.n_verts as usize).min(V);
@@ -334,48 +338,40 @@ pub(crate) fn to_world(
             owner[u] = i as u32;
         }
     }
-    let mut pieces = Pieces::default();
-    let total = |f: fn(&Pieces) -> usize| collected.iter().map(|c| f(&c.0)).sum::<usize>();
-    pieces.sites.reserve_exact(total(|p| p.sites.len()));
-    pieces.tets.reserve_exact(total(|p| p.tets.len()));
-    pieces.vertex_ends.reserve_exact(total(|p| p.vertex_ends.len()));
-    pieces.face_ends.reserve_exact(total(|p| p.face_ends.len()));
-    pieces.vertices.reserve_exact(total(|p| p.vertices.len()));
-    pieces.loop_ends.reserve_exact(total(|p| p.loop_ends.len()));
-    pieces.makers.reserve_exact(total(|p| p.makers.len()));
-    pieces.corners.reserve_exact(total(|p| p.corners.len()));
-    for c in collected {
-        pieces.append(c.0);
-    }
     let local = crate::TetMesh { vertices: Vec::new(), tets: job.tets.clone() };
     let bits = crate::diagram::faces::boundary_bits(&local);
-    // Each face's maker: the input site, or where the face lies.
-    let mut tet_of_face = vec![0u32; pieces.makers.len()];
-    for p in 0..pieces.sites.len() {
-        let (_, f0) = pieces.starts(p);
-        tet_of_face[f0..pieces.face_ends[p] as usize].fill(pieces.tets[p]);
-    }
-    pieces.makers.par_iter_mut().zip(&tet_of_face).for_each(|(m, &t)| {
-        let (id, t) = (*m as u32, t as usize);
-        *m = if made_by_site(id) {
-            owner[id as usize] as i32
-        } else if (TET_FACE..NO_ID).contains(&id) && (bits[t / 8] >> (4 * (t % 8) + (id - TET_FACE) as usize)) & 1 != 0
-        {
-            ON_BOUNDARY as i32
-        } else {
-            IN_MESH as i32
-        };
+    let mut parts: Vec<Part> = collected.into_iter().map(|c| c.0).collect();
+    parts.par_iter_mut().for_each(|part| {
+        // Each face's maker: the input site, or where the face lies.
+        for p in 0..part.sites.len() {
+            let (_, f0) = part.starts(p);
+            let t = part.tets[p] as usize;
+            for m in &mut part.makers[f0..part.face_ends[p] as usize] {
+                let id = *m as u32;
+                *m = if made_by_site(id) {
+                    owner[id as usize] as i32
+                } else if (TET_FACE..NO_ID).contains(&id)
+                    && (bits[t / 8] >> (4 * (t % 8) + (id - TET_FACE) as usize)) & 1 != 0
+                {
+                    ON_BOUNDARY as i32
+                } else {
+                    IN_MESH as i32
+                };
+            }
+        }
+        for s in &mut part.sites {
+            *s = owner[*s as usize];
+        }
+        for t in &mut part.tets {
+            *t = job.tet_order[*t as usize];
+        }
     });
-    for s in &mut pieces.sites {
-        *s = owner[*s as usize];
-    }
-    for t in &mut pieces.tets {
-        *t = job.tet_order[*t as usize];
-    }
-    pieces.origins = input.to_vec();
-    pieces.scale = frame.scale;
-    let mut order: Vec<u32> = (0..pieces.sites.len() as u32).collect();
-    order.par_sort_unstable_by_key(|&p| (pieces.sites[p as usize], pieces.tets[p as usize]));
-    pieces.order = order;
+    let mut order: Vec<(u32, u32)> = parts
+        .iter()
+        .enumerate()
+        .flat_map(|(k, part)| (0..part.sites.len() as u32).map(move |p| (k as u32, p)))
+        .collect();
+    order.par_sort_unstable_by_key(|&(k, p)| (parts[k as usize].sites[p as usize], parts[k as usize].tets[p as usize]));
+    let pieces = Pieces { parts, origins: input.to_vec(), scale: frame.scale, order };
     pieces
 }
