@@ -372,6 +372,5 @@ pub(crate) fn to_world(
         .flat_map(|(k, part)| (0..part.sites.len() as u32).map(move |p| (k as u32, p)))
         .collect();
     order.par_sort_unstable_by_key(|&(k, p)| (parts[k as usize].sites[p as usize], parts[k as usize].tets[p as usize]));
-    let pieces = Pieces { parts, origins: input.to_vec(), scale: frame.scale, order };
-    pieces
+    Pieces { parts, origins: input.to_vec(), scale: frame.scale, order }
 }
