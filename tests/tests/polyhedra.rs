@@ -124,6 +124,35 @@ fn merged_cells_are_voro_plus_plus_cells_in_a_box() {
     }
 }
 
+/// A cubic lattice's cells are cubes: 8 points where 8 cells meet (every
+/// vertex degenerate), 6 square faces, welded from the pieces' copies.
+#[test]
+fn a_lattice_gives_cubes() {
+    let n = 5;
+    let h = 1.0 / n as f64;
+    let mut sites = Vec::new();
+    for i in 0..n {
+        for j in 0..n {
+            for k in 0..n {
+                sites.push([i, j, k].map(|c| (c as f64 + 0.5) * h));
+            }
+        }
+    }
+    let mesh = TetMesh::cube(4);
+    let cpu = cvd::cpu::CpuBackend::new(None).unwrap();
+    let (cells, _) = ClippedVoronoi::new(&mesh, &sites).faces(true).compute_with_polyhedra(&cpu).unwrap();
+    let (dv, da) = check_against_cells(&cells, "lattice");
+    assert!(dv < 1e-6 && da < 1e-6, "volume {dv:.2e}, face areas {da:.2e}");
+    for cell in cells.polyhedra().unwrap() {
+        let what = format!("cell {}", cell.site);
+        assert_eq!((cell.vertices.len(), cell.face_ends.len()), (8, 6), "{what}: points and faces");
+        assert!((cell.volume() - h * h * h).abs() < 1e-6 * h * h * h, "{what}: volume {}", cell.volume());
+        for a in cell.face_areas() {
+            assert!((a - h * h).abs() < 1e-6 * h * h, "{what}: a face of area {a}");
+        }
+    }
+}
+
 #[test]
 fn merged_cells_are_closed_on_a_non_convex_domain() {
     let mesh = cvd::mesher::models::builtin("joint", Some(16)).unwrap();
