@@ -145,11 +145,7 @@ pub(crate) type SiteFaces = (Vec<(u32, f64)>, f64, [f64; 3]);
 /// apart, to be completed.
 pub(crate) fn from_sums(sums: &[i64], lists: &[u32], k: usize, area_scale: f64) -> (Vec<SiteFaces>, Vec<u32>) {
     let per = k + cvd_kernels::clip::FACE_SUMS_EXTRA;
-    let n = sums.len() / per;
-    let mut out = Vec::with_capacity(n);
-    let mut incomplete = Vec::new();
-    for u in 0..n {
-        let s = &sums[u * per..(u + 1) * per];
+    let site = |(u, s): (usize, &[i64])| {
         let mut faces: Vec<(u32, f64)> =
             (0..k).filter(|&q| s[q] != 0).map(|q| (lists[u * k + q], s[q] as f64 / area_scale)).collect();
         // Spilled: (maker + 1, area) pairs.
@@ -159,11 +155,10 @@ pub(crate) fn from_sums(sums: &[i64], lists: &[u32], k: usize, area_scale: f64) 
                 faces.push(((key - 1) as u32, area as f64 / area_scale));
             }
         }
-        out.push((faces, s[k] as f64 / area_scale, [2, 3, 4].map(|c| s[k + c] as f64 / area_scale)));
-        if s[k + 1] != 0 {
-            incomplete.push(u as u32);
-        }
-    }
+        (faces, s[k] as f64 / area_scale, [2, 3, 4].map(|c| s[k + c] as f64 / area_scale))
+    };
+    let out: Vec<SiteFaces> = sums.par_chunks_exact(per).enumerate().map(site).collect();
+    let incomplete = sums.chunks_exact(per).enumerate().filter(|(_, s)| s[k + 1] != 0).map(|(u, _)| u as u32).collect();
     (out, incomplete)
 }
 
@@ -226,48 +221,52 @@ pub(crate) fn assemble(mut faces: Vec<SiteFaces>, map: &[Option<usize>], sites: 
         .collect();
     one_sided.sort_unstable_by_key(|e| (e.0, e.1));
     let l2 = scale * scale;
-    // Each input site's row; duplicates map to nothing and keep an empty row.
-    type Row = (Vec<(u32, f64, [f64; 3])>, f64, [f64; 3]);
-    let per_site: Vec<Row> = map
-        .par_iter()
-        .enumerate()
-        .map(|(i, m)| {
-            let Some(u) = *m else { return (Vec::new(), 0.0, [0.0; 3]) };
-            let p = sites[i];
-            let normal = |v: u32, area: f64| {
-                let j = owner[v as usize];
-                let q = sites[j as usize];
-                let d = [q[0] - p[0], q[1] - p[1], q[2] - p[2]];
-                let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-                (j, area * l2, d.map(|c| c / len))
-            };
-            let seen = faces[u].0.iter().map(|&(v, a)| normal(v, 0.5 * (a + side(v, u as u32).unwrap_or(0.0))));
-            let lo = one_sided.partition_point(|e| e.0 < u as u32);
-            let extra = one_sided[lo..].iter().take_while(|e| e.0 == u as u32).map(|&(_, v, a)| normal(v, 0.5 * a));
-            let mut row: Vec<(u32, f64, [f64; 3])> = seen.chain(extra).collect();
-            row.sort_unstable_by_key(|e| e.0);
-            (row, faces[u].1 * l2, faces[u].2.map(|c| c * l2))
-        })
-        .collect();
-    let total = per_site.iter().map(|r| r.0.len()).sum();
-    let mut adj = Adjacency {
-        offsets: Vec::with_capacity(map.len() + 1),
-        neighbors: Vec::with_capacity(total),
-        areas: Vec::with_capacity(total),
-        normals: Vec::with_capacity(total),
-        boundary: Vec::with_capacity(map.len()),
-        boundary_vector: Vec::with_capacity(map.len()),
+    // Each input site's row length (duplicates: empty), then the rows
+    // filled in place on every core.
+    let extra = |u: usize| {
+        let lo = one_sided.partition_point(|e| e.0 < u as u32);
+        &one_sided[lo..lo + one_sided[lo..].iter().take_while(|e| e.0 == u as u32).count()]
     };
-    adj.offsets.push(0);
-    for (row, boundary, vector) in per_site {
-        for (j, a, n) in row {
-            adj.neighbors.push(j);
-            adj.areas.push(a);
-            adj.normals.push(n);
-        }
-        adj.boundary.push(boundary);
-        adj.boundary_vector.push(vector);
-        adj.offsets.push(adj.neighbors.len());
+    let mut offsets = Vec::with_capacity(map.len() + 1);
+    offsets.push(0);
+    for m in map {
+        let len = m.map_or(0, |u| faces[u].0.len() + extra(u).len());
+        offsets.push(offsets[offsets.len() - 1] + len);
     }
-    adj
+    let total = offsets[map.len()];
+    let (mut neighbors, mut areas, mut normals) = (vec![0u32; total], vec![0.0f64; total], vec![[0.0f64; 3]; total]);
+    let lens = || offsets.windows(2).map(|w| w[1] - w[0]);
+    let rows = split_rows(&mut neighbors, lens()).into_par_iter().zip(split_rows(&mut areas, lens()));
+    rows.zip(split_rows(&mut normals, lens())).enumerate().for_each_init(Vec::new, |row, (i, ((js, as_), ns))| {
+        let Some(u) = map[i] else { return };
+        let p = sites[i];
+        let normal = |v: u32, area: f64| {
+            let j = owner[v as usize];
+            let q = sites[j as usize];
+            let d = [q[0] - p[0], q[1] - p[1], q[2] - p[2]];
+            let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            (j, area * l2, d.map(|c| c / len))
+        };
+        row.clear();
+        row.extend(faces[u].0.iter().map(|&(v, a)| normal(v, 0.5 * (a + side(v, u as u32).unwrap_or(0.0)))));
+        row.extend(extra(u).iter().map(|&(_, v, a)| normal(v, 0.5 * a)));
+        row.sort_unstable_by_key(|e: &(u32, f64, [f64; 3])| e.0);
+        for (k, &(j, a, n)) in row.iter().enumerate() {
+            (js[k], as_[k], ns[k]) = (j, a, n);
+        }
+    });
+    let boundary = map.iter().map(|m| m.map_or(0.0, |u| faces[u].1 * l2)).collect();
+    let boundary_vector = map.iter().map(|m| m.map_or([0.0; 3], |u| faces[u].2.map(|c| c * l2))).collect();
+    Adjacency { offsets, neighbors, areas, normals, boundary, boundary_vector }
+}
+
+/// `all` cut into consecutive rows of the lengths `lens`.
+fn split_rows<T>(mut all: &mut [T], lens: impl Iterator<Item = usize>) -> Vec<&mut [T]> {
+    let mut rows = Vec::new();
+    for len in lens {
+        let (row, rest) = std::mem::take(&mut all).split_at_mut(len);
+        rows.push(row);
+        all = rest;
+    }
+    rows
 }
