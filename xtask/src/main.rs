@@ -3,6 +3,7 @@
 //! Each command first checks what it needs (see `setup`), and passes the
 //! exit status of what it runs through unchanged.
 
+mod python;
 mod setup;
 
 use setup::Needs;
@@ -14,7 +15,9 @@ usage: cargo xtask <command> [args...]
 commands:
   run [ARGS]          the main job: a clipped Voronoi diagram (cvd run ARGS, release build); the
                       SPIR-V kernels are built only when a GPU (or --backend vulkan) will run them
-  test [ARGS]         the whole test suite, optimised, on the CPU and lavapipe (cargo test ARGS)
+  test [ARGS]         the whole test suite, optimised, on the CPU and lavapipe (cargo test ARGS;
+                      without ARGS also the Python package's, python/tests)
+  test-python         the Python package alone: built into target/python-venv, pytest
   bench paper [ARGS]  the paper's evaluation: Table 1, Figs. 7, 8, 12, 13 and scale runs, CPU and
                       Vulkan; tables, JSON and charts in bench-results/paper (--sections LIST,
                       --quick, --cpu-only, --only MODEL, --repeat R, --scale-max N, --models-dir DIR, ...)
@@ -143,7 +146,17 @@ fn run(args: &[String]) -> Result<(), Failure> {
         }
         "test" => {
             setup::ensure(Needs::Test)?;
-            status(cargo(&["test", "--release", "--workspace"], rest))
+            status(cargo(&["test", "--release", "--workspace"], rest))?;
+            // The whole suite: the Python package's too.
+            if rest.is_empty() {
+                python::test(&setup::root())?;
+            }
+            Ok(())
+        }
+        "test-python" => {
+            setup::ensure(Needs::Test)?;
+            status(cargo(&["build", "--release", "--package", "cvd"], &[]))?;
+            Ok(python::test(&setup::root())?)
         }
         "build" => {
             setup::ensure(Needs::Build)?;

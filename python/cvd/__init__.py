@@ -1,0 +1,100 @@
+"""cvd: clipped Voronoi diagrams and centroidal Voronoi tessellations of tet
+meshes, on Vulkan GPUs and CPU cores, from numpy.
+
+    import cvd
+    mesh = cvd.builtin("joint")
+    sites = cvd.sample(mesh, 20000, seed=1)
+    cells = cvd.clipped_voronoi(mesh, sites)
+    print(cells.volume.sum(), mesh.volume, cells.e_vol)
+    sites, history = cvd.lloyd(mesh, sites, 50)
+
+Arrays may be of any float dtype and layout (converted to C-contiguous
+float64 once); results are owned numpy arrays. Errors in the input raise
+ValueError (naming the file and line, or the array and row); others
+RuntimeError.
+"""
+
+import numpy as _np
+
+from . import _cvd
+from ._cvd import Cells, Mesh, builtin, devices, mesh_surface, read_mesh
+
+__all__ = [
+    "Cells",
+    "Mesh",
+    "builtin",
+    "clipped_voronoi",
+    "devices",
+    "lloyd",
+    "mesh_surface",
+    "read_mesh",
+    "sample",
+]
+
+
+def _points(a, name):
+    """`a` as a C-contiguous float64 (n, 3) array, or ValueError."""
+    try:
+        a = _np.ascontiguousarray(a, dtype=_np.float64)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{name} must be an (n, 3) array of numbers: {e}") from None
+    if a.ndim != 2 or a.shape[1] != 3:
+        raise ValueError(f"{name} must have shape (n, 3), not {a.shape}")
+    if a.shape[0] == 0:
+        raise ValueError(f"{name} is empty")
+    return a
+
+
+def _values(a, name):
+    if a is None:
+        return None
+    a = _np.ascontiguousarray(a, dtype=_np.float64)
+    if a.ndim != 1:
+        raise ValueError(f"{name} must be a 1-d array, not of shape {a.shape}")
+    return a
+
+
+def sample(mesh, n, seed=1):
+    """`n` sites uniform in `mesh`, an (n, 3) float64 array."""
+    if n < 0:
+        raise ValueError(f"n must be at least 0, not {n}")
+    return _cvd.sample(mesh, int(n), int(seed))
+
+
+def clipped_voronoi(
+    mesh, sites, *, backend="auto", strategy="tet-cell", pairing="flood", density=None, faces=False, polyhedra=False
+):
+    """The Voronoi cells of `sites` ((n, 3)) clipped to `mesh`.
+
+    backend: "auto" (a GPU if there is one, else the CPU), "cpu" or "vulkan".
+    strategy: "tet-cell" or "cell-tet"; pairing: "flood" or "knn".
+    density: one value per mesh vertex (linear in each tet), or None.
+    faces: also the adjacency (`cells.adjacency`: CSR arrays of the faces
+    the cells share, their areas and normals, each cell's boundary area).
+    polyhedra: also each cell as one closed polyhedron (`cells.polyhedra`).
+
+    Returns a Cells with numpy arrays `volume`, `centroid`, `energy`, and
+    `e_vol`, `mesh_volume`, `counters`, `timings`.
+    """
+    return _cvd.clipped_voronoi(
+        mesh,
+        _points(sites, "sites"),
+        backend,
+        strategy,
+        pairing,
+        _values(density, "density"),
+        bool(faces),
+        bool(polyhedra),
+    )
+
+
+def lloyd(mesh, sites, iterations, *, optimizer="lloyd", backend="auto", density=None, progress=False):
+    """`iterations` steps of Lloyd's method ("lloyd") or L-BFGS ("lbfgs")
+    from `sites`. Returns (sites, history), history a dict of arrays
+    `energy` (of the diagram each iteration started from) and
+    `empty_cells`. Ctrl-C stops it between iterations."""
+    if iterations < 0:
+        raise ValueError(f"iterations must be at least 0, not {iterations}")
+    return _cvd.lloyd(
+        mesh, _points(sites, "sites"), int(iterations), optimizer, backend, _values(density, "density"), bool(progress)
+    )

@@ -1,0 +1,55 @@
+from os import PathLike
+from typing import Any, Optional, Union
+
+import numpy as np
+import numpy.typing as npt
+
+_Path = Union[str, "PathLike[str]"]
+
+class Mesh:
+    def __new__(cls, vertices: npt.ArrayLike, tets: npt.ArrayLike) -> "Mesh": ...
+    @property
+    def vertices(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def tets(self) -> npt.NDArray[np.int64]: ...
+    @property
+    def volume(self) -> float: ...
+    def quality(self) -> dict[str, float]: ...
+
+class Cells:
+    volume: npt.NDArray[np.float64]
+    centroid: npt.NDArray[np.float64]
+    energy: npt.NDArray[np.float64]
+    e_vol: float
+    mesh_volume: float
+    counters: dict[str, int]
+    timings: dict[str, float]
+    adjacency: Optional[dict[str, npt.NDArray[Any]]]
+    polyhedra: Optional[list[dict[str, Any]]]
+
+def builtin(name: str, resolution: Optional[int] = None) -> Mesh: ...
+def read_mesh(path: _Path) -> Mesh: ...
+def mesh_surface(path: _Path, resolution: Optional[int] = None) -> Mesh: ...
+def sample(mesh: Mesh, n: int, seed: int = 1) -> npt.NDArray[np.float64]: ...
+def clipped_voronoi(
+    mesh: Mesh,
+    sites: npt.ArrayLike,
+    *,
+    backend: str = "auto",
+    strategy: str = "tet-cell",
+    pairing: str = "flood",
+    density: Optional[npt.ArrayLike] = None,
+    faces: bool = False,
+    polyhedra: bool = False,
+) -> Cells: ...
+def lloyd(
+    mesh: Mesh,
+    sites: npt.ArrayLike,
+    iterations: int,
+    *,
+    optimizer: str = "lloyd",
+    backend: str = "auto",
+    density: Optional[npt.ArrayLike] = None,
+    progress: bool = False,
+) -> tuple[npt.NDArray[np.float64], dict[str, npt.NDArray[Any]]]: ...
+def devices() -> list[dict[str, Any]]: ...

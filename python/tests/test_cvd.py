@@ -1,0 +1,166 @@
+"""The Python package against the library: the same numbers as the `cvd`
+command line (bit for bit), the properties that matter (volumes add up to
+the mesh, Lloyd lowers the energy, the backends agree), and clear errors on
+bad input."""
+
+import csv
+import os
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+import cvd
+
+CI = os.environ.get("CI") == "true"
+
+
+def cli():
+    """The `cvd` command line built beside this package (CVD_BIN), or None."""
+    path = os.environ.get("CVD_BIN") or shutil.which("cvd")
+    return path if path and os.path.exists(path) else None
+
+
+@pytest.fixture(scope="module")
+def mesh():
+    return cvd.builtin("joint", 12)
+
+
+def test_volumes_add_up_to_the_mesh(mesh):
+    sites = cvd.sample(mesh, 2000, seed=3)
+    assert sites.shape == (2000, 3) and sites.dtype == np.float64
+    cells = cvd.clipped_voronoi(mesh, sites, backend="cpu")
+    assert cells.volume.shape == (2000,) and cells.centroid.shape == (2000, 3)
+    assert abs(cells.volume.sum() - mesh.volume) <= 1e-7 * mesh.volume
+    assert cells.e_vol <= 1e-7
+    assert (cells.energy > 0).all()
+    assert cells.counters["unresolved"] == 0 and "clip" in cells.timings
+
+
+def test_numbers_equal_the_command_line(mesh, tmp_path):
+    exe = cli()
+    if exe is None:
+        if CI:
+            pytest.fail("CI=true but the cvd command line is not built (CVD_BIN)")
+        pytest.skip("the cvd command line is not built (set CVD_BIN)")
+    sites = cvd.sample(mesh, 500, seed=7)
+    xyz = tmp_path / "sites.xyz"
+    np.savetxt(xyz, sites, fmt="%.17g")
+    out = tmp_path / "cells.csv"
+    run = subprocess.run(
+        [exe, "run", "--model", "joint", "--resolution", "12", "--sites-file", str(xyz), "--backend", "cpu",
+         "--no-geometry", "--no-neighbors", "--out", str(tmp_path / "o"), "--output", str(out)],
+        capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    with open(out) as f:
+        rows = list(csv.DictReader(f))
+    cells = cvd.clipped_voronoi(mesh, sites, backend="cpu")
+    volume = np.array([float(r["volume"]) for r in rows])
+    centroid = np.array([[float(r["cx"]), float(r["cy"]), float(r["cz"])] for r in rows])
+    assert np.array_equal(volume, cells.volume), "volumes differ from the command line's"
+    assert np.array_equal(centroid, cells.centroid), "centroids differ from the command line's"
+
+
+def test_any_float_dtype_and_layout(mesh):
+    sites = cvd.sample(mesh, 300, seed=5)
+    a = cvd.clipped_voronoi(mesh, sites, backend="cpu")
+    fortran = np.asfortranarray(sites)
+    b = cvd.clipped_voronoi(mesh, fortran, backend="cpu")
+    assert np.array_equal(a.volume, b.volume)
+    c = cvd.clipped_voronoi(mesh, sites.tolist(), backend="cpu")
+    assert np.array_equal(a.volume, c.volume)
+    d = cvd.clipped_voronoi(mesh, sites.astype(np.float32), backend="cpu")
+    assert abs(d.volume.sum() - mesh.volume) <= 1e-7 * mesh.volume
+
+
+def test_mesh_from_arrays():
+    cube = cvd.builtin("cube", 2)
+    again = cvd.Mesh(cube.vertices, cube.tets)
+    assert again.volume == cube.volume
+    assert np.array_equal(again.tets, cube.tets)
+    assert cvd.Mesh(cube.vertices.astype(np.float32), cube.tets.astype(np.int32)).tets.shape == cube.tets.shape
+    q = cube.quality()
+    assert q["tets"] == len(cube.tets) and 0 < q["min_dihedral"] <= q["max_dihedral"] < 180
+
+
+@pytest.mark.parametrize(
+    "sites, message",
+    [
+        (np.zeros((10, 2)), "shape"),
+        (np.array([[0.5, 0.5, np.nan]]), "not finite"),
+        (np.zeros((0, 3)), "empty"),
+        ("abc", "array of numbers"),
+    ],
+)
+def test_bad_sites_raise_value_error(mesh, sites, message):
+    with pytest.raises(ValueError, match=message):
+        cvd.clipped_voronoi(mesh, sites, backend="cpu")
+
+
+def test_bad_meshes_raise_value_error():
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=float)
+    with pytest.raises(ValueError, match="outside"):
+        cvd.Mesh(v, np.array([[0, 1, 2, 4]]))
+    with pytest.raises(ValueError, match="outside"):
+        cvd.Mesh(v, np.array([[0, 1, 2, -1]]))
+    with pytest.raises(ValueError, match="shape"):
+        cvd.Mesh(v, np.array([[0, 1, 2]]))
+    with pytest.raises(ValueError, match="integer"):
+        cvd.Mesh(v, np.array([[0, 1, 2, 3.5]]))
+    with pytest.raises(ValueError, match="not finite"):
+        cvd.Mesh(np.where(v == 1, np.inf, v), np.array([[0, 1, 2, 3]]))
+    with pytest.raises(ValueError, match="no-such-model"):
+        cvd.builtin("no-such-model")
+
+
+def test_read_mesh_errors_name_the_file(tmp_path):
+    bad = tmp_path / "bad.mesh"
+    bad.write_text("MeshVersionFormatted 2\nDimension 3\nVertices\n2\n0 0 0 1\nzero 1 0 1\n")
+    with pytest.raises(ValueError, match="bad.mesh"):
+        cvd.read_mesh(bad)
+
+
+def test_read_mesh_reads_meshio_files(tmp_path):
+    meshio = pytest.importorskip("meshio") if not CI else __import__("meshio")
+    cube = cvd.builtin("cube", 2)
+    path = tmp_path / "cube.vtu"
+    meshio.write(path, meshio.Mesh(cube.vertices, [("tetra", cube.tets)]))
+    again = cvd.read_mesh(path)
+    assert abs(again.volume - cube.volume) <= 1e-12
+
+
+def test_faces_and_polyhedra(mesh):
+    sites = cvd.sample(mesh, 200, seed=2)
+    cells = cvd.clipped_voronoi(mesh, sites, backend="cpu", faces=True, polyhedra=True)
+    adj = cells.adjacency
+    assert adj["offsets"].shape == (201,) and adj["normals"].shape[1] == 3
+    surface = np.add.reduceat(adj["areas"], adj["offsets"][:-1]) + adj["boundary"]
+    assert (surface > 0).all()
+    polys = cells.polyhedra
+    assert len(polys) == 200
+    for p in polys[:20]:
+        assert p["vertices"].shape[1] == 3 and len(p["faces"]) == len(p["neighbors"])
+
+
+def test_lloyd_lowers_the_energy(mesh):
+    sites = cvd.sample(mesh, 500, seed=4)
+    moved, history = cvd.lloyd(mesh, sites, 5, backend="cpu")
+    assert moved.shape == sites.shape
+    e = history["energy"]
+    assert len(e) == 5 and (np.diff(e) < 0).all(), e
+    assert (history["empty_cells"] == 0).all()
+    _, lb = cvd.lloyd(mesh, sites, 5, optimizer="lbfgs", backend="cpu")
+    assert lb["energy"][-1] <= e[0]
+
+
+def test_cpu_and_vulkan_agree(mesh):
+    if not any(True for _ in cvd.devices()):
+        if CI:
+            pytest.fail("CI=true but no Vulkan device (lavapipe) is found")
+        pytest.skip("no Vulkan device")
+    sites = cvd.sample(mesh, 1000, seed=9)
+    a = cvd.clipped_voronoi(mesh, sites, backend="cpu")
+    b = cvd.clipped_voronoi(mesh, sites, backend="vulkan")
+    assert np.allclose(a.volume, b.volume, rtol=1e-5, atol=0)
+    assert abs(b.volume.sum() - mesh.volume) <= 1e-6 * mesh.volume
