@@ -164,3 +164,16 @@ def test_cpu_and_vulkan_agree(mesh):
     b = cvd.clipped_voronoi(mesh, sites, backend="vulkan")
     assert np.allclose(a.volume, b.volume, rtol=1e-5, atol=0)
     assert abs(b.volume.sum() - mesh.volume) <= 1e-6 * mesh.volume
+
+
+def test_mesh_surface_meshes_a_trimesh_sphere(tmp_path):
+    trimesh = pytest.importorskip("trimesh") if not CI else __import__("trimesh")
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
+    path = tmp_path / "sphere.stl"
+    sphere.export(path)
+    mesh = cvd.mesh_surface(path, resolution=16)
+    assert abs(mesh.volume - sphere.volume) <= 0.02 * sphere.volume, (mesh.volume, sphere.volume)
+    cells = cvd.clipped_voronoi(mesh, cvd.sample(mesh, 300, seed=1), backend="cpu")
+    assert abs(cells.volume.sum() - mesh.volume) <= 1e-7 * mesh.volume
+    with pytest.raises(ValueError, match="no-such.stl"):
+        cvd.mesh_surface(tmp_path / "no-such.stl")

@@ -102,6 +102,23 @@ fn check_against_cells(cells: &Cells, what: &str) -> (f64, f64) {
     (dv, da)
 }
 
+/// `n` sites uniform in the built-in joint (resolution 16: a manifold
+/// boundary), and their cells with the adjacency and the polyhedra.
+fn joint_cells(n: usize, seed: u64) -> (TetMesh, Vec<[f64; 3]>, Cells) {
+    let mesh = cvd::mesher::models::builtin("joint", Some(16)).unwrap();
+    let sites = points::in_mesh(&mesh, n, seed);
+    let cpu = cvd::cpu::CpuBackend::new(None).unwrap();
+    let (cells, _) = ClippedVoronoi::new(&mesh, &sites).faces(true).compute_with_polyhedra(&cpu).unwrap();
+    (mesh, sites, cells)
+}
+
+/// A path for `name` in a folder of this test run's own.
+fn temp_file(name: &str) -> std::path::PathBuf {
+    let dir = std::env::temp_dir().join(format!("cvd-polyhedra-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir.join(name)
+}
+
 #[test]
 fn merged_cells_are_voro_plus_plus_cells_in_a_box() {
     let mesh = TetMesh::cube(4);
@@ -155,10 +172,7 @@ fn a_lattice_gives_cubes() {
 
 #[test]
 fn merged_cells_are_closed_on_a_non_convex_domain() {
-    let mesh = cvd::mesher::models::builtin("joint", Some(16)).unwrap();
-    let sites = points::in_mesh(&mesh, 600, 5);
-    let cpu = cvd::cpu::CpuBackend::new(None).unwrap();
-    let (cells, _) = ClippedVoronoi::new(&mesh, &sites).faces(true).compute_with_polyhedra(&cpu).unwrap();
+    let (mesh, _, cells) = joint_cells(600, 5);
     let (dv, da) = check_against_cells(&cells, "joint");
     println!("joint: volume {dv:.2e}, face areas {da:.2e}");
     // The adjacency's areas are the kernels' (f32, within 2.4e-6 of
@@ -179,13 +193,8 @@ fn merged_cells_are_closed_on_a_non_convex_domain() {
 /// `vtkMassProperties`, the cell's volume.
 #[test]
 fn vtk_reads_cells_vtu_back() {
-    let mesh = cvd::mesher::models::builtin("joint", Some(16)).unwrap();
-    let sites = points::in_mesh(&mesh, 600, 5);
-    let cpu = cvd::cpu::CpuBackend::new(None).unwrap();
-    let (cells, _) = ClippedVoronoi::new(&mesh, &sites).faces(true).compute_with_polyhedra(&cpu).unwrap();
-    let dir = std::env::temp_dir().join(format!("cvd-polyhedra-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let path = dir.join("cells.vtu");
+    let (_, _, cells) = joint_cells(600, 5);
+    let path = temp_file("cells.vtu");
     let polyhedra = cells.polyhedra().unwrap();
     cvd::output::write_cells_vtu(&path, &cells, polyhedra, &mut |_, _| {}).unwrap();
     let script = cvd_tests::script("read_cells_vtu.py");
@@ -212,13 +221,8 @@ fn vtk_reads_cells_vtu_back() {
 fn walls_ply_has_every_wall_once() {
     use ply_rs::parser::Parser;
     use ply_rs::ply::{DefaultElement, Property};
-    let mesh = cvd::mesher::models::builtin("joint", Some(16)).unwrap();
-    let sites = points::in_mesh(&mesh, 400, 8);
-    let cpu = cvd::cpu::CpuBackend::new(None).unwrap();
-    let (cells, _) = ClippedVoronoi::new(&mesh, &sites).faces(true).compute_with_polyhedra(&cpu).unwrap();
-    let dir = std::env::temp_dir().join(format!("cvd-walls-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let path = dir.join("walls.ply");
+    let (mesh, sites, cells) = joint_cells(400, 8);
+    let path = temp_file("walls.ply");
     let written = cvd::output::write_walls_ply(&path, cells.polyhedra().unwrap()).unwrap();
     let mut file = std::io::BufReader::new(std::fs::File::open(&path).unwrap());
     let ply = Parser::<DefaultElement>::new().read_ply(&mut file).unwrap();
