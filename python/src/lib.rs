@@ -24,6 +24,12 @@ fn err(e: cvd::Error) -> PyErr {
     }
 }
 
+/// Points as their coordinates one after another, without a copy (numpy
+/// then owns the vector).
+fn flat(points: Vec<[f64; 3]>) -> Vec<f64> {
+    bytemuck::allocation::cast_vec(points)
+}
+
 /// `(n, 3)` rows of an array, or a `ValueError` naming `what`.
 fn rows3(a: &PyReadonlyArray2<'_, f64>, what: &str) -> PyResult<Vec<[f64; 3]>> {
     let v = a.as_array();
@@ -172,8 +178,7 @@ fn mesh_surface(py: Python<'_>, path: PathBuf, resolution: Option<u32>) -> PyRes
 #[pyo3(signature = (mesh, n, seed=1))]
 fn sample<'py>(py: Python<'py>, mesh: &Mesh, n: usize, seed: u64) -> Bound<'py, PyArray2<f64>> {
     let points = py.detach(|| cvd::points::in_mesh(&mesh.inner, n, seed));
-    let flat: Vec<f64> = points.into_iter().flatten().collect();
-    flat.into_pyarray(py).reshape([n, 3]).expect("n x 3 values")
+    flat(points).into_pyarray(py).reshape([n, 3]).expect("n x 3 values")
 }
 
 /// The backend options for a name.
@@ -288,7 +293,7 @@ fn to_python(py: Python<'_>, cells: cvd::Cells) -> PyResult<Cells> {
         }
         None => None,
     };
-    let centroid: Vec<f64> = cells.centroid.iter().flatten().copied().collect();
+    let centroid = flat(cells.centroid);
     Ok(Cells {
         volume: cells.volume.into_pyarray(py).unbind(),
         centroid: centroid.into_pyarray(py).reshape([n, 3])?.unbind(),
@@ -443,8 +448,7 @@ fn lloyd<'py>(
     history.set_item("energy", energy.into_pyarray(py))?;
     history.set_item("empty_cells", empty.into_pyarray(py))?;
     let n = sites.len();
-    let flat: Vec<f64> = sites.into_iter().flatten().collect();
-    Ok((flat.into_pyarray(py).reshape([n, 3])?, history))
+    Ok((flat(sites).into_pyarray(py).reshape([n, 3])?, history))
 }
 
 /// The Vulkan devices: a list of dicts (`index`, `name`, `type`, `gpu`);

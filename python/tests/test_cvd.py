@@ -177,3 +177,29 @@ def test_mesh_surface_meshes_a_trimesh_sphere(tmp_path):
     assert abs(cells.volume.sum() - mesh.volume) <= 1e-7 * mesh.volume
     with pytest.raises(ValueError, match="no-such.stl"):
         cvd.mesh_surface(tmp_path / "no-such.stl")
+
+
+def test_meshio_arrays_in_and_results_out(tmp_path):
+    meshio = pytest.importorskip("meshio") if not CI else __import__("meshio")
+    cube = cvd.builtin("cube", 2)
+    m = meshio.Mesh(cube.vertices, [("tetra", cube.tets)])
+    mesh = cvd.Mesh(m.points, m.cells_dict["tetra"])
+    assert mesh.volume == cube.volume
+    sites = cvd.sample(mesh, 100, seed=6)
+    cells = cvd.clipped_voronoi(mesh, sites, backend="cpu")
+    out = tmp_path / "sites.vtu"
+    vertex = np.arange(len(sites)).reshape(-1, 1)
+    meshio.write(out, meshio.Mesh(sites, [("vertex", vertex)], point_data={"volume": cells.volume}))
+    back = meshio.read(out)
+    assert np.array_equal(back.points, sites)
+    assert np.array_equal(back.point_data["volume"], cells.volume)
+
+
+def test_arrays_out_are_plain_numpy(mesh):
+    sites = cvd.sample(mesh, 50, seed=2)
+    cells = cvd.clipped_voronoi(mesh, sites, backend="cpu")
+    moved, _ = cvd.lloyd(mesh, sites, 1, backend="cpu")
+    for a in (sites, moved, cells.volume, cells.centroid, cells.energy, mesh.vertices, mesh.tets):
+        assert isinstance(a, np.ndarray) and a.flags.writeable and a.flags.c_contiguous
+        assert a.dtype in (np.float64, np.int64)
+    assert cells.centroid.shape == (50, 3) and moved.shape == (50, 3)
