@@ -203,3 +203,29 @@ def test_arrays_out_are_plain_numpy(mesh):
         assert isinstance(a, np.ndarray) and a.flags.writeable and a.flags.c_contiguous
         assert a.dtype in (np.float64, np.int64)
     assert cells.centroid.shape == (50, 3) and moved.shape == (50, 3)
+
+
+def test_ctrl_c_stops_lloyd_between_iterations(tmp_path):
+    import signal
+    import sys
+    import time
+
+    script = tmp_path / "long_lloyd.py"
+    script.write_text(
+        "import sys, cvd\n"
+        "mesh = cvd.builtin('joint', 16)\n"
+        "sites = cvd.sample(mesh, 20000, seed=1)\n"
+        "print('started', flush=True)\n"
+        "try:\n"
+        "    cvd.lloyd(mesh, sites, 100000, backend='cpu')\n"
+        "except KeyboardInterrupt as e:\n"
+        "    print('interrupted:', e, flush=True)\n"
+        "    sys.exit(3)\n"
+    )
+    p = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True)
+    assert p.stdout.readline().strip() == "started"
+    time.sleep(1.0)
+    p.send_signal(signal.SIGINT)
+    out, _ = p.communicate(timeout=60)
+    assert p.returncode == 3, out
+    assert "stopped after" in out and "of 100000 iterations" in out, out
