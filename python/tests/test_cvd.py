@@ -211,8 +211,11 @@ def test_ctrl_c_stops_lloyd_between_iterations(tmp_path):
     import time
 
     script = tmp_path / "long_lloyd.py"
+    # Python turns SIGINT into KeyboardInterrupt only where it was not
+    # ignored when it started (a background job's children ignore it).
     script.write_text(
-        "import sys, cvd\n"
+        "import signal, sys, cvd\n"
+        "signal.signal(signal.SIGINT, signal.default_int_handler)\n"
         "mesh = cvd.builtin('joint', 16)\n"
         "sites = cvd.sample(mesh, 20000, seed=1)\n"
         "print('started', flush=True)\n"

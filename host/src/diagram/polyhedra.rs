@@ -141,23 +141,17 @@ fn merge_cell(pieces: &Pieces, range: std::ops::Range<usize>) -> CellPolyhedron 
     // Every polygon, welded, by the wall it is on.
     let mut polygons: Vec<(Wall, Vec<u32>)> = Vec::with_capacity(kept.len());
     let mut planes: Vec<([f64; 3], f64)> = Vec::new();
-    for (maker, mut ring) in kept {
-        for v in ring.iter_mut() {
-            *v = weld[*v as usize];
+    for (maker, ring) in kept {
+        // Welded, a polygon may pass a point twice (a sliver collapsed):
+        // its simple loops.
+        for ring in simple_loops(ring.iter().map(|&v| weld[v as usize]).collect()) {
+            let wall = if maker == ON_BOUNDARY {
+                Wall::Boundary(boundary_plane(&points, &ring, tolerance, &mut planes))
+            } else {
+                Wall::Site(maker as u32)
+            };
+            polygons.push((wall, ring));
         }
-        ring.dedup();
-        while ring.len() > 1 && ring.first() == ring.last() {
-            ring.pop();
-        }
-        if ring.len() < 3 {
-            continue;
-        }
-        let wall = if maker == ON_BOUNDARY {
-            Wall::Boundary(boundary_plane(&points, &ring, tolerance, &mut planes))
-        } else {
-            Wall::Site(maker as u32)
-        };
-        polygons.push((wall, ring));
     }
     polygons.sort_by_key(|(wall, _)| *wall);
     let mut faces = join_walls(&points, &polygons);
