@@ -339,53 +339,28 @@ fn clipped_voronoi(
     let options = self::backend(backend)?;
     let cells = py
         .detach(|| -> cvd::Result<cvd::Cells> {
-            let cv = ClippedVoronoiArgs {
-                mesh: &mesh.inner,
-                sites: &sites,
-                density: density.as_deref(),
-                strategy,
-                pairing,
-                faces,
-            };
-            if polyhedra {
-                let cpu = cvd::cpu::CpuBackend::new(None)?;
-                let (mut with, _) = cv.builder().compute_with_polyhedra(&cpu)?;
-                if !matches!(options.kind, cvd::BackendKind::Cpu) {
-                    // The numbers from the backend asked for; the polyhedra
-                    // always come from the CPU's pieces.
-                    let b = cvd::backend::open(&options)?;
-                    let mut cells = cv.builder().backend(b.as_ref()).compute()?;
-                    cells.polyhedra = with.polyhedra.take();
-                    return Ok(cells);
-                }
-                Ok(with)
-            } else {
-                let b = cvd::backend::open(&options)?;
-                cv.builder().backend(b.as_ref()).compute()
+            let cv = cvd::ClippedVoronoi::new(&mesh.inner, &sites)
+                .strategy(strategy)
+                .pairing(pairing)
+                .density(density.as_deref())
+                .faces(faces);
+            let b = cvd::backend::open(&options)?;
+            if !polyhedra {
+                return cv.backend(b.as_ref()).compute();
             }
+            // The polyhedra come from the CPU's pieces: one run there, and
+            // the numbers from the backend asked for when it is another.
+            let cpu = cvd::cpu::CpuBackend::new(None)?;
+            let (mut with, _) = cv.compute_with_polyhedra(&cpu)?;
+            if b.kind() == "cpu" {
+                return Ok(with);
+            }
+            let mut cells = cv.backend(b.as_ref()).compute()?;
+            cells.polyhedra = with.polyhedra.take();
+            Ok(cells)
         })
         .map_err(err)?;
     to_python(py, cells)
-}
-
-/// What a diagram is asked with.
-struct ClippedVoronoiArgs<'a> {
-    mesh: &'a cvd::TetMesh,
-    sites: &'a [[f64; 3]],
-    density: Option<&'a [f64]>,
-    strategy: cvd::Strategy,
-    pairing: cvd::Pairing,
-    faces: bool,
-}
-
-impl ClippedVoronoiArgs<'_> {
-    fn builder(&self) -> cvd::ClippedVoronoi<'_> {
-        cvd::ClippedVoronoi::new(self.mesh, self.sites)
-            .strategy(self.strategy)
-            .pairing(self.pairing)
-            .density(self.density)
-            .faces(self.faces)
-    }
 }
 
 /// `iterations` of Lloyd's method (`optimizer="lloyd"`) or L-BFGS

@@ -115,7 +115,7 @@ pub fn merge_pieces(pieces: &Pieces) -> Vec<CellPolyhedron> {
 
 /// What a face of a cell lies on: a neighbour's bisector, or one plane of
 /// the boundary (numbered per cell).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
 enum Wall {
     Site(u32),
     Boundary(u32),

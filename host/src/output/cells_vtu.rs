@@ -36,6 +36,7 @@ pub fn write_cells_vtu(path: &Path, cells: &Cells, polyhedra: &[CellPolyhedron],
     // Each array compressed as soon as it is made: (type, name,
     // components, zlib blocks).
     let mut arrays: Vec<(&str, &str, usize, Vec<u8>)> = Vec::new();
+    // Points, the 5 cells' arrays and the 5 cell data (progress).
     let total = 11;
     let mut push = |kind, name, components, raw: Vec<u8>| {
         arrays.push((kind, name, components, compress(&raw)));
