@@ -9,7 +9,8 @@
 //! new vertex per boundary edge; no adjacency is stored (a clip finds the
 //! edges between removed and kept vertices from the removed ones' plane
 //! pairs alone). All coordinates are relative to a local origin (the
-//! site), so f32 keeps its precision.
+//! site), so f32 keeps its precision; the moments are taken around each
+//! piece itself, with its vertices moved onto their planes first.
 
 use crate::abi::SplitPoint;
 use spirv_std::glam::{Vec3, Vec4};
@@ -265,6 +266,14 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
     /// The axis-aligned box `[lo, hi]`, relative to the local origin.
     pub fn cuboid(lo: Vec3, hi: Vec3) -> Self {
         let mut p = Self::empty();
+        p.set_cuboid(lo, hi);
+        p
+    }
+
+    /// Makes this polyhedron the box `[lo, hi]`, reusing its storage.
+    pub fn set_cuboid(&mut self, lo: Vec3, hi: Vec3) {
+        let p = self;
+        p.n_verts = 0;
         // Planes: 0 -x, 1 +x, 2 -y, 3 +y, 4 -z, 5 +z.
         p.planes[0] = Vec4::new(-1.0, 0.0, 0.0, -lo.x);
         p.planes[1] = Vec4::new(1.0, 0.0, 0.0, hi.x);
@@ -272,6 +281,11 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
         p.planes[3] = Vec4::new(0.0, 1.0, 0.0, hi.y);
         p.planes[4] = Vec4::new(0.0, 0.0, -1.0, -lo.z);
         p.planes[5] = Vec4::new(0.0, 0.0, 1.0, hi.z);
+        let mut k = 0;
+        while k < 6 {
+            p.ids[k] = NO_ID;
+            k += 1;
+        }
         p.n_planes = 6;
         p.start_radius2 = lo.length_squared().max(hi.length_squared()) * 3.0;
         let mut corner = 0u32;
@@ -287,7 +301,6 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
             p.add_corner(sx, 2 + sy, 4 + sz, pos);
             corner += 1;
         }
-        p
     }
 
     /// The planes some vertex uses — the faces — as bits (`P <= 64`).
@@ -477,63 +490,59 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
         Clip::Cut
     }
 
-    /// Vertex `i`, moved onto its three planes (normals `n`, and `x` their
-    /// crosses `n_a × n_b, n_b × n_c, n_c × n_a`): one step of iterative
-    /// refinement, `v + N⁻¹ (d - N v)` by Cramer's rule. A vertex made by
-    /// sliding along an edge from a far one (a tet's corner, `L` away)
-    /// carries an error `~ε L`, where its planes (bisectors, accurate
-    /// relative to the cell) and the vertex itself (`|v| ~ h`, the cell's
-    /// size) give residuals accurate to `ε h`: the step brings it to `~ε h`.
-    /// Left as it is where its planes are nearly dependent, where the step
-    /// is not small against the polyhedron (`radius2`, its squared radius),
-    /// and where `radius2` is 0 ([`Self::refine_below`]).
+    /// The frame the moments are taken in: the mean `o` of the vertices
+    /// (inside the piece, which is convex), the squared half-diagonal `h²`
+    /// of the bounding box, and whether the piece is much smaller than the
+    /// shape it was cut from (`16 h² < R²`, `R` the start's radius). Cones
+    /// from the site of a piece far from it (in a long cell, or a cell cut
+    /// from a big tet) have volumes of order `L² h` that cancel to `h³` (`L`
+    /// the distance, `h` the size), and their f32 sums lose `L/h` of their
+    /// precision; cones from inside the piece add up without cancelling. A
+    /// plane `(n, d)` is `(n, d - n·o)` there.
     #[inline]
-    fn refined(&self, i: usize, radius2: f32, [na, nb, nc]: [Point; 3], [ab, bc, ca]: [Point; 3]) -> Point {
-        let v = self.verts[i];
-        if radius2 == 0.0 {
-            return v;
-        }
-        let [a, b, c] = unpack(self.tris[i]);
-        // Normals are scaled so that their largest component is in [1, 2)
-        // (`normalized`): |det| <= 42, and below 1e-2 the planes are
-        // nearly dependent.
-        let det = na.dot(bc);
-        let well_conditioned = det * det > 1e-4;
-        if !well_conditioned {
-            return v;
-        }
-        let (ra, rb, rc) = (
-            self.planes[a as usize].w - na.dot(v),
-            self.planes[b as usize].w - nb.dot(v),
-            self.planes[c as usize].w - nc.dot(v),
-        );
-        let step = (bc * ra + ca * rb + ab * rc) / det;
-        if step.length_squared() < 1e-6 * radius2 {
-            v + step
-        } else {
-            v
-        }
-    }
-
-    /// The squared radius `r²` of the polyhedron (its farthest vertex from
-    /// the local origin) when it is less than a quarter of its starting
-    /// shape's, else 0: vertices slid from the start's corners carry errors
-    /// `~ε` of the start's size, which matter only relative to a much
-    /// smaller result; a piece about as large as its tet (most of them) is
-    /// not refined.
-    #[inline]
-    fn refine_below(&self) -> f32 {
-        let mut r = 0.0f32;
+    fn frame(&self) -> (Point, f32, bool) {
+        let n = (self.n_verts as usize).min(V);
+        let mut sum = Point::ZERO;
+        let mut lo = Point::splat(f32::INFINITY);
+        let mut hi = Point::splat(f32::NEG_INFINITY);
         let mut i = 0;
-        while i < (self.n_verts as usize).min(V) {
-            r = r.max(self.verts[i].length_squared());
+        while i < n {
+            let v = self.verts[i];
+            sum += v;
+            lo = lo.min(v);
+            hi = hi.max(v);
             i += 1;
         }
-        if 16.0 * r < self.start_radius2 {
-            r
-        } else {
-            0.0
+        let o = if n > 0 { sum / n as f32 } else { Point::ZERO };
+        let h2 = (0.5 * (hi - lo)).length_squared();
+        (o, h2, 16.0 * h2 < self.start_radius2)
+    }
+
+    /// Rebuilds this piece in `q`, relative to the frame's origin `o`: its
+    /// bounding box grown to 1.5 times its extent, clipped by its faces'
+    /// planes (each new plane's id is its number here). The vertices then
+    /// come from corners as far from each other as the piece is large, not
+    /// from a tet's far corners. Returns false (leaving `q` unusable) where
+    /// the clips fail or a box plane survives.
+    fn rebuild_into(&self, q: &mut Self, o: Point) -> bool {
+        let (_, mid, half) = self.bounds();
+        let h = half * 1.5 + Point::splat(1e-3 * half.max_element());
+        q.set_cuboid(Vec3::from(mid - o - h), Vec3::from(mid - o + h));
+        q.start_radius2 = 0.0;
+        let faces = self.face_mask();
+        let mut p = 0;
+        while p < (self.n_planes as usize).min(P) {
+            if (faces >> p) & 1 != 0 {
+                let plane = self.planes[p];
+                match q.clip_as(plane.truncate().extend(plane.w - normal(plane).dot(o)), p as u32) {
+                    Clip::Cut | Clip::Unchanged => {}
+                    _ => return false,
+                }
+            }
+            p += 1;
         }
+        // Planes 0-5 are the box's (see `set_cuboid`): none may be a face.
+        q.face_mask() & 0x3f == 0
     }
 
     /// The area of each face, by plane number (the planes no vertex uses
@@ -550,14 +559,15 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
         areas
     }
 
-    /// Volume, first and second moments, from vertex-local pieces only
-    /// (no adjacency search): each face is fanned from the foot `c_x` of
-    /// the perpendicular from the site to its plane, and each fan triangle
-    /// is split at the foot `f` of the perpendicular to its edge's line, so
-    /// a vertex `v` with edge `x -> y` owns the triangles `(c_x, f, v)` on
-    /// face `x` and `(c_y, v, f)` on face `y`; each triangle is coned to the
-    /// site (signed tets, so the site may lie outside). `|f| <= |v|`, so no
-    /// far-away point enters the sums.
+    /// Volume, first and second moments about the local origin (the site),
+    /// from vertex-local pieces only (no adjacency search), taken around
+    /// the piece ([`Self::frame`]): each face is fanned from the foot `c_x`
+    /// of the perpendicular from the frame's origin to its plane, and each
+    /// fan triangle is split at the foot `f` of the perpendicular to its
+    /// edge's line, so a vertex `v` with edge `x -> y` owns the triangles
+    /// `(c_x, f, v)` on face `x` and `(c_y, v, f)` on face `y`; each
+    /// triangle is coned to the frame's origin (signed tets). `|f| <= |v|`,
+    /// so no far-away point enters the sums.
     pub fn moments(&self) -> Moments {
         let mut unused = [0.0f32; P];
         self.moments_with::<false>(&mut unused)
@@ -569,30 +579,109 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
         self.moments_with::<true>(areas)
     }
 
+    /// The moments (and with `AREAS` the face areas), relative to the site,
+    /// taken around the piece ([`Self::frame`]), each vertex moved onto its
+    /// three planes first ([`Self::integrate`]). That needs each vertex's
+    /// planes to be independent: where some are nearly dependent and the
+    /// vertex is off them, its place along its edge is what the clip made
+    /// it, and moving its neighbours would no longer match it (rare: 41 of
+    /// 408 000 pieces on joint_31k with 35 000 sites). Such a piece, when
+    /// much smaller than its tet, is rebuilt around itself
+    /// ([`Self::rebuilt_moments`]); else it is taken as the clips made it.
     #[inline]
     fn moments_with<const AREAS: bool>(&self, areas: &mut [f32; P]) -> Moments {
-        // Per plane: the foot c and 3|c|².
+        let (o, h2, small) = self.frame();
+        let (mut m, ok) = self.integrate::<AREAS, true>(o, h2, areas);
+        if !ok {
+            *areas = [0.0f32; P];
+            let mut rebuilt = false;
+            if small {
+                (m, rebuilt) = self.rebuilt_moments::<AREAS>(o, areas);
+            }
+            if !rebuilt {
+                *areas = [0.0f32; P];
+                (m, _) = self.integrate::<AREAS, false>(o, h2, areas);
+            }
+        }
+        moved_back(m, o)
+    }
+
+    /// The moments (and with `AREAS` the face areas, into `areas`, zeroed
+    /// first) of this piece rebuilt around `o` ([`Self::rebuild_into`]),
+    /// relative to `o`; false where the rebuild failed.
+    fn rebuilt_moments<const AREAS: bool>(&self, o: Point, areas: &mut [f32; P]) -> (Moments, bool) {
+        let mut q = Self::empty();
+        if !self.rebuild_into(&mut q, o) {
+            return (Moments::default(), false);
+        }
+        let mut local = [0.0f32; P];
+        let (m, _) = q.integrate::<AREAS, false>(Point::ZERO, 0.0, &mut local);
+        if AREAS {
+            // The rebuilt planes' ids are the planes' numbers here.
+            *areas = [0.0f32; P];
+            let mut k = 0;
+            while k < (q.n_planes as usize).min(P) {
+                if q.ids[k] != NO_ID {
+                    areas[q.ids[k] as usize] = local[k];
+                }
+                k += 1;
+            }
+        }
+        (m, true)
+    }
+
+    /// The moments (and with `AREAS` the face areas) relative to the
+    /// frame's origin `o` (`h2`: the piece's squared size). With `REFINE`,
+    /// each vertex whose planes are independent is first moved onto them
+    /// ([`refined`], from the residuals the moments need anyway), and false
+    /// is returned (with nothing summed usefully) where a vertex whose
+    /// planes are nearly dependent (`det² <= 1e-4` for normals scaled as
+    /// [`normalized`] scales them, so that `|det| <= 42`) is off them by
+    /// more than rounding.
+    #[inline]
+    fn integrate<const AREAS: bool, const REFINE: bool>(
+        &self,
+        o: Point,
+        h2: f32,
+        areas: &mut [f32; P],
+    ) -> (Moments, bool) {
+        // Per plane: the foot c (from o) and 3|c|², and the offset there.
         let mut feet = [Vec4::ZERO; P];
+        let mut offsets = [0.0f32; P];
         let mut p = 0;
         while p < (self.n_planes as usize).min(P) {
             let n = self.planes[p].truncate();
-            let c = n * (self.planes[p].w / n.length_squared());
+            offsets[p] = self.planes[p].w - n.dot(Vec3::from(o));
+            let c = n * (offsets[p] / n.length_squared());
             feet[p] = c.extend(3.0 * c.length_squared());
             p += 1;
         }
+        // Residuals below this are the rounding of `n·v` itself (normals'
+        // lengths are at most 3.5, `|v| <= 2h` from o).
+        let rounding2 = 1e-14 * h2;
         // Summed as 6 V, 24 ∫x and 60 ∫|x|²: the cones' constant factors
         // are applied once, at the end.
         let mut m = Sums::default();
-        let radius2 = self.refine_below();
         let mut i = 0;
         while i < (self.n_verts as usize).min(V) {
             let [a, b, c] = unpack(self.tris[i]);
             let (na, nb, nc) =
                 (normal(self.planes[a as usize]), normal(self.planes[b as usize]), normal(self.planes[c as usize]));
             let (ab, bc, ca) = (na.cross(nb), nb.cross(nc), nc.cross(na));
-            let v = self.refined(i, radius2, [na, nb, nc], [ab, bc, ca]);
+            let mut v = self.verts[i] - o;
+            let (mut va, mut vb, mut vc) = (v.dot(na), v.dot(nb), v.dot(nc));
+            if REFINE {
+                let (da, db, dc) = (offsets[a as usize], offsets[b as usize], offsets[c as usize]);
+                let (ra, rb, rc) = (da - va, db - vb, dc - vc);
+                let det = na.dot(bc);
+                if det * det > 1e-4 {
+                    v = refined(v, [ra, rb, rc], [ab, bc, ca], det);
+                    (va, vb, vc) = (da, db, dc);
+                } else if ra * ra > rounding2 || rb * rb > rounding2 || rc * rc > rounding2 {
+                    return (Moments::default(), false);
+                }
+            }
             let vv = v.length_squared();
-            let (va, vb, vc) = (v.dot(na), v.dot(nb), v.dot(nc));
             let wab = add_corner_edge(&mut m, &feet, v, vv, (a, na, va), (b, nb, vb), ab);
             let wbc = add_corner_edge(&mut m, &feet, v, vv, (b, nb, vb), (c, nc, vc), bc);
             let wca = add_corner_edge(&mut m, &feet, v, vv, (c, nc, vc), (a, na, va), ca);
@@ -613,7 +702,32 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
                 p += 1;
             }
         }
-        Moments { volume: m.volume / 6.0, first: Vec3::from(m.first) / 24.0, second: m.second / 60.0 }
+        (Moments { volume: m.volume / 6.0, first: Vec3::from(m.first) / 24.0, second: m.second / 60.0 }, true)
+    }
+}
+
+/// Vertex `v`, moved onto its three planes (residuals `r = d - n·v`, `x`
+/// the crosses `n_a × n_b, n_b × n_c, n_c × n_a` and `det = n_a·(n_b ×
+/// n_c)`, not near 0): one step of iterative refinement, `v + N⁻¹ r` by
+/// Cramer's rule. A vertex made by sliding along an edge from a far one (a
+/// tet's corner, `L` away) carries an error `~ε L`, where its planes
+/// (accurate relative to the cell) and the vertex itself (`|v| ~ h` from
+/// the frame's origin inside the piece) give residuals accurate to `ε h`:
+/// the step brings it to `~ε h`.
+#[inline]
+fn refined(v: Point, [ra, rb, rc]: [f32; 3], [ab, bc, ca]: [Point; 3], det: f32) -> Point {
+    v + (bc * ra + ca * rb + ab * rc) / det
+}
+
+/// Moments relative to a frame at `o`, moved back to the site: `∫x = ∫x' +
+/// o V` and `∫|x|² = ∫|x'|² + 2 o·∫x' + |o|² V`.
+#[inline]
+fn moved_back(m: Moments, o: Point) -> Moments {
+    let o = Vec3::from(o);
+    Moments {
+        volume: m.volume,
+        first: m.first + o * m.volume,
+        second: m.second + 2.0 * o.dot(m.first) + o.length_squared() * m.volume,
     }
 }
 
@@ -662,15 +776,43 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
     /// c}`, `∫x xᵀ = v/20 (Σ p pᵀ + s sᵀ)` and `∫x |x|² = v/120 (s |s|² +
     /// s Σ|p|² + 2 Σ p (p·s) + 2 Σ p |p|²)` (moments of a simplex).
     pub fn moments_linear(&self, rho0: f32, g: Vec3) -> (Moments, f32) {
+        // As `moments_with`, with the density moved to each frame: around
+        // o, ρ = (rho0 + g·o) + g·x'.
+        let (o, h2, small) = self.frame();
+        let rho_o = rho0 + g.dot(Vec3::from(o));
+        let (mut m, mut volume, ok) = self.integrate_linear::<true>(o, h2, rho_o, g);
+        if !ok {
+            let mut rebuilt = false;
+            if small {
+                let mut q = Self::empty();
+                if self.rebuild_into(&mut q, o) {
+                    (m, volume, _) = q.integrate_linear::<false>(Point::ZERO, 0.0, rho_o, g);
+                    rebuilt = true;
+                }
+            }
+            if !rebuilt {
+                (m, volume, _) = self.integrate_linear::<false>(o, h2, rho_o, g);
+            }
+        }
+        (moved_back(m, o), volume)
+    }
+
+    /// [`Self::moments_linear`] relative to the frame's origin `o` (the
+    /// density `rho0 + g·x'` there), as [`Self::integrate`] takes them, and
+    /// the plain volume.
+    #[inline]
+    fn integrate_linear<const REFINE: bool>(&self, o: Point, h2: f32, rho0: f32, g: Vec3) -> (Moments, f32, bool) {
         let mut feet = [Vec3::ZERO; P];
+        let mut offsets = [0.0f32; P];
         let mut p = 0;
         while p < (self.n_planes as usize).min(P) {
             let n = self.planes[p].truncate();
-            feet[p] = n * (self.planes[p].w / n.length_squared());
+            offsets[p] = self.planes[p].w - n.dot(Vec3::from(o));
+            feet[p] = n * (offsets[p] / n.length_squared());
             p += 1;
         }
+        let rounding2 = 1e-14 * h2;
         let mut acc = Linear::default();
-        let radius2 = self.refine_below();
         let mut i = 0;
         while i < (self.n_verts as usize).min(V) {
             let t = unpack(self.tris[i]);
@@ -679,7 +821,23 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
                 normal(self.planes[t[1] as usize]),
                 normal(self.planes[t[2] as usize]),
             );
-            let v = Vec3::from(self.refined(i, radius2, [na, nb, nc], [na.cross(nb), nb.cross(nc), nc.cross(na)]));
+            let mut v = self.verts[i] - o;
+            if REFINE {
+                let r = [
+                    offsets[t[0] as usize] - v.dot(na),
+                    offsets[t[1] as usize] - v.dot(nb),
+                    offsets[t[2] as usize] - v.dot(nc),
+                ];
+                if r[0] * r[0] > rounding2 || r[1] * r[1] > rounding2 || r[2] * r[2] > rounding2 {
+                    let (ab, bc, ca) = (na.cross(nb), nb.cross(nc), nc.cross(na));
+                    let det = na.dot(bc);
+                    if det * det <= 1e-4 {
+                        return (Moments::default(), 0.0, false);
+                    }
+                    v = refined(v, r, [ab, bc, ca], det);
+                }
+            }
+            let v = Vec3::from(v);
             let mut e = 0;
             while e < 3 {
                 let (x, y) = (t[e], t[(e + 1) % 3]);
@@ -697,7 +855,7 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
             first: acc.first * rho0 + acc.second_g,
             second: rho0 * acc.second + acc.third_g,
         };
-        (m, acc.volume)
+        (m, acc.volume, true)
     }
 }
 
@@ -801,6 +959,87 @@ mod tests {
         let m = p.moments();
         assert!(close(m.volume, 1.0, 1e-6), "{m:?}");
         assert!(m.first.length() < 1e-6 && close(m.second, 0.25, 1e-6), "{m:?}");
+    }
+
+    /// The slanted unit box of the test above, centred at `c`, cut out of a
+    /// tet 1 000 times larger around the origin.
+    fn slanted_box_in_a_big_tet(c: Vec3) -> Cell {
+        let big = [
+            Vec3::new(-1000.0, -1000.0, -1000.0),
+            Vec3::new(3000.0, -900.0, -1100.0),
+            Vec3::new(-800.0, 2900.0, -950.0),
+            Vec3::new(-1050.0, -1020.0, 3100.0),
+        ];
+        let mut p = Cell::tetrahedron(big);
+        let (a, b) = (Vec3::new(0.8, 0.6, 0.0), Vec3::new(-0.36, 0.48, 0.8));
+        for n in [a, b, a.cross(b)] {
+            assert_eq!(p.clip(n.extend(n.dot(c) + 0.5)), Clip::Cut);
+            assert_eq!(p.clip((-n).extend(-n.dot(c) + 0.5)), Clip::Cut);
+        }
+        p
+    }
+
+    /// A piece 300 times its size away from its origin (a piece far along
+    /// a long cell): its cones from the origin would cancel to `1/300³` of
+    /// themselves; integrated around itself, it keeps f32's precision —
+    /// volume, centroid and second moment about the origin.
+    #[test]
+    fn a_piece_far_from_its_origin_keeps_its_precision() {
+        let c = Vec3::new(170.0, -190.0, 160.0);
+        let p = slanted_box_in_a_big_tet(c);
+        let m = p.moments();
+        assert!(close(m.volume, 1.0, 1e-6), "{m:?}");
+        assert!((m.first / m.volume - c).length() < 1e-6 * c.length(), "{m:?}");
+        assert!(close(m.second, c.length_squared() + 0.25, 1e-6), "{m:?}");
+        // Under a linear density ρ = 2 + g·x, centred on the box: mass
+        // ρ(c) (the box's volume is 1).
+        let g = Vec3::new(0.01, 0.02, -0.03);
+        let (lin, v) = p.moments_linear(2.0, g);
+        assert!(close(v, 1.0, 1e-6) && close(lin.volume, 2.0 + g.dot(c), 1e-6), "{lin:?}");
+    }
+
+    /// Where three planes of a vertex are nearly dependent, refinement
+    /// cannot move it (its place along its edge is what the clips made it):
+    /// such a piece, much smaller than the tet its vertices slid from, is
+    /// rebuilt around itself from a box of its own size. Two planes 1e-3
+    /// apart in angle cut a corner off the box: the result does not depend
+    /// on the shape it was cut from (the big tet, or a box just around it),
+    /// and its face areas are those of the same piece.
+    #[test]
+    fn a_small_piece_with_nearly_dependent_planes_is_rebuilt() {
+        let cuts = [Vec4::new(1.0, 1.0, 1.0, 0.9), Vec4::new(1.0, 1.001, 0.999, 0.9)];
+        let mut far = slanted_box_in_a_big_tet(Vec3::ZERO);
+        let mut near = Cell::tetrahedron([
+            Vec3::new(-1.0, -1.0, -1.0),
+            Vec3::new(3.0, -0.9, -1.1),
+            Vec3::new(-0.8, 2.9, -0.95),
+            Vec3::new(-1.05, -1.02, 3.1),
+        ]);
+        let (a, b) = (Vec3::new(0.8, 0.6, 0.0), Vec3::new(-0.36, 0.48, 0.8));
+        for n in [a, b, a.cross(b)] {
+            near.clip(n.extend(0.5));
+            near.clip((-n).extend(0.5));
+        }
+        for plane in cuts {
+            assert_eq!(far.clip(plane), Clip::Cut);
+            assert_eq!(near.clip(plane), Clip::Cut);
+        }
+        let (o, h2, _) = far.frame();
+        let refinable = far.integrate::<false, true>(o, h2, &mut [0.0; CELL_PLANES]).1;
+        assert!(!refinable, "the cuts meet nearly dependent");
+        let (mut af, mut an) = ([0.0f32; CELL_PLANES], [0.0f32; CELL_PLANES]);
+        let (mf, mn) = (far.moments_and_areas(&mut af), near.moments_and_areas(&mut an));
+        assert!(close(mf.volume, mn.volume, 1e-6), "{mf:?} vs {mn:?}");
+        assert!((mf.first - mn.first).length() < 1e-6, "{mf:?} vs {mn:?}");
+        assert!(close(mf.second, mn.second, 1e-6), "{mf:?} vs {mn:?}");
+        // Both list the same planes after the tets' four: the box's six,
+        // then the two cuts, whose common edge moves far along them with
+        // any rounding (their areas' split is ill-conditioned, their sum
+        // is not).
+        let n = far.n_planes as usize;
+        assert_eq!((n, near.n_planes), (12, 12));
+        assert!((4..10).all(|k| close(af[k], an[k], 1e-6)), "{af:?} vs {an:?}");
+        assert!(close(af[10] + af[11], an[10] + an[11], 1e-6), "{af:?} vs {an:?}");
     }
 
     /// Face areas: a unit cube's six are 1; a cell clipped many times is

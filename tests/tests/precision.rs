@@ -11,21 +11,25 @@
 //! [`VOLUME_TOL`] of its exact volume, relative to itself, and the volumes
 //! must add up to the box's within [`E_VOL_TOL`]. The results do not depend
 //! on where the domain is or how large it is. What remains is the kernels'
-//! f32 arithmetic: a piece's vertices are relative to its site, so a piece
-//! far from its site (in a cell much longer than wide, or in a big tet)
-//! carries f32 epsilon times that distance (docs/BENCHMARKS.md, Precision).
+//! f32 arithmetic: each piece is integrated around itself with its vertices
+//! moved onto their planes, so what is left is a vertex's own rounding
+//! relative to the piece, `ε L / h` for a needle of length `L` and width
+//! `h` lying oblique to the axes (docs/BENCHMARKS.md, Precision).
 
 use cvd::{points, Cells, ClippedVoronoi, TetMesh};
 use cvd_tests::reference::clipped_cells;
 use cvd_tests::{assert_no_validation_errors, backends, Placement};
 use voro_rs::prelude::*;
 
-/// Largest volume error of a cell, relative to the cell.
-const VOLUME_TOL: f64 = 5e-5;
-/// Largest `|Σ V_i - V| / V`.
-const E_VOL_TOL: f64 = 5e-7;
-/// Largest centroid error, relative to the cell's size `V^(1/3)`.
-const CENTROID_TOL: f64 = 5e-5;
+/// Largest volume error of a cell, relative to the cell (measured: 2e-6
+/// at most, on the needle-shaped cells around the 2e-3 cluster; 8e-7 on
+/// the others).
+const VOLUME_TOL: f64 = 5e-6;
+/// Largest `|Σ V_i - V| / V` (the goal; measured: 4e-8 at most).
+const E_VOL_TOL: f64 = 1e-7;
+/// Largest centroid error, relative to the cell's size `V^(1/3)`
+/// (measured: 8.5e-6 at most).
+const CENTROID_TOL: f64 = 2e-5;
 
 /// An input: sites in the box `[0, 1] x [0, 1] x [0, depth]`.
 struct Case {
