@@ -942,27 +942,14 @@ mod tests {
     /// their planes before the moments, the cell is exact to f32.
     #[test]
     fn a_small_cell_in_a_big_tet_is_refined() {
-        let big = [
-            Vec3::new(-1000.0, -1000.0, -1000.0),
-            Vec3::new(3000.0, -900.0, -1100.0),
-            Vec3::new(-800.0, 2900.0, -950.0),
-            Vec3::new(-1050.0, -1020.0, 3100.0),
-        ];
-        let mut p = Cell::tetrahedron(big);
-        // A slanted box: three pairs of planes, |x·n| <= 0.5 along a frame.
-        let (a, b) = (Vec3::new(0.8, 0.6, 0.0), Vec3::new(-0.36, 0.48, 0.8));
-        let frame = [a, b, a.cross(b)];
-        for n in frame {
-            assert_eq!(p.clip(n.extend(0.5)), Clip::Cut);
-            assert_eq!(p.clip((-n).extend(0.5)), Clip::Cut);
-        }
-        let m = p.moments();
+        let m = slanted_box_in_a_big_tet(Vec3::ZERO).moments();
         assert!(close(m.volume, 1.0, 1e-6), "{m:?}");
         assert!(m.first.length() < 1e-6 && close(m.second, 0.25, 1e-6), "{m:?}");
     }
 
-    /// The slanted unit box of the test above, centred at `c`, cut out of a
-    /// tet 1 000 times larger around the origin.
+    /// A slanted unit box (three pairs of planes, `|(x - c)·n| <= 0.5` along
+    /// a frame) centred at `c`, cut out of a tet 1 000 times larger around
+    /// the origin.
     fn slanted_box_in_a_big_tet(c: Vec3) -> Cell {
         let big = [
             Vec3::new(-1000.0, -1000.0, -1000.0),
