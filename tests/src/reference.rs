@@ -144,8 +144,25 @@ impl Poly {
 /// by the other sites nearest first until the next is farther than twice
 /// the piece's farthest point (then no bisector can reach it).
 pub fn clipped_cells(mesh: &TetMesh, sites: &[[f64; 3]]) -> (Vec<f64>, Vec<[f64; 3]>) {
+    clipped_power_cells(mesh, sites, &vec![0.0; sites.len()])
+}
+
+/// Volume and centroid of each site's power (Laguerre) cell clipped to the
+/// mesh: the points `x` with `|x - x_i|² - w_i <= |x - x_j|² - w_j` for
+/// every `j` (a cell may be empty, or miss its site; its centroid is then
+/// the site). Equal sites: the larger weight owns the cell, the lowest
+/// index among equal weights. The plane of `j`, relative to `x_i`, is `n·x
+/// <= (|n|² + w_i - w_j) / 2` with `n = x_j - x_i`. A site `j` at distance
+/// `d` cuts a point within `r` of `x_i` only if `|n|² - 2 r |n| < w_j -
+/// w_i`, that is `d < r + sqrt(r² + w_j - w_i)`: the others are taken
+/// nearest first until `d > r + sqrt(r² + Δ)`, `Δ = max w - w_i` (twice
+/// the piece's reach for equal weights).
+pub fn clipped_power_cells(mesh: &TetMesh, sites: &[[f64; 3]], weights: &[f64]) -> (Vec<f64>, Vec<[f64; 3]>) {
+    assert_eq!(sites.len(), weights.len(), "one weight per site");
     let x: Vec<P> = sites.to_vec();
+    let w = weights;
     let n = x.len();
+    let w_max = w.iter().copied().fold(f64::NEG_INFINITY, f64::max);
     let mut vol = vec![0.0; n];
     let mut moment = vec![[0.0; 3]; n];
     // Other sites nearest first.
@@ -158,9 +175,10 @@ pub fn clipped_cells(mesh: &TetMesh, sites: &[[f64; 3]]) -> (Vec<f64>, Vec<[f64;
         .collect();
     let cell = |i: usize| {
         let (mut vol, mut moment) = (0.0, [0.0; 3]);
-        if (0..i).any(|j| x[j] == x[i]) {
+        if (0..n).any(|j| j != i && x[j] == x[i] && (w[j] > w[i] || (w[j] == w[i] && j < i))) {
             return (vol, moment);
         }
+        let spread = w_max - w[i];
         for tet in &mesh.tets {
             let v = tet.map(|k| sub(mesh.vertices[k as usize], x[i]));
             let mut poly = Poly::tet(v);
@@ -169,11 +187,11 @@ pub fn clipped_cells(mesh: &TetMesh, sites: &[[f64; 3]]) -> (Vec<f64>, Vec<[f64;
                     continue;
                 }
                 let reach = poly.faces.iter().flatten().map(|&p| norm(p)).fold(0.0, f64::max);
-                if dist > 2.0 * reach {
+                if dist > reach + (reach * reach + spread).sqrt() {
                     break;
                 }
                 let nrm = sub(x[j], x[i]);
-                poly.clip(nrm, 0.5 * dot(nrm, nrm));
+                poly.clip(nrm, 0.5 * (dot(nrm, nrm) + w[i] - w[j]));
                 if poly.faces.is_empty() {
                     break;
                 }
