@@ -823,18 +823,18 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
             );
             let mut v = self.verts[i] - o;
             if REFINE {
+                // As `integrate` does.
                 let r = [
                     offsets[t[0] as usize] - v.dot(na),
                     offsets[t[1] as usize] - v.dot(nb),
                     offsets[t[2] as usize] - v.dot(nc),
                 ];
-                if r[0] * r[0] > rounding2 || r[1] * r[1] > rounding2 || r[2] * r[2] > rounding2 {
-                    let (ab, bc, ca) = (na.cross(nb), nb.cross(nc), nc.cross(na));
-                    let det = na.dot(bc);
-                    if det * det <= 1e-4 {
-                        return (Moments::default(), 0.0, false);
-                    }
+                let (ab, bc, ca) = (na.cross(nb), nb.cross(nc), nc.cross(na));
+                let det = na.dot(bc);
+                if det * det > 1e-4 {
                     v = refined(v, r, [ab, bc, ca], det);
+                } else if r[0] * r[0] > rounding2 || r[1] * r[1] > rounding2 || r[2] * r[2] > rounding2 {
+                    return (Moments::default(), 0.0, false);
                 }
             }
             let v = Vec3::from(v);
