@@ -418,7 +418,19 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
         let first = with_spinner("warm-up run", || cv.compute())?;
         println!("warm-up run: {:.1} ms; the table shows the next", first.timings.total() * 1e3);
     }
-    let cells = with_spinner("clipped Voronoi diagram", || cv.compute())?;
+    // On the CPU backend the cells' polyhedra come from the diagram's own
+    // run (its times then include collecting the pieces and merging them);
+    // another backend's pieces stay on its device, so the CPU makes them
+    // in a second run below.
+    let cpu_geometry = !args.no_geometry && backend.kind() == "cpu";
+    let (cells, geometry) = if cpu_geometry {
+        let cpu = CpuBackend::new(args.backend.threads)?;
+        let (cells, pieces) =
+            with_spinner("clipped Voronoi diagram and its cells' polyhedra", || cv.compute_with_polyhedra(&cpu))?;
+        (cells, Some(pieces))
+    } else {
+        (with_spinner("clipped Voronoi diagram", || cv.compute())?, None)
+    };
     let compiled = backend.kernel_compile_seconds();
     if compiled > 0.0 {
         println!("kernels: the driver compiled them in {compiled:.2} s on first use (not in the times below)");
@@ -438,11 +450,17 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
     // The sites of the diagram: as given, or where the iterations moved them.
     cvd::io::write_sites_xyz(&file("sites.xyz"), &sites)?;
     if !args.no_geometry {
-        let cpu = CpuBackend::new(args.backend.threads)?;
-        // The adjacency came with the diagram above; the polyhedra's run
-        // needs only the pieces.
-        let (with_polyhedra, pieces) =
-            with_spinner("cells' polyhedra, on the CPU", || cv.faces(false).compute_with_polyhedra(&cpu))?;
+        let (with_polyhedra, pieces) = match geometry {
+            Some(pieces) => (None, pieces),
+            None => {
+                let cpu = CpuBackend::new(args.backend.threads)?;
+                // The adjacency came with the diagram above; the polyhedra's
+                // run needs only the pieces.
+                let (cells, pieces) =
+                    with_spinner("cells' polyhedra, on the CPU", || cv.faces(false).compute_with_polyhedra(&cpu))?;
+                (Some(cells), pieces)
+            }
+        };
         summary.pieces = Some(pieces.len());
         if args.pieces {
             let path = file("pieces.vtu");
@@ -460,7 +478,7 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
             })?;
         }
         drop(pieces);
-        let polyhedra = with_polyhedra.polyhedra().unwrap_or_default();
+        let polyhedra = with_polyhedra.as_ref().unwrap_or(&cells).polyhedra().unwrap_or_default();
         summary.lids = Some(polyhedra.iter().map(|p| p.repaired_holes as u64).sum());
         let path = file("cells.vtu");
         with_bar("writing cells.vtu", |progress| output::write_cells_vtu(&path, &cells, polyhedra, progress))?;
