@@ -41,14 +41,15 @@ pub type QuantPoint = [u32; 4];
 /// [`crate::polyhedron::between`]): the first difference is exact or
 /// rounded relative to itself, so the vector is accurate to f32 relative to
 /// its own length, however far the points are from the frame's origin.
-/// `hi[3]` carries a value of the point (a mesh vertex's density; 0 for a
-/// site), `lo[3]` is 0.
+/// `hi[3] + lo[3]` carries a value of the point, split the same way: a
+/// site's power weight (0 for Voronoi cells; see [`ClipParams::weight_range`]),
+/// or a mesh vertex's density (in `hi[3]` alone).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct SplitPoint {
     /// The coordinates rounded to f32, and the point's value.
     pub hi: [f32; 4],
-    /// The rounding's remainders (and 0).
+    /// The rounding's remainders (and the value's).
     pub lo: [f32; 4],
 }
 
@@ -60,6 +61,20 @@ impl SplitPoint {
         let hi = [p[0] as f32, p[1] as f32, p[2] as f32];
         let lo = [(p[0] - hi[0] as f64) as f32, (p[1] - hi[1] as f64) as f32, (p[2] - hi[2] as f64) as f32];
         Self { hi: [hi[0], hi[1], hi[2], value], lo: [lo[0], lo[1], lo[2], 0.0] }
+    }
+
+    /// Site `p` with power weight `w`, both split into `hi + lo`.
+    #[inline]
+    pub fn site(p: [f64; 3], w: f64) -> Self {
+        let mut s = Self::new(p, w as f32);
+        s.lo[3] = (w - s.hi[3] as f64) as f32;
+        s
+    }
+
+    /// The point's value in f64 (a site's weight, exactly `hi + lo`).
+    #[inline]
+    pub fn value(&self) -> f64 {
+        self.hi[3] as f64 + self.lo[3] as f64
     }
 
     /// The point in f64 (exactly `hi + lo`).
@@ -222,6 +237,15 @@ pub struct ClipParams {
     pub walk_margin: f32,
     /// Capacity of the second pass's entry lists, in entries.
     pub capacity: u32,
+    /// Power (Laguerre) cells: the sites' weights range over
+    /// `0..=weight_range` (the host shifts them so that the smallest is 0,
+    /// which changes no cell); 0 for Voronoi cells. A site's weight is in
+    /// its [`SplitPoint`]'s `hi[3] + lo[3]`. Site `j` cuts a point within
+    /// `r` of site `i` only if `|x_j - x_i| < r + sqrt(r² + weight_range -
+    /// w_i)`: the security radius (docs/ARCHITECTURE.md).
+    pub weight_range: f32,
+    /// To a multiple of 16 bytes.
+    pub _pad: [u32; 3],
 }
 
 /// Push constants of the second pass ([`crate::refine`]): the clipping

@@ -17,16 +17,20 @@
 //! nothing on the GPU, the host's piece export on the CPU.
 //!
 //! Everything is computed relative to the site (the bisector of `x_i` and
-//! `x_j` is `n·x <= |n|²/2` with `n = x_j - x_i`), in f32.
+//! `x_j` is `n·x <= |n|²/2` with `n = x_j - x_i`), in f32. Power cells
+//! shift each bisector by the weights, `n·x <= (|n|² + w_i - w_j)/2`, and
+//! widen the security radius ([`reach2`]).
 
 use crate::abi::{counter, ClipParams, RefineParams, SplitPoint, ACCUM_PER_SITE, INCOMPLETE_TET, NO_SITE};
 use crate::buffers::{AtomicSums, OutBuf, PairList};
 use crate::polyhedron::{
-    between, made_by_site, normal, Cell, Clip, Moments, Piece, Point, Polyhedron, CELL_PLANES, CELL_VERTS, NO_ID,
-    TET_FACE,
+    between, bisector_offset, made_by_site, normal, weight_gap, Cell, Clip, Moments, Piece, Point, Polyhedron,
+    CELL_PLANES, CELL_VERTS, NO_ID, TET_FACE,
 };
-use crate::walk::{clip_to_cell, GridWalk};
+use crate::walk::{clip_to_cell, power_nearest, GridWalk};
 use spirv_std::glam::{Vec3, Vec4};
+#[cfg(target_arch = "spirv")]
+use spirv_std::num_traits::Float;
 
 /// `[f32; 4]` records per stored cell: a header (planes, vertices, status
 /// as bits, and the squared radius of the ball around the site where a
@@ -78,6 +82,35 @@ impl Clipped {
     }
 }
 
+/// The squared distance from a site beyond which no other site can cut a
+/// polyhedron whose vertices lie within `sqrt(r2)` of it. A site `x_j` at
+/// `n` from `x_i` owns a point `x` (relative to `x_i`) rather than `x_i`
+/// only if `2 n·x > |n|² + w_i - w_j`; with `|x| <= r` and `w_j - w_i <=
+/// slack` that needs `|n|² - 2 |n| r - slack < 0`, that is `|n| < r +
+/// sqrt(r² + slack)`: twice the farthest vertex without weights (`slack =
+/// weight_range - w_i`, 0 for Voronoi cells), widened by a rounding margin
+/// with them.
+#[inline]
+pub fn reach2(r2: f32, slack: f32) -> f32 {
+    if slack > 0.0 {
+        let reach = r2.sqrt() + (r2 + slack).sqrt();
+        reach * reach * (1.0 + 1e-6)
+    } else {
+        4.0 * r2
+    }
+}
+
+/// `weight_range - w_i`: how much more weight than site `i` another site
+/// may have (0 for Voronoi cells).
+#[inline]
+pub fn weight_slack(weight_range: f32, site: &SplitPoint) -> f32 {
+    if weight_range == 0.0 {
+        0.0
+    } else {
+        (weight_range - site.hi[3]) - site.lo[3]
+    }
+}
+
 /// A run of bisector clips on one polyhedron: how it went, and the
 /// polyhedron's farthest vertex and bounding box, which decide cheaply
 /// which bisectors can still cut it.
@@ -86,43 +119,49 @@ pub struct BisectorRun {
     pub out: Clipped,
     /// Largest squared distance of a vertex from the site.
     pub r2: f32,
+    /// The squared security radius: no site farther can cut ([`reach2`]).
+    pub reach2: f32,
+    slack: f32,
     mid: Point,
     half: Point,
 }
 
 impl BisectorRun {
-    /// A run on `poly`, with the security radius not yet reached.
+    /// A run on `poly`, with the security radius not yet reached, for a
+    /// site whose weight is `slack` below the largest ([`weight_slack`]).
     #[inline]
-    pub fn new<const P: usize, const V: usize>(poly: &Polyhedron<P, V>) -> Self {
+    pub fn new<const P: usize, const V: usize>(poly: &Polyhedron<P, V>, slack: f32) -> Self {
         let (r2, mid, half) = poly.bounds();
-        Self { out: Clipped { security_missed: true, ..Clipped::default() }, r2, mid, half }
+        let out = Clipped { security_missed: true, ..Clipped::default() };
+        Self { out, r2, reach2: reach2(r2, slack), slack, mid, half }
     }
 
-    /// Whether the bisector with the site at `n` (`d2 = |n|²`) clears the
-    /// bounding box — then it cannot cut. The margin keeps this test from
-    /// deciding what rounding could flip.
+    /// Whether the bisector `n·x <= h` clears the bounding box — then it
+    /// cannot cut. The margin keeps this test from deciding what rounding
+    /// could flip.
     #[inline]
-    pub fn clears(&self, n: Point, d2: f32) -> bool {
+    pub fn clears(&self, n: Point, h: f32) -> bool {
         let inward = n.dot(self.mid);
         let spread = n.abs().dot(self.half);
-        inward + spread + 1e-5 * (inward.abs() + spread) < 0.5 * d2
+        inward + spread + 1e-5 * (inward.abs() + spread) < h
     }
 
-    /// Clips `poly` by the bisector with the site at `n` (made by site
-    /// `id`); returns whether the run must stop (nothing left, or a
-    /// failure, recorded in `out`).
+    /// Clips `poly` by the bisector `n·x <= h` (made by site `id`);
+    /// returns whether the run must stop (nothing left, or a failure,
+    /// recorded in `out`).
     #[inline]
     pub fn clip<const P: usize, const V: usize>(
         &mut self,
         poly: &mut Polyhedron<P, V>,
         n: Point,
-        d2: f32,
+        h: f32,
         id: u32,
     ) -> bool {
-        match poly.clip_as(n.extend(0.5 * d2), id) {
+        match poly.clip_as(n.extend(h), id) {
             Clip::Cut => {
                 self.out.clips += 1;
                 (self.r2, self.mid, self.half) = poly.bounds();
+                self.reach2 = reach2(self.r2, self.slack);
                 false
             }
             Clip::Unchanged => false,
@@ -172,14 +211,15 @@ fn owns(p: &ClipParams, j: usize) -> bool {
 
 /// Clips `poly` (relative to site `i`) by the bisectors of `i` and its
 /// neighbours `site_nbrs[base..base + k]`, nearest first, until the next
-/// neighbour is farther than twice the farthest vertex (the security
-/// radius) or nothing is left. Without a list (`base == NO_LIST`) the piece
-/// is left unfinished, as if the radius were missed.
+/// neighbour is beyond the security radius (twice the farthest vertex
+/// without weights; [`reach2`]) or nothing is left. Without a list (`base
+/// == NO_LIST`) the piece is left unfinished, as if the radius were missed.
 #[inline]
 pub fn clip_by_bisectors<const P: usize, const V: usize>(
     poly: &mut Polyhedron<P, V>,
     i: usize,
     n_sites: u32,
+    weight_range: f32,
     sites: &[SplitPoint],
     site_nbrs: &[u32],
     base: usize,
@@ -189,7 +229,7 @@ pub fn clip_by_bisectors<const P: usize, const V: usize>(
         return Clipped { security_missed: true, ..Clipped::default() };
     }
     let xi = sites[i];
-    let mut run = BisectorRun::new(poly);
+    let mut run = BisectorRun::new(poly, weight_slack(weight_range, &xi));
     let mut s = 0;
     while s < k {
         let nb = site_nbrs[base + s];
@@ -198,13 +238,15 @@ pub fn clip_by_bisectors<const P: usize, const V: usize>(
             run.out.security_missed = false;
             break;
         }
-        let n = between(&sites[nb as usize], &xi);
+        let xj = sites[nb as usize];
+        let n = between(&xj, &xi);
         let d2 = n.length_squared();
-        if d2 > 4.0 * run.r2 {
+        if d2 > run.reach2 {
             run.out.security_missed = false;
             break;
         }
-        if !run.clears(n, d2) && run.clip(poly, n, d2, nb) {
+        let h = bisector_offset(d2, weight_gap(&xi, &xj));
+        if !run.clears(n, h) && run.clip(poly, n, h, nb) {
             break;
         }
         s += 1;
@@ -233,9 +275,10 @@ pub const FILTER_SITES: usize = 8;
 
 /// Whether site `j` can own any point of the tet (vertices `tv`, relative
 /// to `x_j`): for each of the first sites `s` of the tet's list, the
-/// half-space where `j` is nearer than `s` must hold a tet vertex (a
-/// half-space meets a convex polytope only if it holds one of its
-/// vertices). The test keeps a margin, so it never drops a real piece.
+/// half-space where `j` is nearer than `s` (in power distance, with
+/// weights) must hold a tet vertex (a half-space meets a convex polytope
+/// only if it holds one of its vertices). The test keeps a margin, so it
+/// never drops a real piece.
 #[inline]
 fn may_meet(tv: &[Vec3; 4], j: usize, list: usize, p: &ClipParams, sites: &[SplitPoint], tet_sites: &[u32]) -> bool {
     let xj = sites[j];
@@ -245,8 +288,8 @@ fn may_meet(tv: &[Vec3; 4], j: usize, list: usize, p: &ClipParams, sites: &[Spli
         let s = tet_sites[list + f];
         if s != NO_SITE && s as usize != j {
             let xs = Vec3::from(between(&sites[s as usize], &xj));
-            // |v - 0|² <= |v - xs|²  <=>  2 v·xs <= |xs|²
-            let limit = xs.length_squared();
+            // |v|² - w_j <= |v - xs|² - w_s  <=>  2 v·xs <= |xs|² + w_j - w_s
+            let limit = 2.0 * bisector_offset(xs.length_squared(), weight_gap(&xj, &sites[s as usize]));
             let slack = 1e-5 * limit + 1e-12;
             let mut any = false;
             let mut v = 0;
@@ -655,7 +698,7 @@ pub fn tet_cell_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     }
     let mut poly = Piece::tetrahedron(tv);
     let k = p.k_site as usize;
-    let c = clip_by_bisectors(&mut poly, j, p.n_sites, sites, site_nbrs, list_start(p, j), k);
+    let c = clip_by_bisectors(&mut poly, j, p.n_sites, p.weight_range, sites, site_nbrs, list_start(p, j), k);
     let paired = Paired::around(tet_sites, i, p.k_tet as usize);
     let faces = FaceInputs { site_nbrs, tet_faces };
     let nonempty = finish_pair(t, j, &poly, &tv, &c, paired, p, sites, verts, tets, faces, sums, unfinished, sink);
@@ -682,7 +725,7 @@ pub fn voronoi_cell<O: OutBuf<[f32; 4]> + ?Sized, C: AtomicSums>(
     let mut poly = Cell::cuboid(lo, hi);
     let k = p.k_site as usize;
     let base = list_start(p, i);
-    let c = clip_by_bisectors(&mut poly, i, p.n_sites, sites, site_nbrs, base, k);
+    let c = clip_by_bisectors(&mut poly, i, p.n_sites, p.weight_range, sites, site_nbrs, base, k);
     let status = if c.overflow || c.broken {
         cell_status::FAILED
     } else if c.security_missed {
@@ -690,13 +733,22 @@ pub fn voronoi_cell<O: OutBuf<[f32; 4]> + ?Sized, C: AtomicSums>(
     } else {
         cell_status::COMPLETE
     };
-    // Where a cell that missed its security radius is exact: within half
-    // the distance to its k-th neighbour (with a margin for rounding).
+    // Where a cell that missed its security radius is exact: within `R`
+    // of its site, where `R + sqrt(R² + slack)` is the distance `D` to its
+    // k-th neighbour ([`reach2`]): `R = (D² - slack) / 2D`, half the
+    // distance without weights (with a margin for rounding).
     let mut exact_r2 = 0.0;
     if status == cell_status::SECURITY_MISSED && k > 0 && base != NO_LIST {
         let last = site_nbrs[base + k - 1];
         if last != NO_SITE {
-            exact_r2 = 0.2499 * between(&sites[last as usize], &sites[i]).length_squared();
+            let d2 = between(&sites[last as usize], &sites[i]).length_squared();
+            let slack = weight_slack(p.weight_range, &sites[i]);
+            if slack <= 0.0 {
+                exact_r2 = 0.2499 * d2;
+            } else if d2 > slack {
+                let r = (d2 - slack) / (2.0 * d2.sqrt());
+                exact_r2 = 0.9996 * r * r;
+            }
         }
     }
     let base = i * CELL_RECORDS;
@@ -826,7 +878,8 @@ pub const FLOOD_CAP: usize = 32;
 
 /// Thread `i` of flood pairing (tet-cell): tet `t = tet_base + i`,
 /// [`flood`] from the site nearest its centroid (`tet_sites[i]`, a 1-NN
-/// list), each piece clipped to its site's cell by [`clip_to_cell`]: its
+/// list; with weights, the site of smallest power distance, found from it
+/// by [`power_nearest`]), each piece clipped to its site's cell by [`clip_to_cell`]: its
 /// `k_site` nearest neighbours, then a grid walk if they do not settle it.
 #[inline]
 pub fn flood_tet<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
@@ -849,9 +902,10 @@ pub fn flood_tet<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     if t >= p.clip.n_tets as usize {
         return;
     }
+    let start = power_nearest(t, tet_sites[i], sites, verts, tets, &w);
     flood::<32, 64, FLOOD_CAP, _, _, _, _, _>(
         t,
-        tet_sites[i],
+        start,
         &p.clip,
         sites,
         verts,

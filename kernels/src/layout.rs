@@ -141,7 +141,9 @@ structure!(ClipParams {
     faces_base: u32,
     area_scale: f32,
     walk_margin: f32,
-    capacity: u32
+    capacity: u32,
+    weight_range: f32,
+    _pad: [u32; 3]
 });
 structure!(RefineParams {
     clip: ClipParams,

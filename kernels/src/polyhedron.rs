@@ -48,6 +48,21 @@ pub fn between(a: &SplitPoint, b: &SplitPoint) -> Point {
     (point(a.hi) - point(b.hi)) + (point(a.lo) - point(b.lo))
 }
 
+/// `w_a - w_b`, the difference of two sites' power weights (their
+/// `hi[3] + lo[3]`), accurate to f32 relative to the weights' range.
+#[inline]
+pub fn weight_gap(a: &SplitPoint, b: &SplitPoint) -> f32 {
+    (a.hi[3] - b.hi[3]) + (a.lo[3] - b.lo[3])
+}
+
+/// The offset `h` of the power bisector `n·x <= h` of site `i` and a site
+/// at `n` from it (`d2 = |n|²`, `gap = w_i - w_j`): where `|x|² - w_i <=
+/// |x - n|² - w_j`. Without weights, `|n|² / 2`.
+#[inline]
+pub fn bisector_offset(d2: f32, gap: f32) -> f32 {
+    0.5 * (d2 + gap)
+}
+
 /// The normal (`xyz`) of a plane `(n, d)`, as a [`Point`].
 #[cfg(not(target_arch = "spirv"))]
 #[inline]

@@ -9,7 +9,7 @@ use crate::abi::{RefineParams, SplitPoint, INCOMPLETE_TET, NO_SITE};
 use crate::buffers::{AtomicSums, PairList};
 use crate::clip::{finish_pair, flood, tet_vertices, FaceInputs, Paired, PieceSink};
 use crate::polyhedron::{Cell, CELL_PLANES, CELL_VERTS};
-use crate::walk::{clip_to_cell, GridWalk};
+use crate::walk::{clip_to_cell, power_nearest, GridWalk};
 
 /// Most sites a tet's flood may visit in the second pass.
 pub const REFINE_QUEUE: usize = 256;
@@ -17,7 +17,8 @@ pub const REFINE_QUEUE: usize = 256;
 /// Thread `e` of the second pass over the first pass's unfinished list
 /// (`list[0]` entries `(tet, site)` from `list[1]`): a whole tet
 /// (`site == NO_SITE`, a failed flood) is flooded again from the site
-/// nearest its centroid (`tet_sites[(tet - tet_base) * k_tet]`); a pair's piece is
+/// nearest its centroid (`tet_sites[(tet - tet_base) * k_tet]`; in power
+/// distance with weights); a pair's piece is
 /// clipped on its own and checked against the tet's paired sites; a tet
 /// already known to be incomplete is passed on. What fails again, and the
 /// incomplete tets, go to `still`.
@@ -47,7 +48,7 @@ pub fn refine_entry<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     if j == NO_SITE {
         refine_tet::<REFINE_QUEUE, _, _, _, _>(
             t,
-            tet_sites[slot],
+            power_nearest(t, tet_sites[slot], sites, verts, tets, &w),
             p,
             w,
             sites,

@@ -4,16 +4,17 @@
 //! (when the list is bound), so it is small by the time the list runs out;
 //! then it walks the site grid ring by ring around its site, clipping by
 //! every site met whose bisector can still reach it (the order does not
-//! change the result). Once the sites not yet met are all farther than
-//! twice the piece's farthest vertex, nothing can cut it any more: the piece
-//! is exact. So no security radius is ever missed; only a polyhedron or a
+//! change the result). Once the sites not yet met are all beyond the
+//! security radius (twice the piece's farthest vertex without weights, see
+//! [`crate::clip::reach2`]), nothing can cut it any more: the piece is
+//! exact. So no security radius is ever missed; only a polyhedron or a
 //! flood queue too small leaves a piece unfinished. Most pieces never walk:
 //! the list settles them, and a short list trades k-NN time for walks.
 
 use crate::abi::{GridParams, QuantPoint, RefineParams, SplitPoint};
-use crate::clip::{clip_by_bisectors, list_in, BisectorRun, Clipped, NO_LIST};
+use crate::clip::{clip_by_bisectors, list_in, weight_slack, BisectorRun, Clipped, NO_LIST};
 use crate::grid::{cell_index, ring_row, ring_span};
-use crate::polyhedron::{between, point, Polyhedron};
+use crate::polyhedron::{between, bisector_offset, point, weight_gap, Point, Polyhedron};
 use spirv_std::glam::Vec3;
 
 /// What clipping a piece to its cell searches: the sites' neighbour
@@ -32,6 +33,9 @@ pub struct GridWalk<'a> {
     pub nbr_end: u32,
     /// Sites in all.
     pub n_sites: u32,
+    /// The power weights' range (0: Voronoi cells; see
+    /// [`crate::abi::ClipParams::weight_range`]).
+    pub weight_range: f32,
     /// Cell counts and sizes.
     pub grid: GridParams,
     /// Lower corner of cell (0, 0, 0).
@@ -66,6 +70,7 @@ impl<'a> GridWalk<'a> {
             nbr_base: c.nbr_base,
             nbr_end: if site_nbrs.is_empty() { c.nbr_base } else { c.nbr_end },
             n_sites: c.n_sites,
+            weight_range: c.weight_range,
             grid: p.grid,
             lo: Vec3::new(p.grid_lo_x, p.grid_lo_y, p.grid_lo_z),
             cell_len: p.cell_len,
@@ -112,52 +117,34 @@ fn cell_gap2(w: &GridWalk, x: [f32; 3], c: [u32; 3]) -> f32 {
     d2
 }
 
-/// Clips `poly` (relative to site `i`) to site `i`'s cell: by the bisectors
-/// of its list, then of the sites met by walking the grid ring by ring
-/// (see the module's documentation). Never misses the security radius.
+/// What a ring walk ([`walk_rings`]) does with the sites it meets (and
+/// with a `T` it works on, such as a polyhedron), and how far it must go.
+/// (The `T` is handed in, not held: a reference to a local in a struct
+/// breaks some Vulkan drivers' compilers.)
+pub trait RingVisitor<T> {
+    /// The squared distance from the walk's centre beyond which no site
+    /// matters any more (it may shrink as sites are met).
+    fn reach2(&self) -> f32;
+    /// Site `s` was met (the centre's own site too, if it has one); true
+    /// ends the walk.
+    fn visit(&mut self, on: &mut T, s: u32) -> bool;
+}
+
+/// Walks the site grid ring by ring around `x` (clipping frame), handing
+/// [`RingVisitor::visit`] every site of each cell within the visitor's
+/// reach, until the sites not met yet all lie beyond it, the rings cover
+/// the grid, or the visitor ends the walk. Returns whether it did.
 #[inline]
-pub fn clip_to_cell<const P: usize, const V: usize>(
-    poly: &mut Polyhedron<P, V>,
-    i: usize,
-    sites: &[SplitPoint],
-    w: GridWalk,
-) -> Clipped {
-    let k = w.k_site as usize;
-    let base = list_in(i, w.nbr_base, w.nbr_end, w.k_site);
-    let listed = clip_by_bisectors(poly, i, w.n_sites, sites, w.site_nbrs, base, k);
-    if !listed.security_missed || listed.overflow || listed.broken {
-        return listed;
-    }
-    let si = sites[i];
-    let xi = point(si.hi);
-    // Sites clearly nearer than the list's last lie in the list (its
-    // distances are exact on the quantized sites, which sit within
-    // `margin` of these): clipped already.
-    let inner = if base == NO_LIST || k == 0 {
-        0.0
-    } else {
-        let last = w.site_nbrs[base + k - 1] as usize;
-        let d = between(&sites[last], &si).length() - 4.0 * w.margin;
-        if d > 0.0 {
-            d * d
-        } else {
-            0.0
-        }
-    };
+pub fn walk_rings<T, R: RingVisitor<T>>(w: &GridWalk, x: Point, visitor: &mut R, on: &mut T) -> bool {
     let g = w.grid;
     let dims = [g.dim_x, g.dim_y, g.dim_z];
     let c = [
-        cell_of(xi.x, w.lo.x, w.cell_len, g.dim_x),
-        cell_of(xi.y, w.lo.y, w.cell_len, g.dim_y),
-        cell_of(xi.z, w.lo.z, w.cell_len, g.dim_z),
+        cell_of(x.x, w.lo.x, w.cell_len, g.dim_x),
+        cell_of(x.y, w.lo.y, w.cell_len, g.dim_y),
+        cell_of(x.z, w.lo.z, w.cell_len, g.dim_z),
     ];
-    let x = [xi.x, xi.y, xi.z];
+    let x = [x.x, x.y, x.z];
     let lo = [w.lo.x, w.lo.y, w.lo.z];
-    let mut run = BisectorRun::new(poly);
-    run.out.clips = listed.clips;
-    run.out.walks = 1;
-    // A ring walk meets every site: no security radius to miss.
-    run.out.security_missed = false;
     let mut r = 0u32;
     loop {
         let (z0, z1) = ring_span(c[2], r, dims[2]);
@@ -170,30 +157,16 @@ pub fn clip_to_cell<const P: usize, const V: usize>(
                 let mut xc = first;
                 while xc <= last {
                     let cell = [xc, y, z];
-                    if cell_gap2(&w, x, cell) <= 4.0 * run.r2 {
+                    if cell_gap2(w, x, cell) <= visitor.reach2() {
                         let cell = cell_index(&g, cell);
                         let start = w.cell_start[cell] as usize;
                         let end = start + w.cell_count[cell] as usize;
                         let mut k = start;
                         while k < end {
-                            let s = w.sorted[k][3];
+                            if visitor.visit(on, w.sorted[k][3]) {
+                                return true;
+                            }
                             k += 1;
-                            if s as usize == i {
-                                continue;
-                            }
-                            let n = between(&sites[s as usize], &si);
-                            let d2 = n.length_squared();
-                            // In the list, beyond twice the farthest vertex,
-                            // or clear of the bounding box: the bisector
-                            // cannot cut. A face already (from the list):
-                            // its vertices lie on it, where rounding must
-                            // not cut again.
-                            if d2 < inner || d2 > 4.0 * run.r2 || run.clears(n, d2) || poly.has_plane_of(s) {
-                                continue;
-                            }
-                            if run.clip(poly, n, d2, s) {
-                                return run.out;
-                            }
                         }
                     }
                     xc += step;
@@ -216,12 +189,190 @@ pub fn clip_to_cell<const P: usize, const V: usize>(
         }
         if gap == f32::INFINITY {
             // The rings cover the grid: every site was met.
-            return run.out;
+            return false;
         }
         let gap = gap - w.margin;
-        if gap > 0.0 && gap * gap > 4.0 * run.r2 * (1.0 + 1e-5) {
-            return run.out;
+        if gap > 0.0 && gap * gap > visitor.reach2() * (1.0 + 1e-5) {
+            return false;
         }
         r += 1;
     }
+}
+
+/// A piece clipped by the sites a ring walk meets.
+struct CellClip<'a> {
+    run: BisectorRun,
+    i: u32,
+    sites: &'a [SplitPoint],
+    /// Sites nearer than this (squared) are in the list, clipped already.
+    inner: f32,
+}
+
+impl<const P: usize, const V: usize> RingVisitor<Polyhedron<P, V>> for CellClip<'_> {
+    #[inline]
+    fn reach2(&self) -> f32 {
+        self.run.reach2
+    }
+
+    #[inline]
+    fn visit(&mut self, poly: &mut Polyhedron<P, V>, s: u32) -> bool {
+        if s == self.i {
+            return false;
+        }
+        let si = self.sites[self.i as usize];
+        let xs = self.sites[s as usize];
+        let n = between(&xs, &si);
+        let d2 = n.length_squared();
+        let h = bisector_offset(d2, weight_gap(&si, &xs));
+        // In the list, beyond the security radius, or clear of the
+        // bounding box: the bisector cannot cut. A face already (from the
+        // list): its vertices lie on it, where rounding must not cut again.
+        if d2 < self.inner || d2 > self.run.reach2 || self.run.clears(n, h) || poly.has_plane_of(s) {
+            return false;
+        }
+        self.run.clip(poly, n, h, s)
+    }
+}
+
+/// Clips `poly` (relative to site `i`) to site `i`'s cell: by the bisectors
+/// of its list, then of the sites met by walking the grid ring by ring
+/// (see the module's documentation). Never misses the security radius.
+#[inline]
+pub fn clip_to_cell<const P: usize, const V: usize>(
+    poly: &mut Polyhedron<P, V>,
+    i: usize,
+    sites: &[SplitPoint],
+    w: GridWalk,
+) -> Clipped {
+    let k = w.k_site as usize;
+    let base = list_in(i, w.nbr_base, w.nbr_end, w.k_site);
+    let listed = clip_by_bisectors(poly, i, w.n_sites, w.weight_range, sites, w.site_nbrs, base, k);
+    if !listed.security_missed || listed.overflow || listed.broken {
+        return listed;
+    }
+    let si = sites[i];
+    // Sites clearly nearer than the list's last lie in the list (its
+    // distances are exact on the quantized sites, which sit within
+    // `margin` of these): clipped already.
+    let inner = if base == NO_LIST || k == 0 {
+        0.0
+    } else {
+        let last = w.site_nbrs[base + k - 1] as usize;
+        let d = between(&sites[last], &si).length() - 4.0 * w.margin;
+        if d > 0.0 {
+            d * d
+        } else {
+            0.0
+        }
+    };
+    let mut run = BisectorRun::new(poly, weight_slack(w.weight_range, &si));
+    run.out.clips = listed.clips;
+    run.out.walks = 1;
+    // A ring walk meets every site: no security radius to miss.
+    run.out.security_missed = false;
+    let mut clip = CellClip { run, i: i as u32, sites, inner };
+    walk_rings(&w, point(si.hi), &mut clip, poly);
+    clip.run.out
+}
+
+/// The search for the site of smallest power distance to a point.
+struct PowerNearest<'a> {
+    sites: &'a [SplitPoint],
+    /// The point, relative to `origin`'s site.
+    c: Point,
+    origin: u32,
+    best: u32,
+    /// `|c - x_best|² - (w_best - w_origin)`.
+    power: f32,
+    /// Squared radius around `c` beyond which no site beats `best`.
+    reach2: f32,
+    weight_range: f32,
+}
+
+impl PowerNearest<'_> {
+    /// Power distance of site `s` to the point, less the origin's weight.
+    #[inline]
+    fn power(&self, s: u32) -> f32 {
+        let o = &self.sites[self.origin as usize];
+        let x = &self.sites[s as usize];
+        (self.c - between(x, o)).length_squared() - weight_gap(x, o)
+    }
+
+    /// Takes site `s` if it is nearer.
+    #[inline]
+    fn offer(&mut self, s: u32) {
+        let q = self.power(s);
+        if q < self.power {
+            self.best = s;
+            self.power = q;
+            // s beats best only if |c - x_s|² < |c - x_best|² + w_s - w_best.
+            let d2 = (self.c - between(&self.sites[s as usize], &self.sites[self.origin as usize])).length_squared();
+            self.reach2 = (d2 + weight_slack(self.weight_range, &self.sites[s as usize])) * (1.0 + 1e-5);
+        }
+    }
+}
+
+impl RingVisitor<()> for PowerNearest<'_> {
+    #[inline]
+    fn reach2(&self) -> f32 {
+        self.reach2
+    }
+
+    #[inline]
+    fn visit(&mut self, _: &mut (), s: u32) -> bool {
+        self.offer(s);
+        false
+    }
+}
+
+/// The site of smallest power distance `|c - x_j|² - w_j` to tet `t`'s
+/// centroid `c`, where a flood of power cells starts (it owns `c`, so its
+/// piece is not empty): from `start` (the site nearest `c`), down the
+/// neighbour lists while a listed site is nearer, then certified by a ring
+/// walk around `c` to `|c - x_best|² + weight_range - w_best`, beyond
+/// which no site can be nearer. Without weights, `start` itself.
+#[inline]
+pub fn power_nearest(
+    t: usize,
+    start: u32,
+    sites: &[SplitPoint],
+    verts: &[SplitPoint],
+    tets: &[[u32; 4]],
+    w: &GridWalk,
+) -> u32 {
+    if w.weight_range == 0.0 || start == crate::abi::NO_SITE {
+        return start;
+    }
+    let tv = crate::clip::tet_vertices(t, verts, tets, &sites[start as usize]);
+    let c = Point::from((tv[0] + tv[1] + tv[2] + tv[3]) * 0.25);
+    let mut search = PowerNearest {
+        sites,
+        c,
+        origin: start,
+        best: start,
+        power: f32::INFINITY,
+        reach2: 0.0,
+        weight_range: w.weight_range,
+    };
+    search.offer(start);
+    let k = w.k_site as usize;
+    let mut from = NO_LIST as u32;
+    let mut steps = 0;
+    while search.best != from && steps < 16 {
+        from = search.best;
+        let base = list_in(from as usize, w.nbr_base, w.nbr_end, w.k_site);
+        if base != NO_LIST {
+            let mut s = 0;
+            while s < k {
+                let j = w.site_nbrs[base + s];
+                if j != crate::abi::NO_SITE {
+                    search.offer(j);
+                }
+                s += 1;
+            }
+        }
+        steps += 1;
+    }
+    walk_rings(w, point(sites[start as usize].hi) + c, &mut search, &mut ());
+    search.best
 }

@@ -1,11 +1,13 @@
-//! The exact reference for power (Laguerre) cells — the f64 reference
-//! clipper with weights, `cvd_tests::reference::clipped_power_cells` —
-//! against voro++'s radical tessellation (through `voro_rs`, an oracle that
-//! shares no code with this project) on a box, with weights that empty
-//! some cells; and the power diagram's own invariance: a constant added to
-//! every weight changes nothing.
+//! Power (Laguerre) cells. The exact reference — the f64 reference clipper
+//! with weights, `cvd_tests::reference::clipped_power_cells` — against
+//! voro++'s radical tessellation (through `voro_rs`, an oracle that shares
+//! no code with this project) on a box, with weights that empty some
+//! cells; the power diagram's own invariance (a constant added to every
+//! weight changes nothing); then the kernels' power cells on both backends,
+//! both strategies and both pairings against those references, zero
+//! weights against the Voronoi cells.
 
-use cvd::{points, TetMesh};
+use cvd::{points, Backend, ClippedVoronoi, Pairing, Strategy, TetMesh};
 use cvd_tests::reference::clipped_power_cells;
 use voro_rs::prelude::*;
 
@@ -79,6 +81,18 @@ fn the_reference_power_cells_are_voro_plus_plus_radical_cells() {
     }
 }
 
+/// An L of three unit cubes (non-convex), `n` tets per cube side.
+fn l_mesh(n: usize) -> TetMesh {
+    let mut mesh = TetMesh::cube(n);
+    for shift in [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]] {
+        let base = mesh.vertices.len() as u32;
+        let cube = TetMesh::cube(n);
+        mesh.vertices.extend(cube.vertices.iter().map(|v| [v[0] + shift[0], v[1] + shift[1], v[2]]));
+        mesh.tets.extend(cube.tets.iter().map(|t| t.map(|k| k + base)));
+    }
+    mesh
+}
+
 /// On a non-convex mesh (an L of three cubes): a constant added to every
 /// weight gives the same cells, and they fill the mesh.
 #[test]
@@ -108,4 +122,133 @@ fn a_constant_added_to_every_weight_changes_nothing() {
     }
     let total: f64 = vol.iter().sum();
     assert!((total - 3.0).abs() < 1e-12, "the cells fill the mesh: {total}");
+}
+
+/// Every way the kernels run: each backend, tet-cell with flood and with
+/// knn pairing, cell-tet.
+fn runs() -> Vec<(&'static dyn Backend, Strategy, Pairing)> {
+    let mut runs = Vec::new();
+    for b in cvd_tests::backends() {
+        for (s, p) in
+            [(Strategy::TetCell, Pairing::Flood), (Strategy::TetCell, Pairing::Knn), (Strategy::CellTet, Pairing::Knn)]
+        {
+            runs.push((b, s, p));
+        }
+    }
+    runs
+}
+
+/// The kernels' power cells of `sites` with weights `w` in `mesh`, on every
+/// run, against `(volume, centroid)` (exact): every cell larger than 1e-3
+/// of the mean within `tol` of its volume and centroid (relative to its
+/// size), the empty ones empty (at most 1e-9 of the mean), nothing left
+/// unresolved, and the cells filling the mesh to 1e-7.
+fn check_power_cells(mesh: &TetMesh, sites: &[[f64; 3]], w: &[f64], exact: &(Vec<f64>, Vec<[f64; 3]>), tol: f64) {
+    let (vol, centroid) = exact;
+    let mean = mesh.volume() / sites.len() as f64;
+    let empty = vol.iter().filter(|&&v| v == 0.0).count();
+    for (backend, strategy, pairing) in runs() {
+        let what = format!("{} {strategy:?} {pairing:?}", backend.name());
+        let cells = ClippedVoronoi::new(mesh, sites)
+            .weights(w)
+            .strategy(strategy)
+            .pairing(pairing)
+            .backend(backend)
+            .compute()
+            .unwrap_or_else(|e| panic!("{what}: {e}"));
+        assert_eq!(cells.counters.unresolved, 0, "{what}");
+        assert!(cells.e_vol <= 1e-7, "{what}: E_vol {:e}", cells.e_vol);
+        assert_eq!(cells.counters.empty_cells as usize, empty, "{what}: empty cells");
+        let mut worst = 0.0f64;
+        for i in 0..sites.len() {
+            if vol[i] == 0.0 {
+                assert!(cells.volume[i] <= 1e-9 * mean, "{what}: cell {i} should be empty: {}", cells.volume[i]);
+                assert_eq!(cells.centroid[i], sites[i], "{what}: an empty cell's centroid is its site");
+                continue;
+            }
+            if vol[i] < 1e-3 * mean {
+                continue;
+            }
+            let dv = (cells.volume[i] - vol[i]).abs() / vol[i];
+            let dc =
+                (0..3).map(|a| (cells.centroid[i][a] - centroid[i][a]).powi(2)).sum::<f64>().sqrt() / vol[i].cbrt();
+            worst = worst.max(dv).max(dc);
+            assert!(dv <= tol, "{what}: cell {i}: volume {} vs exact {}", cells.volume[i], vol[i]);
+            assert!(dc <= tol, "{what}: cell {i}: centroid {:?} vs exact {:?}", cells.centroid[i], centroid[i]);
+        }
+        println!("{what}: {empty} empty cells, worst relative error {worst:.1e}, E_vol {:.1e}", cells.e_vol);
+    }
+}
+
+/// The kernels' power cells on a box against voro++'s radical cells.
+#[test]
+fn power_cells_match_voro_plus_plus_on_a_box() {
+    let mesh = TetMesh::cube(6);
+    let sites = points::uniform(400, 31);
+    let w = weights(sites.len(), 0.02, 32);
+    let (vol, centroid) = voro_power_cells([0.0; 3], [1.0; 3], &sites, &w);
+    let centroid: Vec<[f64; 3]> = centroid.into_iter().zip(&sites).map(|(c, s)| c.unwrap_or(*s)).collect();
+    check_power_cells(&mesh, &sites, &w, &(vol, centroid), 5e-6);
+}
+
+/// The kernels' power cells on a non-convex mesh against the f64 reference,
+/// with weights from small (no empty cell but a few) to large (a third of
+/// the cells emptied, many cells away from their sites).
+#[test]
+fn power_cells_match_the_reference_on_a_non_convex_mesh() {
+    let mesh = l_mesh(5);
+    let sites = points::in_mesh(&mesh, 600, 33);
+    for (top, seed) in [(0.01, 34), (0.05, 35)] {
+        let w = weights(sites.len(), top, seed);
+        let exact = clipped_power_cells(&mesh, &sites, &w);
+        assert!(exact.0.contains(&0.0), "the weights empty no cell");
+        check_power_cells(&mesh, &sites, &w, &exact, 5e-6);
+    }
+}
+
+/// Zero weights are the Voronoi cells, bit for bit; equal weights too (a
+/// constant changes nothing); a constant added to random weights changes
+/// no cell.
+#[test]
+fn zero_or_shifted_weights_change_nothing() {
+    let mesh = l_mesh(4);
+    let sites = points::in_mesh(&mesh, 500, 36);
+    let w = weights(sites.len(), 0.02, 37);
+    let shifted: Vec<f64> = w.iter().map(|x| x - 7.25).collect();
+    for (backend, strategy, pairing) in runs() {
+        let what = format!("{} {strategy:?} {pairing:?}", backend.name());
+        let cv = ClippedVoronoi::new(&mesh, &sites).strategy(strategy).pairing(pairing).backend(backend);
+        let voronoi = cv.compute().unwrap();
+        for constant in [0.0, 3.0] {
+            let same = vec![constant; sites.len()];
+            let cells = cv.weights(&same).compute().unwrap();
+            assert_eq!(cells.volume, voronoi.volume, "{what}: weights {constant}");
+            assert_eq!(cells.centroid, voronoi.centroid, "{what}: weights {constant}");
+        }
+        let a = cv.weights(&w).compute().unwrap();
+        let b = cv.weights(&shifted).compute().unwrap();
+        let mean = mesh.volume() / sites.len() as f64;
+        for i in 0..sites.len() {
+            assert!((a.volume[i] - b.volume[i]).abs() <= 1e-9 * mean, "{what}: cell {i}");
+        }
+    }
+}
+
+/// Weights are checked: one per site, finite; equal sites go to the larger
+/// weight.
+#[test]
+fn weights_are_checked_and_equal_sites_go_to_the_larger_weight() {
+    let mesh = TetMesh::cube(2);
+    let sites = vec![[0.25, 0.5, 0.5], [0.75, 0.5, 0.5], [0.75, 0.5, 0.5]];
+    let err = ClippedVoronoi::new(&mesh, &sites).weights(&[0.0, 1.0]).compute().unwrap_err().to_string();
+    assert!(err.contains("2 weights for 3 sites"), "{err}");
+    let err = ClippedVoronoi::new(&mesh, &sites).weights(&[0.0, f64::NAN, 0.0]).compute().unwrap_err().to_string();
+    assert!(err.contains("site 1"), "{err}");
+    // Site 2 equals site 1 with a larger weight: it owns the cell.
+    let cells = ClippedVoronoi::new(&mesh, &sites).weights(&[0.0, 0.01, 0.02]).compute().unwrap();
+    assert_eq!(cells.volume[1], 0.0);
+    assert!(cells.volume[2] > 0.5, "{:?}", cells.volume);
+    assert_eq!(cells.counters.duplicate_sites, 1);
+    // The bisector moves by (w_1 - w_0) / 2d towards site 0: x = 0.5 - 0.02 / (2 * 0.5) = 0.48.
+    assert!((cells.volume[0] - 0.48).abs() < 1e-6, "{:?}", cells.volume);
 }

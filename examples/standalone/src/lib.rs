@@ -597,6 +597,8 @@ pub fn run(spirv_dir: &Path, verts: &[[f64; 3]], tets: &[[u32; 4]], sites: &[[f6
         ("area_scale", F(0.0)),
         ("walk_margin", F(4.0 / qscale + 1e-6)),
         ("capacity", U(nt as u64)),
+        // Voronoi cells: no power weights (the sites' w is 0).
+        ("weight_range", F(0.0)),
     ];
 
     let used = [

@@ -23,7 +23,7 @@ use crate::site_grid::SiteGrid;
 use cvd_kernels::abi::{counter, KnnParams, INCOMPLETE_TET, NO_SITE};
 use cvd_kernels::clip::{FaceInputs, Paired};
 use cvd_kernels::refine;
-use cvd_kernels::walk::GridWalk;
+use cvd_kernels::walk::{power_nearest, GridWalk};
 use std::cell::OnceCell;
 use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, Ordering};
 use std::sync::Mutex;
@@ -81,8 +81,9 @@ pub(crate) fn run<S: TaskSink>(job: &ClipJob, out: &mut ClipOutput, sinks: &Mute
     let ignored: Vec<AtomicI64> = (0..counter::COUNT).map(|_| AtomicI64::new(0)).collect();
     par_indices(tets.len(), 16, &sums, &ignored, &failed, sinks, |e, sums, counters, failed, sink| {
         let t = tets[e][0] as usize;
-        let (start, _) = grid.nearest(centroid(job, t));
         let (sites, verts, tets) = (&job.sites, &job.verts, &job.tets);
+        let (nearest, _) = grid.nearest(centroid(job, t));
+        let start = power_nearest(t, nearest, sites, verts, tets, &walk);
         refine::refine_tet::<QUEUE, _, _, _, _>(
             t,
             start,
@@ -109,7 +110,7 @@ pub(crate) fn run<S: TaskSink>(job: &ClipJob, out: &mut ClipOutput, sinks: &Mute
     let paired = if knn { tet_lists(job, &cpu, pairs.iter().map(|e| e[0]))? } else { Vec::new() };
     let entries: Vec<[u32; 2]> = pairs.iter().chain(&failed).copied().collect();
     let mut work: Vec<Work> = pairs.iter().enumerate().map(|(e, &p)| (p, e, knn.then_some(e))).collect();
-    work.extend(candidate_pairs(job, &grid, &failed).into_iter().map(|(p, e)| (p, pairs.len() + e, None)));
+    work.extend(candidate_pairs(job, &grid, &walk, &failed).into_iter().map(|(p, e)| (p, pairs.len() + e, None)));
     let ok: Vec<AtomicBool> = entries.iter().map(|_| AtomicBool::new(true)).collect();
     let unresolved = AtomicU64::new(0);
     let found_incomplete = Mutex::new(Vec::new());
@@ -170,7 +171,7 @@ pub(crate) fn run<S: TaskSink>(job: &ClipJob, out: &mut ClipOutput, sinks: &Mute
             // not paired with it.
             let lists = tet_lists(job, &cpu, incomplete.iter().copied())?;
             let k = job.params.k_tet as usize;
-            let fill: Vec<Work> = candidate_pairs(job, &grid, &missed)
+            let fill: Vec<Work> = candidate_pairs(job, &grid, &walk, &missed)
                 .into_iter()
                 .filter(|&([_, j], e)| !lists[e * k..(e + 1) * k].contains(&j))
                 .map(|(p, e)| (p, e, None))
@@ -224,12 +225,16 @@ fn centroid(job: &ClipJob, t: usize) -> [f64; 3] {
 }
 
 /// The pairs of each tet `(t, NO_SITE)` with every site that may own part
-/// of it: with `c` the centroid, `r` its distance to the farthest vertex
-/// and `d1` the distance to the nearest site, any site owning a point of
-/// the tet lies within `d1 + 2r` of `c`; and it must beat the nearest site
-/// `s1` somewhere, so the half-space where it does must hold a tet vertex.
-fn candidate_pairs(job: &ClipJob, grid: &SiteGrid, tets: &[[u32; 2]]) -> Vec<([u32; 2], usize)> {
+/// of it: with `c` the centroid, `r` its distance to the farthest vertex,
+/// `s1` the site nearest `c` (in power distance, with weights) at `d1`,
+/// any site `s` owning a point `x` of the tet has `|x - x_s|² <= (r +
+/// d1)² + w_s - w_1`, so it lies within `r + sqrt((r + d1)² + range -
+/// w_1)` of `c` (`d1 + 2r` without weights); and it must beat `s1`
+/// somewhere, so the half-space where it does must hold a tet vertex.
+fn candidate_pairs(job: &ClipJob, grid: &SiteGrid, walk: &GridWalk, tets: &[[u32; 2]]) -> Vec<([u32; 2], usize)> {
     use rayon::prelude::*;
+    let weight = |s: u32| job.sites[s as usize].value();
+    let range = job.params.weight_range as f64;
     let per_tet: Vec<Vec<([u32; 2], usize)>> = tets
         .par_iter()
         .enumerate()
@@ -238,15 +243,19 @@ fn candidate_pairs(job: &ClipJob, grid: &SiteGrid, tets: &[[u32; 2]]) -> Vec<([u
             let v = job.tets[t as usize].map(|i| job.verts[i as usize].to_f64());
             let dist = |a: [f64; 3], b: [f64; 3]| (0..3).map(|i| (a[i] - b[i]).powi(2)).sum::<f64>().sqrt();
             let r = v.iter().map(|&p| dist(p, c)).fold(0.0, f64::max);
-            let (nearest, d1) = grid.nearest(c);
+            let (nearest, _) = grid.nearest(c);
+            let s1 = power_nearest(t as usize, nearest, &job.sites, &job.verts, &job.tets, walk);
+            let d1 = grid.dist2(s1, c).sqrt();
+            let reach = r + ((r + d1).powi(2) + (range - weight(s1)).max(0.0)).sqrt();
             let mut found = Vec::new();
-            grid.within(c, (d1 + 2.0 * r) * (1.0 + 1e-6) + 1e-9, &mut found);
+            grid.within(c, reach * (1.0 + 1e-6) + 1e-9, &mut found);
             found
                 .into_iter()
                 .filter(|&s| {
-                    v.iter().any(|&p| {
-                        let q = [p[0], p[1], p[2]];
-                        grid.dist2(s, q).sqrt() <= grid.dist2(nearest, q).sqrt() * (1.0 + 1e-5) + 1e-9
+                    v.iter().any(|&q| {
+                        let (a, b) = (grid.dist2(s, q), grid.dist2(s1, q));
+                        let slack = 1e-5 * (a + b + weight(s).abs() + weight(s1).abs()) + 1e-12;
+                        a - weight(s) <= b - weight(s1) + slack
                     })
                 })
                 .map(|s| ([t, s], e))

@@ -256,6 +256,7 @@ pub struct ClippedVoronoi<'a> {
     pub(crate) k_site: Option<usize>,
     pub(crate) backend: Option<&'a dyn Backend>,
     pub(crate) density: Option<&'a [f64]>,
+    pub(crate) weights: Option<&'a [f64]>,
     pub(crate) faces: bool,
 }
 
@@ -271,6 +272,7 @@ impl<'a> ClippedVoronoi<'a> {
             k_site: None,
             backend: None,
             density: None,
+            weights: None,
             faces: false,
         }
     }
@@ -330,6 +332,18 @@ impl<'a> ClippedVoronoi<'a> {
         self
     }
 
+    /// Power (Laguerre) cells: a weight `w_i` per site, in squared units of
+    /// length; site `i`'s cell is `{x : |x - x_i|² - w_i <= |x - x_j|² -
+    /// w_j for all j}`, clipped to the mesh as before. A cell may be empty
+    /// (counted in `empty_cells`, its centroid the site) or not hold its
+    /// site. Adding a constant to every weight changes nothing; equal sites
+    /// go to the larger weight (the lower index on a tie). Without weights
+    /// (or all equal): the Voronoi cells.
+    pub fn weights(mut self, weights: &'a [f64]) -> Self {
+        self.weights = Some(weights);
+        self
+    }
+
     /// Where to run (default: the CPU backend with all cores).
     pub fn backend(mut self, backend: &'a dyn Backend) -> Self {
         self.backend = Some(backend);
@@ -368,25 +382,37 @@ impl<'a> ClippedVoronoi<'a> {
                 )));
             }
         }
+        if let Some(w) = self.weights {
+            if w.len() != self.sites.len() {
+                return Err(Error::InvalidInput(format!("{} weights for {} sites", w.len(), self.sites.len())));
+            }
+            if let Some(i) = w.iter().position(|w| !w.is_finite()) {
+                return Err(Error::InvalidInput(format!("the weight of site {i} is {}; it must be finite", w[i])));
+            }
+        }
         if self.k_site == Some(0) || self.k == Some(0) {
             return Err(Error::InvalidInput("k and k_site must be at least 1".into()));
         }
-        // Duplicates: the lowest index owns the cell.
-        let mut first: HashMap<[u64; 3], usize> = HashMap::new();
+        // Duplicates: the largest weight owns the cell, the lowest index on
+        // a tie (without weights: the lowest index).
+        let weight = |i: usize| self.weights.map_or(0.0, |w| w[i]);
+        let key = |p: &[f64; 3]| p.map(|c| if c == 0.0 { 0 } else { c.to_bits() });
+        let mut owner: HashMap<[u64; 3], usize> = HashMap::new();
+        for (i, p) in self.sites.iter().enumerate() {
+            let o = owner.entry(key(p)).or_insert(i);
+            if weight(i) > weight(*o) {
+                *o = i;
+            }
+        }
         let mut unique = Vec::new();
-        let map: Vec<Option<usize>> = self
-            .sites
-            .iter()
-            .map(|p| {
-                let key = p.map(|c| if c == 0.0 { 0 } else { c.to_bits() });
-                match first.get(&key) {
-                    Some(_) => None,
-                    None => {
-                        first.insert(key, unique.len());
-                        unique.push(*p);
-                        Some(unique.len() - 1)
-                    }
-                }
+        let mut unique_weights = Vec::new();
+        let map: Vec<Option<usize>> = (0..self.sites.len())
+            .map(|i| {
+                (owner[&key(&self.sites[i])] == i).then(|| {
+                    unique.push(self.sites[i]);
+                    unique_weights.push(weight(i));
+                    unique.len() - 1
+                })
             })
             .collect();
 
@@ -399,10 +425,24 @@ impl<'a> ClippedVoronoi<'a> {
         }
         let map: Vec<Option<usize>> = map.into_iter().map(|m| m.map(|u| rank[u])).collect();
         let unique: Vec<[f64; 3]> = order.iter().map(|&old| unique[old as usize]).collect();
+        let unique_weights: Vec<f64> = order.iter().map(|&old| unique_weights[old as usize]).collect();
 
         let frame = Frame::of(mesh);
         let sites: Vec<[f64; 3]> = unique.iter().map(|&p| frame.to_local(p)).collect();
-        let split: Vec<SplitPoint> = sites.iter().map(|&p| SplitPoint::new(p, 0.0)).collect();
+        // Weights in the frame's squared units, shifted so that the
+        // smallest is 0 (a constant changes no cell): all in 0..=range.
+        let w_min = unique_weights.iter().copied().fold(f64::INFINITY, f64::min);
+        let local_weights: Vec<f64> =
+            unique_weights.iter().map(|&w| (w - w_min) / (frame.scale * frame.scale)).collect();
+        let weight_range = local_weights.iter().copied().fold(0.0, f64::max);
+        if !weight_range.is_finite() || weight_range > 1e30 {
+            return Err(Error::InvalidInput(format!(
+                "the weights span {:e}, too wide for the domain's size {:e}",
+                weight_range * frame.scale * frame.scale,
+                frame.scale
+            )));
+        }
+        let split: Vec<SplitPoint> = sites.iter().zip(&local_weights).map(|(&p, &w)| SplitPoint::site(p, w)).collect();
         check_separable(&split, &unique, &map)?;
         let verts: Vec<[f64; 3]> = mesh.vertices.iter().map(|&p| frame.to_local(p)).collect();
         let tet_order = points::morton_order(&mesh.centroids());
@@ -464,6 +504,9 @@ impl<'a> ClippedVoronoi<'a> {
             // f32 rounding of coordinates of order 1.
             walk_margin: (4.0 / site_knn.quantizer.scale() + 1e-6) as f32,
             capacity: 0,
+            // Rounded up: the security radius must not shrink.
+            weight_range: if weight_range > 0.0 { next_up(weight_range as f32) } else { 0.0 },
+            _pad: [0; 3],
         };
         let q = &site_knn.quantizer;
         let lo = q.origin();
@@ -628,6 +671,11 @@ fn check_separable(split: &[SplitPoint], unique: &[[f64; 3]], map: &[Option<usiz
         seen.insert(key, u);
     }
     Ok(())
+}
+
+/// The smallest f32 above a positive finite `x`.
+fn next_up(x: f32) -> f32 {
+    f32::from_bits(x.to_bits() + 1)
 }
 
 /// The normalising map: `local = (world - origin) / scale`.
