@@ -99,6 +99,12 @@ struct RunArgs {
     /// mesh's vertex order (`#` comments allowed).
     #[arg(long)]
     density_file: Option<PathBuf>,
+    /// Power (Laguerre) cells: a weight per site from a file, one number
+    /// per line in the sites' order (`#` comments allowed), in squared
+    /// units of length; site i's cell is where |x - x_i|² - w_i is least.
+    /// Cells may be empty (counted). Not with --iterations yet.
+    #[arg(long)]
+    weights: Option<PathBuf>,
     /// How the iterations minimise the CVT energy.
     #[arg(long, value_enum, default_value_t = Optimizer::Lloyd)]
     optimizer: Optimizer,
@@ -325,6 +331,25 @@ fn density(args: &RunArgs, mesh: &TetMesh) -> cvd::Result<Option<Vec<f64>>> {
     Ok(Some(values))
 }
 
+/// The power weights the arguments give, if any: one per site.
+fn weights(args: &RunArgs, n_sites: usize) -> cvd::Result<Option<Vec<f64>>> {
+    let Some(path) = &args.weights else { return Ok(None) };
+    if args.iterations > 0 {
+        return Err(cvd::Error::InvalidInput(
+            "--weights with --iterations: CVT iterations of power cells are not supported yet".into(),
+        ));
+    }
+    let values = cvd::io::read_values(path)?;
+    if values.len() != n_sites {
+        return Err(cvd::Error::InvalidInput(format!(
+            "{}: {} weights for {n_sites} sites",
+            path.display(),
+            values.len()
+        )));
+    }
+    Ok(Some(values))
+}
+
 /// CVT optimisers.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 enum Optimizer {
@@ -386,6 +411,7 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
             points::in_mesh(&mesh, n, args.seed)
         }
     };
+    let weights = weights(args, sites.len())?;
     let dir = args.out.clone().unwrap_or_else(|| default_out_dir(&model));
     // Before the long part: a folder that cannot be made fails now.
     create_dir(&dir)?;
@@ -410,6 +436,9 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
         .k_site(args.k_site)
         .density(density.as_deref())
         .faces(!args.no_neighbors);
+    if let Some(w) = &weights {
+        cv = cv.weights(w);
+    }
     if let Some(pairing) = args.pairing {
         cv = cv.pairing(pairing);
     }

@@ -277,6 +277,27 @@ fn a_sites_file_is_written_back_digit_for_digit() {
     assert_eq!(cvd::io::read_sites(&dir.join("o/sites.xyz")).unwrap(), given);
 }
 
+#[test]
+fn weights_give_power_cells_and_are_checked() {
+    let dir = temp_dir("weights");
+    // Two sites in the unit cube: the heavier one's cell grows by
+    // (w_1 - w_0) / 2d = 0.04 / (2 * 0.5) = 0.04 past the middle.
+    std::fs::write(dir.join("two.xyz"), "0.25 0.5 0.5\n0.75 0.5 0.5\n").unwrap();
+    std::fs::write(dir.join("w.txt"), "# weights\n0.01\n0.05\n").unwrap();
+    let out = cvd_run(&dir, &["--sites-file", "two.xyz", "--weights", "w.txt", "--no-geometry", "--out", "o"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let csv = std::fs::read_to_string(dir.join("o/cells.csv")).unwrap();
+    let volumes: Vec<f64> = csv.lines().skip(1).map(|l| l.split(',').nth(1).unwrap().parse().unwrap()).collect();
+    assert!((volumes[0] - 0.46).abs() < 1e-6 && (volumes[1] - 0.54).abs() < 1e-6, "{volumes:?}");
+    // One weight too few: named, exit 2.
+    std::fs::write(dir.join("short.txt"), "0.01\n").unwrap();
+    let out = cvd_run(&dir, &["--sites-file", "two.xyz", "--weights", "short.txt", "--out", "o2"]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(text(&out.stderr).contains("short.txt: 1 weights for 2 sites"), "{}", text(&out.stderr));
+    let out = cvd_run(&dir, &["--sites-file", "two.xyz", "--weights", "w.txt", "--iterations", "2", "--out", "o3"]);
+    assert_eq!(out.status.code(), Some(2), "{}", text(&out.stderr));
+}
+
 /// A closed box as an OFF file; `open` leaves one triangle out.
 fn box_off(path: &Path, open: bool) {
     let mut t = String::from("OFF\n8 12 0\n");
