@@ -117,8 +117,6 @@ pub fn weight_slack(weight_range: f32, site: &SplitPoint) -> f32 {
 pub struct BisectorRun {
     /// How the run went so far.
     pub out: Clipped,
-    /// Largest squared distance of a vertex from the site.
-    pub r2: f32,
     /// The squared security radius: no site farther can cut ([`reach2`]).
     pub reach2: f32,
     slack: f32,
@@ -133,7 +131,7 @@ impl BisectorRun {
     pub fn new<const P: usize, const V: usize>(poly: &Polyhedron<P, V>, slack: f32) -> Self {
         let (r2, mid, half) = poly.bounds();
         let out = Clipped { security_missed: true, ..Clipped::default() };
-        Self { out, r2, reach2: reach2(r2, slack), slack, mid, half }
+        Self { out, reach2: reach2(r2, slack), slack, mid, half }
     }
 
     /// Whether the bisector `n·x <= h` clears the bounding box — then it
@@ -160,8 +158,9 @@ impl BisectorRun {
         match poly.clip_as(n.extend(h), id) {
             Clip::Cut => {
                 self.out.clips += 1;
-                (self.r2, self.mid, self.half) = poly.bounds();
-                self.reach2 = reach2(self.r2, self.slack);
+                let r2;
+                (r2, self.mid, self.half) = poly.bounds();
+                self.reach2 = reach2(r2, self.slack);
                 false
             }
             Clip::Unchanged => false,

@@ -290,24 +290,18 @@ struct PowerNearest<'a> {
 }
 
 impl PowerNearest<'_> {
-    /// Power distance of site `s` to the point, less the origin's weight.
-    #[inline]
-    fn power(&self, s: u32) -> f32 {
-        let o = &self.sites[self.origin as usize];
-        let x = &self.sites[s as usize];
-        (self.c - between(x, o)).length_squared() - weight_gap(x, o)
-    }
-
-    /// Takes site `s` if it is nearer.
+    /// Takes site `s` if its power distance to the point is smaller.
     #[inline]
     fn offer(&mut self, s: u32) {
-        let q = self.power(s);
+        let o = &self.sites[self.origin as usize];
+        let x = &self.sites[s as usize];
+        let d2 = (self.c - between(x, o)).length_squared();
+        let q = d2 - weight_gap(x, o);
         if q < self.power {
             self.best = s;
             self.power = q;
-            // s beats best only if |c - x_s|² < |c - x_best|² + w_s - w_best.
-            let d2 = (self.c - between(&self.sites[s as usize], &self.sites[self.origin as usize])).length_squared();
-            self.reach2 = (d2 + weight_slack(self.weight_range, &self.sites[s as usize])) * (1.0 + 1e-5);
+            // A site beats s only if |c - x_j|² < |c - x_s|² + w_j - w_s.
+            self.reach2 = (d2 + weight_slack(self.weight_range, x)) * (1.0 + 1e-5);
         }
     }
 }
