@@ -155,6 +155,16 @@ pub(crate) fn from_sums(sums: &[i64], lists: &[u32], k: usize, area_scale: f64) 
                 faces.push(((key - 1) as u32, area as f64 / area_scale));
             }
         }
+        // A maker in the list may have spilled too (its pieces the host's
+        // pass finished had no list to look it up in): one face per maker.
+        faces.sort_unstable_by_key(|e| e.0);
+        faces.dedup_by(|later, kept| {
+            let same = later.0 == kept.0;
+            if same {
+                kept.1 += later.1;
+            }
+            same
+        });
         (faces, s[k] as f64 / area_scale, [2, 3, 4].map(|c| s[k + c] as f64 / area_scale))
     };
     let out: Vec<SiteFaces> = sums.par_chunks_exact(per).enumerate().map(site).collect();
