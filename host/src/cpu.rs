@@ -446,7 +446,7 @@ impl Backend for CpuBackend {
             let p = crate::cvt::params(&job, it);
             let mut quant = job.site_knn.sites.clone();
             let (unfinished, still) = ([first as u32], [redone.unresolved as u32]);
-            for i in 0..job.sites.len() {
+            for i in 0..job.params.n_sites as usize {
                 let (sites, q) = (&mut job.sites[..], &mut quant[..]);
                 lloyd::move_site(i, &p, &out.sums, &unfinished, &still, sites, q, &mut DeviceSums(&mut stats));
             }

@@ -3,8 +3,9 @@
 use clap::{Args, Parser, Subcommand};
 use cvd::backend::{self, BackendKind, BackendOptions};
 use cvd::cpu::CpuBackend;
+use cvd::cvt::transport::Transport;
 use cvd::mesher::models;
-use cvd::output::{self, CvtRecord, Section, Summary};
+use cvd::output::{self, CvtRecord, Section, Summary, TransportRecord};
 use cvd::vulkan::{self, VulkanOptions};
 use cvd::{points, ClippedVoronoi, KnnJob, KnnMethod, Pairing, Strategy, TetMesh};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -102,9 +103,29 @@ struct RunArgs {
     /// Power (Laguerre) cells: a weight per site from a file, one number
     /// per line in the sites' order (`#` comments allowed), in squared
     /// units of length; site i's cell is where |x - x_i|² - w_i is least.
-    /// Cells may be empty (counted). Not with --iterations yet.
+    /// Cells may be empty (counted). With --transport: where its Newton
+    /// steps start.
     #[arg(long)]
     weights: Option<PathBuf>,
+    /// Optimal transport: find the power weights that give every cell the
+    /// same mass (the mesh's volume, or mass under a density, over the
+    /// sites), by damped Newton steps; writes weights.txt. With
+    /// --iterations: the capacity-constrained CVT (transport, then sites
+    /// to their cells' centroids, each iteration).
+    #[arg(long)]
+    transport: bool,
+    /// Optimal transport to a capacity per site from a file (one positive
+    /// number per line in the sites' order, normalised to the mesh's mass);
+    /// implies --transport.
+    #[arg(long, value_name = "PATH")]
+    capacities: Option<PathBuf>,
+    /// Optimal transport stops when every cell's mass is within this of
+    /// its target, relative to it.
+    #[arg(long, default_value_t = 1e-6)]
+    tolerance: f64,
+    /// Optimal transport's Newton steps at most (per solve).
+    #[arg(long, default_value_t = 50)]
+    newton_steps: usize,
     /// How the iterations minimise the CVT energy.
     #[arg(long, value_enum, default_value_t = Optimizer::Lloyd)]
     optimizer: Optimizer,
@@ -334,20 +355,115 @@ fn density(args: &RunArgs, mesh: &TetMesh) -> cvd::Result<Option<Vec<f64>>> {
 /// The power weights the arguments give, if any: one per site.
 fn weights(args: &RunArgs, n_sites: usize) -> cvd::Result<Option<Vec<f64>>> {
     let Some(path) = &args.weights else { return Ok(None) };
-    if args.iterations > 0 {
+    if args.iterations > 0 && !transports(args) {
         return Err(cvd::Error::InvalidInput(
-            "--weights with --iterations: CVT iterations of power cells are not supported yet".into(),
+            "--weights with --iterations: CVT iterations keep power weights only with --transport \
+             (the capacity-constrained CVT)"
+                .into(),
         ));
     }
+    per_site(path, "weights", n_sites).map(Some)
+}
+
+/// One value per site from `path`, the count checked.
+fn per_site(path: &Path, what: &str, n_sites: usize) -> cvd::Result<Vec<f64>> {
     let values = cvd::io::read_values(path)?;
     if values.len() != n_sites {
         return Err(cvd::Error::InvalidInput(format!(
-            "{}: {} weights for {n_sites} sites",
+            "{}: {} {what} for {n_sites} sites",
             path.display(),
             values.len()
         )));
     }
-    Ok(Some(values))
+    Ok(values)
+}
+
+/// Whether the arguments ask for optimal transport.
+fn transports(args: &RunArgs) -> bool {
+    args.transport || args.capacities.is_some()
+}
+
+/// What an optimal transport run gives the final diagram.
+struct Transported {
+    /// The sites (moved by the capacity-constrained CVT's iterations).
+    sites: Vec<[f64; 3]>,
+    /// The CVT's record, with iterations.
+    cvt: Option<CvtRecord>,
+    /// The weights found for `sites`.
+    weights: Vec<f64>,
+    /// The last solve's record.
+    record: TransportRecord,
+}
+
+/// The optimal transport the arguments ask for, from the weights `start`
+/// (if any): the weights that give every cell its target mass, with the
+/// solve's record; with --iterations, the capacity-constrained CVT first
+/// (its moved sites and record). Prints each Newton step of the final
+/// solve.
+fn transport(
+    args: &RunArgs,
+    mesh: &TetMesh,
+    sites: &[[f64; 3]],
+    start: Option<&[f64]>,
+    backend: &dyn cvd::Backend,
+) -> cvd::Result<Transported> {
+    if args.optimizer != Optimizer::Lloyd {
+        return Err(cvd::Error::InvalidInput(
+            "--transport with --optimizer lbfgs: the capacity-constrained CVT moves sites by Lloyd steps".into(),
+        ));
+    }
+    let capacities = args.capacities.as_deref().map(|p| per_site(p, "capacities", sites.len())).transpose()?;
+    let density = density(args, mesh)?;
+    let cv = ClippedVoronoi::new(mesh, sites).k_site(args.k_site).backend(backend).density(density.as_deref());
+    let mut ot = Transport::new(cv).tolerance(args.tolerance).max_steps(args.newton_steps);
+    if let Some(c) = &capacities {
+        ot = ot.capacities(c);
+    }
+    if let Some(w) = start {
+        ot = ot.start(w);
+    }
+    let targets = if capacities.is_some() { "capacities" } else { "uniform" };
+    let (sites, cvt, run) = if args.iterations > 0 {
+        let bar = indicatif::ProgressBar::new(args.iterations as u64).with_style(
+            indicatif::ProgressStyle::with_template("{msg} {bar:30} {pos}/{len} iterations, {elapsed}")
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        bar.set_message("capacity-constrained CVT");
+        let (cvt, run) = ot.cvt(args.iterations, &mut |done, energy| {
+            bar.set_position(done as u64);
+            bar.set_message(format!("capacity-constrained CVT, energy {energy:.6e}"));
+        })?;
+        bar.finish_and_clear();
+        let record = CvtRecord::of("lloyd-transport", &cvt.iterations);
+        (cvt.sites, Some(record), run)
+    } else {
+        let mut step = 0;
+        let run = ot.solve(&mut |s| {
+            if s.step > 0.0 {
+                step += 1;
+                println!(
+                    "transport: Newton step {step}: max mass error {:.2e}, step {}, {} CG iterations, {} diagrams, {:.3} s",
+                    s.max_error, s.step, s.cg_iterations, s.diagrams, s.seconds
+                );
+            }
+            true
+        })?;
+        (sites.to_vec(), None, run)
+    };
+    let record = TransportRecord::of(targets, args.tolerance, &run);
+    if !run.converged {
+        eprintln!(
+            "transport: the masses came within {:.2e} of their targets, not {:.0e}: {}",
+            record.max_error,
+            args.tolerance,
+            if record.steps == args.newton_steps {
+                "out of Newton steps (--newton-steps)"
+            } else {
+                "no step along Newton's direction improved them (the diagram's precision, about 1e-6 of a cell)"
+            }
+        );
+    }
+    Ok(Transported { sites, cvt, weights: run.weights, record })
 }
 
 /// CVT optimisers.
@@ -361,14 +477,12 @@ enum Optimizer {
 }
 
 /// Runs the CVT iterations with a progress bar; returns the final sites and
-/// the optimiser's record. Also writes `energy.png`, the energy against the
-/// iteration, into `dir`.
+/// the optimiser's record.
 fn lloyd(
     args: &RunArgs,
     mesh: &TetMesh,
     sites: &[[f64; 3]],
     backend: &dyn cvd::Backend,
-    dir: &std::path::Path,
 ) -> cvd::Result<(Vec<[f64; 3]>, CvtRecord)> {
     let bar = indicatif::ProgressBar::new(args.iterations as u64).with_style(
         indicatif::ProgressStyle::with_template("{msg} {bar:30} {pos}/{len} iterations, {elapsed} ({per_sec})")
@@ -393,8 +507,6 @@ fn lloyd(
     if unresolved > 0 {
         println!("{name}: {unresolved} pieces unresolved over the iterations (their volume was missing)");
     }
-    let series = [output::Series { name: &name, values: &record.energy, x: &[], rgb: [200, 40, 40] }];
-    output::write_line_chart_png(&dir.join("energy.png"), "cvt energy", &series)?;
     Ok((run.sites, record))
 }
 
@@ -423,12 +535,20 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
         output::value_name(&args.strategy),
         backend.name()
     );
-    let (sites, record) = if args.iterations > 0 {
-        let (sites, record) = lloyd(args, &mesh, &sites, backend.as_ref(), &dir)?;
-        (sites, Some(record))
+    let (sites, record, weights, transported) = if transports(args) {
+        let t = transport(args, &mesh, &sites, weights.as_deref(), backend.as_ref())?;
+        (t.sites, t.cvt, Some(t.weights), Some(t.record))
+    } else if args.iterations > 0 {
+        let (sites, record) = lloyd(args, &mesh, &sites, backend.as_ref())?;
+        (sites, Some(record), weights, None)
     } else {
-        (sites, None)
+        (sites, None, weights, None)
     };
+    // The energy against the iteration.
+    if let Some(record) = &record {
+        let series = [output::Series { name: &record.optimizer, values: &record.energy, x: &[], rgb: [200, 40, 40] }];
+        output::write_line_chart_png(&dir.join("energy.png"), "cvt energy", &series)?;
+    }
     let density = density(args, &mesh)?;
     let mut cv = ClippedVoronoi::new(&mesh, &sites)
         .strategy(args.strategy)
@@ -466,6 +586,7 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
     }
     let mut summary = Summary::new(&model, &mesh, sites.len(), args.strategy, backend.as_ref(), &cells);
     summary.cvt = record;
+    summary.transport = transported;
 
     let mut written = Vec::new();
     let mut file = |name: &str| {
@@ -478,6 +599,9 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
     }
     // The sites of the diagram: as given, or where the iterations moved them.
     cvd::io::write_sites_xyz(&file("sites.xyz"), &sites)?;
+    if let (Some(w), Some(_)) = (&weights, &summary.transport) {
+        cvd::io::write_values(&file("weights.txt"), w)?;
+    }
     if !args.no_geometry {
         let (with_polyhedra, pieces) = match geometry {
             Some(pieces) => (None, pieces),

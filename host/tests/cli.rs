@@ -298,6 +298,67 @@ fn weights_give_power_cells_and_are_checked() {
     assert_eq!(out.status.code(), Some(2), "{}", text(&out.stderr));
 }
 
+/// `--transport`: every cell the same volume, the weights in weights.txt
+/// (reading them back gives the same cells), the Newton record in
+/// summary.json; `--capacities` counted and checked; the capacity-
+/// constrained CVT's iterations recorded.
+#[test]
+fn transport_writes_weights_that_give_equal_cells() {
+    let dir = temp_dir("transport");
+    let common = ["--model", "cube", "--resolution", "6", "--sites", "200", "--no-geometry"];
+    let run = |extra: &[&str]| cvd_run(&dir, &[&common[..], extra].concat());
+    let out = run(&["--transport", "--out", "o"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert!(text(&out.stdout).contains("Newton step 1:"), "{}", text(&out.stdout));
+    let volumes = |path: &str| -> Vec<f64> {
+        let csv = std::fs::read_to_string(dir.join(path)).unwrap();
+        csv.lines().skip(1).map(|l| l.split(',').nth(1).unwrap().parse().unwrap()).collect()
+    };
+    let v = volumes("o/cells.csv");
+    assert!(v.iter().all(|v| (v * 200.0 - 1.0).abs() <= 1e-6), "{:?}", &v[..5]);
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("o/summary.json")).unwrap()).unwrap();
+    let t = &summary["transport"];
+    assert_eq!(t["targets"], "uniform");
+    assert_eq!(t["converged"], true, "{t}");
+    assert!(t["max_error"].as_f64().unwrap() <= 1e-6, "{t}");
+    let steps = t["steps"].as_u64().unwrap() as usize;
+    assert!((1..=15).contains(&steps), "{t}");
+    assert_eq!(numbers(t, "step_length").len(), steps);
+    assert_eq!(numbers(t, "step_max_error").len(), steps + 1);
+    // The weights written give those cells again.
+    let out = cvd_run(
+        &dir,
+        &["--model", "cube", "--resolution", "6", "--sites-file", "o/sites.xyz"]
+            .iter()
+            .chain(&["--weights", "o/weights.txt", "--no-geometry", "--out", "again"])
+            .copied()
+            .collect::<Vec<_>>(),
+    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert_eq!(volumes("again/cells.csv"), v);
+    // Capacities: one per site, positive.
+    std::fs::write(dir.join("c.txt"), "1\n".repeat(199)).unwrap();
+    let out = run(&["--capacities", "c.txt", "--out", "c"]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(text(&out.stderr).contains("c.txt: 199 capacities for 200 sites"), "{}", text(&out.stderr));
+    std::fs::write(dir.join("c.txt"), "1\n".repeat(100) + &"3\n".repeat(100)).unwrap();
+    let out = run(&["--capacities", "c.txt", "--out", "c"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let v = volumes("c/cells.csv");
+    assert!((v[0] * 400.0 - 1.0).abs() <= 1e-6 && (v[199] * 400.0 - 3.0).abs() <= 3e-6, "{} {}", v[0], v[199]);
+    // The capacity-constrained CVT.
+    let out = run(&["--transport", "--iterations", "3", "--out", "cvt"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("cvt/summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["cvt"]["optimizer"], "lloyd-transport");
+    assert_eq!(numbers(&summary["cvt"], "newton_steps").len(), 3);
+    assert!(volumes("cvt/cells.csv").iter().all(|v| (v * 200.0 - 1.0).abs() <= 1e-6));
+    let out = run(&["--transport", "--iterations", "2", "--optimizer", "lbfgs", "--out", "x"]);
+    assert_eq!(out.status.code(), Some(2), "{}", text(&out.stderr));
+}
+
 /// A closed box as an OFF file; `open` leaves one triangle out.
 fn box_off(path: &Path, open: bool) {
     let mut t = String::from("OFF\n8 12 0\n");

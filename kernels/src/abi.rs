@@ -241,11 +241,21 @@ pub struct ClipParams {
     /// `0..=weight_range` (the host shifts them so that the smallest is 0,
     /// which changes no cell); 0 for Voronoi cells. A site's weight is in
     /// its [`SplitPoint`]'s `hi[3] + lo[3]`. Site `j` cuts a point within
-    /// `r` of site `i` only if `|x_j - x_i| < r + sqrt(r² + weight_range -
-    /// w_i)`: the security radius (docs/ARCHITECTURE.md).
+    /// `r` of site `i` only if `|x_j - x_i| < r + sqrt(r² + w_j - w_i)`:
+    /// the security radius (docs/ARCHITECTURE.md), with `w_j` at most
+    /// `weight_range`, or at most a local bound `W_k` when `r <= R_k`: the
+    /// sites buffer may then hold `n_sites` more records after the sites,
+    /// record `n_sites + i` with `hi = [W_0, R_0², W_1, R_1²]` and `lo =
+    /// [W_2, R_2², 0, 0]`, `R_0 < R_1 < R_2` (see [`crate::clip::Slack`];
+    /// without them the global bound serves).
     pub weight_range: f32,
+    /// With face sums and a density: 1 sums each face's mass `∫ρ dA`
+    /// instead of its area, taken as the area times its piece's mean
+    /// density (exact for a density constant over the piece; what optimal
+    /// transport's Newton steps are made of); 0 sums areas.
+    pub face_masses: u32,
     /// To a multiple of 16 bytes.
-    pub _pad: [u32; 3],
+    pub _pad: [u32; 2],
 }
 
 /// Push constants of the second pass ([`crate::refine`]): the clipping

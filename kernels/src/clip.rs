@@ -100,14 +100,68 @@ pub fn reach2(r2: f32, slack: f32) -> f32 {
     }
 }
 
-/// `weight_range - w_i`: how much more weight than site `i` another site
-/// may have (0 for Voronoi cells).
-#[inline]
-pub fn weight_slack(weight_range: f32, site: &SplitPoint) -> f32 {
-    if weight_range == 0.0 {
-        0.0
-    } else {
-        (weight_range - site.hi[3]) - site.lo[3]
+/// How much more weight than site `i` a site that cuts its cell may have:
+/// `weight_range - w_i` in general, and local bounds for polyhedra near
+/// the site. The local bounds are the host's (see
+/// [`ClipParams::weight_range`]): `W - w_i` with `W` the largest weight
+/// among the sites near `i`, found so that every site that cuts a
+/// polyhedron within a given radius of the site is among them, for three
+/// radii. Weights that drift across the domain (as optimal transport's do)
+/// span much more than they vary within a few cells: the local bounds keep
+/// the security radius near the Voronoi cells' `2r`. All 0 for Voronoi
+/// cells.
+#[derive(Clone, Copy, Default)]
+pub struct Slack {
+    /// `weight_range - w_i`.
+    pub global: f32,
+    /// `W - w_i` for polyhedra within `sqrt(caps[k])` of the site, the
+    /// caps increasing.
+    pub local: [f32; 3],
+    /// The squared radii within which `local` holds.
+    pub caps: [f32; 3],
+}
+
+impl Slack {
+    /// Site `i`'s slack: without weights (`weight_range == 0`) none; its
+    /// local bounds from record `n_sites + i` of `sites` when the host gave
+    /// them (`hi = [W_0, R_0², W_1, R_1²]`, `lo = [W_2, R_2², 0, 0]`; see
+    /// [`ClipParams::weight_range`]).
+    #[inline]
+    pub fn of(weight_range: f32, sites: &[SplitPoint], i: usize, n_sites: u32) -> Self {
+        if weight_range == 0.0 {
+            return Self::default();
+        }
+        let site = &sites[i];
+        let below = |w: f32| (w - site.hi[3]) - site.lo[3];
+        let global = below(weight_range);
+        let bound = n_sites as usize + i;
+        if bound < sites.len() {
+            let b = sites[bound];
+            Self { global, local: [below(b.hi[0]), below(b.hi[2]), below(b.lo[0])], caps: [b.hi[1], b.hi[3], b.lo[1]] }
+        } else {
+            Self { global, local: [global; 3], caps: [0.0; 3] }
+        }
+    }
+
+    /// The bound that holds for a polyhedron within `sqrt(r2)` of the site.
+    #[inline]
+    pub fn at(&self, r2: f32) -> f32 {
+        if r2 <= self.caps[0] {
+            self.local[0]
+        } else if r2 <= self.caps[1] {
+            self.local[1]
+        } else if r2 <= self.caps[2] {
+            self.local[2]
+        } else {
+            self.global
+        }
+    }
+
+    /// The squared security radius of a polyhedron within `sqrt(r2)` of
+    /// the site ([`reach2`]).
+    #[inline]
+    pub fn reach2(&self, r2: f32) -> f32 {
+        reach2(r2, self.at(r2))
     }
 }
 
@@ -119,19 +173,19 @@ pub struct BisectorRun {
     pub out: Clipped,
     /// The squared security radius: no site farther can cut ([`reach2`]).
     pub reach2: f32,
-    slack: f32,
+    slack: Slack,
     mid: Point,
     half: Point,
 }
 
 impl BisectorRun {
     /// A run on `poly`, with the security radius not yet reached, for a
-    /// site whose weight is `slack` below the largest ([`weight_slack`]).
+    /// site with that [`Slack`].
     #[inline]
-    pub fn new<const P: usize, const V: usize>(poly: &Polyhedron<P, V>, slack: f32) -> Self {
+    pub fn new<const P: usize, const V: usize>(poly: &Polyhedron<P, V>, slack: Slack) -> Self {
         let (r2, mid, half) = poly.bounds();
         let out = Clipped { security_missed: true, ..Clipped::default() };
-        Self { out, reach2: reach2(r2, slack), slack, mid, half }
+        Self { out, reach2: slack.reach2(r2), slack, mid, half }
     }
 
     /// Whether the bisector `n·x <= h` clears the bounding box — then it
@@ -160,7 +214,7 @@ impl BisectorRun {
                 self.out.clips += 1;
                 let r2;
                 (r2, self.mid, self.half) = poly.bounds();
-                self.reach2 = reach2(r2, self.slack);
+                self.reach2 = self.slack.reach2(r2);
                 false
             }
             Clip::Unchanged => false,
@@ -228,7 +282,7 @@ pub fn clip_by_bisectors<const P: usize, const V: usize>(
         return Clipped { security_missed: true, ..Clipped::default() };
     }
     let xi = sites[i];
-    let mut run = BisectorRun::new(poly, weight_slack(weight_range, &xi));
+    let mut run = BisectorRun::new(poly, Slack::of(weight_range, sites, i, n_sites));
     let mut s = 0;
     while s < k {
         let nb = site_nbrs[base + s];
@@ -562,7 +616,7 @@ pub fn finish_pair<const P: usize, const V: usize, A: AtomicSums, L: PairList, S
         return false;
     }
     let mut areas = [0.0f32; P];
-    let (m, volume) = piece_moments(poly, t, verts, tets, tv, p.faces_base != 0, &mut areas);
+    let (m, volume) = piece_moments(poly, t, verts, tets, tv, face_sums_of(p), &mut areas);
     accumulate(j, &m, p.fixed_scale, sums);
     add_faces(j, t, poly, &areas, p, faces, 1, sums);
     add_tet_volume(t, p.n_sites, volume, p.fixed_scale, sums);
@@ -583,10 +637,35 @@ pub fn add_tet_volume<A: AtomicSums>(t: usize, n_sites: u32, volume: f32, scale:
     sums.add(n_sites as usize * ACCUM_PER_SITE + t, fixed(volume, scale));
 }
 
+/// What [`piece_moments`] gives of a piece's faces: nothing, their areas,
+/// or their masses under the density ([`ClipParams::face_masses`]).
+pub mod face_sums {
+    /// No faces.
+    pub const NONE: u32 = 0;
+    /// Each face's area.
+    pub const AREAS: u32 = 1;
+    /// Each face's area times the piece's mean density.
+    pub const MASSES: u32 = 2;
+}
+
+/// What the clipping kernels sum of each piece's faces under `p`
+/// ([`face_sums`]).
+#[inline]
+pub fn face_sums_of(p: &ClipParams) -> u32 {
+    if p.faces_base == 0 {
+        face_sums::NONE
+    } else if p.face_masses != 0 {
+        face_sums::MASSES
+    } else {
+        face_sums::AREAS
+    }
+}
+
 /// The integrals of a piece of tet `t` (vertices `tv`, relative to the
 /// piece's site) under the mesh's density — the `w` of each vertex record,
 /// linear inside the tet; 1 everywhere without a density — and its plain
-/// volume; `with_areas`: also its faces' areas, into `areas`.
+/// volume; with `faces` ([`face_sums`]) its faces' areas or masses, into
+/// `areas`.
 #[inline]
 pub fn piece_moments<const P: usize, const V: usize>(
     poly: &Polyhedron<P, V>,
@@ -594,9 +673,10 @@ pub fn piece_moments<const P: usize, const V: usize>(
     verts: &[SplitPoint],
     tets: &[[u32; 4]],
     tv: &[Vec3; 4],
-    with_areas: bool,
+    faces: u32,
     areas: &mut [f32; P],
 ) -> (Moments, f32) {
+    let with_areas = faces != face_sums::NONE;
     let tet = tets[t];
     let r = [
         verts[tet[0] as usize].hi[3],
@@ -606,6 +686,9 @@ pub fn piece_moments<const P: usize, const V: usize>(
     ];
     if r[0] == r[1] && r[1] == r[2] && r[2] == r[3] {
         let m = if with_areas { poly.moments_and_areas(areas) } else { poly.moments() };
+        if faces == face_sums::MASSES {
+            scale_all(areas, r[0]);
+        }
         let scaled = Moments { volume: m.volume * r[0], first: m.first * r[0], second: m.second * r[0] };
         return (scaled, m.volume);
     }
@@ -617,7 +700,21 @@ pub fn piece_moments<const P: usize, const V: usize>(
     if with_areas {
         *areas = poly.face_areas();
     }
-    poly.moments_linear(r[0] - g.dot(tv[0]), g)
+    let (m, volume) = poly.moments_linear(r[0] - g.dot(tv[0]), g);
+    if faces == face_sums::MASSES && volume > 0.0 {
+        scale_all(areas, m.volume / volume);
+    }
+    (m, volume)
+}
+
+/// Every entry of `a` times `k`.
+#[inline]
+fn scale_all<const P: usize>(a: &mut [f32; P], k: f32) {
+    let mut q = 0;
+    while q < P {
+        a[q] *= k;
+        q += 1;
+    }
 }
 
 #[inline]
@@ -741,12 +838,27 @@ pub fn voronoi_cell<O: OutBuf<[f32; 4]> + ?Sized, C: AtomicSums>(
         let last = site_nbrs[base + k - 1];
         if last != NO_SITE {
             let d2 = between(&sites[last as usize], &sites[i]).length_squared();
-            let slack = weight_slack(p.weight_range, &sites[i]);
-            if slack <= 0.0 {
-                exact_r2 = 0.2499 * d2;
-            } else if d2 > slack {
-                let r = (d2 - slack) / (2.0 * d2.sqrt());
-                exact_r2 = 0.9996 * r * r;
+            let slack = Slack::of(p.weight_range, sites, i, p.n_sites);
+            // The local bound where the ball it gives is within its cap.
+            let ball = |slack: f32| {
+                if slack <= 0.0 {
+                    0.2499 * d2
+                } else if d2 > slack {
+                    let r = (d2 - slack) / (2.0 * d2.sqrt());
+                    0.9996 * r * r
+                } else {
+                    0.0
+                }
+            };
+            // The smallest cap whose bound gives a ball within it.
+            exact_r2 = ball(slack.global);
+            let mut c = 3;
+            while c > 0 {
+                c -= 1;
+                let r2 = ball(slack.local[c]);
+                if r2 <= slack.caps[c] && r2 > exact_r2 {
+                    exact_r2 = r2;
+                }
             }
         }
     }
@@ -976,7 +1088,7 @@ pub fn flood<const P: usize, const V: usize, const Q: usize, F, A, C, L, S>(
             ok = false;
         } else if !poly.is_empty() {
             let mut areas = [0.0f32; P];
-            let (m, volume) = piece_moments(&poly, t, verts, tets, &tv, p.faces_base != 0, &mut areas);
+            let (m, volume) = piece_moments(&poly, t, verts, tets, &tv, face_sums_of(p), &mut areas);
             found[head] = m;
             total += volume;
             // Given now, while the piece exists; taken back if the flood fails.
@@ -1032,9 +1144,12 @@ pub fn flood<const P: usize, const V: usize, const Q: usize, F, A, C, L, S>(
             while h < head {
                 if found[h].volume != 0.0 {
                     let j = queue[h] as usize;
-                    poly.set_tetrahedron(tet_vertices(t, verts, tets, &sites[j]));
+                    let tv = tet_vertices(t, verts, tets, &sites[j]);
+                    poly.set_tetrahedron(tv);
                     piece(j, &mut poly);
-                    add_faces(j, t, &poly, &poly.face_areas(), p, faces, -1, sums);
+                    let mut areas = [0.0f32; P];
+                    piece_moments(&poly, t, verts, tets, &tv, face_sums_of(p), &mut areas);
+                    add_faces(j, t, &poly, &areas, p, faces, -1, sums);
                 }
                 h += 1;
             }

@@ -143,7 +143,8 @@ structure!(ClipParams {
     walk_margin: f32,
     capacity: u32,
     weight_range: f32,
-    _pad: [u32; 3]
+    face_masses: u32,
+    _pad: [u32; 2]
 });
 structure!(RefineParams {
     clip: ClipParams,

@@ -12,7 +12,7 @@
 //! the list settles them, and a short list trades k-NN time for walks.
 
 use crate::abi::{GridParams, QuantPoint, RefineParams, SplitPoint};
-use crate::clip::{clip_by_bisectors, list_in, weight_slack, BisectorRun, Clipped, NO_LIST};
+use crate::clip::{clip_by_bisectors, list_in, BisectorRun, Clipped, Slack, NO_LIST};
 use crate::grid::{cell_index, ring_row, ring_span};
 use crate::polyhedron::{between, bisector_offset, point, weight_gap, Point, Polyhedron};
 use spirv_std::glam::Vec3;
@@ -265,7 +265,7 @@ pub fn clip_to_cell<const P: usize, const V: usize>(
             0.0
         }
     };
-    let mut run = BisectorRun::new(poly, weight_slack(w.weight_range, &si));
+    let mut run = BisectorRun::new(poly, Slack::of(w.weight_range, sites, i, w.n_sites));
     run.out.clips = listed.clips;
     run.out.walks = 1;
     // A ring walk meets every site: no security radius to miss.
@@ -287,6 +287,7 @@ struct PowerNearest<'a> {
     /// Squared radius around `c` beyond which no site beats `best`.
     reach2: f32,
     weight_range: f32,
+    n_sites: u32,
 }
 
 impl PowerNearest<'_> {
@@ -300,8 +301,10 @@ impl PowerNearest<'_> {
         if q < self.power {
             self.best = s;
             self.power = q;
-            // A site beats s only if |c - x_j|² < |c - x_s|² + w_j - w_s.
-            self.reach2 = (d2 + weight_slack(self.weight_range, x)) * (1.0 + 1e-5);
+            // A site beats s at c only if |c - x_j|² < |c - x_s|² + w_j -
+            // w_s: it would cut c, at |c - x_s|, from s's cell.
+            let slack = Slack::of(self.weight_range, self.sites, s as usize, self.n_sites);
+            self.reach2 = (d2 + slack.at(d2)) * (1.0 + 1e-5);
         }
     }
 }
@@ -347,6 +350,7 @@ pub fn power_nearest(
         power: f32::INFINITY,
         reach2: 0.0,
         weight_range: w.weight_range,
+        n_sites: w.n_sites,
     };
     search.offer(start);
     let k = w.k_site as usize;

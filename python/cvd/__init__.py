@@ -29,6 +29,7 @@ __all__ = [
     "mesh_surface",
     "read_mesh",
     "sample",
+    "transport",
 ]
 
 
@@ -62,7 +63,16 @@ def sample(mesh, n, seed=1):
 
 
 def clipped_voronoi(
-    mesh, sites, *, backend="auto", strategy="tet-cell", pairing="flood", density=None, faces=False, polyhedra=False
+    mesh,
+    sites,
+    *,
+    backend="auto",
+    strategy="tet-cell",
+    pairing="flood",
+    density=None,
+    faces=False,
+    polyhedra=False,
+    weights=None,
 ):
     """The Voronoi cells of `sites` ((n, 3)) clipped to `mesh`.
 
@@ -72,6 +82,8 @@ def clipped_voronoi(
     faces: also the adjacency (`cells.adjacency`: CSR arrays of the faces
     the cells share, their areas and normals, each cell's boundary area).
     polyhedra: also each cell as one closed polyhedron (`cells.polyhedra`).
+    weights: one per site for power (Laguerre) cells: site i's cell is where
+    |x - x_i|² - w_i is least (cells may be empty), or None.
 
     Returns a Cells with numpy arrays `volume`, `centroid`, `energy`, and
     `e_vol`, `mesh_volume`, `counters`, `timings`.
@@ -85,6 +97,7 @@ def clipped_voronoi(
         _values(density, "density"),
         bool(faces),
         bool(polyhedra),
+        _values(weights, "weights"),
     )
 
 
@@ -97,4 +110,32 @@ def lloyd(mesh, sites, iterations, *, optimizer="lloyd", backend="auto", density
         raise ValueError(f"iterations must be at least 0, not {iterations}")
     return _cvd.lloyd(
         mesh, _points(sites, "sites"), int(iterations), optimizer, backend, _values(density, "density"), bool(progress)
+    )
+
+
+def transport(
+    mesh, sites, capacities=None, *, backend="auto", density=None, weights=None, tolerance=1e-6, max_steps=50
+):
+    """The power weights for which every cell of `sites` in `mesh` gets its
+    target mass: the mesh's volume (or mass under `density`) over the sites,
+    or `capacities` (one per site, positive) scaled to it. Damped Newton
+    steps from `weights` (default 0: the Voronoi cells) until every cell is
+    within `tolerance` of its target, relative to it.
+
+    Returns (weights, record): weights an (n,) array (mean 0), record a dict
+    with `max_error` (per diagram the steps started from, the last the
+    final error), `step`, `cg_iterations` and `seconds` (per Newton step),
+    and `converged`. Ctrl-C stops it between steps.
+    """
+    if max_steps < 0:
+        raise ValueError(f"max_steps must be at least 0, not {max_steps}")
+    return _cvd.transport(
+        mesh,
+        _points(sites, "sites"),
+        _values(capacities, "capacities"),
+        backend,
+        _values(density, "density"),
+        _values(weights, "weights"),
+        float(tolerance),
+        int(max_steps),
     )

@@ -41,6 +41,7 @@ def clipped_voronoi(
     density: Optional[npt.ArrayLike] = None,
     faces: bool = False,
     polyhedra: bool = False,
+    weights: Optional[npt.ArrayLike] = None,
 ) -> Cells: ...
 def lloyd(
     mesh: Mesh,
@@ -52,4 +53,15 @@ def lloyd(
     density: Optional[npt.ArrayLike] = None,
     progress: bool = False,
 ) -> tuple[npt.NDArray[np.float64], dict[str, npt.NDArray[Any]]]: ...
+def transport(
+    mesh: Mesh,
+    sites: npt.ArrayLike,
+    capacities: Optional[npt.ArrayLike] = None,
+    *,
+    backend: str = "auto",
+    density: Optional[npt.ArrayLike] = None,
+    weights: Optional[npt.ArrayLike] = None,
+    tolerance: float = 1e-6,
+    max_steps: int = 50,
+) -> tuple[npt.NDArray[np.float64], dict[str, Any]]: ...
 def devices() -> list[dict[str, Any]]: ...

@@ -309,7 +309,7 @@ fn to_python(py: Python<'_>, cells: cvd::Cells) -> PyResult<Cells> {
 
 /// The clipped Voronoi diagram of `sites` (`(n, 3)` float64) in `mesh`.
 #[pyfunction]
-#[pyo3(signature = (mesh, sites, backend="auto", strategy="tet-cell", pairing="flood", density=None, faces=false, polyhedra=false))]
+#[pyo3(signature = (mesh, sites, backend="auto", strategy="tet-cell", pairing="flood", density=None, faces=false, polyhedra=false, weights=None))]
 #[allow(clippy::too_many_arguments)]
 fn clipped_voronoi(
     py: Python<'_>,
@@ -321,6 +321,7 @@ fn clipped_voronoi(
     density: Option<PyReadonlyArray1<'_, f64>>,
     faces: bool,
     polyhedra: bool,
+    weights: Option<PyReadonlyArray1<'_, f64>>,
 ) -> PyResult<Cells> {
     let sites = rows3(&sites, "sites")?;
     let strategy = match strategy {
@@ -336,14 +337,18 @@ fn clipped_voronoi(
         other => return Err(PyValueError::new_err(format!("pairing must be 'flood' or 'knn', not {other:?}"))),
     };
     let density: Option<Vec<f64>> = density.map(|d| d.as_array().to_vec());
+    let weights: Option<Vec<f64>> = weights.map(|w| w.as_array().to_vec());
     let options = self::backend(backend)?;
     let cells = py
         .detach(|| -> cvd::Result<cvd::Cells> {
-            let cv = cvd::ClippedVoronoi::new(&mesh.inner, &sites)
+            let mut cv = cvd::ClippedVoronoi::new(&mesh.inner, &sites)
                 .strategy(strategy)
                 .pairing(pairing)
                 .density(density.as_deref())
                 .faces(faces);
+            if let Some(w) = &weights {
+                cv = cv.weights(w);
+            }
             let b = cvd::backend::open(&options)?;
             if !polyhedra {
                 return cv.backend(b.as_ref()).compute();
@@ -426,6 +431,67 @@ fn lloyd<'py>(
     Ok((flat(sites).into_pyarray(py).reshape([n, 3])?, history))
 }
 
+/// The power weights for which every cell of `sites` in `mesh` gets its
+/// target mass (uniform, or `capacities` scaled to the mesh's mass); returns
+/// the weights and the Newton record (a dict of arrays `max_error`, one per
+/// diagram the steps started from, `step`, `cg_iterations`, `seconds`, one
+/// per step; and `converged`). Ctrl-C stops it between steps.
+#[pyfunction]
+#[pyo3(signature = (mesh, sites, capacities=None, backend="auto", density=None, weights=None, tolerance=1e-6, max_steps=50))]
+#[allow(clippy::too_many_arguments)]
+fn transport<'py>(
+    py: Python<'py>,
+    mesh: &Mesh,
+    sites: PyReadonlyArray2<'_, f64>,
+    capacities: Option<PyReadonlyArray1<'_, f64>>,
+    backend: &str,
+    density: Option<PyReadonlyArray1<'_, f64>>,
+    weights: Option<PyReadonlyArray1<'_, f64>>,
+    tolerance: f64,
+    max_steps: usize,
+) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyDict>)> {
+    let sites = rows3(&sites, "sites")?;
+    let capacities: Option<Vec<f64>> = capacities.map(|c| c.as_array().to_vec());
+    let density: Option<Vec<f64>> = density.map(|d| d.as_array().to_vec());
+    let start: Option<Vec<f64>> = weights.map(|w| w.as_array().to_vec());
+    if tolerance.is_nan() || tolerance <= 0.0 {
+        return Err(PyValueError::new_err(format!("tolerance must be positive, not {tolerance}")));
+    }
+    let options = self::backend(backend)?;
+    let b = py.detach(|| cvd::backend::open(&options)).map_err(err)?;
+    let cv = cvd::ClippedVoronoi::new(&mesh.inner, &sites).density(density.as_deref()).backend(b.as_ref());
+    let mut ot = cvd::cvt::transport::Transport::new(cv).tolerance(tolerance).max_steps(max_steps);
+    if let Some(c) = &capacities {
+        ot = ot.capacities(c);
+    }
+    if let Some(w) = &start {
+        ot = ot.start(w);
+    }
+    // The signals checked after each Newton step.
+    let mut stopped = false;
+    let run = py
+        .detach(|| {
+            ot.solve(&mut |_| {
+                stopped = Python::attach(|py| py.check_signals().is_err());
+                !stopped
+            })
+        })
+        .map_err(err)?;
+    if stopped {
+        return Err(PyKeyboardInterrupt::new_err(format!("stopped after {} Newton steps", run.steps.len())));
+    }
+    let steps = &run.steps;
+    let record = PyDict::new(py);
+    record.set_item("max_error", steps.iter().map(|s| s.max_error).collect::<Vec<_>>().into_pyarray(py))?;
+    let taken = &steps[..steps.len() - 1];
+    record.set_item("step", taken.iter().map(|s| s.step).collect::<Vec<_>>().into_pyarray(py))?;
+    record
+        .set_item("cg_iterations", taken.iter().map(|s| s.cg_iterations as i64).collect::<Vec<_>>().into_pyarray(py))?;
+    record.set_item("seconds", taken.iter().map(|s| s.seconds).collect::<Vec<_>>().into_pyarray(py))?;
+    record.set_item("converged", run.converged)?;
+    Ok((run.weights.into_pyarray(py), record))
+}
+
 /// The Vulkan devices: a list of dicts (`index`, `name`, `type`, `gpu`);
 /// empty without a Vulkan loader or driver.
 #[pyfunction]
@@ -457,6 +523,7 @@ fn _cvd(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(sample, m)?)?;
     m.add_function(wrap_pyfunction!(clipped_voronoi, m)?)?;
     m.add_function(wrap_pyfunction!(lloyd, m)?)?;
+    m.add_function(wrap_pyfunction!(transport, m)?)?;
     m.add_function(wrap_pyfunction!(devices, m)?)?;
     Ok(())
 }

@@ -154,6 +154,26 @@ def test_lloyd_lowers_the_energy(mesh):
     assert lb["energy"][-1] <= e[0]
 
 
+def test_transport_gives_equal_cells_and_weights_give_them_again(mesh):
+    sites = cvd.sample(mesh, 800, seed=5)
+    weights, record = cvd.transport(mesh, sites, backend="cpu")
+    assert weights.shape == (800,) and record["converged"]
+    assert record["max_error"][-1] <= 1e-6 and 1 <= len(record["step"]) <= 15
+    assert len(record["max_error"]) == len(record["step"]) + 1
+    cells = cvd.clipped_voronoi(mesh, sites, backend="cpu", weights=weights)
+    target = mesh.volume / 800
+    assert np.abs(cells.volume / target - 1).max() <= 1e-6
+    # Capacities: twice the mass for the first half.
+    c = np.r_[np.full(400, 2.0), np.ones(400)]
+    w, record = cvd.transport(mesh, sites, c, backend="cpu")
+    v = cvd.clipped_voronoi(mesh, sites, backend="cpu", weights=w).volume
+    assert np.allclose(v[:400] / v[400:].mean(), 2.0, rtol=1e-5, atol=0)
+    with pytest.raises(ValueError, match="799 capacities for 800 sites"):
+        cvd.transport(mesh, sites, c[1:], backend="cpu")
+    with pytest.raises(ValueError, match="weights for 800 sites"):
+        cvd.clipped_voronoi(mesh, sites, weights=w[1:])
+
+
 def test_cpu_and_vulkan_agree(mesh):
     if not any(True for _ in cvd.devices()):
         if CI:

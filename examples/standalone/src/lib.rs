@@ -599,6 +599,8 @@ pub fn run(spirv_dir: &Path, verts: &[[f64; 3]], tets: &[[u32; 4]], sites: &[[f6
         ("capacity", U(nt as u64)),
         // Voronoi cells: no power weights (the sites' w is 0).
         ("weight_range", F(0.0)),
+        // No face sums, so no face masses.
+        ("face_masses", U(0)),
     ];
 
     let used = [

@@ -9,6 +9,10 @@
 //!   steps from the same diagrams, preconditioned by `1 / 2V_i` so that its
 //!   first step is Lloyd's, with a backtracking line search that only
 //!   accepts steps that lower the energy.
+//! * Optimal transport ([`transport`]) finds the power weights that give
+//!   every cell a prescribed mass, by damped Newton steps.
+
+pub mod transport;
 
 use crate::backend::Backend;
 use crate::diagram::voronoi::{ClipJob, ClippedVoronoi, Frame};
@@ -41,6 +45,9 @@ pub struct Iteration {
     pub unresolved: u64,
     /// Seconds the iteration took on the backend.
     pub seconds: f64,
+    /// Newton steps of the iteration's optimal transport (capacity-
+    /// constrained CVT; 0 otherwise).
+    pub newton_steps: u32,
 }
 
 /// The result of a Lloyd run.
@@ -112,6 +119,7 @@ fn report(input: &[[f64; 3]], job: &ClipJob, map: &[Option<usize>], frame: &Fram
             second_pass: (s[lloyd_stat::UNFINISHED] - s[lloyd_stat::STILL]).max(0) as u64,
             unresolved: s[lloyd_stat::STILL].max(0) as u64,
             seconds,
+            newton_steps: 0,
         })
         .collect();
     let sites = map
@@ -205,6 +213,7 @@ impl ClippedVoronoi<'_> {
                 second_pass: at.second_pass,
                 unresolved: at.unresolved,
                 seconds,
+                newton_steps: 0,
             };
             // Backtracking (Armijo): halve the step until the energy drops.
             let mut t = 1.0;

@@ -174,8 +174,14 @@ pub(crate) fn from_sums(sums: &[i64], lists: &[u32], k: usize, area_scale: f64) 
 
 /// The faces of the sites `which` from every piece's faces (`all`, from a
 /// [`FaceCollector`]) and the tets' boundary bits, replacing theirs in
-/// `faces`.
-pub(crate) fn complete(faces: &mut [SiteFaces], which: &[u32], all: &[FaceCollector], bits: &[u32]) {
+/// `faces`; each face's area times `weight(tet)` (1, or a density).
+pub(crate) fn complete(
+    faces: &mut [SiteFaces],
+    which: &[u32],
+    all: &[FaceCollector],
+    bits: &[u32],
+    weight: impl Fn(usize) -> f64,
+) {
     let wanted: std::collections::HashSet<u32> = which.iter().copied().collect();
     type Redone = (HashMap<u32, f64>, f64, [f64; 3]);
     let mut redone: HashMap<u32, Redone> = which.iter().map(|&u| (u, Default::default())).collect();
@@ -184,15 +190,16 @@ pub(crate) fn complete(faces: &mut [SiteFaces], which: &[u32], all: &[FaceCollec
             continue;
         }
         let entry = redone.get_mut(&f.site).expect("a wanted site");
+        let t = f.tet as usize;
+        let area = f.area as f64 * weight(t);
         if made_by_site(f.maker) {
-            *entry.0.entry(f.maker).or_insert(0.0) += f.area as f64;
-        } else if (TET_FACE..NO_ID).contains(&f.maker) {
-            let t = f.tet as usize;
-            if (bits[t / 8] >> (4 * (t % 8) + (f.maker - TET_FACE) as usize)) & 1 != 0 {
-                entry.1 += f.area as f64;
-                for (c, n) in entry.2.iter_mut().zip(f.normal) {
-                    *c += (n * f.area) as f64;
-                }
+            *entry.0.entry(f.maker).or_insert(0.0) += area;
+        } else if (TET_FACE..NO_ID).contains(&f.maker)
+            && (bits[t / 8] >> (4 * (t % 8) + (f.maker - TET_FACE) as usize)) & 1 != 0
+        {
+            entry.1 += area;
+            for (c, n) in entry.2.iter_mut().zip(f.normal) {
+                *c += n as f64 * area;
             }
         }
     }

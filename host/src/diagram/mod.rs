@@ -2,10 +2,12 @@
 //! ([`voronoi`]), the second pass that finishes what the kernels could
 //! not ([`second_pass`]), each site's faces and neighbours ([`faces`]),
 //! the pieces of each cell inside each tet ([`pieces`]) and each cell as
-//! one polyhedron ([`polyhedra`]).
+//! one polyhedron ([`polyhedra`]); with power weights, each site's local
+//! bound of its neighbours' weights (`weight_bounds`).
 
 pub mod faces;
 pub mod pieces;
 pub mod polyhedra;
 pub mod second_pass;
 pub mod voronoi;
+pub(crate) mod weight_bounds;

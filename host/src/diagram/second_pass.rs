@@ -56,7 +56,7 @@ pub(crate) fn run<S: TaskSink>(job: &ClipJob, out: &mut ClipOutput, sinks: &Mute
     // nearest-site and radius queries.
     let g = build_grid(&job.site_knn);
     let walk = GridWalk::new(&job.refine, &[], &g.cell_start, &g.cell_count, &g.sorted);
-    let grid = SiteGrid::new(&job.sites);
+    let grid = SiteGrid::new(&job.sites[..job.params.n_sites as usize]);
     // The sites' sums, then the tets' volumes, as the kernels lay them out.
     let n_site_sums = out.sums.len();
     let sums: Vec<AtomicI64> =
@@ -282,7 +282,7 @@ mod tests {
         let cv = ClippedVoronoi::new(&mesh, &sites);
         let cells = cv.compute().unwrap();
         let (job, map, frame) = cv.job().unwrap();
-        let (n, n_tets) = (job.sites.len(), job.tets.len());
+        let (n, n_tets) = (job.params.n_sites as usize, job.tets.len());
         let mut unfinished: Vec<[u32; 2]> = (0..n_tets as u32 / 2).map(|t| [t, NO_SITE]).collect();
         for t in n_tets as u32 / 2..n_tets as u32 {
             unfinished.extend((0..n as u32).map(|j| [t, j]));

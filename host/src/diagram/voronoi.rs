@@ -84,7 +84,9 @@ pub struct ClipJob {
     pub site_knn: KnnJob,
     /// k nearest sites of each tet centroid: the pairs.
     pub tet_knn: KnnJob,
-    /// Unique sites, normalised, each as `hi + lo` (w 0).
+    /// Unique sites, normalised, each as `hi + lo` (w: its power weight,
+    /// shifted and scaled into the frame); with weights, each site's local
+    /// weight bound after them (see [`ClipParams::weight_range`]).
     pub sites: Vec<SplitPoint>,
     /// Mesh vertices, normalised, each as `hi + lo`, the density (1
     /// without one) in `hi[3]`.
@@ -258,6 +260,9 @@ pub struct ClippedVoronoi<'a> {
     pub(crate) density: Option<&'a [f64]>,
     pub(crate) weights: Option<&'a [f64]>,
     pub(crate) faces: bool,
+    /// With a density, the faces' masses `∫ρ dA` instead of their areas
+    /// (optimal transport's Hessian; see `ClipParams::face_masses`).
+    pub(crate) face_masses: bool,
 }
 
 impl<'a> ClippedVoronoi<'a> {
@@ -274,6 +279,7 @@ impl<'a> ClippedVoronoi<'a> {
             density: None,
             weights: None,
             faces: false,
+            face_masses: false,
         }
     }
 
@@ -442,8 +448,14 @@ impl<'a> ClippedVoronoi<'a> {
                 frame.scale
             )));
         }
-        let split: Vec<SplitPoint> = sites.iter().zip(&local_weights).map(|(&p, &w)| SplitPoint::site(p, w)).collect();
+        let mut split: Vec<SplitPoint> =
+            sites.iter().zip(&local_weights).map(|(&p, &w)| SplitPoint::site(p, w)).collect();
         check_separable(&split, &unique, &map)?;
+        if weight_range > 0.0 {
+            // Each site's local weight bound, after the sites.
+            let volume = mesh.volume() / frame.scale.powi(3);
+            split.extend(crate::diagram::weight_bounds::local_bounds(&split, weight_range, volume));
+        }
         let verts: Vec<[f64; 3]> = mesh.vertices.iter().map(|&p| frame.to_local(p)).collect();
         let tet_order = points::morton_order(&mesh.centroids());
         let tets = tet_order.iter().map(|&t| mesh.tets[t as usize]).collect();
@@ -477,7 +489,9 @@ impl<'a> ClippedVoronoi<'a> {
         let (tet_faces, faces_base, area_bits) = if self.faces {
             let bits = crate::diagram::faces::boundary_bits(&local_mesh);
             let boundary: f64 = local_mesh.boundary().area();
-            (bits, (n * ACCUM_PER_SITE + local_mesh.tets.len()) as u32, 61.0 - (8.0 + boundary).log2().ceil())
+            // Masses: areas times at most the largest density.
+            let rho = if self.face_masses { rho_max } else { 1.0 };
+            (bits, (n * ACCUM_PER_SITE + local_mesh.tets.len()) as u32, 61.0 - ((8.0 + boundary) * rho).log2().ceil())
         } else {
             (vec![0], 0, 0.0)
         };
@@ -506,7 +520,8 @@ impl<'a> ClippedVoronoi<'a> {
             capacity: 0,
             // Rounded up: the security radius must not shrink.
             weight_range: if weight_range > 0.0 { next_up(weight_range as f32) } else { 0.0 },
-            _pad: [0; 3],
+            face_masses: (self.face_masses && self.density.is_some()) as u32,
+            _pad: [0; 2],
         };
         let q = &site_knn.quantizer;
         let lo = q.origin();
@@ -646,7 +661,18 @@ impl ClippedVoronoi<'_> {
             let mut again = cpu.clip_into::<crate::diagram::faces::FaceCollector>(job, &sinks)?;
             crate::diagram::second_pass::run(job, &mut again, &sinks)?;
             let all = sinks.into_inner().unwrap_or_else(|e| e.into_inner());
-            crate::diagram::faces::complete(&mut faces, &incomplete, &all, &job.tet_faces);
+            // Masses: each piece's faces weighted by its tet's mean density
+            // (the kernels take the piece's own).
+            let tet_density =
+                |t: usize| job.tets[t].iter().map(|&v| job.verts[v as usize].hi[3] as f64).sum::<f64>() / 4.0;
+            let masses = job.params.face_masses != 0;
+            crate::diagram::faces::complete(&mut faces, &incomplete, &all, &job.tet_faces, |t| {
+                if masses {
+                    tet_density(t)
+                } else {
+                    1.0
+                }
+            });
         }
         Ok((crate::diagram::faces::assemble(faces, map, self.sites, frame.scale), incomplete.len()))
     }

@@ -105,6 +105,17 @@ pub fn write_sites_xyz(path: &Path, sites: &[[f64; 3]]) -> Result<()> {
     })
 }
 
+/// Writes one value per line (as [`read_values`] reads them back, exactly:
+/// the shortest decimal that parses to the same f64).
+pub fn write_values(path: &Path, values: &[f64]) -> Result<()> {
+    write_file(path, |w| {
+        for v in values {
+            writeln!(w, "{v}")?;
+        }
+        Ok(())
+    })
+}
+
 /// Writes a mesh as Medit ASCII `.mesh` (references 0 for vertices, 1 for
 /// tets), coordinates written so that they read back exactly; version 2
 /// tells other readers the reals are double precision.

@@ -57,6 +57,59 @@ pub struct Summary {
     /// this diagram (absent otherwise).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub cvt: Option<CvtRecord>,
+    /// The optimal transport that found this diagram's weights (absent
+    /// otherwise).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub transport: Option<TransportRecord>,
+}
+
+/// What an optimal-transport solve did, Newton step by Newton step.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct TransportRecord {
+    /// `uniform` (every cell the same mass) or `capacities` (from a file).
+    pub targets: String,
+    /// The largest relative mass error asked for.
+    pub tolerance: f64,
+    /// Whether every cell's mass came within it.
+    pub converged: bool,
+    /// The final `max_i |m_i - t_i| / t_i`.
+    pub max_error: f64,
+    /// Newton steps taken.
+    pub steps: usize,
+    /// Diagrams computed (each step's trials, and the first).
+    pub diagrams: u32,
+    /// Seconds of the whole solve.
+    pub total_s: f64,
+    /// Per diagram the steps started from (the last: the final one): the
+    /// largest relative mass error.
+    pub step_max_error: Vec<f64>,
+    /// Per step: the damping `α` taken (1: a full Newton step).
+    pub step_length: Vec<f64>,
+    /// Per step: conjugate-gradient iterations of its linear solve.
+    pub cg_iterations: Vec<u32>,
+    /// Per step: seconds (its diagrams and its solve).
+    pub seconds: Vec<f64>,
+}
+
+impl TransportRecord {
+    /// The record of `run`, solved to `tolerance` for `targets`.
+    pub fn of(targets: &str, tolerance: f64, run: &crate::cvt::transport::TransportRun) -> Self {
+        let steps = &run.steps;
+        let taken = &steps[..steps.len().saturating_sub(1)];
+        Self {
+            targets: targets.to_string(),
+            tolerance,
+            converged: run.converged,
+            max_error: run.max_error(),
+            steps: taken.len(),
+            diagrams: steps.iter().map(|s| s.diagrams).sum(),
+            total_s: steps.iter().map(|s| s.seconds).sum(),
+            step_max_error: steps.iter().map(|s| s.max_error).collect(),
+            step_length: taken.iter().map(|s| s.step).collect(),
+            cg_iterations: taken.iter().map(|s| s.cg_iterations).collect(),
+            seconds: taken.iter().map(|s| s.seconds).collect(),
+        }
+    }
 }
 
 /// What a CVT run did, iteration by iteration.
@@ -82,6 +135,10 @@ pub struct CvtRecord {
     pub unresolved: Vec<u64>,
     /// Per iteration: seconds on the backend.
     pub seconds: Vec<f64>,
+    /// Per iteration: Newton steps of its optimal transport (the
+    /// capacity-constrained CVT; absent otherwise).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub newton_steps: Vec<u32>,
 }
 
 impl CvtRecord {
@@ -98,6 +155,11 @@ impl CvtRecord {
             second_pass: iterations.iter().map(|i| i.second_pass).collect(),
             unresolved: iterations.iter().map(|i| i.unresolved).collect(),
             seconds: iterations.iter().map(|i| i.seconds).collect(),
+            newton_steps: if iterations.iter().any(|i| i.newton_steps > 0) {
+                iterations.iter().map(|i| i.newton_steps).collect()
+            } else {
+                Vec::new()
+            },
         }
     }
 }
@@ -166,6 +228,7 @@ impl Summary {
             pieces: None,
             lids: None,
             cvt: None,
+            transport: None,
         }
     }
 
@@ -255,6 +318,20 @@ impl fmt::Display for Summary {
                 ms(r.per_iteration_s),
                 r.energy.first().copied().unwrap_or(self.energy),
                 self.energy,
+            )?;
+        }
+        if let Some(t) = &self.transport {
+            writeln!(
+                f,
+                "  {:<11}{} targets: max mass error {:.2e} ({}converged to {:.0e}) in {} Newton steps, {} diagrams, {:.3} s",
+                "transport",
+                t.targets,
+                t.max_error,
+                if t.converged { "" } else { "NOT " },
+                t.tolerance,
+                t.steps,
+                t.diagrams,
+                t.total_s
             )?;
         }
         Ok(())

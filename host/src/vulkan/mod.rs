@@ -138,7 +138,16 @@ impl Backend for VulkanBackend {
         let (sites, quant, tets, centroids) = match &slabs {
             None => (j.upload(&job.sites)?, j.upload(&sk.sites)?, j.upload(&job.tets)?, j.upload(&tk.queries)?),
             Some(s) => {
-                let sites: Vec<SplitPoint> = s.sites.iter().map(|&old| job.sites[old as usize]).collect();
+                // The sites in the slabs' order, then their weight bounds
+                // (if any) in the same order.
+                let n = n as usize;
+                let bounds = if job.sites.len() > n { s.sites.as_slice() } else { &[] };
+                let sites: Vec<SplitPoint> = s
+                    .sites
+                    .iter()
+                    .map(|&old| job.sites[old as usize])
+                    .chain(bounds.iter().map(|&old| job.sites[n + old as usize]))
+                    .collect();
                 let quant: Vec<[u32; 4]> = (0..s.sites.len())
                     .map(|new| {
                         let q = sk.sites[s.sites[new] as usize];
@@ -351,7 +360,7 @@ struct Slabs {
 impl Slabs {
     fn new(job: &ClipJob, slab: u64) -> Self {
         let slab = slab.max(1) as usize;
-        let sites = &job.sites;
+        let sites = &job.sites[..job.params.n_sites as usize];
         let extent = |a: usize| {
             let (lo, hi) =
                 sites.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(l, h), p| (l.min(p.hi[a]), h.max(p.hi[a])));

@@ -1,0 +1,407 @@
+//! Semi-discrete optimal transport: the power weights for which every
+//! clipped cell gets a prescribed mass (its capacity).
+//!
+//! The masses `m_i(w)` of the power cells are the gradient of a concave
+//! function of the weights (Kantorovich's dual), whose Hessian is a graph
+//! Laplacian over the cells' shared faces: `∂m_i/∂w_j = -A_ij / 2|x_i -
+//! x_j|` for neighbours (`A_ij` the face's area, or its mass `∫ρ` under a
+//! density), and `∂m_i/∂w_i = Σ_j A_ij / 2|x_i - x_j|`. Each Newton step
+//! solves `L δ = targets - m(w)` by conjugate gradients (Jacobi
+//! preconditioned, the constant vector being `L`'s kernel), and is damped
+//! as Kitagawa, Mérigot and Thibert (2019) prove convergent: halved until
+//! no cell's mass falls below half the smallest of the targets and the
+//! starting masses, and the error's norm drops by at least `1 - α/2`.
+//! Every trial is one diagram, with faces, on the diagram's backend.
+
+use crate::cvt::{CvtRun, Iteration};
+use crate::diagram::voronoi::{Cells, ClippedVoronoi};
+use crate::error::{Error, Result};
+use rayon::prelude::*;
+use std::time::Instant;
+
+/// One Newton step, as reported.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct NewtonStep {
+    /// `max_i |m_i - t_i| / t_i` of the diagram the step started from.
+    pub max_error: f64,
+    /// The damping `α` of the step taken (1 for a full Newton step; 0 when
+    /// the solve stopped at this diagram).
+    pub step: f64,
+    /// Diagrams this step computed: its trials (1 + those rejected), and
+    /// for the first step the starting diagram too.
+    pub diagrams: u32,
+    /// Conjugate-gradient iterations of the linear solve.
+    pub cg_iterations: u32,
+    /// Seconds the step took: its diagrams and its solve.
+    pub seconds: f64,
+}
+
+/// The result of an optimal-transport solve.
+#[derive(Clone, Debug, Default)]
+pub struct TransportRun {
+    /// The weights found, one per site in input order, in squared units of
+    /// length (their mean is zero).
+    pub weights: Vec<f64>,
+    /// The target mass of each cell.
+    pub targets: Vec<f64>,
+    /// The power cells of the last diagram, with their faces (under a
+    /// density, each face's mass `∫ρ dA` in place of its area).
+    pub cells: Cells,
+    /// Every Newton step; the last one's `max_error` is the final error.
+    pub steps: Vec<NewtonStep>,
+    /// Whether `max_error` reached the tolerance.
+    pub converged: bool,
+}
+
+impl TransportRun {
+    /// The final `max_i |m_i - t_i| / t_i`.
+    pub fn max_error(&self) -> f64 {
+        self.steps.last().map_or(f64::INFINITY, |s| s.max_error)
+    }
+}
+
+/// Builder of an optimal-transport solve: the diagram's mesh, sites,
+/// density and backend, with power weights found so that each cell gets
+/// its target mass.
+#[derive(Clone, Copy)]
+pub struct Transport<'a> {
+    diagram: ClippedVoronoi<'a>,
+    capacities: Option<&'a [f64]>,
+    start: Option<&'a [f64]>,
+    tolerance: f64,
+    max_steps: usize,
+}
+
+/// Halvings of a Newton step before the solve says it cannot go on.
+const MAX_HALVINGS: u32 = 12;
+
+impl<'a> Transport<'a> {
+    /// Optimal transport on `diagram`'s mesh, sites, density and backend
+    /// (its weights, if any, are ignored: see [`Self::start`]): by default
+    /// every cell gets the same mass, the mesh's mass over the sites.
+    pub fn new(diagram: ClippedVoronoi<'a>) -> Self {
+        Self { diagram, capacities: None, start: None, tolerance: 1e-6, max_steps: 50 }
+    }
+
+    /// A capacity per site (positive; normalised so that they sum to the
+    /// mesh's mass).
+    pub fn capacities(mut self, capacities: &'a [f64]) -> Self {
+        self.capacities = Some(capacities);
+        self
+    }
+
+    /// The weights to start from (default: zero, the Voronoi cells). Every
+    /// starting cell must have mass.
+    pub fn start(mut self, weights: &'a [f64]) -> Self {
+        self.start = Some(weights);
+        self
+    }
+
+    /// Stop when every cell's mass is within `tolerance` of its target,
+    /// relative to it (default 1e-6).
+    pub fn tolerance(mut self, tolerance: f64) -> Self {
+        self.tolerance = tolerance;
+        self
+    }
+
+    /// Newton steps at most (default 50).
+    pub fn max_steps(mut self, max_steps: usize) -> Self {
+        self.max_steps = max_steps;
+        self
+    }
+
+    /// The targets per site from the capacities (or uniform) and the mesh's
+    /// mass.
+    fn targets(&self, mass: f64) -> Result<Vec<f64>> {
+        let n = self.diagram.sites.len();
+        let Some(c) = self.capacities else { return Ok(vec![mass / n as f64; n]) };
+        if c.len() != n {
+            return Err(Error::InvalidInput(format!("{} capacities for {n} sites", c.len())));
+        }
+        if let Some(i) = c.iter().position(|&x| !(x.is_finite() && x > 0.0)) {
+            return Err(Error::InvalidInput(format!("site {i}'s capacity is {}: capacities must be positive", c[i])));
+        }
+        let total: f64 = c.iter().sum();
+        Ok(c.iter().map(|x| x / total * mass).collect())
+    }
+
+    /// The diagram with weights `w`, with its faces (their masses under a
+    /// density).
+    fn cells(&self, w: &[f64]) -> Result<Cells> {
+        ClippedVoronoi { face_masses: true, ..self.diagram.weights(w).faces(true) }.compute()
+    }
+
+    /// The capacity-constrained CVT (as blue noise through optimal
+    /// transport, de Goes et al. 2012): `iterations` times, the weights
+    /// that give every cell its target mass (warm-started from the last
+    /// ones), then every site to its power cell's centroid; `progress` is
+    /// called with the iterations done and the energy the last one started
+    /// from. Returns the moved sites with each iteration's record (its
+    /// seconds include its Newton steps), and the transport solved once
+    /// more at the moved sites, so that the weights are theirs.
+    pub fn cvt(&self, iterations: usize, progress: &mut dyn FnMut(usize, f64)) -> Result<(CvtRun, TransportRun)> {
+        let mut sites = self.diagram.sites.to_vec();
+        let mut weights = self.start.map(<[f64]>::to_vec);
+        let mut run = CvtRun::default();
+        for it in 0..=iterations {
+            let diagram = ClippedVoronoi { sites: &sites, ..self.diagram };
+            let at = Transport { diagram, start: weights.as_deref(), ..*self };
+            let solved = match at.solve(&mut |_| true) {
+                // The last weights may empty a moved site's cell: start over.
+                Err(Error::InvalidInput(e)) if weights.is_some() && e.contains("empty with the starting weights") => {
+                    Transport { start: None, ..at }.solve(&mut |_| true)?
+                }
+                other => other?,
+            };
+            if it == iterations {
+                run.sites = sites;
+                return Ok((run, solved));
+            }
+            let c = &solved.cells;
+            let energy = c.energy_total();
+            run.iterations.push(Iteration {
+                energy,
+                empty_cells: c.counters.empty_cells,
+                second_pass: c.counters.second_pass,
+                unresolved: c.counters.unresolved,
+                seconds: solved.steps.iter().map(|s| s.seconds).sum(),
+                newton_steps: solved.steps.len() as u32 - 1,
+            });
+            progress(it + 1, energy);
+            for (s, (c, &m)) in sites.iter_mut().zip(c.centroid.iter().zip(&c.volume)) {
+                if m > 0.0 {
+                    *s = *c;
+                }
+            }
+            weights = Some(solved.weights);
+        }
+        unreachable!("the loop returns at its last iteration")
+    }
+
+    /// Finds the weights, calling `progress` with each step's record (and
+    /// the last diagram's); `progress` returning false stops the solve
+    /// after that step (not converged).
+    pub fn solve(&self, progress: &mut dyn FnMut(&NewtonStep) -> bool) -> Result<TransportRun> {
+        let sites = self.diagram.sites;
+        let n = sites.len();
+        let mut w = match self.start {
+            Some(s) if s.len() != n => {
+                return Err(Error::InvalidInput(format!("{} starting weights for {n} sites", s.len())));
+            }
+            Some(s) => s.to_vec(),
+            None => vec![0.0; n],
+        };
+        if self.tolerance.is_nan() || self.tolerance <= 0.0 {
+            return Err(Error::InvalidInput(format!("the tolerance must be positive, not {}", self.tolerance)));
+        }
+        let clock = Instant::now();
+        let mut cells = self.cells(&w)?;
+        if cells.counters.duplicate_sites > 0 {
+            return Err(Error::InvalidInput(format!(
+                "{}: optimal transport needs distinct sites (an equal site's cell is always empty)",
+                equal_sites(sites)
+            )));
+        }
+        let targets = self.targets(cells.mesh_volume)?;
+        if let Some(i) = cells.volume.iter().position(|&m| m.is_nan() || m <= 0.0) {
+            return Err(Error::InvalidInput(format!(
+                "site {i}'s cell {:?} is empty with the starting weights: optimal transport starts from cells \
+                 that all have mass (move the site into the domain, or start from other weights)",
+                sites[i]
+            )));
+        }
+        // No cell may fall below this mass (Kitagawa, Mérigot, Thibert).
+        let floor = 0.5 * targets.iter().chain(&cells.volume).copied().fold(f64::INFINITY, f64::min);
+        let mut run = TransportRun { targets, ..Default::default() };
+        let mut seconds = clock.elapsed().as_secs_f64();
+        let mut starting = 1;
+        loop {
+            let clock = Instant::now();
+            let residual: Vec<f64> = run.targets.iter().zip(&cells.volume).map(|(t, m)| t - m).collect();
+            let max_error = residual.iter().zip(&run.targets).map(|(r, t)| (r / t).abs()).fold(0.0, f64::max);
+            let mut record = NewtonStep { max_error, diagrams: starting, ..Default::default() };
+            starting = 0;
+            if max_error <= self.tolerance || run.steps.len() == self.max_steps {
+                record.seconds = seconds;
+                run.converged = max_error <= self.tolerance;
+                run.steps.push(record);
+                progress(&record);
+                break;
+            }
+            let laplacian = Laplacian::of(&cells, sites)?;
+            // Forcing term: a solve as accurate as the step can use.
+            let eta = (0.1 * max_error).clamp(1e-3, 0.1);
+            let (delta, iterations) = laplacian.solve(&residual, eta);
+            record.cg_iterations = iterations;
+            seconds += clock.elapsed().as_secs_f64();
+            let norm = |r: &[f64]| r.iter().map(|x| x * x).sum::<f64>().sqrt();
+            let before = norm(&residual);
+            let mut alpha = 1.0;
+            let mut accepted = None;
+            for _ in 0..=MAX_HALVINGS {
+                let clock = Instant::now();
+                let trial: Vec<f64> = w.iter().zip(&delta).map(|(w, d)| w + alpha * d).collect();
+                let next = self.cells(&trial)?;
+                record.diagrams += 1;
+                seconds += clock.elapsed().as_secs_f64();
+                let after = norm(&run.targets.iter().zip(&next.volume).map(|(t, m)| t - m).collect::<Vec<_>>());
+                let lightest = next.volume.iter().copied().fold(f64::INFINITY, f64::min);
+                if lightest >= floor && after <= (1.0 - 0.5 * alpha) * before {
+                    accepted = Some((trial, next));
+                    break;
+                }
+                alpha *= 0.5;
+            }
+            record.seconds = seconds;
+            seconds = 0.0;
+            let Some((trial, next)) = accepted else {
+                // The masses are no better along the step at any length: the
+                // diagram's own precision (about 1e-6 of a cell) is reached.
+                record.step = 0.0;
+                run.steps.push(record);
+                progress(&record);
+                break;
+            };
+            record.step = alpha;
+            run.steps.push(record);
+            w = trial;
+            cells = next;
+            if !progress(&record) {
+                // Stopped: the diagram reached is the last one's.
+                let residual = run.targets.iter().zip(&cells.volume);
+                let max_error = residual.map(|(t, m)| ((t - m) / t).abs()).fold(0.0, f64::max);
+                run.steps.push(NewtonStep { max_error, ..Default::default() });
+                break;
+            }
+        }
+        let mean = w.iter().sum::<f64>() / n as f64;
+        run.weights = w.iter().map(|x| x - mean).collect();
+        run.cells = cells;
+        Ok(run)
+    }
+}
+
+/// The first two equal sites, named.
+fn equal_sites(sites: &[[f64; 3]]) -> String {
+    let mut seen = std::collections::HashMap::with_capacity(sites.len());
+    for (i, p) in sites.iter().enumerate() {
+        if let Some(j) = seen.insert(p.map(|c| (c + 0.0).to_bits()), i) {
+            return format!("sites {j} and {i} are equal ({p:?})");
+        }
+    }
+    "two sites are equal".into()
+}
+
+/// The Hessian of the masses in the weights: a weighted graph Laplacian
+/// (CSR, the diagonal apart).
+struct Laplacian {
+    offsets: Vec<usize>,
+    columns: Vec<u32>,
+    values: Vec<f64>,
+    diagonal: Vec<f64>,
+}
+
+impl Laplacian {
+    /// From the cells' faces: `A_ij / 2|x_i - x_j|` per shared face (`A_ij`
+    /// its area, or its mass under a density).
+    /// Refuses a diagram whose cells fall apart into separate groups (a
+    /// domain in pieces).
+    fn of(cells: &Cells, sites: &[[f64; 3]]) -> Result<Self> {
+        let adj = cells.adjacency().expect("the transport's diagrams have faces");
+        let rows: Vec<u32> =
+            adj.offsets.windows(2).enumerate().flat_map(|(i, r)| std::iter::repeat_n(i as u32, r[1] - r[0])).collect();
+        let values: Vec<f64> = (0..adj.neighbors.len())
+            .into_par_iter()
+            .map(|e| {
+                let (p, q) = (sites[rows[e] as usize], sites[adj.neighbors[e] as usize]);
+                let dist = ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt();
+                adj.areas[e] / (2.0 * dist)
+            })
+            .collect();
+        let diagonal = adj.offsets.par_windows(2).map(|r| values[r[0]..r[1]].iter().sum()).collect();
+        let laplacian = Self { offsets: adj.offsets.clone(), columns: adj.neighbors.clone(), values, diagonal };
+        let groups = laplacian.groups();
+        if groups > 1 {
+            return Err(Error::InvalidInput(format!(
+                "the cells fall apart into {groups} groups that share no face (a domain in separate pieces): \
+                 optimal transport moves mass only across shared faces"
+            )));
+        }
+        Ok(laplacian)
+    }
+
+    /// Connected groups of cells.
+    fn groups(&self) -> usize {
+        let n = self.diagonal.len();
+        let mut seen = vec![false; n];
+        let mut groups = 0;
+        let mut stack = Vec::new();
+        for s in 0..n {
+            if seen[s] {
+                continue;
+            }
+            groups += 1;
+            seen[s] = true;
+            stack.push(s);
+            while let Some(i) = stack.pop() {
+                for e in self.offsets[i]..self.offsets[i + 1] {
+                    let j = self.columns[e] as usize;
+                    if !seen[j] && self.values[e] > 0.0 {
+                        seen[j] = true;
+                        stack.push(j);
+                    }
+                }
+            }
+        }
+        groups
+    }
+
+    /// `out = L x`.
+    fn apply(&self, x: &[f64], out: &mut [f64]) {
+        out.par_iter_mut().enumerate().with_min_len(1024).for_each(|(i, o)| {
+            let mut s = self.diagonal[i] * x[i];
+            for e in self.offsets[i]..self.offsets[i + 1] {
+                s -= self.values[e] * x[self.columns[e] as usize];
+            }
+            *o = s;
+        });
+    }
+
+    /// Solves `L δ = b` (`b` summing to zero: the constant vector is `L`'s
+    /// kernel) by Jacobi-preconditioned conjugate gradients to a residual
+    /// `eta |b|`; `δ` has mean zero. Returns it and the iterations.
+    fn solve(&self, b: &[f64], eta: f64) -> (Vec<f64>, u32) {
+        let n = b.len();
+        let dot = |a: &[f64], b: &[f64]| a.par_iter().zip(b).with_min_len(4096).map(|(x, y)| x * y).sum::<f64>();
+        // The right-hand side projected on L's range (rounding aside, it is).
+        let mean = b.iter().sum::<f64>() / n as f64;
+        let mut r: Vec<f64> = b.iter().map(|x| x - mean).collect();
+        let inverse: Vec<f64> = self.diagonal.iter().map(|&d| if d > 0.0 { 1.0 / d } else { 0.0 }).collect();
+        let mut x = vec![0.0; n];
+        let mut z: Vec<f64> = r.iter().zip(&inverse).map(|(r, m)| r * m).collect();
+        let mut p = z.clone();
+        let mut q = vec![0.0; n];
+        let mut rz = dot(&r, &z);
+        let goal = eta * dot(&r, &r).sqrt();
+        let mut iterations = 0;
+        while iterations < 20 * n as u32 + 100 && dot(&r, &r).sqrt() > goal {
+            self.apply(&p, &mut q);
+            let pq = dot(&p, &q);
+            if pq.is_nan() || pq <= 0.0 {
+                break;
+            }
+            let a = rz / pq;
+            x.par_iter_mut().zip(&p).for_each(|(x, p)| *x += a * p);
+            r.par_iter_mut().zip(&q).for_each(|(r, q)| *r -= a * q);
+            z.par_iter_mut().zip(&r).zip(&inverse).for_each(|((z, r), m)| *z = r * m);
+            let rz_next = dot(&r, &z);
+            let beta = rz_next / rz;
+            rz = rz_next;
+            p.par_iter_mut().zip(&z).for_each(|(p, z)| *p = z + beta * *p);
+            iterations += 1;
+        }
+        let mean = x.iter().sum::<f64>() / n as f64;
+        x.iter_mut().for_each(|v| *v -= mean);
+        (x, iterations)
+    }
+}

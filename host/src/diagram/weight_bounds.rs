@@ -1,0 +1,88 @@
+//! Local bounds of the power weights, which keep the power cells' security
+//! radius near the Voronoi cells' where the weights drift across the
+//! domain (see [`cvd_kernels::clip::Slack`]).
+//!
+//! A site `j` cuts a polyhedron within `r` of site `i` only if `|x_j -
+//! x_i| < reach(r, w_j - w_i)`, `reach(r, s) = r + sqrt(r² + s)`. With
+//! `W_0` the largest weight of all, such a `j` lies within `ρ_0 = reach(r,
+//! W_0 - w_i)`; so its weight is at most `W_1`, the largest within `ρ_0`
+//! of `x_i`; so it lies within `ρ_1 = reach(r, W_1 - w_i)`, and weighs at
+//! most `W_2`, the largest within `ρ_1`; and so on. Each `W_k` holds for
+//! every polyhedron with `r <= R` when the radii are taken at `R`: the
+//! record `[W_k, R²]` the kernels read. The largest weights within a
+//! radius are read off a coarse grid of cell maxima (its cells meeting the
+//! ball's box: an upper bound, which is all the argument needs).
+
+use cvd_kernels::abi::SplitPoint;
+use rayon::prelude::*;
+
+/// Halvings of the bound (the `k` above).
+const ROUNDS: usize = 3;
+
+/// The radii the local bounds hold within, in mean site spacings (a
+/// cell's farthest vertex is about one away; pieces start larger).
+const CAPS: [f64; 3] = [1.0, 1.5, 2.5];
+
+/// The side of the grid's cells, in mean site spacings.
+const CELL_SPACINGS: f64 = 2.0;
+
+/// The local bound record of each site of `sites` (the clipping frame,
+/// weights in `hi[3] + lo[3]`, all in `0..=range`), for a domain of volume
+/// `volume`: `hi = [W_0, R_0², W_1, R_1²]`, `lo = [W_2, R_2², 0, 0]` (see
+/// the module's documentation), rounded so that they stay bounds in f32.
+pub(crate) fn local_bounds(sites: &[SplitPoint], range: f64, volume: f64) -> Vec<SplitPoint> {
+    let n = sites.len();
+    let points: Vec<[f64; 3]> = sites.iter().map(SplitPoint::to_f64).collect();
+    let weights: Vec<f64> = sites.iter().map(SplitPoint::value).collect();
+    let (lo, hi) = crate::vec3::bounding_box(points.iter());
+    let spacing = (volume.max(1e-30) / n as f64).cbrt();
+    // The grid: at most about 2^21 cells.
+    let longest = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max).max(1e-30);
+    let side = (CELL_SPACINGS * spacing).max(longest / 128.0);
+    let dims = [0, 1, 2].map(|a| (((hi[a] - lo[a]) / side).floor() as usize + 1).min(129));
+    let cell_of = |x: f64, a: usize| (((x - lo[a]) / side).floor().max(0.0) as usize).min(dims[a] - 1);
+    let mut grid = vec![f64::NEG_INFINITY; dims[0] * dims[1] * dims[2]];
+    for (p, &w) in points.iter().zip(&weights) {
+        let c = (cell_of(p[2], 2) * dims[1] + cell_of(p[1], 1)) * dims[0] + cell_of(p[0], 0);
+        grid[c] = grid[c].max(w);
+    }
+    let box_max = |p: &[f64; 3], radius: f64| {
+        let (a, b) = ([0, 1, 2].map(|k| cell_of(p[k] - radius, k)), [0, 1, 2].map(|k| cell_of(p[k] + radius, k)));
+        let mut m = f64::NEG_INFINITY;
+        for z in a[2]..=b[2] {
+            for y in a[1]..=b[1] {
+                let row = (z * dims[1] + y) * dims[0];
+                m = grid[row + a[0]..=row + b[0]].iter().copied().fold(m, f64::max);
+            }
+        }
+        m
+    };
+    // Rounded up, so that each bound stays one in f32.
+    let up = |w: f64| {
+        let b = w as f32;
+        if (b as f64) < w {
+            f32::from_bits(b.to_bits() + 1)
+        } else {
+            b
+        }
+    };
+    points
+        .par_iter()
+        .zip(&weights)
+        .map(|(p, &w)| {
+            let bounds = CAPS.map(|c| {
+                let cap = c * spacing;
+                let reach = |slack: f64| (cap + (cap * cap + slack.max(0.0)).sqrt()) * (1.0 + 1e-4);
+                let mut bound = range;
+                for _ in 0..ROUNDS {
+                    bound = bound.min(box_max(p, reach(bound - w)));
+                }
+                (up(bound), (cap * cap * (1.0 - 1e-6)) as f32)
+            });
+            SplitPoint {
+                hi: [bounds[0].0, bounds[0].1, bounds[1].0, bounds[1].1],
+                lo: [bounds[2].0, bounds[2].1, 0.0, 0.0],
+            }
+        })
+        .collect()
+}
