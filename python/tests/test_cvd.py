@@ -154,7 +154,9 @@ def test_lloyd_lowers_the_energy(mesh):
     assert lb["energy"][-1] <= e[0]
 
 
-def test_transport_gives_equal_cells_and_weights_give_them_again(mesh):
+def test_transport_gives_equal_cells_and_weights_give_them_again():
+    # (The coarse joint falls apart into pieces, which transport refuses.)
+    mesh = cvd.builtin("cube", 8)
     sites = cvd.sample(mesh, 800, seed=5)
     weights, record = cvd.transport(mesh, sites, backend="cpu")
     assert weights.shape == (800,) and record["converged"]
