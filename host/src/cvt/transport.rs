@@ -10,7 +10,9 @@
 //! preconditioned, the constant vector being `L`'s kernel), and is damped
 //! as Kitagawa, Mérigot and Thibert (2019) prove convergent: halved until
 //! no cell's mass falls below half the smallest of the targets and the
-//! starting masses, and the error's norm drops by at least `1 - α/2`.
+//! starting masses, and the error's norm drops by at least `1 - α/2` (or
+//! every mass is within the tolerance); each step tries twice the last
+//! one's `α` first, at most 1.
 //! Every trial is one diagram, with faces, on the diagram's backend.
 
 use crate::cvt::{CvtRun, Iteration};
@@ -74,6 +76,11 @@ pub struct Transport<'a> {
 
 /// Halvings of a Newton step before the solve says it cannot go on.
 const MAX_HALVINGS: u32 = 12;
+
+/// Halvings once every cell is within this of its target: closer, the
+/// masses' own rounding (about 1e-6 of a cell in f32 kernels) is what a
+/// step that does not improve them meets, and halving on finds nothing.
+const NEAR: (f64, u32) = (1e-4, 3);
 
 impl<'a> Transport<'a> {
     /// Optimal transport on `diagram`'s mesh, sites, density and backend
@@ -215,10 +222,14 @@ impl<'a> Transport<'a> {
         let mut run = TransportRun { targets, ..Default::default() };
         let mut seconds = clock.elapsed().as_secs_f64();
         let mut starting = 1;
+        // Each step's first trial: twice the last step's length (at most
+        // 1), so that a run of damped steps does not retry the full step
+        // every time; the acceptance test is the same.
+        let mut first = 1.0f64;
         loop {
             let clock = Instant::now();
             let residual: Vec<f64> = run.targets.iter().zip(&cells.volume).map(|(t, m)| t - m).collect();
-            let max_error = residual.iter().zip(&run.targets).map(|(r, t)| (r / t).abs()).fold(0.0, f64::max);
+            let max_error = worst(&run.targets, &cells.volume);
             let mut record = NewtonStep { max_error, diagrams: starting, ..Default::default() };
             starting = 0;
             if max_error <= self.tolerance || run.steps.len() == self.max_steps {
@@ -236,9 +247,10 @@ impl<'a> Transport<'a> {
             seconds += clock.elapsed().as_secs_f64();
             let norm = |r: &[f64]| r.iter().map(|x| x * x).sum::<f64>().sqrt();
             let before = norm(&residual);
-            let mut alpha = 1.0;
+            let mut alpha = first;
             let mut accepted = None;
-            for _ in 0..=MAX_HALVINGS {
+            let halvings = if max_error < NEAR.0 { NEAR.1 } else { MAX_HALVINGS };
+            for _ in 0..=halvings {
                 let clock = Instant::now();
                 let trial: Vec<f64> = w.iter().zip(&delta).map(|(w, d)| w + alpha * d).collect();
                 let next = self.cells(&trial)?;
@@ -246,7 +258,10 @@ impl<'a> Transport<'a> {
                 seconds += clock.elapsed().as_secs_f64();
                 let after = norm(&run.targets.iter().zip(&next.volume).map(|(t, m)| t - m).collect::<Vec<_>>());
                 let lightest = next.volume.iter().copied().fold(f64::INFINITY, f64::min);
-                if lightest >= floor && after <= (1.0 - 0.5 * alpha) * before {
+                // A step that reaches the tolerance is taken (there, the
+                // norm is the masses' rounding, which need not halve).
+                let reached = worst(&run.targets, &next.volume) <= self.tolerance;
+                if lightest >= floor && (after <= (1.0 - 0.5 * alpha) * before || reached) {
                     accepted = Some((trial, next));
                     break;
                 }
@@ -263,14 +278,13 @@ impl<'a> Transport<'a> {
                 break;
             };
             record.step = alpha;
+            first = (2.0 * alpha).min(1.0);
             run.steps.push(record);
             w = trial;
             cells = next;
             if !progress(&record) {
                 // Stopped: the diagram reached is the last one's.
-                let residual = run.targets.iter().zip(&cells.volume);
-                let max_error = residual.map(|(t, m)| ((t - m) / t).abs()).fold(0.0, f64::max);
-                run.steps.push(NewtonStep { max_error, ..Default::default() });
+                run.steps.push(NewtonStep { max_error: worst(&run.targets, &cells.volume), ..Default::default() });
                 break;
             }
         }
@@ -279,6 +293,11 @@ impl<'a> Transport<'a> {
         run.cells = cells;
         Ok(run)
     }
+}
+
+/// `max_i |m_i - t_i| / t_i`.
+fn worst(targets: &[f64], masses: &[f64]) -> f64 {
+    targets.iter().zip(masses).map(|(t, m)| ((t - m) / t).abs()).fold(0.0, f64::max)
 }
 
 /// The first two equal sites, named.
