@@ -97,10 +97,7 @@ fn main() {
         .solve(&mut |s| {
             if s.step > 0.0 {
                 step += 1;
-                println!(
-                    "  step {step:>2}: max error {:.2e}, step {:<6} CG {:>4}, diagrams {}, {:.3} s",
-                    s.max_error, s.step, s.cg_iterations, s.diagrams, s.seconds
-                );
+                println!("  step {step:>2}: {s}");
             }
             true
         })

@@ -441,10 +441,7 @@ fn transport(
         let run = ot.solve(&mut |s| {
             if s.step > 0.0 {
                 step += 1;
-                println!(
-                    "transport: Newton step {step}: max mass error {:.2e}, step {}, {} CG iterations, {} diagrams, {:.3} s",
-                    s.max_error, s.step, s.cg_iterations, s.diagrams, s.seconds
-                );
+                println!("transport: Newton step {step}: {s}");
             }
             true
         })?;

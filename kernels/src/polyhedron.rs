@@ -397,6 +397,37 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
         self.clip_as(plane, NO_ID)
     }
 
+    /// A plane that leaves the polyhedron unchanged but lies on one of its
+    /// tet's faces (a bisector through a face of the mesh: sites on a
+    /// lattice in a lattice's mesh) makes that face: it takes the plane's
+    /// id, so that the face between the two cells is not taken for the
+    /// inside of one.
+    #[inline]
+    fn claim_tet_face(&mut self, plane: Vec4, id: u32) {
+        if !made_by_site(id) {
+            return;
+        }
+        let n = normal(plane);
+        let len = n.length();
+        if len == 0.0 {
+            return;
+        }
+        let mut q = 0;
+        while q < (self.n_planes as usize).min(P) {
+            let other = self.planes[q];
+            let m = normal(other);
+            let m_len = m.length();
+            if (TET_FACE..NO_ID).contains(&self.ids[q]) && m_len > 0.0 {
+                let (a, b) = (plane.w / len, other.w / m_len);
+                let along = (n / len - m / m_len).length_squared();
+                if along <= 1e-10 && (a - b).abs() <= 1e-5 * a.abs().max(b.abs()) {
+                    self.ids[q] = id;
+                }
+            }
+            q += 1;
+        }
+    }
+
     /// Like [`Self::clip`], recording `id` as the new plane's maker.
     pub fn clip_as(&mut self, plane: Vec4, id: u32) -> Clip {
         let () = Self::PLANES_FIT;
@@ -409,19 +440,31 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
         }
         let n_old = (self.n_verts as usize).min(V);
         let n = normal(plane);
-        // One test per vertex, listing the removed ones without a branch.
+        // One test per vertex, listing the removed ones without a branch;
+        // and the range of `n·v`, to see where the plane only touches.
         let mut out = [0u32; V];
         let mut r = 0;
+        let (mut low, mut high) = (f32::INFINITY, f32::NEG_INFINITY);
         let mut i = 0;
         while i < n_old {
             out[r] = i as u32;
-            r += (self.verts[i].dot(n) > plane.w) as usize;
+            let dn = self.verts[i].dot(n);
+            r += (dn > plane.w) as usize;
+            low = low.min(dn);
+            high = high.max(dn);
             i += 1;
         }
+        // What rounding leaves of a point on the plane.
+        let rounding = 1e-6 * (low.abs().max(high.abs()) + plane.w.abs());
         if r == 0 {
+            if high >= plane.w - rounding {
+                self.claim_tet_face(plane, id);
+            }
             return Clip::Unchanged;
         }
-        if r == n_old {
+        // Nothing kept but points on the plane, to rounding: a flat piece
+        // (a tet on the far side of a bisector lying on its face), empty.
+        if r == n_old || low >= plane.w - rounding {
             self.n_verts = 0;
             return Clip::Empty;
         }

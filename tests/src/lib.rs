@@ -61,6 +61,34 @@ pub fn script(name: &str) -> std::path::PathBuf {
     tests_dir().join("scripts").join(name)
 }
 
+/// An L of three unit cubes (a non-convex domain), `n` tets per cube side.
+pub fn l_mesh(n: usize) -> cvd::TetMesh {
+    let mut mesh = cvd::TetMesh::cube(n);
+    for shift in [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]] {
+        let base = mesh.vertices.len() as u32;
+        let cube = cvd::TetMesh::cube(n);
+        mesh.vertices.extend(cube.vertices.iter().map(|v| [v[0] + shift[0], v[1] + shift[1], v[2]]));
+        mesh.tets.extend(cube.tets.iter().map(|t| t.map(|k| k + base)));
+    }
+    mesh
+}
+
+/// `n³` sites at the centres of the unit cube's `n³` sub-cubes: cubic
+/// cells, every Voronoi vertex degenerate; with `TetMesh::cube(n)` every
+/// bisector lies on faces of the mesh's tets.
+pub fn cube_lattice(n: usize) -> Vec<[f64; 3]> {
+    let h = 1.0 / n as f64;
+    let mut out = Vec::with_capacity(n * n * n);
+    for i in 0..n {
+        for j in 0..n {
+            for k in 0..n {
+                out.push([i, j, k].map(|c| (c as f64 + 0.5) * h));
+            }
+        }
+    }
+    out
+}
+
 /// The shared models present in `../shared/models` (torus_8k, bunny_10k,
 /// fandisk_26k, joint_31k), by name; an absent one is named and skipped.
 /// For the measurements run by hand on them.

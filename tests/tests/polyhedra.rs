@@ -147,14 +147,7 @@ fn merged_cells_are_voro_plus_plus_cells_in_a_box() {
 fn a_lattice_gives_cubes() {
     let n = 5;
     let h = 1.0 / n as f64;
-    let mut sites = Vec::new();
-    for i in 0..n {
-        for j in 0..n {
-            for k in 0..n {
-                sites.push([i, j, k].map(|c| (c as f64 + 0.5) * h));
-            }
-        }
-    }
+    let sites = cvd_tests::cube_lattice(n);
     let mesh = TetMesh::cube(4);
     let cpu = cvd::cpu::CpuBackend::new(None).unwrap();
     let (cells, _) = ClippedVoronoi::new(&mesh, &sites).faces(true).compute_with_polyhedra(&cpu).unwrap();

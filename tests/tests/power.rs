@@ -8,6 +8,7 @@
 //! weights against the Voronoi cells.
 
 use cvd::{points, Backend, ClippedVoronoi, Pairing, Strategy, TetMesh};
+use cvd_tests::l_mesh;
 use cvd_tests::reference::clipped_power_cells;
 use voro_rs::prelude::*;
 
@@ -81,31 +82,11 @@ fn the_reference_power_cells_are_voro_plus_plus_radical_cells() {
     }
 }
 
-/// An L of three unit cubes (non-convex), `n` tets per cube side.
-fn l_mesh(n: usize) -> TetMesh {
-    let mut mesh = TetMesh::cube(n);
-    for shift in [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]] {
-        let base = mesh.vertices.len() as u32;
-        let cube = TetMesh::cube(n);
-        mesh.vertices.extend(cube.vertices.iter().map(|v| [v[0] + shift[0], v[1] + shift[1], v[2]]));
-        mesh.tets.extend(cube.tets.iter().map(|t| t.map(|k| k + base)));
-    }
-    mesh
-}
-
 /// On a non-convex mesh (an L of three cubes): a constant added to every
 /// weight gives the same cells, and they fill the mesh.
 #[test]
 fn a_constant_added_to_every_weight_changes_nothing() {
-    let mut mesh = TetMesh::cube(2);
-    let n_vertices = mesh.vertices.len() as u32;
-    for shift in [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]] {
-        let base = mesh.vertices.len() as u32;
-        let cube = TetMesh::cube(2);
-        mesh.vertices.extend(cube.vertices.iter().map(|v| [v[0] + shift[0], v[1] + shift[1], v[2]]));
-        mesh.tets.extend(cube.tets.iter().map(|t| t.map(|k| k + base)));
-    }
-    assert_eq!(mesh.vertices.len() as u32, 3 * n_vertices);
+    let mesh = l_mesh(2);
     let sites: Vec<[f64; 3]> = points::in_mesh(&mesh, 120, 23);
     let w = weights(sites.len(), 0.05, 24);
     let (vol, centroid) = clipped_power_cells(&mesh, &sites, &w);

@@ -6,6 +6,7 @@
 
 use cvd::cvt::transport::Transport;
 use cvd::{points, ClippedVoronoi, Error, TetMesh};
+use cvd_tests::l_mesh;
 use cvd_tests::reference::clipped_power_cells;
 use voro_rs::prelude::*;
 
@@ -63,18 +64,6 @@ fn equal_volumes_in_a_box_checked_by_voro_plus_plus() {
         println!("{what}: voro++'s cells with these weights: worst relative volume error {off:.2e}");
         assert!(off <= 5e-6, "{what}: voro++ volumes {off:e} off the targets");
     }
-}
-
-/// An L of three unit cubes (non-convex), `n` tets per cube side.
-fn l_mesh(n: usize) -> TetMesh {
-    let mut mesh = TetMesh::cube(n);
-    for shift in [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]] {
-        let base = mesh.vertices.len() as u32;
-        let cube = TetMesh::cube(n);
-        mesh.vertices.extend(cube.vertices.iter().map(|v| [v[0] + shift[0], v[1] + shift[1], v[2]]));
-        mesh.tets.extend(cube.tets.iter().map(|t| t.map(|k| k + base)));
-    }
-    mesh
 }
 
 /// Capacities from 1 to 4 on a non-convex mesh, on every backend: the f64

@@ -38,6 +38,16 @@ pub struct NewtonStep {
     pub seconds: f64,
 }
 
+impl std::fmt::Display for NewtonStep {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "max mass error {:.2e}, step {}, {} CG iterations, {} diagrams, {:.3} s",
+            self.max_error, self.step, self.cg_iterations, self.diagrams, self.seconds
+        )
+    }
+}
+
 /// The result of an optimal-transport solve.
 #[derive(Clone, Debug, Default)]
 pub struct TransportRun {
