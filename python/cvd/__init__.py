@@ -114,7 +114,16 @@ def lloyd(mesh, sites, iterations, *, optimizer="lloyd", backend="auto", density
 
 
 def transport(
-    mesh, sites, capacities=None, *, backend="auto", density=None, weights=None, tolerance=1e-6, max_steps=50
+    mesh,
+    sites,
+    capacities=None,
+    *,
+    backend="auto",
+    density=None,
+    weights=None,
+    tolerance=1e-6,
+    max_steps=50,
+    return_record=False,
 ):
     """The power weights for which every cell of `sites` in `mesh` gets its
     target mass: the mesh's volume (or mass under `density`) over the sites,
@@ -122,14 +131,16 @@ def transport(
     steps from `weights` (default 0: the Voronoi cells) until every cell is
     within `tolerance` of its target, relative to it.
 
-    Returns (weights, record): weights an (n,) array (mean 0), record a dict
-    with `max_error` (per diagram the steps started from, the last the
-    final error), `step`, `cg_iterations` and `seconds` (per Newton step),
-    and `converged`. Ctrl-C stops it between steps.
+    Returns the weights, an (n,) array (mean 0); with return_record=True,
+    (weights, record), record a dict with `max_error` (per diagram the
+    steps started from, the last the final error), `step`, `cg_iterations`
+    and `seconds` (per Newton step), and `converged`. A solve that does not
+    reach the tolerance warns (RuntimeWarning). Ctrl-C stops it between
+    steps.
     """
     if max_steps < 0:
         raise ValueError(f"max_steps must be at least 0, not {max_steps}")
-    return _cvd.transport(
+    w, record = _cvd.transport(
         mesh,
         _points(sites, "sites"),
         _values(capacities, "capacities"),
@@ -139,3 +150,12 @@ def transport(
         float(tolerance),
         int(max_steps),
     )
+    if not record["converged"]:
+        import warnings
+
+        warnings.warn(
+            f"transport: the masses came within {record['max_error'][-1]:.2e} of their targets, not {tolerance:.0e}",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+    return (w, record) if return_record else w

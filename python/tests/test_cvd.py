@@ -158,7 +158,7 @@ def test_transport_gives_equal_cells_and_weights_give_them_again():
     # (The coarse joint falls apart into pieces, which transport refuses.)
     mesh = cvd.builtin("cube", 8)
     sites = cvd.sample(mesh, 800, seed=5)
-    weights, record = cvd.transport(mesh, sites, backend="cpu")
+    weights, record = cvd.transport(mesh, sites, backend="cpu", return_record=True)
     assert weights.shape == (800,) and record["converged"]
     assert record["max_error"][-1] <= 1e-6 and 1 <= len(record["step"]) <= 15
     assert len(record["max_error"]) == len(record["step"]) + 1
@@ -167,9 +167,12 @@ def test_transport_gives_equal_cells_and_weights_give_them_again():
     assert np.abs(cells.volume / target - 1).max() <= 1e-6
     # Capacities: twice the mass for the first half.
     c = np.r_[np.full(400, 2.0), np.ones(400)]
-    w, record = cvd.transport(mesh, sites, c, backend="cpu")
+    w = cvd.transport(mesh, sites, c, backend="cpu")
+    assert w.shape == (800,)
     v = cvd.clipped_voronoi(mesh, sites, backend="cpu", weights=w).volume
     assert np.allclose(v[:400] / v[400:].mean(), 2.0, rtol=1e-5, atol=0)
+    with pytest.warns(RuntimeWarning, match="transport: the masses came within"):
+        cvd.transport(mesh, sites, backend="cpu", max_steps=1)
     with pytest.raises(ValueError, match="799 capacities for 800 sites"):
         cvd.transport(mesh, sites, c[1:], backend="cpu")
     with pytest.raises(ValueError, match="weights for 800 sites"):

@@ -82,6 +82,8 @@ pub struct Transport<'a> {
     start: Option<&'a [f64]>,
     tolerance: f64,
     max_steps: usize,
+    /// Starting weights that empty a cell: start from zero instead.
+    restart: bool,
 }
 
 /// Halvings of a Newton step before the solve says it cannot go on.
@@ -97,7 +99,7 @@ impl<'a> Transport<'a> {
     /// (its weights, if any, are ignored: see [`Self::start`]): by default
     /// every cell gets the same mass, the mesh's mass over the sites.
     pub fn new(diagram: ClippedVoronoi<'a>) -> Self {
-        Self { diagram, capacities: None, start: None, tolerance: 1e-6, max_steps: 50 }
+        Self { diagram, capacities: None, start: None, tolerance: 1e-6, max_steps: 50, restart: false }
     }
 
     /// A capacity per site (positive; normalised so that they sum to the
@@ -159,21 +161,14 @@ impl<'a> Transport<'a> {
     pub fn cvt(&self, iterations: usize, progress: &mut dyn FnMut(usize, f64)) -> Result<(CvtRun, TransportRun)> {
         let mut sites = self.diagram.sites.to_vec();
         let mut weights = self.start.map(<[f64]>::to_vec);
+        // The last weights may empty a moved site's cell: then from zero.
+        let solve = |sites: &[[f64; 3]], weights: Option<&[f64]>| {
+            let diagram = ClippedVoronoi { sites, ..self.diagram };
+            Transport { diagram, start: weights, restart: true, ..*self }.solve(&mut |_| true)
+        };
         let mut run = CvtRun::default();
-        for it in 0..=iterations {
-            let diagram = ClippedVoronoi { sites: &sites, ..self.diagram };
-            let at = Transport { diagram, start: weights.as_deref(), ..*self };
-            let solved = match at.solve(&mut |_| true) {
-                // The last weights may empty a moved site's cell: start over.
-                Err(Error::InvalidInput(e)) if weights.is_some() && e.contains("empty with the starting weights") => {
-                    Transport { start: None, ..at }.solve(&mut |_| true)?
-                }
-                other => other?,
-            };
-            if it == iterations {
-                run.sites = sites;
-                return Ok((run, solved));
-            }
+        for it in 0..iterations {
+            let solved = solve(&sites, weights.as_deref())?;
             let c = &solved.cells;
             let energy = c.energy_total();
             run.iterations.push(Iteration {
@@ -192,7 +187,9 @@ impl<'a> Transport<'a> {
             }
             weights = Some(solved.weights);
         }
-        unreachable!("the loop returns at its last iteration")
+        let solved = solve(&sites, weights.as_deref())?;
+        run.sites = sites;
+        Ok((run, solved))
     }
 
     /// Finds the weights, calling `progress` with each step's record (and
@@ -213,6 +210,10 @@ impl<'a> Transport<'a> {
         }
         let clock = Instant::now();
         let mut cells = self.cells(&w)?;
+        if self.restart && self.start.is_some() && cells.volume.iter().any(|&m| m.is_nan() || m <= 0.0) {
+            w = vec![0.0; n];
+            cells = self.cells(&w)?;
+        }
         if cells.counters.duplicate_sites > 0 {
             return Err(Error::InvalidInput(format!(
                 "{}: optimal transport needs distinct sites (an equal site's cell is always empty)",
