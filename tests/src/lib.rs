@@ -2,6 +2,7 @@
 //! binary shares, and references written apart from the kernels.
 
 pub mod reference;
+pub mod voro;
 
 use cvd::cpu::CpuBackend;
 use cvd::vulkan::{validation_errors, VulkanBackend, VulkanOptions};

@@ -10,35 +10,8 @@
 use cvd::{points, Backend, ClippedVoronoi, Pairing, Strategy, TetMesh};
 use cvd_tests::l_mesh;
 use cvd_tests::reference::clipped_power_cells;
+use cvd_tests::voro::power_cells;
 use voro_rs::prelude::*;
-
-/// voro++'s radical cells of `sites` with weights `w = r²` in the box
-/// `lo..hi`: volumes and centroids in input order (an empty cell: volume 0,
-/// no centroid).
-fn voro_power_cells(lo: [f64; 3], hi: [f64; 3], sites: &[[f64; 3]], w: &[f64]) -> (Vec<f64>, Vec<Option<[f64; 3]>>) {
-    let mut con = ContainerRad::new(lo, hi, [6, 6, 6], [false; 3]);
-    for (i, (&p, &wi)) in sites.iter().zip(w).enumerate() {
-        con.put(i as i32, p, wi.sqrt());
-    }
-    assert_eq!(con.total_particles() as usize, sites.len(), "voro++ rejected a site");
-    let mut volume = vec![0.0; sites.len()];
-    let mut centroid = vec![None; sites.len()];
-    let mut l = LoopAll::of_container_rad(&mut con);
-    assert!(l.start());
-    loop {
-        let id = l.particle_id() as usize;
-        if let Some(mut cell) = con.compute_cell(&mut l) {
-            let cell: &mut VoroCellSgl = &mut cell;
-            volume[id] = cell.volume();
-            let (c, p) = (cell.centroid(), l.position());
-            centroid[id] = Some([c[0] + p[0], c[1] + p[1], c[2] + p[2]]);
-        }
-        if !l.inc() {
-            break;
-        }
-    }
-    (volume, centroid)
-}
 
 /// Random weights in `[0, top)`, one per site.
 fn weights(n: usize, top: f64, seed: u64) -> Vec<f64> {
@@ -53,7 +26,7 @@ fn the_reference_power_cells_are_voro_plus_plus_radical_cells() {
     // cells and push others off their sites.
     let w = weights(sites.len(), 0.02, 22);
     let (vol, centroid) = clipped_power_cells(&mesh, &sites, &w);
-    let (voro_vol, voro_centroid) = voro_power_cells([0.0; 3], [1.0; 3], &sites, &w);
+    let (voro_vol, voro_centroid) = power_cells([0.0; 3], [1.0; 3], &sites, &w);
     let empty = vol.iter().filter(|&&v| v == 0.0).count();
     let voro_empty = voro_vol.iter().filter(|&&v| v == 0.0).count();
     assert!(empty > 0, "the weights empty no cell: the test shows nothing about empty cells");
@@ -167,7 +140,7 @@ fn power_cells_match_voro_plus_plus_on_a_box() {
     let mesh = TetMesh::cube(6);
     let sites = points::uniform(400, 31);
     let w = weights(sites.len(), 0.02, 32);
-    let (vol, centroid) = voro_power_cells([0.0; 3], [1.0; 3], &sites, &w);
+    let (vol, centroid) = power_cells([0.0; 3], [1.0; 3], &sites, &w);
     let centroid: Vec<[f64; 3]> = centroid.into_iter().zip(&sites).map(|(c, s)| c.unwrap_or(*s)).collect();
     check_power_cells(&mesh, &sites, &w, &(vol, centroid), 5e-6);
 }

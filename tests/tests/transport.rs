@@ -8,31 +8,7 @@ use cvd::cvt::transport::Transport;
 use cvd::{points, ClippedVoronoi, Error, TetMesh};
 use cvd_tests::l_mesh;
 use cvd_tests::reference::clipped_power_cells;
-use voro_rs::prelude::*;
-
-/// voro++'s radical cells' volumes of `sites` with weights `w` in the unit
-/// box (weights shifted to be radii², which changes no cell).
-fn voro_power_volumes(sites: &[[f64; 3]], w: &[f64]) -> Vec<f64> {
-    let least = w.iter().copied().fold(f64::INFINITY, f64::min);
-    let mut con = ContainerRad::new([0.0; 3], [1.0; 3], [6, 6, 6], [false; 3]);
-    for (i, (&p, &wi)) in sites.iter().zip(w).enumerate() {
-        con.put(i as i32, p, (wi - least).sqrt());
-    }
-    let mut volume = vec![0.0; sites.len()];
-    let mut l = LoopAll::of_container_rad(&mut con);
-    assert!(l.start());
-    loop {
-        let id = l.particle_id() as usize;
-        if let Some(mut cell) = con.compute_cell(&mut l) {
-            let cell: &mut VoroCellSgl = &mut cell;
-            volume[id] = cell.volume();
-        }
-        if !l.inc() {
-            break;
-        }
-    }
-    volume
-}
+use cvd_tests::voro::power_cells;
 
 /// The largest `|m_i - t_i| / t_i`.
 fn worst(masses: &[f64], targets: &[f64]) -> f64 {
@@ -59,7 +35,7 @@ fn equal_volumes_in_a_box_checked_by_voro_plus_plus() {
         assert!(steps <= 15, "{what}: {steps} Newton steps");
         assert_eq!(run.weights.len(), sites.len());
         assert!(run.weights.iter().sum::<f64>().abs() < 1e-12, "the weights' mean is 0");
-        let exact = voro_power_volumes(&sites, &run.weights);
+        let (exact, _) = power_cells([0.0; 3], [1.0; 3], &sites, &run.weights);
         let off = worst(&exact, &run.targets);
         println!("{what}: voro++'s cells with these weights: worst relative volume error {off:.2e}");
         assert!(off <= 5e-6, "{what}: voro++ volumes {off:e} off the targets");
