@@ -287,3 +287,148 @@ fn split_rows<T>(mut all: &mut [T], lens: impl Iterator<Item = usize>) -> Vec<&m
     }
     rows
 }
+
+/// A site's pieces, as [`FaceCollector`] takes them, and their volume.
+#[derive(Default)]
+struct SitePieces {
+    faces: FaceCollector,
+    volume: f64,
+}
+
+impl PieceSink for SitePieces {
+    fn piece<const P: usize, const V: usize>(&mut self, tet: u32, site: u32, poly: &Polyhedron<P, V>) {
+        self.volume += poly.moments().volume as f64;
+        self.faces.piece(tet, site, poly);
+    }
+
+    fn discard_tet(&mut self, _tet: u32) {}
+}
+
+/// The faces of the sites `which` (job indices) from their own pieces only:
+/// for each, a flood over the mesh's tets from the one holding its cell's
+/// centroid, through the faces of the tets where it has a piece, each pair
+/// clipped by the kernels' bodies on the CPU. Certified by the volume: the
+/// pieces found must add up to the site's volume in the sums (`out`); when
+/// one does not (a cell the domain cuts in two), or under a density, `None`
+/// — the caller then takes every piece again.
+pub(crate) fn redo_sites(
+    job: &crate::diagram::voronoi::ClipJob,
+    out: &crate::diagram::voronoi::ClipOutput,
+    which: &[u32],
+) -> Option<Vec<FaceCollector>> {
+    use cvd_kernels::abi::ACCUM_PER_SITE;
+    use cvd_kernels::clip::{FaceInputs, Paired};
+    use cvd_kernels::walk::GridWalk;
+    if job.verts.iter().any(|v| v.hi[3] != 1.0) {
+        return None;
+    }
+    let neighbors = tet_neighbors(&job.tets);
+    let g = crate::cpu::build_grid(&job.site_knn);
+    let walk = GridWalk::new(&job.refine, &[], &g.cell_start, &g.cell_count, &g.sorted);
+    let faces = FaceInputs { site_nbrs: &[], tet_faces: &job.tet_faces };
+    let verts: Vec<[f64; 3]> = job.verts.iter().map(|v| v.to_f64()).collect();
+    let scale = job.params.fixed_scale as f64;
+    // The pairs' own sums go nowhere: only their pieces count here.
+    let n_sums = job.params.n_sites as usize * ACCUM_PER_SITE + job.tets.len();
+    let scratch: Vec<std::sync::atomic::AtomicI64> =
+        (0..n_sums).map(|_| std::sync::atomic::AtomicI64::new(0)).collect();
+    which
+        .par_iter()
+        .map(|&u| {
+            let u = u as usize;
+            let s = &out.sums[u * ACCUM_PER_SITE..(u + 1) * ACCUM_PER_SITE];
+            let volume = s[0] as f64 / scale;
+            if volume <= 0.0 {
+                return Some(SitePieces::default().faces);
+            }
+            let x = job.sites[u].to_f64();
+            let c = [0, 1, 2].map(|a| x[a] + s[1 + a] as f64 / scale / volume);
+            let start = tet_holding(&verts, &job.tets, c)?;
+            let mut sums = &scratch[..];
+            let mut pieces = SitePieces::default();
+            let mut seen = std::collections::HashSet::from([start]);
+            let mut queue = vec![start];
+            while let Some(t) = queue.pop() {
+                let before = pieces.volume;
+                let mut still = crate::cpu::LocalPairs::default();
+                let refine = cvd_kernels::abi::RefineParams {
+                    clip: cvd_kernels::abi::ClipParams { faces_base: 0, ..job.refine.clip },
+                    ..job.refine
+                };
+                let (sites, tets) = (&job.sites[..], &job.tets[..]);
+                cvd_kernels::refine::refine_pair(
+                    t as usize,
+                    u,
+                    Paired::NONE,
+                    &refine,
+                    walk,
+                    sites,
+                    &job.verts,
+                    tets,
+                    faces,
+                    &mut sums,
+                    &mut still,
+                    &mut pieces,
+                );
+                if !still.0.is_empty() {
+                    return None;
+                }
+                if pieces.volume > before {
+                    for &n in &neighbors[t as usize] {
+                        if n != u32::MAX && seen.insert(n) {
+                            queue.push(n);
+                        }
+                    }
+                }
+            }
+            ((pieces.volume - volume).abs() <= 1e-5 * volume).then_some(pieces.faces)
+        })
+        .collect()
+}
+
+/// The tets across each tet's four faces (`u32::MAX` on the boundary).
+fn tet_neighbors(tets: &[[u32; 4]]) -> Vec<[u32; 4]> {
+    let mut first: HashMap<[u32; 3], (u32, usize)> = HashMap::with_capacity(2 * tets.len());
+    let mut out = vec![[u32::MAX; 4]; tets.len()];
+    for (t, v) in tets.iter().enumerate() {
+        for f in 0..4 {
+            let mut key = [v[(f + 1) % 4], v[(f + 2) % 4], v[(f + 3) % 4]];
+            key.sort_unstable();
+            if let Some((other, g)) = first.remove(&key) {
+                out[t][f] = other;
+                out[other as usize][g] = t as u32;
+            } else {
+                first.insert(key, (t as u32, f));
+            }
+        }
+    }
+    out
+}
+
+/// The tet holding `p` (barycentric coordinates all above -1e-9), or the
+/// one whose centroid is nearest.
+fn tet_holding(verts: &[[f64; 3]], tets: &[[u32; 4]], p: [f64; 3]) -> Option<u32> {
+    let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+    let det = |a: [f64; 3], b: [f64; 3], c: [f64; 3]| {
+        a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0]) + a[2] * (b[0] * c[1] - b[1] * c[0])
+    };
+    let inside = |t: &[u32; 4]| {
+        let v = t.map(|i| verts[i as usize]);
+        let (a, b, c) = (sub(v[1], v[0]), sub(v[2], v[0]), sub(v[3], v[0]));
+        let d = det(a, b, c);
+        if d == 0.0 {
+            return false;
+        }
+        let q = sub(p, v[0]);
+        let l = [det(q, b, c) / d, det(a, q, c) / d, det(a, b, q) / d];
+        l.iter().all(|&x| x >= -1e-9) && l.iter().sum::<f64>() <= 1.0 + 1e-9
+    };
+    if let Some(t) = tets.iter().position(inside) {
+        return Some(t as u32);
+    }
+    let dist = |t: &[u32; 4]| {
+        let c = [0, 1, 2].map(|a| t.iter().map(|&i| verts[i as usize][a]).sum::<f64>() / 4.0);
+        (0..3).map(|a| (c[a] - p[a]).powi(2)).sum::<f64>()
+    };
+    (0..tets.len()).min_by(|&a, &b| dist(&tets[a]).total_cmp(&dist(&tets[b]))).map(|t| t as u32)
+}

@@ -653,14 +653,20 @@ impl ClippedVoronoi<'_> {
         let (mut faces, incomplete) =
             crate::diagram::faces::from_sums(&out.faces, lists, k, job.params.area_scale as f64);
         if !incomplete.is_empty() {
-            let cpu = match cpu {
-                Some(c) => c,
-                None => crate::cpu::CpuBackend::new(None)?,
+            // Those sites' own pieces, else every piece again.
+            let all = match crate::diagram::faces::redo_sites(job, out, &incomplete) {
+                Some(all) => all,
+                None => {
+                    let cpu = match cpu {
+                        Some(c) => c,
+                        None => crate::cpu::CpuBackend::new(None)?,
+                    };
+                    let sinks = Mutex::new(Vec::new());
+                    let mut again = cpu.clip_into::<crate::diagram::faces::FaceCollector>(job, &sinks)?;
+                    crate::diagram::second_pass::run(job, &mut again, &sinks)?;
+                    sinks.into_inner().unwrap_or_else(|e| e.into_inner())
+                }
             };
-            let sinks = Mutex::new(Vec::new());
-            let mut again = cpu.clip_into::<crate::diagram::faces::FaceCollector>(job, &sinks)?;
-            crate::diagram::second_pass::run(job, &mut again, &sinks)?;
-            let all = sinks.into_inner().unwrap_or_else(|e| e.into_inner());
             // Masses: each piece's faces weighted by its tet's mean density
             // (the kernels take the piece's own).
             let tet_density =
