@@ -839,7 +839,7 @@ pub fn voronoi_cell<O: OutBuf<[f32; 4]> + ?Sized, C: AtomicSums>(
         if last != NO_SITE {
             let d2 = between(&sites[last as usize], &sites[i]).length_squared();
             let slack = Slack::of(p.weight_range, sites, i, p.n_sites);
-            // The local bound where the ball it gives is within its cap.
+            // The ball of exactness a bound gives.
             let ball = |slack: f32| {
                 if slack <= 0.0 {
                     0.2499 * d2
@@ -850,7 +850,8 @@ pub fn voronoi_cell<O: OutBuf<[f32; 4]> + ?Sized, C: AtomicSums>(
                     0.0
                 }
             };
-            // The smallest cap whose bound gives a ball within it.
+            // The largest ball certified: the global bound's, or a local
+            // bound's when its ball lies within that bound's cap.
             exact_r2 = ball(slack.global);
             let mut c = 3;
             while c > 0 {
