@@ -35,6 +35,7 @@ pub mod vec3;
 pub mod vulkan;
 
 pub use backend::{Backend, BackendKind, BackendOptions};
+pub use diagram::periodic::{PeriodicBox, PeriodicCells, PeriodicVoronoi};
 pub use diagram::pieces::{Piece, Pieces};
 pub use diagram::voronoi::{Cells, ClippedVoronoi, Counters, Pairing, Strategy};
 pub use error::{Error, Result};

@@ -128,19 +128,37 @@ impl TetMesh {
     /// of neighbouring cubes share their faces).
     pub fn voxels(n: usize, filled: impl Fn(usize, usize, usize) -> bool) -> Self {
         let n = n.max(1);
-        let side = n + 1;
-        let id = |i: usize, j: usize, k: usize| ((k * side + j) * side + i) as u32;
-        let vertices = (0..side * side * side)
+        Self::lattice([n; 3], [0.0; 3], [1.0; 3], filled)
+    }
+
+    /// The box `lo..hi` cut into `dims` cells along its axes (at least one
+    /// each), each split into 6 tets as [`Self::voxels`] does; its corners
+    /// are `lo` and `hi` exactly.
+    pub fn grid(lo: [f64; 3], hi: [f64; 3], dims: [usize; 3]) -> Self {
+        Self::lattice(dims.map(|d| d.max(1)), lo, hi, |_, _, _| true)
+    }
+
+    fn lattice(dims: [usize; 3], lo: [f64; 3], hi: [f64; 3], filled: impl Fn(usize, usize, usize) -> bool) -> Self {
+        let side = dims.map(|d| d + 1);
+        let id = |i: usize, j: usize, k: usize| ((k * side[1] + j) * side[0] + i) as u32;
+        let coord = |a: usize, i: usize| {
+            if i == dims[a] {
+                hi[a]
+            } else {
+                lo[a] + (hi[a] - lo[a]) * i as f64 / dims[a] as f64
+            }
+        };
+        let vertices = (0..side[0] * side[1] * side[2])
             .map(|v| {
-                let (i, j, k) = (v % side, (v / side) % side, v / (side * side));
-                [i as f64 / n as f64, j as f64 / n as f64, k as f64 / n as f64]
+                let (i, j, k) = (v % side[0], (v / side[0]) % side[1], v / (side[0] * side[1]));
+                [coord(0, i), coord(1, j), coord(2, k)]
             })
             .collect();
         const PATHS: [[usize; 3]; 6] = [[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]];
         let mut tets = Vec::new();
-        for k in 0..n {
-            for j in 0..n {
-                for i in 0..n {
+        for k in 0..dims[2] {
+            for j in 0..dims[1] {
+                for i in 0..dims[0] {
                     if !filled(i, j, k) {
                         continue;
                     }

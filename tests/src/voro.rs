@@ -1,5 +1,5 @@
 //! voro++ (through `voro_rs`) as an oracle that shares no code with the
-//! project: its radical (power) cells.
+//! project: its radical (power) cells, in a box or a periodic box.
 
 use voro_rs::prelude::*;
 
@@ -8,8 +8,31 @@ use voro_rs::prelude::*;
 /// given as radii `sqrt(w)`): volumes and centroids in input order (an
 /// empty cell: volume 0, no centroid).
 pub fn power_cells(lo: [f64; 3], hi: [f64; 3], sites: &[[f64; 3]], w: &[f64]) -> (Vec<f64>, Vec<Option<[f64; 3]>>) {
+    radical_cells(lo, hi, sites, w, false)
+}
+
+/// voro++'s radical cells in the periodic box `lo..hi` (sites inside it):
+/// volumes and centroids (`site + the cell's centroid about it`, not
+/// wrapped), as [`power_cells`].
+pub fn periodic_power_cells(
+    lo: [f64; 3],
+    hi: [f64; 3],
+    sites: &[[f64; 3]],
+    w: &[f64],
+) -> (Vec<f64>, Vec<Option<[f64; 3]>>) {
+    radical_cells(lo, hi, sites, w, true)
+}
+
+fn radical_cells(
+    lo: [f64; 3],
+    hi: [f64; 3],
+    sites: &[[f64; 3]],
+    w: &[f64],
+    periodic: bool,
+) -> (Vec<f64>, Vec<Option<[f64; 3]>>) {
     let least = w.iter().copied().fold(f64::INFINITY, f64::min);
-    let mut con = ContainerRad::new(lo, hi, [6, 6, 6], [false; 3]);
+    let blocks = ((sites.len() as f64 / 5.0).cbrt().ceil() as i32).max(1);
+    let mut con = ContainerRad::new(lo, hi, [blocks; 3], [periodic; 3]);
     for (i, (&p, &wi)) in sites.iter().zip(w).enumerate() {
         con.put(i as i32, p, (wi - least).sqrt());
     }

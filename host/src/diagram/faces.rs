@@ -43,6 +43,11 @@ pub struct Adjacency {
     /// domain's boundary (`n` the outward unit normal): its length is at
     /// most the boundary area, equal where that part is flat.
     pub boundary_vector: Vec<[f64; 3]>,
+    /// In a periodic box, the image of each neighbour the face is shared
+    /// with: the neighbour's site plus `shift` box lengths along each axis
+    /// (one per entry of `neighbors`; empty when not periodic). A site may
+    /// then share several faces with one neighbour, or with itself.
+    pub shifts: Vec<[i32; 3]>,
 }
 
 impl Adjacency {
@@ -50,6 +55,12 @@ impl Adjacency {
     pub fn of(&self, i: usize) -> impl Iterator<Item = (u32, f64, [f64; 3])> + '_ {
         let r = self.offsets[i]..self.offsets[i + 1];
         r.map(move |e| (self.neighbors[e], self.areas[e], self.normals[e]))
+    }
+
+    /// The image shift of entry `e` ([`Self::shifts`]; none when not
+    /// periodic).
+    pub fn shift(&self, e: usize) -> [i32; 3] {
+        self.shifts.get(e).copied().unwrap_or([0; 3])
     }
 
     /// The surface area of cell `i`: its shared faces and its boundary.
@@ -274,7 +285,7 @@ pub(crate) fn assemble(mut faces: Vec<SiteFaces>, map: &[Option<usize>], sites: 
     });
     let boundary = map.iter().map(|m| m.map_or(0.0, |u| faces[u].1 * l2)).collect();
     let boundary_vector = map.iter().map(|m| m.map_or([0.0; 3], |u| faces[u].2.map(|c| c * l2))).collect();
-    Adjacency { offsets, neighbors, areas, normals, boundary, boundary_vector }
+    Adjacency { offsets, neighbors, areas, normals, boundary, boundary_vector, shifts: Vec::new() }
 }
 
 /// `all` cut into consecutive rows of the lengths `lens`.

@@ -3,9 +3,11 @@
 //! not ([`second_pass`]), each site's faces and neighbours ([`faces`]),
 //! the pieces of each cell inside each tet ([`pieces`]) and each cell as
 //! one polyhedron ([`polyhedra`]); with power weights, each site's local
-//! bound of its neighbours' weights (`weight_bounds`).
+//! bound of its neighbours' weights (`weight_bounds`); the cells of a
+//! periodic box, through the sites' images ([`periodic`]).
 
 pub mod faces;
+pub mod periodic;
 pub mod pieces;
 pub mod polyhedra;
 pub mod second_pass;

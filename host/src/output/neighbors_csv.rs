@@ -4,7 +4,10 @@
 //! normals), and one row per cell with area on the domain's boundary,
 //! `neighbor` = -1, its area and the unit direction of its area vector
 //! `∫ n dA` (the outward normal where that part of the boundary is flat). Rows by site, neighbours increasing, the
-//! boundary last; numbers read back exactly.
+//! boundary last; numbers read back exactly. In a periodic box three more
+//! columns, `shift_x,shift_y,shift_z`, give the image of the neighbour the
+//! face is shared with (its site plus that many box lengths; see
+//! [`Adjacency::shifts`]), and there is no boundary.
 
 use crate::diagram::faces::Adjacency;
 use crate::error::Result;
@@ -14,13 +17,26 @@ use std::path::Path;
 /// The header line.
 pub const HEADER: &str = "site,neighbor,area,nx,ny,nz";
 
+/// The columns a periodic box adds.
+pub const SHIFT_HEADER: &str = "shift_x,shift_y,shift_z";
+
 /// Writes `adjacency` as `neighbors.csv`.
 pub fn write_neighbors_csv(path: &Path, adjacency: &Adjacency) -> Result<()> {
     write_file(path, |w| {
-        writeln!(w, "{HEADER}")?;
+        let periodic = !adjacency.shifts.is_empty();
+        if periodic {
+            writeln!(w, "{HEADER},{SHIFT_HEADER}")?;
+        } else {
+            writeln!(w, "{HEADER}")?;
+        }
         for i in 0..adjacency.len() {
-            for (j, area, n) in adjacency.of(i) {
-                writeln!(w, "{i},{j},{area:e},{},{},{}", n[0], n[1], n[2])?;
+            for (e, (j, area, n)) in (adjacency.offsets[i]..).zip(adjacency.of(i)) {
+                write!(w, "{i},{j},{area:e},{},{},{}", n[0], n[1], n[2])?;
+                if periodic {
+                    let s = adjacency.shift(e);
+                    write!(w, ",{},{},{}", s[0], s[1], s[2])?;
+                }
+                writeln!(w)?;
             }
             let (b, v) = (adjacency.boundary[i], adjacency.boundary_vector[i]);
             if b > 0.0 {

@@ -1,0 +1,454 @@
+//! Periodic boxes: each site's Voronoi (or power) cell in the space the
+//! box tiles, cut into the box.
+//!
+//! The box is cut into tets like any mesh, and the sites' images — a site
+//! moved by whole box lengths — that lie within a halo of the box join the
+//! sites: the same kernels, on either backend, clip the box by sites and
+//! images together. Inside the box, their diagram is the periodic one as
+//! soon as the halo holds, for every point of the box, the site (image)
+//! whose power distance to it is smallest: a site farther than `H` from
+//! the box is farther than `H` from every point in it, so with `R` the
+//! largest distance from a point of the box to its nearest site (or
+//! image) and `w_max - w_min` the weights' range, a halo of
+//! `H = sqrt(R² + w_max - w_min)` leaves out only sites that lose
+//! everywhere in the box. `R` is bounded before the diagram is computed,
+//! over a grid of query cells (the distance from a cell's nearest site to
+//! its farthest corner bounds it over the cell), with a first halo's
+//! images; if the `H` it gives is wider, the images are taken again out
+//! to it.
+//!
+//! An image's pieces belong to its site: volumes and energies (which are
+//! moments about the image) add up, first moments about the image add up
+//! to the site's, and a face shared with an image of site `j` is a face
+//! with `j` through the images' difference of shifts
+//! ([`Adjacency::shifts`]). The box's own faces are no boundary here.
+//! Sums are folded in a fixed order, so a run repeats bit for bit.
+//!
+//! Orthorhombic boxes. A triclinic cell (three lattice vectors) needs its
+//! parallelepiped cut into tets, images moved by lattice vectors, and the
+//! wrap done in lattice coordinates; the kernels need nothing new.
+
+use crate::backend::Backend;
+use crate::cvt::{CvtRun, Iteration};
+use crate::diagram::faces::Adjacency;
+use crate::diagram::voronoi::{Cells, ClippedVoronoi, Strategy};
+use crate::error::{Error, Result};
+use crate::mesh::TetMesh;
+use crate::site_grid::SiteGrid;
+use cvd_kernels::abi::SplitPoint;
+use rayon::prelude::*;
+use std::collections::HashMap;
+use std::time::Instant;
+
+/// An axis-aligned box whose opposite faces are glued: the unit cell of a
+/// space that repeats along x, y and z.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PeriodicBox {
+    lo: [f64; 3],
+    hi: [f64; 3],
+}
+
+impl PeriodicBox {
+    /// The box `lo..hi` (finite, `lo < hi` along every axis).
+    pub fn new(lo: [f64; 3], hi: [f64; 3]) -> Result<Self> {
+        for a in 0..3 {
+            if !(lo[a].is_finite() && hi[a].is_finite() && lo[a] < hi[a]) {
+                return Err(Error::InvalidInput(format!(
+                    "a periodic box needs finite corners with lo < hi along every axis; along {} it runs from {} to {}",
+                    ["x", "y", "z"][a],
+                    lo[a],
+                    hi[a]
+                )));
+            }
+        }
+        Ok(Self { lo, hi })
+    }
+
+    /// The unit cube `0..1` along each axis.
+    pub fn unit() -> Self {
+        Self { lo: [0.0; 3], hi: [1.0; 3] }
+    }
+
+    /// The lower corner.
+    pub fn lo(&self) -> [f64; 3] {
+        self.lo
+    }
+
+    /// The upper corner.
+    pub fn hi(&self) -> [f64; 3] {
+        self.hi
+    }
+
+    /// The box's side along each axis.
+    pub fn lengths(&self) -> [f64; 3] {
+        [0, 1, 2].map(|a| self.hi[a] - self.lo[a])
+    }
+
+    /// The box's volume.
+    pub fn volume(&self) -> f64 {
+        self.lengths().iter().product()
+    }
+
+    /// `p` moved by whole box lengths into the box (`lo <= x < hi`).
+    pub fn wrap(&self, p: [f64; 3]) -> [f64; 3] {
+        let l = self.lengths();
+        [0, 1, 2].map(|a| {
+            if p[a] >= self.lo[a] && p[a] < self.hi[a] {
+                return p[a];
+            }
+            let x = self.lo[a] + (p[a] - self.lo[a]).rem_euclid(l[a]);
+            // Rounding may land a point just below lo on hi itself.
+            if x >= self.hi[a] {
+                self.lo[a]
+            } else {
+                x
+            }
+        })
+    }
+
+    /// `p` moved by `shift` box lengths.
+    pub fn shifted(&self, p: [f64; 3], shift: [i32; 3]) -> [f64; 3] {
+        let l = self.lengths();
+        [0, 1, 2].map(|a| p[a] + shift[a] as f64 * l[a])
+    }
+
+    /// The distance from `p` to the box (0 inside).
+    fn distance(&self, p: [f64; 3]) -> f64 {
+        (0..3).map(|a| (self.lo[a] - p[a]).max(p[a] - self.hi[a]).max(0.0).powi(2)).sum::<f64>().sqrt()
+    }
+
+    /// The box cut into about `tets` tets: cells as near cubes as its sides
+    /// allow, 6 tets each.
+    pub fn mesh(&self, tets: usize) -> TetMesh {
+        let cube = (self.volume() * 6.0 / tets.max(6) as f64).cbrt();
+        let dims = self.lengths().map(|l| ((l / cube).round() as usize).clamp(1, 1 << 10));
+        TetMesh::grid(self.lo, self.hi, dims)
+    }
+}
+
+/// The image of a site: site `site` moved by `shift` box lengths.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Image {
+    site: u32,
+    shift: [i32; 3],
+}
+
+/// Builder of a periodic diagram: the cells of sites in a periodic box.
+#[derive(Clone, Copy)]
+pub struct PeriodicVoronoi<'a> {
+    domain: PeriodicBox,
+    sites: &'a [[f64; 3]],
+    weights: Option<&'a [f64]>,
+    backend: Option<&'a dyn Backend>,
+    faces: bool,
+    strategy: Strategy,
+    k_site: Option<usize>,
+    tets: Option<usize>,
+}
+
+/// A periodic diagram's cells, per input site.
+#[derive(Clone, Debug, Default)]
+pub struct PeriodicCells {
+    /// Volume, centroid (wrapped into the box), energy `∫|x - x_i|²` about
+    /// the site's wrapped position, counters, and with faces the adjacency
+    /// with each neighbour's image shift and no boundary. `mesh_volume` is
+    /// the box's volume.
+    pub cells: Cells,
+    /// The sites wrapped into the box.
+    pub sites: Vec<[f64; 3]>,
+    /// How many sites were given outside the box (and wrapped).
+    pub wrapped: usize,
+    /// How many images joined the sites.
+    pub images: usize,
+    /// The halo's width (see the module's documentation).
+    pub halo: f64,
+}
+
+impl<'a> PeriodicVoronoi<'a> {
+    /// The cells of `sites` in the periodic box `domain` (sites outside it
+    /// are wrapped into it).
+    pub fn new(domain: PeriodicBox, sites: &'a [[f64; 3]]) -> Self {
+        Self {
+            domain,
+            sites,
+            weights: None,
+            backend: None,
+            faces: false,
+            strategy: Strategy::TetCell,
+            k_site: None,
+            tets: None,
+        }
+    }
+
+    /// Power cells: a weight per site ([`ClippedVoronoi::weights`]); each
+    /// image carries its site's.
+    pub fn weights(mut self, weights: &'a [f64]) -> Self {
+        self.weights = Some(weights);
+        self
+    }
+
+    /// Where to run (default: the CPU backend with all cores).
+    pub fn backend(mut self, backend: &'a dyn Backend) -> Self {
+        self.backend = Some(backend);
+        self
+    }
+
+    /// Also the cells' faces, with each neighbour's image shift.
+    pub fn faces(mut self, on: bool) -> Self {
+        self.faces = on;
+        self
+    }
+
+    /// Tet-cell or cell-tet.
+    pub fn strategy(mut self, strategy: Strategy) -> Self {
+        self.strategy = strategy;
+        self
+    }
+
+    /// Neighbours per site for its cell (see [`ClippedVoronoi::k_site`]).
+    pub fn k_site(mut self, k_site: impl Into<Option<usize>>) -> Self {
+        self.k_site = k_site.into();
+        self
+    }
+
+    /// Tets the box is cut into (default: about one per site).
+    pub fn tets(mut self, tets: usize) -> Self {
+        self.tets = Some(tets);
+        self
+    }
+
+    /// The same diagram for other sites (a CVT's next iteration).
+    fn with_sites<'b>(&self, sites: &'b [[f64; 3]]) -> PeriodicVoronoi<'b>
+    where
+        'a: 'b,
+    {
+        PeriodicVoronoi { sites, ..*self }
+    }
+
+    /// Computes the cells.
+    pub fn compute(&self) -> Result<PeriodicCells> {
+        let n = self.sites.len();
+        if n == 0 {
+            return Err(Error::InvalidInput("there are no sites".into()));
+        }
+        if let Some(i) = self.sites.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
+            return Err(Error::InvalidInput(format!("site {i} has a non-finite coordinate: {:?}", self.sites[i])));
+        }
+        if let Some(w) = self.weights {
+            if w.len() != n {
+                return Err(Error::InvalidInput(format!("{} weights for {n} sites", w.len())));
+            }
+            if let Some(i) = w.iter().position(|w| !w.is_finite()) {
+                return Err(Error::InvalidInput(format!("the weight of site {i} is {}; it must be finite", w[i])));
+            }
+        }
+        let domain = self.domain;
+        let clock = Instant::now();
+        let sites: Vec<[f64; 3]> = self.sites.iter().map(|&p| domain.wrap(p)).collect();
+        let wrapped = sites.iter().zip(self.sites).filter(|(a, b)| a != b).count();
+        let range = self.weights.map_or(0.0, |w| {
+            let (lo, hi) = w.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
+            hi - lo
+        });
+        let spacing = (domain.volume() / n as f64).cbrt();
+        // A first halo: about the largest gap of uniform sites; then the
+        // one the sites need.
+        let first = (2.0 * spacing * 2.0 * spacing + range).sqrt();
+        let mut images = images_within(&domain, &sites, first);
+        let reach = coverage(&domain, &sites, &images, spacing);
+        let halo = (reach * reach + range).sqrt() * (1.0 + 1e-9);
+        if halo > first {
+            images = images_within(&domain, &sites, halo);
+        }
+        let mut all = sites.clone();
+        all.extend(images.iter().map(|m| domain.shifted(sites[m.site as usize], m.shift)));
+        let weights: Option<Vec<f64>> =
+            self.weights.map(|w| w.iter().copied().chain(images.iter().map(|m| w[m.site as usize])).collect());
+        let mesh = domain.mesh(self.tets.unwrap_or(n));
+        let images_s = clock.elapsed().as_secs_f64();
+        let mut diagram =
+            ClippedVoronoi::new(&mesh, &all).faces(self.faces).strategy(self.strategy).k_site(self.k_site);
+        if let Some(w) = &weights {
+            diagram = diagram.weights(w);
+        }
+        if let Some(b) = self.backend {
+            diagram = diagram.backend(b);
+        }
+        let whole = diagram.compute()?;
+        let clock = Instant::now();
+        let mut cells = fold(&domain, &sites, &all, &images, &whole);
+        cells.timings = whole.timings.clone();
+        cells.timings.phases.insert(0, ("images".into(), images_s));
+        cells.timings.push("fold", clock.elapsed().as_secs_f64());
+        Ok(PeriodicCells { cells, sites, wrapped, images: images.len(), halo })
+    }
+
+    /// Lloyd's iterations in the box: `iterations` times, every site with
+    /// a cell to its cell's centroid (wrapped into the box); `progress` is
+    /// called with the iterations done and the energy the last one started
+    /// from. Returns the sites reached and each iteration's record.
+    pub fn lloyd(&self, iterations: usize, progress: &mut dyn FnMut(usize, f64)) -> Result<CvtRun> {
+        let mut sites: Vec<[f64; 3]> = self.sites.iter().map(|&p| self.domain.wrap(p)).collect();
+        let mut run = CvtRun::default();
+        for it in 0..iterations {
+            let clock = Instant::now();
+            let out = self.with_sites(&sites).compute()?;
+            let c = &out.cells;
+            let energy = c.energy_total();
+            for (s, (&centroid, &m)) in sites.iter_mut().zip(c.centroid.iter().zip(&c.volume)) {
+                if m > 0.0 {
+                    *s = centroid;
+                }
+            }
+            run.iterations.push(Iteration {
+                energy,
+                empty_cells: c.counters.empty_cells,
+                second_pass: c.counters.second_pass,
+                unresolved: c.counters.unresolved,
+                seconds: clock.elapsed().as_secs_f64(),
+                newton_steps: 0,
+            });
+            progress(it + 1, energy);
+        }
+        run.sites = sites;
+        Ok(run)
+    }
+}
+
+/// Every image of `sites` (other than the sites themselves) within
+/// `halo` of the box, by site, then shift.
+fn images_within(domain: &PeriodicBox, sites: &[[f64; 3]], halo: f64) -> Vec<Image> {
+    let l = domain.lengths();
+    let m = l.map(|l| (halo / l).ceil().min(64.0) as i32);
+    let shifts: Vec<[i32; 3]> = (-m[2]..=m[2])
+        .flat_map(|z| (-m[1]..=m[1]).flat_map(move |y| (-m[0]..=m[0]).map(move |x| [x, y, z])))
+        .filter(|s| *s != [0; 3])
+        .collect();
+    sites
+        .par_iter()
+        .enumerate()
+        .flat_map_iter(|(i, &p)| {
+            shifts
+                .iter()
+                .filter(move |&&s| domain.distance(domain.shifted(p, s)) <= halo)
+                .map(move |&shift| Image { site: i as u32, shift })
+        })
+        .collect()
+}
+
+/// An upper bound of the distance from any point of the box to the
+/// nearest of `sites` and `images`: over query cells of about `spacing`,
+/// each cell's farthest corner from the site nearest its centre.
+fn coverage(domain: &PeriodicBox, sites: &[[f64; 3]], images: &[Image], spacing: f64) -> f64 {
+    let points: Vec<SplitPoint> = sites
+        .iter()
+        .copied()
+        .chain(images.iter().map(|m| domain.shifted(sites[m.site as usize], m.shift)))
+        .map(|p| SplitPoint::site(p, 0.0))
+        .collect();
+    let grid = SiteGrid::new(&points);
+    let (lo, l) = (domain.lo, domain.lengths());
+    let dims = l.map(|l| ((l / spacing).ceil() as usize).clamp(1, 1 << 10));
+    let side = [0, 1, 2].map(|a| l[a] / dims[a] as f64);
+    (0..dims[0] * dims[1] * dims[2])
+        .into_par_iter()
+        .map(|c| {
+            let at = [c % dims[0], (c / dims[0]) % dims[1], c / (dims[0] * dims[1])];
+            let corner = |a: usize, up: usize| lo[a] + (at[a] + up) as f64 * side[a];
+            let centre = [0, 1, 2].map(|a| lo[a] + (at[a] as f64 + 0.5) * side[a]);
+            let (s, _) = grid.nearest(centre);
+            let q = points[s as usize].to_f64();
+            (0..8)
+                .map(|k| (0..3).map(|a| (corner(a, (k >> a) & 1) - q[a]).powi(2)).sum::<f64>())
+                .fold(0.0, f64::max)
+                .sqrt()
+        })
+        .reduce(|| 0.0, f64::max)
+}
+
+/// The cells of `sites` from the diagram `whole` of `all` (the sites, then
+/// their `images`): each image's sums added to its site's.
+fn fold(domain: &PeriodicBox, sites: &[[f64; 3]], all: &[[f64; 3]], images: &[Image], whole: &Cells) -> Cells {
+    let n = sites.len();
+    // The images of each site, in order.
+    let mut of = vec![Vec::new(); n];
+    for (k, m) in images.iter().enumerate() {
+        of[m.site as usize].push(n + k);
+    }
+    let shift = |u: usize| if u < n { [0; 3] } else { images[u - n].shift };
+    let owner = |u: usize| if u < n { u } else { images[u - n].site as usize };
+    let mut volume = vec![0.0; n];
+    let mut centroid = vec![[0.0; 3]; n];
+    let mut energy = vec![0.0; n];
+    for i in 0..n {
+        let (mut m, mut first, mut e) = (0.0, [0.0; 3], 0.0);
+        for u in std::iter::once(i).chain(of[i].iter().copied()) {
+            let v = whole.volume[u];
+            if v > 0.0 {
+                m += v;
+                e += whole.energy[u];
+                for a in 0..3 {
+                    first[a] += v * (whole.centroid[u][a] - all[u][a]);
+                }
+            }
+        }
+        volume[i] = m;
+        energy[i] = e;
+        centroid[i] = if m > 0.0 { domain.wrap([0, 1, 2].map(|a| sites[i][a] + first[a] / m)) } else { sites[i] };
+    }
+    let mut counters = whole.counters;
+    let mut seen = std::collections::HashSet::new();
+    counters.duplicate_sites = sites.iter().filter(|p| !seen.insert(p.map(f64::to_bits))).count() as u64;
+    counters.empty_cells = volume.iter().filter(|&&v| v <= 0.0).count() as u64 - counters.duplicate_sites;
+    let adjacency = whole.adjacency.as_ref().map(|a| {
+        let rows: Vec<Vec<(u32, [i32; 3], f64, [f64; 3])>> = (0..n)
+            .into_par_iter()
+            .map(|i| {
+                let mut faces: HashMap<(u32, [i32; 3]), (f64, [f64; 3])> = HashMap::new();
+                for u in std::iter::once(i).chain(of[i].iter().copied()) {
+                    let su = shift(u);
+                    for (v, area, normal) in a.of(u) {
+                        let sv = shift(v as usize);
+                        let key = (owner(v as usize) as u32, [0, 1, 2].map(|k| sv[k] - su[k]));
+                        faces.entry(key).or_insert((0.0, normal)).0 += area;
+                    }
+                }
+                let mut row: Vec<_> = faces.into_iter().map(|((j, s), (area, normal))| (j, s, area, normal)).collect();
+                row.sort_unstable_by_key(|e| (e.0, e.1));
+                row
+            })
+            .collect();
+        let mut adj = Adjacency { offsets: vec![0], ..Default::default() };
+        for row in rows {
+            for (j, s, area, normal) in row {
+                adj.neighbors.push(j);
+                adj.shifts.push(s);
+                adj.areas.push(area);
+                adj.normals.push(normal);
+            }
+            adj.offsets.push(adj.neighbors.len());
+        }
+        adj.boundary = vec![0.0; n];
+        adj.boundary_vector = vec![[0.0; 3]; n];
+        adj
+    });
+    let total_volume: f64 = volume.iter().sum();
+    let mesh_volume = domain.volume();
+    Cells {
+        volume,
+        centroid,
+        energy,
+        total_volume,
+        mesh_volume,
+        e_vol: (total_volume - mesh_volume).abs() / mesh_volume,
+        strategy: whole.strategy,
+        pairing: whole.pairing,
+        k: whole.k,
+        k_site: whole.k_site,
+        counters,
+        chunks: whole.chunks,
+        timings: Default::default(),
+        adjacency,
+        polyhedra: None,
+    }
+}
