@@ -5,9 +5,9 @@ use cvd::backend::{self, BackendKind, BackendOptions};
 use cvd::cpu::CpuBackend;
 use cvd::cvt::transport::Transport;
 use cvd::mesher::models;
-use cvd::output::{self, CvtRecord, Section, Summary, TransportRecord};
+use cvd::output::{self, CvtRecord, PeriodicRecord, Section, Summary, TransportRecord};
 use cvd::vulkan::{self, VulkanOptions};
-use cvd::{points, ClippedVoronoi, KnnJob, KnnMethod, Pairing, Strategy, TetMesh};
+use cvd::{points, ClippedVoronoi, KnnJob, KnnMethod, Pairing, PeriodicBox, PeriodicVoronoi, Strategy, TetMesh};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -134,6 +134,15 @@ struct RunArgs {
     /// otherwise].
     #[arg(long)]
     k_site: Option<usize>,
+    /// A periodic box: each site's cell in the space the box tiles, cut
+    /// into the box (sites outside it are wrapped in); the box from --box,
+    /// or the unit cube with --model cube. neighbors.csv gains each
+    /// neighbour's image shift.
+    #[arg(long)]
+    periodic: bool,
+    /// The periodic box's corners (implies --periodic).
+    #[arg(long = "box", value_name = "X0,Y0,Z0,X1,Y1,Z1", value_delimiter = ',', allow_hyphen_values = true)]
+    periodic_box: Option<Vec<f64>>,
     /// Output folder [default: out/<model or mesh file name>/].
     #[arg(long)]
     out: Option<PathBuf>,
@@ -508,6 +517,9 @@ fn lloyd(
 }
 
 fn run(args: &RunArgs) -> cvd::Result<()> {
+    if args.periodic || args.periodic_box.is_some() {
+        return run_periodic(args);
+    }
     let (model, mesh) = load_model(args)?;
     // The sites as given (a file's coordinates to the last digit).
     let sites: Vec<[f64; 3]> = match &args.sites_file {
@@ -639,6 +651,124 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
     println!("wrote {}: {}", dir.display(), written.join(", "));
     if let Some(path) = &args.output {
         output::write_cells_csv(path, &cells)?;
+        println!("wrote {} (cells.csv)", path.display());
+    }
+    if let Some(path) = &args.json {
+        summary.write_json(path)?;
+        println!("wrote {} (summary.json)", path.display());
+    }
+    Ok(())
+}
+
+/// The periodic box of `--periodic` / `--box`.
+fn periodic_box(args: &RunArgs) -> cvd::Result<PeriodicBox> {
+    let refuse = |what: &str| Err(cvd::Error::InvalidInput(format!("--periodic: {what}")));
+    let given = [
+        (args.mesh.is_some(), "--mesh"),
+        (args.surface.is_some(), "--surface"),
+        (args.density.is_some() || args.density_file.is_some(), "a density"),
+        (transports(args), "optimal transport (--transport, --capacities)"),
+        (args.pieces, "--pieces"),
+    ];
+    if let Some((_, what)) = given.iter().find(|g| g.0) {
+        return refuse(&format!("{what} is not available in a periodic box yet"));
+    }
+    match &args.periodic_box {
+        Some(c) if c.len() == 6 => PeriodicBox::new([c[0], c[1], c[2]], [c[3], c[4], c[5]]),
+        Some(c) => refuse(&format!("--box takes six numbers, X0,Y0,Z0,X1,Y1,Z1, not {}", c.len())),
+        None if args.model == "cube" => Ok(PeriodicBox::unit()),
+        None => refuse(&format!(
+            "give the box (--box X0,Y0,Z0,X1,Y1,Z1), or --model cube for the unit cube, not --model {}",
+            args.model
+        )),
+    }
+}
+
+/// `cvd run --periodic`: the cells of a periodic box (see
+/// [`cvd::PeriodicVoronoi`]), with Lloyd's iterations first if asked.
+fn run_periodic(args: &RunArgs) -> cvd::Result<()> {
+    let domain = periodic_box(args)?;
+    let sites: Vec<[f64; 3]> = match &args.sites_file {
+        Some(path) => cvd::io::read_sites(path)?,
+        None => {
+            let (lo, l) = (domain.lo(), domain.lengths());
+            let unit = points::uniform(args.sites.unwrap_or(5000), args.seed);
+            unit.iter().map(|p| [0, 1, 2].map(|a| lo[a] + p[a] * l[a])).collect()
+        }
+    };
+    let weights = weights(args, sites.len())?;
+    let model = "periodic box".to_string();
+    let dir = args.out.clone().unwrap_or_else(|| default_out_dir("periodic"));
+    create_dir(&dir)?;
+    let backend::Chosen { backend, why } = backend::choose(&args.backend.options())?;
+    let mut pv = PeriodicVoronoi::new(domain, &sites)
+        .strategy(args.strategy)
+        .k_site(args.k_site)
+        .faces(!args.no_neighbors)
+        .backend(backend.as_ref());
+    if let Some(w) = &weights {
+        pv = pv.weights(w);
+    }
+    println!(
+        "{model} {:?} to {:?}: {} sites, {} on {} — {why}",
+        domain.lo(),
+        domain.hi(),
+        sites.len(),
+        output::value_name(&args.strategy),
+        backend.name()
+    );
+    let (moved, record) = if args.iterations > 0 {
+        let name = output::value_name(&args.optimizer);
+        let bar = indicatif::ProgressBar::new(args.iterations as u64);
+        let mut show = |done: usize, energy: f64| {
+            bar.set_position(done as u64);
+            bar.set_message(format!("{name}, energy {energy:.6e}"));
+        };
+        let run = match args.optimizer {
+            Optimizer::Lloyd => pv.lloyd(args.iterations, &mut show)?,
+            Optimizer::Lbfgs => pv.lbfgs(args.iterations, &mut show)?,
+        };
+        bar.finish_and_clear();
+        let record = CvtRecord::of(&name, &run.iterations);
+        let series = [output::Series { name: &name, values: &record.energy, x: &[], rgb: [200, 40, 40] }];
+        output::write_line_chart_png(&dir.join("energy.png"), "cvt energy", &series)?;
+        (Some(run.sites), Some(record))
+    } else {
+        (None, None)
+    };
+    let sites = moved.as_deref().unwrap_or(&sites);
+    let pv = pv.sites(sites);
+    if args.warm_up {
+        let first = with_spinner("warm-up run", || pv.compute())?;
+        println!("warm-up run: {:.1} ms; the table shows the next", first.cells.timings.total() * 1e3);
+    }
+    let out = with_spinner("periodic Voronoi diagram", || pv.compute())?;
+    let cells = &out.cells;
+    let mesh = domain.mesh(sites.len());
+    let mut summary = Summary::new(&model, &mesh, sites.len(), args.strategy, backend.as_ref(), cells);
+    summary.cvt = record;
+    summary.periodic = Some(PeriodicRecord::of(&domain, &out));
+    let mut written = Vec::new();
+    let mut file = |name: &str| {
+        written.push(name.to_string());
+        dir.join(name)
+    };
+    output::write_cells_csv(&file("cells.csv"), cells)?;
+    if let Some(adjacency) = cells.adjacency() {
+        output::write_neighbors_csv(&file("neighbors.csv"), adjacency)?;
+    }
+    cvd::io::write_sites_xyz(&file("sites.xyz"), &out.sites)?;
+    summary.write_json(&file("summary.json"))?;
+    print!("{summary}");
+    if out.wrapped > 0 {
+        println!("{} sites were outside the box: wrapped into it (sites.xyz holds them wrapped)", out.wrapped);
+    }
+    if !args.no_geometry {
+        println!("the cells' geometry (cells.vtu, walls.ply, the pictures) is not drawn for periodic boxes");
+    }
+    println!("wrote {}: {}", dir.display(), written.join(", "));
+    if let Some(path) = &args.output {
+        output::write_cells_csv(path, cells)?;
         println!("wrote {} (cells.csv)", path.display());
     }
     if let Some(path) = &args.json {

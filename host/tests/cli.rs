@@ -400,3 +400,33 @@ fn a_surface_is_meshed_and_an_open_one_refused() {
     let stderr = text(&out.stderr);
     assert!(stderr.contains("open.off") && stderr.contains("3 boundary (open) edges"), "{stderr}");
 }
+
+#[test]
+fn a_periodic_box_fills_with_cells_whose_faces_carry_image_shifts() {
+    let dir = temp_dir("periodic");
+    // Sites outside the box are wrapped into it, and said so.
+    std::fs::write(dir.join("s.xyz"), "0.5 0.5 0.5\n2.5 0.25 0.1\n-0.75 0.1 0.3\n0.1 0.9 0.9\n0.3 0.3 0.7\n").unwrap();
+    let out = cvd_run(&dir, &["--box", "-1,0,0,1,1,0.5", "--sites-file", "s.xyz", "--iterations", "3", "--out", "o"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let stdout = text(&out.stdout);
+    assert!(stdout.contains("3 sites were outside the box"), "{stdout}");
+    let csv = std::fs::read_to_string(dir.join("o/cells.csv")).unwrap();
+    let total: f64 = csv.lines().skip(1).map(|l| l.split(',').nth(1).unwrap().parse::<f64>().unwrap()).sum();
+    assert!((total - 1.0).abs() < 1e-6, "the cells fill the box: {total}");
+    let neighbors = std::fs::read_to_string(dir.join("o/neighbors.csv")).unwrap();
+    assert!(neighbors.starts_with("site,neighbor,area,nx,ny,nz,shift_x,shift_y,shift_z\n"), "{neighbors}");
+    // Five sites in a box: some faces are shared with images.
+    assert!(neighbors.lines().skip(1).any(|l| !l.ends_with(",0,0,0")), "{neighbors}");
+    assert!(neighbors.lines().skip(1).all(|l| l.split(',').nth(1) != Some("-1")), "no boundary rows");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("o/summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["periodic"]["wrapped"], 3, "{summary}");
+    assert_eq!(summary["cvt"]["iterations"], 3, "{summary}");
+    // Refused by name: a box of five numbers, a model that is not a box.
+    let out = cvd_run(&dir, &["--box", "0,0,0,1,1", "--out", "bad"]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(text(&out.stderr).contains("--box takes six numbers"), "{}", text(&out.stderr));
+    let out = cvd_run(&dir, &["--periodic", "--model", "torus", "--out", "bad"]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(text(&out.stderr).contains("--model cube"), "{}", text(&out.stderr));
+}

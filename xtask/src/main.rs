@@ -26,6 +26,8 @@ commands:
   bench cvt [ARGS]    Lloyd and L-BFGS per model and backend (--iterations N, --only NAME, --json PATH, ...)
   bench transport [ARGS]  optimal transport: Newton steps, and the solve in diagram times (--model NAME,
                       --sites N, --backend cpu|vulkan, --repeat R, --json PATH)
+  bench periodic [ARGS]  periodic boxes against the same box plain and voro++'s periodic container
+                      (--sites N,M, --repeat R, --threads T, --json PATH)
   build               build everything, optimised
   spirv --out DIR     write the kernels as SPIR-V (one module per entry point) and manifest.json into DIR
                       (docs/EMBEDDING.md); then: cargo run --release -p cvd-embed-example -- DIR
@@ -190,13 +192,13 @@ fn run(args: &[String]) -> Result<(), Failure> {
 
 fn bench(rest: &[String]) -> Result<(), Failure> {
     match rest.split_first() {
-        Some((which, extra)) if ["knn", "paper", "cvt", "transport"].contains(&which.as_str()) => {
+        Some((which, extra)) if ["knn", "paper", "cvt", "transport", "periodic"].contains(&which.as_str()) => {
             status(cargo(&["bench", "--package", "cvd", "--bench", which, "--"], extra))
         }
         Some((cvd, extra)) if cvd == "cvd" => {
             status(cargo(&["bench", "--package", "cvd", "--bench", "paper", "--", "--sections", "table1"], extra))
         }
-        _ => Err(format!("unknown benchmark; expected: paper, cvd, knn, cvt or transport\n\n{USAGE}").into()),
+        _ => Err(format!("unknown benchmark; expected: paper, cvd, knn, cvt, transport or periodic\n\n{USAGE}").into()),
     }
 }
 

@@ -156,6 +156,9 @@ pub struct PeriodicCells {
     pub cells: Cells,
     /// The sites wrapped into the box.
     pub sites: Vec<[f64; 3]>,
+    /// Each cell's centroid less its site, unwrapped: the centroid of the
+    /// whole cell around the site (0 for an empty cell).
+    pub offsets: Vec<[f64; 3]>,
     /// How many sites were given outside the box (and wrapped).
     pub wrapped: usize,
     /// How many images joined the sites.
@@ -218,7 +221,7 @@ impl<'a> PeriodicVoronoi<'a> {
     }
 
     /// The same diagram for other sites (a CVT's next iteration).
-    fn with_sites<'b>(&self, sites: &'b [[f64; 3]]) -> PeriodicVoronoi<'b>
+    pub fn sites<'b>(&self, sites: &'b [[f64; 3]]) -> PeriodicVoronoi<'b>
     where
         'a: 'b,
     {
@@ -276,11 +279,11 @@ impl<'a> PeriodicVoronoi<'a> {
         }
         let whole = diagram.compute()?;
         let clock = Instant::now();
-        let mut cells = fold(&domain, &sites, &all, &images, &whole);
+        let (mut cells, offsets) = fold(&domain, &sites, &all, &images, &whole);
         cells.timings = whole.timings.clone();
         cells.timings.phases.insert(0, ("images".into(), images_s));
         cells.timings.push("fold", clock.elapsed().as_secs_f64());
-        Ok(PeriodicCells { cells, sites, wrapped, images: images.len(), halo })
+        Ok(PeriodicCells { cells, sites, offsets, wrapped, images: images.len(), halo })
     }
 
     /// Lloyd's iterations in the box: `iterations` times, every site with
@@ -292,7 +295,7 @@ impl<'a> PeriodicVoronoi<'a> {
         let mut run = CvtRun::default();
         for it in 0..iterations {
             let clock = Instant::now();
-            let out = self.with_sites(&sites).compute()?;
+            let out = self.sites(&sites).compute()?;
             let c = &out.cells;
             let energy = c.energy_total();
             for (s, (&centroid, &m)) in sites.iter_mut().zip(c.centroid.iter().zip(&c.volume)) {
@@ -311,6 +314,41 @@ impl<'a> PeriodicVoronoi<'a> {
             progress(it + 1, energy);
         }
         run.sites = sites;
+        Ok(run)
+    }
+
+    /// L-BFGS on the CVT energy in the box (as [`ClippedVoronoi::lbfgs`]):
+    /// sites move through the box's faces, and come back wrapped into it.
+    pub fn lbfgs(&self, iterations: usize, progress: &mut dyn FnMut(usize, f64)) -> Result<CvtRun> {
+        let evaluate = |x: &[f64]| -> Result<(crate::cvt::Evaluation, f64)> {
+            let sites = crate::cvt::to_points(x);
+            let clock = Instant::now();
+            let out = PeriodicVoronoi { faces: false, ..self.sites(&sites) }.compute()?;
+            let seconds = clock.elapsed().as_secs_f64();
+            let c = &out.cells;
+            let mut gradient = vec![0.0; x.len()];
+            let mut precondition = vec![0.0; x.len()];
+            for (i, &v) in c.volume.iter().enumerate() {
+                if v > 0.0 {
+                    for a in 0..3 {
+                        // 2 V (x - c): the centroid unwrapped around the site.
+                        gradient[3 * i + a] = -2.0 * v * out.offsets[i][a];
+                        precondition[3 * i + a] = 1.0 / (2.0 * v);
+                    }
+                }
+            }
+            let eval = crate::cvt::Evaluation {
+                energy: c.energy_total(),
+                gradient,
+                precondition,
+                empty: c.counters.empty_cells,
+                second_pass: c.counters.second_pass,
+                unresolved: c.counters.unresolved,
+            };
+            Ok((eval, seconds))
+        };
+        let mut run = crate::cvt::lbfgs(self.sites, iterations, &evaluate, progress)?;
+        run.sites.iter_mut().for_each(|p| *p = self.domain.wrap(*p));
         Ok(run)
     }
 }
@@ -367,8 +405,15 @@ fn coverage(domain: &PeriodicBox, sites: &[[f64; 3]], images: &[Image], spacing:
 }
 
 /// The cells of `sites` from the diagram `whole` of `all` (the sites, then
-/// their `images`): each image's sums added to its site's.
-fn fold(domain: &PeriodicBox, sites: &[[f64; 3]], all: &[[f64; 3]], images: &[Image], whole: &Cells) -> Cells {
+/// their `images`): each image's sums added to its site's; and each
+/// centroid's offset from its site, unwrapped.
+fn fold(
+    domain: &PeriodicBox,
+    sites: &[[f64; 3]],
+    all: &[[f64; 3]],
+    images: &[Image],
+    whole: &Cells,
+) -> (Cells, Vec<[f64; 3]>) {
     let n = sites.len();
     // The images of each site, in order.
     let mut of = vec![Vec::new(); n];
@@ -380,6 +425,7 @@ fn fold(domain: &PeriodicBox, sites: &[[f64; 3]], all: &[[f64; 3]], images: &[Im
     let mut volume = vec![0.0; n];
     let mut centroid = vec![[0.0; 3]; n];
     let mut energy = vec![0.0; n];
+    let mut offsets = vec![[0.0; 3]; n];
     for i in 0..n {
         let (mut m, mut first, mut e) = (0.0, [0.0; 3], 0.0);
         for u in std::iter::once(i).chain(of[i].iter().copied()) {
@@ -394,7 +440,12 @@ fn fold(domain: &PeriodicBox, sites: &[[f64; 3]], all: &[[f64; 3]], images: &[Im
         }
         volume[i] = m;
         energy[i] = e;
-        centroid[i] = if m > 0.0 { domain.wrap([0, 1, 2].map(|a| sites[i][a] + first[a] / m)) } else { sites[i] };
+        if m > 0.0 {
+            offsets[i] = first.map(|f| f / m);
+            centroid[i] = domain.wrap([0, 1, 2].map(|a| sites[i][a] + offsets[i][a]));
+        } else {
+            centroid[i] = sites[i];
+        }
     }
     let mut counters = whole.counters;
     let mut seen = std::collections::HashSet::new();
@@ -434,7 +485,7 @@ fn fold(domain: &PeriodicBox, sites: &[[f64; 3]], all: &[[f64; 3]], images: &[Im
     });
     let total_volume: f64 = volume.iter().sum();
     let mesh_volume = domain.volume();
-    Cells {
+    let cells = Cells {
         volume,
         centroid,
         energy,
@@ -450,5 +501,6 @@ fn fold(domain: &PeriodicBox, sites: &[[f64; 3]], all: &[[f64; 3]], images: &[Im
         timings: Default::default(),
         adjacency,
         polyhedra: None,
-    }
+    };
+    (cells, offsets)
 }

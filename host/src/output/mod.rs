@@ -28,7 +28,7 @@ pub use cells_vtu::write_cells_vtu;
 pub use neighbors_csv::write_neighbors_csv;
 pub use picture::{write_section_png, Section};
 pub use plot::{write_chart_png, write_line_chart_png, Axes, Series};
-pub use summary::{value_name, CvtRecord, Summary, Times, TransportRecord};
+pub use summary::{value_name, CvtRecord, PeriodicRecord, Summary, Times, TransportRecord};
 pub use view::write_cells_view_png;
 pub use vtu::write_pieces_vtu;
 pub use walls_ply::write_walls_ply;

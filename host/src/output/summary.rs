@@ -61,6 +61,32 @@ pub struct Summary {
     /// otherwise).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub transport: Option<TransportRecord>,
+    /// The periodic box, when the cells are those of one (absent
+    /// otherwise).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub periodic: Option<PeriodicRecord>,
+}
+
+/// A periodic box and the images its diagram took.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct PeriodicRecord {
+    /// The box's lower corner.
+    pub lo: [f64; 3],
+    /// The box's upper corner.
+    pub hi: [f64; 3],
+    /// Sites given outside the box, wrapped into it.
+    pub wrapped: usize,
+    /// Images of sites that joined them (the final diagram's).
+    pub images: usize,
+    /// The halo the images were taken within.
+    pub halo: f64,
+}
+
+impl PeriodicRecord {
+    /// The record of `cells`, computed in `domain`.
+    pub fn of(domain: &crate::PeriodicBox, cells: &crate::PeriodicCells) -> Self {
+        Self { lo: domain.lo(), hi: domain.hi(), wrapped: cells.wrapped, images: cells.images, halo: cells.halo }
+    }
 }
 
 /// What an optimal-transport solve did, Newton step by Newton step.
@@ -229,6 +255,7 @@ impl Summary {
             lids: None,
             cvt: None,
             transport: None,
+            periodic: None,
         }
     }
 
@@ -318,6 +345,13 @@ impl fmt::Display for Summary {
                 ms(r.per_iteration_s),
                 r.energy.first().copied().unwrap_or(self.energy),
                 self.energy,
+            )?;
+        }
+        if let Some(p) = &self.periodic {
+            writeln!(
+                f,
+                "  {:<11}box {:?} to {:?}: {} images within {:.4} of it, {} sites wrapped into it",
+                "periodic", p.lo, p.hi, p.images, p.halo, p.wrapped
             )?;
         }
         if let Some(t) = &self.transport {
