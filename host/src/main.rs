@@ -415,6 +415,7 @@ fn transport(
     sites: &[[f64; 3]],
     start: Option<&[f64]>,
     backend: &dyn cvd::Backend,
+    periodic: Option<PeriodicBox>,
 ) -> cvd::Result<Transported> {
     if args.optimizer != Optimizer::Lloyd {
         return Err(cvd::Error::InvalidInput(
@@ -424,7 +425,11 @@ fn transport(
     let capacities = args.capacities.as_deref().map(|p| per_site(p, "capacities", sites.len())).transpose()?;
     let density = density(args, mesh)?;
     let cv = ClippedVoronoi::new(mesh, sites).k_site(args.k_site).backend(backend).density(density.as_deref());
-    let mut ot = Transport::new(cv).tolerance(args.tolerance).max_steps(args.newton_steps);
+    let ot = match periodic {
+        Some(domain) => Transport::periodic(PeriodicVoronoi::new(domain, sites).k_site(args.k_site).backend(backend)),
+        None => Transport::new(cv),
+    };
+    let mut ot = ot.tolerance(args.tolerance).max_steps(args.newton_steps);
     if let Some(c) = &capacities {
         ot = ot.capacities(c);
     }
@@ -545,7 +550,7 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
         backend.name()
     );
     let (sites, record, weights, transported) = if transports(args) {
-        let t = transport(args, &mesh, &sites, weights.as_deref(), backend.as_ref())?;
+        let t = transport(args, &mesh, &sites, weights.as_deref(), backend.as_ref(), None)?;
         (t.sites, t.cvt, Some(t.weights), Some(t.record))
     } else if args.iterations > 0 {
         let (sites, record) = lloyd(args, &mesh, &sites, backend.as_ref())?;
@@ -667,7 +672,6 @@ fn periodic_box(args: &RunArgs) -> cvd::Result<PeriodicBox> {
         (args.mesh.is_some(), "--mesh"),
         (args.surface.is_some(), "--surface"),
         (args.density.is_some() || args.density_file.is_some(), "a density"),
-        (transports(args), "optimal transport (--transport, --capacities)"),
         (args.pieces, "--pieces"),
     ];
     if let Some((_, what)) = given.iter().find(|g| g.0) {
@@ -701,14 +705,11 @@ fn run_periodic(args: &RunArgs) -> cvd::Result<()> {
     let dir = args.out.clone().unwrap_or_else(|| default_out_dir("periodic"));
     create_dir(&dir)?;
     let backend::Chosen { backend, why } = backend::choose(&args.backend.options())?;
-    let mut pv = PeriodicVoronoi::new(domain, &sites)
+    let pv = PeriodicVoronoi::new(domain, &sites)
         .strategy(args.strategy)
         .k_site(args.k_site)
         .faces(!args.no_neighbors)
         .backend(backend.as_ref());
-    if let Some(w) = &weights {
-        pv = pv.weights(w);
-    }
     println!(
         "{model} {:?} to {:?}: {} sites, {} on {} — {why}",
         domain.lo(),
@@ -717,7 +718,11 @@ fn run_periodic(args: &RunArgs) -> cvd::Result<()> {
         output::value_name(&args.strategy),
         backend.name()
     );
-    let (moved, record) = if args.iterations > 0 {
+    let mesh = domain.mesh(sites.len());
+    let (moved, record, weights, transported) = if transports(args) {
+        let t = transport(args, &mesh, &sites, weights.as_deref(), backend.as_ref(), Some(domain))?;
+        (Some(t.sites), t.cvt, Some(t.weights), Some(t.record))
+    } else if args.iterations > 0 {
         let name = output::value_name(&args.optimizer);
         let bar = indicatif::ProgressBar::new(args.iterations as u64);
         let mut show = |done: usize, energy: f64| {
@@ -729,24 +734,28 @@ fn run_periodic(args: &RunArgs) -> cvd::Result<()> {
             Optimizer::Lbfgs => pv.lbfgs(args.iterations, &mut show)?,
         };
         bar.finish_and_clear();
-        let record = CvtRecord::of(&name, &run.iterations);
-        let series = [output::Series { name: &name, values: &record.energy, x: &[], rgb: [200, 40, 40] }];
-        output::write_line_chart_png(&dir.join("energy.png"), "cvt energy", &series)?;
-        (Some(run.sites), Some(record))
+        (Some(run.sites), Some(CvtRecord::of(&name, &run.iterations)), weights, None)
     } else {
-        (None, None)
+        (None, None, weights, None)
     };
+    if let Some(record) = &record {
+        let series = [output::Series { name: &record.optimizer, values: &record.energy, x: &[], rgb: [200, 40, 40] }];
+        output::write_line_chart_png(&dir.join("energy.png"), "cvt energy", &series)?;
+    }
     let sites = moved.as_deref().unwrap_or(&sites);
-    let pv = pv.sites(sites);
+    let mut pv = pv.sites(sites);
+    if let Some(w) = &weights {
+        pv = pv.weights(w);
+    }
     if args.warm_up {
         let first = with_spinner("warm-up run", || pv.compute())?;
         println!("warm-up run: {:.1} ms; the table shows the next", first.cells.timings.total() * 1e3);
     }
     let out = with_spinner("periodic Voronoi diagram", || pv.compute())?;
     let cells = &out.cells;
-    let mesh = domain.mesh(sites.len());
     let mut summary = Summary::new(&model, &mesh, sites.len(), args.strategy, backend.as_ref(), cells);
     summary.cvt = record;
+    summary.transport = transported;
     summary.periodic = Some(PeriodicRecord::of(&domain, &out));
     let mut written = Vec::new();
     let mut file = |name: &str| {
@@ -758,6 +767,9 @@ fn run_periodic(args: &RunArgs) -> cvd::Result<()> {
         output::write_neighbors_csv(&file("neighbors.csv"), adjacency)?;
     }
     cvd::io::write_sites_xyz(&file("sites.xyz"), &out.sites)?;
+    if let (Some(w), Some(_)) = (&weights, &summary.transport) {
+        cvd::io::write_values(&file("weights.txt"), w)?;
+    }
     summary.write_json(&file("summary.json"))?;
     print!("{summary}");
     if out.wrapped > 0 {

@@ -16,6 +16,7 @@
 //! Every trial is one diagram, with faces, on the diagram's backend.
 
 use crate::cvt::{CvtRun, Iteration};
+use crate::diagram::periodic::PeriodicVoronoi;
 use crate::diagram::voronoi::{Cells, ClippedVoronoi};
 use crate::error::{Error, Result};
 use rayon::prelude::*;
@@ -78,6 +79,9 @@ impl TransportRun {
 #[derive(Clone, Copy)]
 pub struct Transport<'a> {
     diagram: ClippedVoronoi<'a>,
+    /// In a periodic box: its diagram (`diagram` then holds only the
+    /// sites).
+    periodic: Option<PeriodicVoronoi<'a>>,
     capacities: Option<&'a [f64]>,
     start: Option<&'a [f64]>,
     tolerance: f64,
@@ -99,7 +103,18 @@ impl<'a> Transport<'a> {
     /// (its weights, if any, are ignored: see [`Self::start`]): by default
     /// every cell gets the same mass, the mesh's mass over the sites.
     pub fn new(diagram: ClippedVoronoi<'a>) -> Self {
-        Self { diagram, capacities: None, start: None, tolerance: 1e-6, max_steps: 50, restart: false }
+        Self { diagram, periodic: None, capacities: None, start: None, tolerance: 1e-6, max_steps: 50, restart: false }
+    }
+
+    /// Optimal transport in a periodic box, on `periodic`'s sites and
+    /// backend: every cell gets the same volume, the box's over the sites,
+    /// or its share by [`Self::capacities`].
+    pub fn periodic(periodic: PeriodicVoronoi<'a>) -> Self {
+        // The box's diagram makes its own mesh: this one only carries the
+        // sites.
+        static NO_MESH: crate::TetMesh = crate::TetMesh { vertices: Vec::new(), tets: Vec::new() };
+        let diagram = ClippedVoronoi::new(&NO_MESH, periodic.input_sites());
+        Self { periodic: Some(periodic), ..Self::new(diagram) }
     }
 
     /// A capacity per site (positive; normalised so that they sum to the
@@ -147,7 +162,22 @@ impl<'a> Transport<'a> {
     /// The diagram with weights `w`, with its faces (their masses under a
     /// density).
     fn cells(&self, w: &[f64]) -> Result<Cells> {
-        ClippedVoronoi { face_masses: true, ..self.diagram.weights(w).faces(true) }.compute()
+        match &self.periodic {
+            Some(p) => Ok(p.weights(w).faces(true).compute()?.cells),
+            None => ClippedVoronoi { face_masses: true, ..self.diagram.weights(w).faces(true) }.compute(),
+        }
+    }
+
+    /// The sites as the diagram sees them (wrapped into a periodic box),
+    /// and the box's sides, if periodic.
+    fn frame(&self) -> (Vec<[f64; 3]>, Option<[f64; 3]>) {
+        match &self.periodic {
+            Some(p) => {
+                let domain = p.domain();
+                (self.diagram.sites.iter().map(|&x| domain.wrap(x)).collect(), Some(domain.lengths()))
+            }
+            None => (self.diagram.sites.to_vec(), None),
+        }
     }
 
     /// The capacity-constrained CVT (as blue noise through optimal
@@ -164,7 +194,8 @@ impl<'a> Transport<'a> {
         // The last weights may empty a moved site's cell: then from zero.
         let solve = |sites: &[[f64; 3]], weights: Option<&[f64]>| {
             let diagram = ClippedVoronoi { sites, ..self.diagram };
-            Transport { diagram, start: weights, restart: true, ..*self }.solve(&mut |_| true)
+            let periodic = self.periodic.map(|p| p.sites(sites));
+            Transport { diagram, periodic, start: weights, restart: true, ..*self }.solve(&mut |_| true)
         };
         let mut run = CvtRun::default();
         for it in 0..iterations {
@@ -209,6 +240,7 @@ impl<'a> Transport<'a> {
             return Err(Error::InvalidInput(format!("the tolerance must be positive, not {}", self.tolerance)));
         }
         let clock = Instant::now();
+        let frame = self.frame();
         let mut cells = self.cells(&w)?;
         if self.restart && self.start.is_some() && cells.volume.iter().any(|&m| m.is_nan() || m <= 0.0) {
             w = vec![0.0; n];
@@ -250,7 +282,7 @@ impl<'a> Transport<'a> {
                 progress(&record);
                 break;
             }
-            let laplacian = Laplacian::of(&cells, sites)?;
+            let laplacian = Laplacian::of(&cells, &frame.0, frame.1)?;
             // Forcing term: a solve as accurate as the step can use.
             let eta = (0.1 * max_error).clamp(1e-3, 0.1);
             let (delta, iterations) = laplacian.solve(&residual, eta);
@@ -333,17 +365,22 @@ struct Laplacian {
 
 impl Laplacian {
     /// From the cells' faces: `A_ij / 2|x_i - x_j|` per shared face (`A_ij`
-    /// its area, or its mass under a density).
+    /// its area, or its mass under a density; in a periodic box of sides
+    /// `lengths`, `x_j` the image the face is shared with).
     /// Refuses a diagram whose cells fall apart into separate groups (a
     /// domain in pieces).
-    fn of(cells: &Cells, sites: &[[f64; 3]]) -> Result<Self> {
+    fn of(cells: &Cells, sites: &[[f64; 3]], lengths: Option<[f64; 3]>) -> Result<Self> {
         let adj = cells.adjacency().expect("the transport's diagrams have faces");
         let rows: Vec<u32> =
             adj.offsets.windows(2).enumerate().flat_map(|(i, r)| std::iter::repeat_n(i as u32, r[1] - r[0])).collect();
         let values: Vec<f64> = (0..adj.neighbors.len())
             .into_par_iter()
             .map(|e| {
-                let (p, q) = (sites[rows[e] as usize], sites[adj.neighbors[e] as usize]);
+                let (p, mut q) = (sites[rows[e] as usize], sites[adj.neighbors[e] as usize]);
+                if let Some(l) = lengths {
+                    let s = adj.shift(e);
+                    q = [0, 1, 2].map(|a| q[a] + s[a] as f64 * l[a]);
+                }
                 let dist = ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt();
                 adj.areas[e] / (2.0 * dist)
             })

@@ -183,6 +183,16 @@ impl<'a> PeriodicVoronoi<'a> {
         }
     }
 
+    /// The box.
+    pub fn domain(&self) -> PeriodicBox {
+        self.domain
+    }
+
+    /// The sites as given (not wrapped).
+    pub fn input_sites(&self) -> &'a [[f64; 3]] {
+        self.sites
+    }
+
     /// Power cells: a weight per site ([`ClippedVoronoi::weights`]); each
     /// image carries its site's.
     pub fn weights(mut self, weights: &'a [f64]) -> Self {
