@@ -1244,7 +1244,7 @@ mod tests {
             }
         }
         let m = p.moments();
-        assert!(close(m.volume, 8.2186777e-4, 1e-5), "{m:?}");
+        assert!(close(m.volume, 8.218_678e-4, 1e-5), "{m:?}");
     }
 
     #[test]

@@ -27,6 +27,7 @@ __all__ = [
     "devices",
     "lloyd",
     "mesh_surface",
+    "periodic_voronoi",
     "read_mesh",
     "sample",
     "transport",
@@ -99,6 +100,25 @@ def clipped_voronoi(
         bool(polyhedra),
         _values(weights, "weights"),
     )
+
+
+def periodic_voronoi(sites, lo, hi, *, backend="auto", faces=False, weights=None):
+    """The cells of `sites` ((n, 3)) in the periodic box `lo..hi` (three
+    numbers each): each site's Voronoi cell (power cell with `weights`) in
+    the space the box tiles, cut into the box. Sites outside the box are
+    wrapped into it.
+
+    Returns (cells, wrapped_sites): a Cells as clipped_voronoi's (centroids
+    wrapped into the box, energies about each site; with faces=True the
+    adjacency also has `shifts`, an (m, 3) int array: the face is shared
+    with that neighbour's image, its site plus that many box lengths, and
+    there is no boundary), and the sites wrapped, an (n, 3) array.
+    """
+    lo = [float(x) for x in lo]
+    hi = [float(x) for x in hi]
+    if len(lo) != 3 or len(hi) != 3:
+        raise ValueError(f"lo and hi must have three numbers each, not {len(lo)} and {len(hi)}")
+    return _cvd.periodic_voronoi(_points(sites, "sites"), lo, hi, backend, bool(faces), _values(weights, "weights"))
 
 
 def lloyd(mesh, sites, iterations, *, optimizer="lloyd", backend="auto", density=None, progress=False):

@@ -1,5 +1,5 @@
 from os import PathLike
-from typing import Any, Optional, Union
+from typing import Any, Optional, Sequence, Union
 
 import numpy as np
 import numpy.typing as npt
@@ -43,6 +43,15 @@ def clipped_voronoi(
     polyhedra: bool = False,
     weights: Optional[npt.ArrayLike] = None,
 ) -> Cells: ...
+def periodic_voronoi(
+    sites: npt.ArrayLike,
+    lo: Sequence[float],
+    hi: Sequence[float],
+    *,
+    backend: str = "auto",
+    faces: bool = False,
+    weights: Optional[npt.ArrayLike] = None,
+) -> tuple[Cells, npt.NDArray[np.float64]]: ...
 def lloyd(
     mesh: Mesh,
     sites: npt.ArrayLike,

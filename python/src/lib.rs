@@ -269,6 +269,10 @@ fn to_python(py: Python<'_>, cells: cvd::Cells) -> PyResult<Cells> {
             let normals: Vec<f64> = a.normals.iter().flatten().copied().collect();
             d.set_item("normals", normals.into_pyarray(py).reshape([a.normals.len(), 3])?)?;
             d.set_item("boundary", a.boundary.clone().into_pyarray(py))?;
+            if !a.shifts.is_empty() {
+                let shifts: Vec<i64> = a.shifts.iter().flatten().map(|&x| x as i64).collect();
+                d.set_item("shifts", shifts.into_pyarray(py).reshape([a.shifts.len(), 3])?)?;
+            }
             Some(d.unbind())
         }
         None => None,
@@ -366,6 +370,39 @@ fn clipped_voronoi(
         })
         .map_err(err)?;
     to_python(py, cells)
+}
+
+/// The cells of `sites` in the periodic box `lo..hi`: their Voronoi (or
+/// power) cells in the space the box tiles, cut into the box; with the
+/// sites wrapped into it.
+#[pyfunction]
+#[pyo3(signature = (sites, lo, hi, backend="auto", faces=false, weights=None))]
+fn periodic_voronoi<'py>(
+    py: Python<'py>,
+    sites: PyReadonlyArray2<'_, f64>,
+    lo: [f64; 3],
+    hi: [f64; 3],
+    backend: &str,
+    faces: bool,
+    weights: Option<PyReadonlyArray1<'_, f64>>,
+) -> PyResult<(Cells, Bound<'py, PyArray2<f64>>)> {
+    let sites = rows3(&sites, "sites")?;
+    let weights: Option<Vec<f64>> = weights.map(|w| w.as_array().to_vec());
+    let options = self::backend(backend)?;
+    let out = py
+        .detach(|| -> cvd::Result<cvd::PeriodicCells> {
+            let domain = cvd::PeriodicBox::new(lo, hi)?;
+            let b = cvd::backend::open(&options)?;
+            let mut pv = cvd::PeriodicVoronoi::new(domain, &sites).faces(faces).backend(b.as_ref());
+            if let Some(w) = &weights {
+                pv = pv.weights(w);
+            }
+            pv.compute()
+        })
+        .map_err(err)?;
+    let n = out.sites.len();
+    let wrapped = flat(out.sites).into_pyarray(py).reshape([n, 3])?;
+    Ok((to_python(py, out.cells)?, wrapped))
 }
 
 /// `iterations` of Lloyd's method (`optimizer="lloyd"`) or L-BFGS
@@ -524,6 +561,7 @@ fn _cvd(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(clipped_voronoi, m)?)?;
     m.add_function(wrap_pyfunction!(lloyd, m)?)?;
     m.add_function(wrap_pyfunction!(transport, m)?)?;
+    m.add_function(wrap_pyfunction!(periodic_voronoi, m)?)?;
     m.add_function(wrap_pyfunction!(devices, m)?)?;
     Ok(())
 }

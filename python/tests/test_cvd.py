@@ -257,3 +257,34 @@ def test_ctrl_c_stops_lloyd_between_iterations(tmp_path):
     out, _ = p.communicate(timeout=60)
     assert p.returncode == 3, out
     assert "stopped after" in out and "of 100000 iterations" in out, out
+
+
+def test_periodic_box_cells_fill_it_and_match_the_command_line(tmp_path):
+    # Sites outside the box come back wrapped.
+    rng = np.random.default_rng(7)
+    sites = rng.random((300, 3)) * [2.0, 1.0, 1.0]
+    sites[:10] += [2.0, -1.0, 3.0]
+    cells, wrapped = cvd.periodic_voronoi(sites, [0, 0, 0], [2, 1, 1], backend="cpu", faces=True)
+    assert abs(cells.volume.sum() - 2.0) < 1e-6 and cells.e_vol < 1e-6
+    assert np.all(wrapped >= 0) and np.all(wrapped < [2.0, 1.0, 1.0])
+    assert np.allclose(wrapped[:10], sites[:10] - [2.0, -1.0, 3.0])
+    a = cells.adjacency
+    assert a["shifts"].shape == (len(a["neighbors"]), 3) and np.any(a["shifts"] != 0)
+    assert np.all(a["boundary"] == 0)
+    # The command line gives the same cells, digit for digit.
+    path = tmp_path / "s.xyz"
+    np.savetxt(path, wrapped, fmt="%.17g")
+    exe = cli()
+    if exe is None:
+        if CI:
+            pytest.fail("CI=true but the cvd command line is not built (CVD_BIN)")
+        pytest.skip("the cvd command line is not built (set CVD_BIN)")
+    run = subprocess.run(
+        [exe, "run", "--box", "0,0,0,2,1,1", "--sites-file", str(path), "--backend", "cpu", "--out", str(tmp_path / "o")],
+        capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    with open(tmp_path / "o" / "cells.csv") as f:
+        volumes = [float(row["volume"]) for row in csv.DictReader(f)]
+    assert np.array_equal(np.array(volumes), cells.volume)
+    with pytest.raises(ValueError, match="along y"):
+        cvd.periodic_voronoi(sites, [0, 1, 0], [2, 1, 1])

@@ -185,13 +185,17 @@ impl ClippedVoronoi<'_> {
     }
 }
 
+/// The energy, gradient and preconditioner at flat coordinates, and the
+/// seconds the diagram took.
+pub(crate) type Evaluate<'a> = dyn Fn(&[f64]) -> Result<(Evaluation, f64)> + 'a;
+
 /// L-BFGS on the CVT energy from `sites` (see [`ClippedVoronoi::lbfgs`]),
 /// `evaluate` giving the energy, gradient and preconditioner at flat
 /// coordinates, and the seconds the diagram took.
 pub(crate) fn lbfgs(
     sites: &[[f64; 3]],
     iterations: usize,
-    evaluate: &dyn Fn(&[f64]) -> Result<(Evaluation, f64)>,
+    evaluate: &Evaluate,
     progress: &mut dyn FnMut(usize, f64),
 ) -> Result<CvtRun> {
     let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();

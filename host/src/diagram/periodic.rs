@@ -462,7 +462,9 @@ fn fold(
     counters.duplicate_sites = sites.iter().filter(|p| !seen.insert(p.map(f64::to_bits))).count() as u64;
     counters.empty_cells = volume.iter().filter(|&&v| v <= 0.0).count() as u64 - counters.duplicate_sites;
     let adjacency = whole.adjacency.as_ref().map(|a| {
-        let rows: Vec<Vec<(u32, [i32; 3], f64, [f64; 3])>> = (0..n)
+        // Per site: (neighbour, shift, area, normal).
+        type Face = (u32, [i32; 3], f64, [f64; 3]);
+        let rows: Vec<Vec<Face>> = (0..n)
             .into_par_iter()
             .map(|i| {
                 let mut faces: HashMap<(u32, [i32; 3]), (f64, [f64; 3])> = HashMap::new();
