@@ -701,6 +701,8 @@ fn run_periodic(args: &RunArgs) -> cvd::Result<()> {
         }
     };
     let weights = weights(args, sites.len())?;
+    // Said of the sites as given (the iterations move wrapped ones).
+    let wrapped = sites.iter().filter(|&&p| domain.wrap(p) != p).count();
     let model = "periodic box".to_string();
     let dir = args.out.clone().unwrap_or_else(|| default_out_dir("periodic"));
     create_dir(&dir)?;
@@ -756,7 +758,7 @@ fn run_periodic(args: &RunArgs) -> cvd::Result<()> {
     let mut summary = Summary::new(&model, &mesh, sites.len(), args.strategy, backend.as_ref(), cells);
     summary.cvt = record;
     summary.transport = transported;
-    summary.periodic = Some(PeriodicRecord::of(&domain, &out));
+    summary.periodic = Some(PeriodicRecord { wrapped, ..PeriodicRecord::of(&domain, &out) });
     let mut written = Vec::new();
     let mut file = |name: &str| {
         written.push(name.to_string());
@@ -772,8 +774,8 @@ fn run_periodic(args: &RunArgs) -> cvd::Result<()> {
     }
     summary.write_json(&file("summary.json"))?;
     print!("{summary}");
-    if out.wrapped > 0 {
-        println!("{} sites were outside the box: wrapped into it (sites.xyz holds them wrapped)", out.wrapped);
+    if wrapped > 0 {
+        println!("{wrapped} sites were outside the box: wrapped into it (sites.xyz holds them wrapped)");
     }
     if !args.no_geometry {
         println!("the cells' geometry (cells.vtu, walls.ply, the pictures) is not drawn for periodic boxes");

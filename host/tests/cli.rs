@@ -409,7 +409,9 @@ fn a_periodic_box_fills_with_cells_whose_faces_carry_image_shifts() {
     let out = cvd_run(&dir, &["--box", "-1,0,0,1,1,0.5", "--sites-file", "s.xyz", "--iterations", "3", "--out", "o"]);
     assert!(out.status.success(), "{}", text(&out.stderr));
     let stdout = text(&out.stdout);
-    assert!(stdout.contains("3 sites were outside the box"), "{stdout}");
+    // Three outside, and one on the box's upper face (the box holds its
+    // lower faces, not its upper ones).
+    assert!(stdout.contains("4 sites were outside the box"), "{stdout}");
     let csv = std::fs::read_to_string(dir.join("o/cells.csv")).unwrap();
     let total: f64 = csv.lines().skip(1).map(|l| l.split(',').nth(1).unwrap().parse::<f64>().unwrap()).sum();
     assert!((total - 1.0).abs() < 1e-6, "the cells fill the box: {total}");
@@ -420,7 +422,7 @@ fn a_periodic_box_fills_with_cells_whose_faces_carry_image_shifts() {
     assert!(neighbors.lines().skip(1).all(|l| l.split(',').nth(1) != Some("-1")), "no boundary rows");
     let summary: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("o/summary.json")).unwrap()).unwrap();
-    assert_eq!(summary["periodic"]["wrapped"], 3, "{summary}");
+    assert_eq!(summary["periodic"]["wrapped"], 4, "{summary}");
     assert_eq!(summary["cvt"]["iterations"], 3, "{summary}");
     // Refused by name: a box of five numbers, a model that is not a box.
     let out = cvd_run(&dir, &["--box", "0,0,0,1,1", "--out", "bad"]);
