@@ -240,21 +240,8 @@ impl<'a> PeriodicVoronoi<'a> {
 
     /// Computes the cells.
     pub fn compute(&self) -> Result<PeriodicCells> {
+        crate::diagram::voronoi::check_sites(self.sites, self.weights)?;
         let n = self.sites.len();
-        if n == 0 {
-            return Err(Error::InvalidInput("there are no sites".into()));
-        }
-        if let Some(i) = self.sites.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
-            return Err(Error::InvalidInput(format!("site {i} has a non-finite coordinate: {:?}", self.sites[i])));
-        }
-        if let Some(w) = self.weights {
-            if w.len() != n {
-                return Err(Error::InvalidInput(format!("{} weights for {n} sites", w.len())));
-            }
-            if let Some(i) = w.iter().position(|w| !w.is_finite()) {
-                return Err(Error::InvalidInput(format!("the weight of site {i} is {}; it must be finite", w[i])));
-            }
-        }
         let domain = self.domain;
         let clock = Instant::now();
         let sites: Vec<[f64; 3]> = self.sites.iter().map(|&p| domain.wrap(p)).collect();

@@ -247,6 +247,26 @@ impl Cells {
     }
 }
 
+/// Refuses no sites, a non-finite coordinate, and weights that are not one
+/// finite number per site, naming the site.
+pub(crate) fn check_sites(sites: &[[f64; 3]], weights: Option<&[f64]>) -> Result<()> {
+    if sites.is_empty() {
+        return Err(Error::InvalidInput("there are no sites".into()));
+    }
+    if let Some(i) = sites.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
+        return Err(Error::InvalidInput(format!("site {i} has a non-finite coordinate: {:?}", sites[i])));
+    }
+    if let Some(w) = weights {
+        if w.len() != sites.len() {
+            return Err(Error::InvalidInput(format!("{} weights for {} sites", w.len(), sites.len())));
+        }
+        if let Some(i) = w.iter().position(|w| !w.is_finite()) {
+            return Err(Error::InvalidInput(format!("the weight of site {i} is {}; it must be finite", w[i])));
+        }
+    }
+    Ok(())
+}
+
 /// Builder for a clipped Voronoi computation.
 #[derive(Clone, Copy)]
 pub struct ClippedVoronoi<'a> {
@@ -363,12 +383,7 @@ impl<'a> ClippedVoronoi<'a> {
         if mesh.tets.is_empty() {
             return Err(Error::InvalidInput("the mesh has no tets".into()));
         }
-        if self.sites.is_empty() {
-            return Err(Error::InvalidInput("there are no sites".into()));
-        }
-        if let Some(i) = self.sites.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
-            return Err(Error::InvalidInput(format!("site {i} has a non-finite coordinate: {:?}", self.sites[i])));
-        }
+        check_sites(self.sites, self.weights)?;
         let pairing = self.resolved_pairing();
         if pairing == Pairing::Flood && self.strategy != Strategy::TetCell {
             return Err(Error::InvalidInput("flood pairing works with the tet-cell strategy only".into()));
@@ -386,14 +401,6 @@ impl<'a> ClippedVoronoi<'a> {
                     "the density at vertex {v} is {}; it must be positive",
                     rho[v]
                 )));
-            }
-        }
-        if let Some(w) = self.weights {
-            if w.len() != self.sites.len() {
-                return Err(Error::InvalidInput(format!("{} weights for {} sites", w.len(), self.sites.len())));
-            }
-            if let Some(i) = w.iter().position(|w| !w.is_finite()) {
-                return Err(Error::InvalidInput(format!("the weight of site {i} is {}; it must be finite", w[i])));
             }
         }
         if self.k_site == Some(0) || self.k == Some(0) {
