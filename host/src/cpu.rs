@@ -5,13 +5,13 @@ use crate::backend::Backend;
 use crate::cvt::LloydOutput;
 use crate::diagram::voronoi::{ClipJob, ClipOutput, Pairing, Strategy};
 use crate::error::{Error, Result};
-use crate::knn::{KnnJob, KnnMethod, Neighbors};
+use crate::knn::{KnnJob, KnnMethod, Neighbors, PackedLists};
 use crate::timing::{timed, Timings};
-use cvd_kernels::abi::{counter, lloyd_stat, ClipParams, QuantPoint, RefineParams, ACCUM_PER_SITE};
+use cvd_kernels::abi::{counter, lloyd_stat, ClipParams, KnnParams, QuantPoint, RefineParams, ACCUM_PER_SITE};
 use cvd_kernels::buffers::{DeviceSums, OutBuf, PairList, Window};
 use cvd_kernels::clip::{self, FaceInputs, NoPieces, PieceSink, CELL_RECORDS};
 use cvd_kernels::walk::GridWalk;
-use cvd_kernels::{grid, knn, lloyd, refine, scan};
+use cvd_kernels::{grid, knn, lists, lloyd, refine, scan};
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicI64, AtomicU32, Ordering};
 use std::sync::Mutex;
@@ -45,16 +45,19 @@ impl CpuBackend {
     /// Runs a clipping job like [`Backend::clip`], handing every piece
     /// the kernels finish to the tasks' sinks, which end up in `sinks`.
     pub(crate) fn clip_into<S: TaskSink>(&self, job: &ClipJob, sinks: &Mutex<Vec<S>>) -> Result<ClipOutput> {
-        let site_nn = job.site_knn.run(self)?;
-        let tet_nn = job.tet_knn.run(self)?;
+        // The sites' lists packed in as few bits as their indices need; the
+        // kernels run with parameters that say so.
+        let site_nn = self.packed_lists(&job.site_knn, lists::width(job.params.n_sites))?;
+        let tet_nn = self.lists(&job.tet_knn_job())?;
+        let refine = RefineParams { clip: ClipParams { list_bits: site_nn.bits, ..job.refine.clip }, ..job.refine };
         self.pool.install(|| {
-            let p = &job.params;
+            let p = &refine.clip;
             let mut timings = Timings::default();
             timings.push("knn", site_nn.timings.total() + tet_nn.timings.total());
             // The sites' sums, then one volume sum per tet (knn pairing's
             // certificate).
             let n_sums = p.n_sites as usize * ACCUM_PER_SITE + p.n_tets as usize + job.face_sums_len();
-            let faces = FaceInputs { site_nbrs: &site_nn.indices, tet_faces: &job.tet_faces };
+            let faces = FaceInputs { site_nbrs: &site_nn.words, tet_faces: &job.tet_faces };
             let sums: Vec<AtomicI64> = (0..n_sums).map(|_| AtomicI64::new(0)).collect();
             let totals: Vec<AtomicI64> = (0..counter::COUNT).map(|_| AtomicI64::new(0)).collect();
             let unfinished = Mutex::new(Vec::new());
@@ -69,7 +72,7 @@ impl CpuBackend {
                 Strategy::TetCell if job.pairing == Pairing::Flood => {
                     let (_, t) = timed(|| {
                         let g = grid();
-                        let w = GridWalk::new(&job.refine, &site_nn.indices, &g.cell_start, &g.cell_count, &g.sorted);
+                        let w = GridWalk::new(&refine, &site_nn.words, &g.cell_start, &g.cell_count, &g.sorted);
                         par_indices(
                             p.n_tets as usize,
                             CHUNK / 16,
@@ -78,20 +81,7 @@ impl CpuBackend {
                             &unfinished,
                             sinks,
                             |t, s, c, u, k| {
-                                clip::flood_tet(
-                                    t,
-                                    &job.refine,
-                                    w,
-                                    sites,
-                                    verts,
-                                    tets,
-                                    &tet_nn.indices,
-                                    faces,
-                                    s,
-                                    c,
-                                    u,
-                                    k,
-                                )
+                                clip::flood_tet(t, &refine, w, sites, verts, tets, &tet_nn.indices, faces, s, c, u, k)
                             },
                         )
                     });
@@ -100,7 +90,7 @@ impl CpuBackend {
                 Strategy::TetCell => {
                     let (_, t) = timed(|| {
                         par_indices(n_pairs, CHUNK / 4, &sums, &totals, &unfinished, sinks, |pair, s, c, u, k| {
-                            let (nbrs, tf) = (&site_nn.indices, &job.tet_faces);
+                            let (nbrs, tf) = (&site_nn.words, &job.tet_faces);
                             clip::tet_cell_pair(pair, p, sites, verts, tets, &tet_nn.indices, nbrs, tf, s, c, u, k)
                         })
                     });
@@ -112,7 +102,7 @@ impl CpuBackend {
                         cells.par_chunks_mut(CELL_RECORDS).enumerate().for_each(|(i, data)| {
                             let mut local = [0i64; counter::COUNT];
                             let mut out = Window { start: i * CELL_RECORDS, data };
-                            clip::voronoi_cell(i, p, sites, &site_nn.indices, &mut out, &mut DeviceSums(&mut local));
+                            clip::voronoi_cell(i, p, sites, &site_nn.words, &mut out, &mut DeviceSums(&mut local));
                             for (t, &v) in totals.iter().zip(&local) {
                                 t.fetch_add(v, Ordering::Relaxed);
                             }
@@ -122,7 +112,7 @@ impl CpuBackend {
                     timings.push("cells", t);
                     let (_, t) = timed(|| {
                         par_indices(n_pairs, CHUNK / 4, &sums, &totals, &unfinished, sinks, |pair, s, c, u, k| {
-                            let (nbrs, tf) = (&site_nn.indices, &job.tet_faces);
+                            let (nbrs, tf) = (&site_nn.words, &job.tet_faces);
                             clip::cell_tet_pair(
                                 pair,
                                 p,
@@ -151,11 +141,9 @@ impl CpuBackend {
                     let g = grid();
                     let mut list = vec![first.len() as u32];
                     list.extend(first.iter().flatten());
-                    let rp = RefineParams {
-                        clip: ClipParams { capacity: first.len() as u32, ..job.refine.clip },
-                        ..job.refine
-                    };
-                    let w = GridWalk::new(&rp, &site_nn.indices, &g.cell_start, &g.cell_count, &g.sorted);
+                    let rp =
+                        RefineParams { clip: ClipParams { capacity: first.len() as u32, ..refine.clip }, ..refine };
+                    let w = GridWalk::new(&rp, &site_nn.words, &g.cell_start, &g.cell_count, &g.sorted);
                     let ignored: Vec<AtomicI64> = (0..counter::COUNT).map(|_| AtomicI64::new(0)).collect();
                     let again = Mutex::new(Vec::new());
                     par_indices(first.len(), 1, &sums, &ignored, &again, sinks, |e, s, c, u, k| {
@@ -169,7 +157,7 @@ impl CpuBackend {
             let mut sums: Vec<i64> = sums.into_iter().map(AtomicI64::into_inner).collect();
             let mut tet_volumes = sums.split_off(p.n_sites as usize * ACCUM_PER_SITE);
             let faces = tet_volumes.split_off(p.n_tets as usize);
-            let site_lists = if faces.is_empty() { Vec::new() } else { site_nn.indices.clone() };
+            let site_lists = if faces.is_empty() { PackedLists::default() } else { site_nn };
             Ok(ClipOutput {
                 sums,
                 tet_volumes,
@@ -378,6 +366,61 @@ pub(crate) fn build_grid(job: &KnnJob) -> CpuGrid {
     CpuGrid { cell_start, cell_count, sorted }
 }
 
+impl CpuBackend {
+    /// The neighbour lists of a k-NN job, packed in `bits`-bit entries as
+    /// the clipping kernels read them ([`cvd_kernels::lists`]; 32: plain),
+    /// without their distances: each query sorts its candidates in its
+    /// task's scratch and stores the list at its slot, so the lists are
+    /// all the memory the job takes.
+    pub(crate) fn packed_lists(&self, job: &KnnJob, bits: u32) -> Result<PackedLists> {
+        let p = KnnParams { local_lists: 1, ..job.params };
+        let (k, n) = (p.k as usize, job.queries.len());
+        let stride = lists::stride(p.k, bits);
+        let mut words = vec![0u32; n * stride];
+        let mut timings = Timings::default();
+        if k > 0 && n > 0 {
+            self.pool.install(|| {
+                let out = SharedSlots::new(&mut words);
+                // Thread `i`'s list into the task's scratch, then to its slot.
+                let each = |thread: &(dyn Fn(usize, &mut [u32], &mut [u64]) -> usize + Sync)| {
+                    (0..n).into_par_iter().chunks(CHUNK).for_each(|chunk| {
+                        let (mut nbr, mut d2) = (vec![0u32; k], vec![0u64; k]);
+                        let mut out = out.share();
+                        for i in chunk {
+                            let slot = thread(i, &mut nbr, &mut d2);
+                            lists::pack(&nbr, p.k, bits, slot, &mut out);
+                        }
+                    })
+                };
+                match job.method {
+                    KnnMethod::Grid => {
+                        let (g, t) = timed(|| build_grid(job));
+                        timings.push("grid", t);
+                        let (cs, cc, sorted) = (&g.cell_start, &g.cell_count, &g.sorted);
+                        let (_, t) = timed(|| {
+                            each(&|i, nbr, d2| knn::grid_thread(i, &p, &job.queries, cs, cc, sorted, nbr, d2))
+                        });
+                        timings.push("knn", t);
+                    }
+                    KnnMethod::Brute => {
+                        let (_, t) =
+                            timed(|| each(&|i, nbr, d2| knn::brute_thread(i, &p, &job.queries, &job.sites, nbr, d2)));
+                        timings.push("knn", t);
+                    }
+                }
+            });
+        }
+        Ok(PackedLists { words, k: p.k, bits, timings })
+    }
+
+    /// The plain neighbour lists of a k-NN job, without their distances
+    /// (left empty).
+    pub(crate) fn lists(&self, job: &KnnJob) -> Result<Neighbors> {
+        let l = self.packed_lists(job, 32)?;
+        Ok(Neighbors { k: l.k as usize, indices: l.words, dist2: Vec::new(), timings: l.timings })
+    }
+}
+
 impl Backend for CpuBackend {
     fn kind(&self) -> &'static str {
         "cpu"
@@ -412,7 +455,7 @@ impl Backend for CpuBackend {
                             });
                         } else {
                             per_query_windows(&mut indices, &mut dist2, k, |i, nbr, d2| {
-                                knn::grid_thread(i, p, &job.queries, cs, cc, sorted, nbr, d2)
+                                knn::grid_thread(i, p, &job.queries, cs, cc, sorted, nbr, d2);
                             });
                         }
                     });
@@ -421,7 +464,7 @@ impl Backend for CpuBackend {
                 KnnMethod::Brute => {
                     let (_, t) = timed(|| {
                         per_query_windows(&mut indices, &mut dist2, k, |i, nbr, d2| {
-                            knn::brute_thread(i, p, &job.queries, &job.sites, nbr, d2)
+                            knn::brute_thread(i, p, &job.queries, &job.sites, nbr, d2);
                         })
                     });
                     timings.push("knn", t);
@@ -444,12 +487,13 @@ impl Backend for CpuBackend {
             let first = out.refined + out.unfinished.len() as u64;
             let redone = crate::diagram::second_pass::run(&job, &mut out, &Mutex::new(Vec::<NoPieces>::new()))?;
             let p = crate::cvt::params(&job, it);
-            let mut quant = job.site_knn.sites.clone();
+            let mut quant = job.site_knn.sites.to_vec();
             let (unfinished, still) = ([first as u32], [redone.unresolved as u32]);
             for i in 0..job.params.n_sites as usize {
                 let (sites, q) = (&mut job.sites[..], &mut quant[..]);
                 lloyd::move_site(i, &p, &out.sums, &unfinished, &still, sites, q, &mut DeviceSums(&mut stats));
             }
+            let quant: crate::knn::Points = quant.into();
             job.site_knn.queries = quant.clone();
             job.tet_knn.sites = quant.clone();
             job.site_knn.sites = quant;

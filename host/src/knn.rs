@@ -21,10 +21,11 @@ pub const SITES_PER_CELL: f64 = 5.0;
 /// A validated, quantized k-NN job, ready for any backend.
 #[derive(Clone, Debug)]
 pub struct KnnJob {
-    /// Sites, quantized and tagged with their index.
-    pub sites: Vec<QuantPoint>,
-    /// Query points (the sites themselves for a site job).
-    pub queries: Vec<QuantPoint>,
+    /// Sites, quantized and tagged with their index (shared with the
+    /// jobs that search the same sites).
+    pub sites: Points,
+    /// Query points (the sites themselves, shared, for a site job).
+    pub queries: Points,
     /// Kernel parameters (grid, counts, `k` clamped to what exists).
     pub params: KnnParams,
     /// Search method.
@@ -32,6 +33,10 @@ pub struct KnnJob {
     /// The frame the points were quantized in.
     pub quantizer: Quantizer,
 }
+
+/// Quantized points, shared by the jobs that read them (a site job's sites
+/// are its queries and the tets' job's sites too).
+pub type Points = std::sync::Arc<[QuantPoint]>;
 
 /// The neighbours of every query: `k` per query, nearest first.
 #[derive(Clone, Debug, Default)]
@@ -46,6 +51,30 @@ pub struct Neighbors {
     pub timings: Timings,
 }
 
+/// Neighbour lists packed as the clipping kernels read them
+/// ([`cvd_kernels::lists`]): `k` entries of `bits` bits per query, each
+/// list in whole words; an entry of all ones is `NO_SITE`.
+#[derive(Clone, Debug, Default)]
+pub struct PackedLists {
+    /// The lists' words, [`cvd_kernels::lists::stride`] per query.
+    pub words: Vec<u32>,
+    /// Entries per list.
+    pub k: u32,
+    /// Bits per entry (32: plain `u32` entries).
+    pub bits: u32,
+    /// Time per phase.
+    pub timings: Timings,
+}
+
+impl PackedLists {
+    /// The lists as the kernels read them, as those of queries
+    /// `base..base + (the number of lists)`.
+    pub fn view(&self, base: u32) -> cvd_kernels::lists::Lists<'_> {
+        let n = self.words.len() / cvd_kernels::lists::stride(self.k, self.bits).max(1);
+        cvd_kernels::lists::Lists::new(&self.words, self.k, self.bits, base, base + n as u32)
+    }
+}
+
 impl Neighbors {
     /// The neighbours of query `i`.
     pub fn of(&self, i: usize) -> &[u32] {
@@ -57,7 +86,7 @@ impl KnnJob {
     /// The `k` nearest other sites of every site.
     pub fn sites(sites: &[[f64; 3]], k: usize, method: KnnMethod) -> Result<Self> {
         let quantizer = Quantizer::fit(&[("site", sites)])?;
-        let q = quantizer.quantize_all(sites);
+        let q: Points = quantizer.quantize_all(sites).into();
         Self::build(q.clone(), q, true, k, method, quantizer)
     }
 
@@ -65,7 +94,7 @@ impl KnnJob {
     /// on a grid that also cover `frame` (points the sites may move to).
     pub fn sites_in_frame(sites: &[[f64; 3]], frame: &[[f64; 3]], k: usize, method: KnnMethod) -> Result<Self> {
         let quantizer = Quantizer::fit(&[("site", sites), ("frame point", frame)])?;
-        let q = quantizer.quantize_all(sites);
+        let q: Points = quantizer.quantize_all(sites).into();
         let mut job = Self::build(q.clone(), q, true, k, method, quantizer)?;
         job.params.grid = grid_over(job.sites.iter().chain(&quantizer.quantize_all(frame)), sites.len());
         Ok(job)
@@ -75,7 +104,8 @@ impl KnnJob {
     /// and grid of a site job (the queries must lie in its frame).
     pub fn points_like(site_job: &KnnJob, queries: &[[f64; 3]], k: usize) -> Result<Self> {
         let q = site_job.quantizer;
-        let mut job = Self::build(site_job.sites.clone(), q.quantize_all(queries), false, k, site_job.method, q)?;
+        let mut job =
+            Self::build(site_job.sites.clone(), q.quantize_all(queries).into(), false, k, site_job.method, q)?;
         job.params.grid = site_job.params.grid;
         Ok(job)
     }
@@ -83,12 +113,13 @@ impl KnnJob {
     /// The `k` nearest sites of every query point.
     pub fn points(sites: &[[f64; 3]], queries: &[[f64; 3]], k: usize, method: KnnMethod) -> Result<Self> {
         let quantizer = Quantizer::fit(&[("site", sites), ("query point", queries)])?;
-        Self::build(quantizer.quantize_all(sites), quantizer.quantize_all(queries), false, k, method, quantizer)
+        let (sites, queries) = (quantizer.quantize_all(sites), quantizer.quantize_all(queries));
+        Self::build(sites.into(), queries.into(), false, k, method, quantizer)
     }
 
     fn build(
-        sites: Vec<QuantPoint>,
-        queries: Vec<QuantPoint>,
+        sites: Points,
+        queries: Points,
         exclude_self: bool,
         k: usize,
         method: KnnMethod,
@@ -120,7 +151,8 @@ impl KnnJob {
             exclude_self: exclude_self as u32,
             query_base: 0,
             in_order: 0,
-            _pad: [0; 3],
+            local_lists: 0,
+            _pad: [0; 2],
         };
         Ok(Self { sites, queries, params, method, quantizer })
     }

@@ -907,6 +907,15 @@ fn main() -> ExitCode {
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
+    // Large buffers straight from the system and back to it when freed:
+    // glibc's default raises its mmap threshold after the first large free,
+    // and the job's freed temporaries then stay resident under the buffers
+    // that follow (about 90 MB of 575 MB at 1M sites).
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: a malloc tuning call at start-up, before any other thread.
+    unsafe {
+        libc::mallopt(libc::M_MMAP_THRESHOLD, 1 << 20);
+    }
     let cli = Cli::parse();
     let result = match &cli.command {
         Command::Devices { json } => devices(*json),

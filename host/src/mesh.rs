@@ -175,6 +175,7 @@ impl TetMesh {
             }
         }
         // Unused vertices are harmless: nothing refers to them.
+        tets.shrink_to_fit();
         Self { vertices, tets }
     }
 }

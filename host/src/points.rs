@@ -96,7 +96,21 @@ pub fn in_mesh(mesh: &crate::TetMesh, n: usize, seed: u64) -> Vec<[f64; 3]> {
 /// space become neighbours in memory, which keeps caches (and GPU
 /// workgroups) on nearby data. Ties keep the input order.
 pub fn morton_order(points: &[[f64; 3]]) -> Vec<u32> {
-    let (lo, hi) = crate::vec3::bounding_box(points);
+    morton_order_by(points.len(), |i| points[i])
+}
+
+/// [`morton_order`] of the `n` points `point(0..n)`, computed as needed
+/// (twice each) rather than held.
+pub fn morton_order_by(n: usize, point: impl Fn(usize) -> [f64; 3]) -> Vec<u32> {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for i in 0..n {
+        let p = point(i);
+        for a in 0..3 {
+            lo[a] = lo[a].min(p[a]);
+            hi[a] = hi[a].max(p[a]);
+        }
+    }
     let extent = (0..3).map(|a| hi[a] - lo[a]).fold(0.0f64, f64::max).max(f64::MIN_POSITIVE);
     // Spreads the low 10 bits of v to every third bit.
     let spread = |v: u32| {
@@ -106,14 +120,14 @@ pub fn morton_order(points: &[[f64; 3]]) -> Vec<u32> {
         x = (x | (x << 4)) & 0x030c_30c3;
         (x | (x << 2)) & 0x0924_9249
     };
-    let mut keyed: Vec<(u32, u32)> = points
-        .iter()
-        .enumerate()
-        .map(|(i, p)| {
+    let mut keyed: Vec<(u32, u32)> = (0..n)
+        .map(|i| {
+            let p = point(i);
             let q = |a: usize| (((p[a] - lo[a]) / extent) * 1023.0) as u32;
             (spread(q(0)) | (spread(q(1)) << 1) | (spread(q(2)) << 2), i as u32)
         })
         .collect();
     keyed.sort_unstable();
-    keyed.into_iter().map(|(_, i)| i).collect()
+    // Not collected in place: that would keep the pairs' allocation.
+    keyed.iter().map(|&(_, i)| i).collect()
 }

@@ -140,8 +140,13 @@ pub struct KnnParams {
     /// like a point job (the lists hold the dispatch's sites); 0: in grid
     /// order, each at its own slot.
     pub in_order: u32,
+    /// 1: each query sorts its candidates in slots `0..k` of the two
+    /// buffers, its own scratch (a CPU thread's, reused query after query,
+    /// which then stores the list where it wants it: the threads return
+    /// the query's slot); 0: at the query's own slots, the output.
+    pub local_lists: u32,
     /// Padding to a 16-byte multiple.
-    pub _pad: [u32; 3],
+    pub _pad: [u32; 2],
 }
 
 /// The thread index of a 1D job dispatched as a 2D grid of workgroups
@@ -254,8 +259,12 @@ pub struct ClipParams {
     /// density (exact for a density constant over the piece; what optimal
     /// transport's Newton steps are made of); 0 sums areas.
     pub face_masses: u32,
+    /// Bits per entry of the neighbour lists (`site_nbrs`): 32 for plain
+    /// `u32` entries, fewer for lists packed into whole words per list
+    /// (see [`crate::lists`]).
+    pub list_bits: u32,
     /// To a multiple of 16 bytes.
-    pub _pad: [u32; 2],
+    pub _pad: u32,
 }
 
 /// Push constants of the second pass ([`crate::refine`]): the clipping

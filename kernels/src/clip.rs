@@ -23,6 +23,7 @@
 
 use crate::abi::{counter, ClipParams, RefineParams, SplitPoint, ACCUM_PER_SITE, INCOMPLETE_TET, NO_SITE};
 use crate::buffers::{AtomicSums, OutBuf, PairList};
+use crate::lists::{Lists, NO_LIST};
 use crate::polyhedron::{
     between, bisector_offset, made_by_site, normal, weight_gap, Cell, Clip, Moments, Piece, Point, Polyhedron,
     CELL_PLANES, CELL_VERTS, NO_ID, TET_FACE,
@@ -235,27 +236,6 @@ impl BisectorRun {
     }
 }
 
-/// Marks a site whose neighbour list is not bound (see [`list_start`]).
-pub const NO_LIST: usize = usize::MAX;
-
-/// Where site `j`'s neighbour list starts in `site_nbrs`, or [`NO_LIST`]
-/// when the bound lists (`nbr_base..nbr_end`) do not hold it.
-#[inline]
-pub fn list_start(p: &ClipParams, j: usize) -> usize {
-    list_in(j, p.nbr_base, p.nbr_end, p.k_site)
-}
-
-/// [`list_start`] from plain values (for callers that hold no pointer to
-/// the push constants): lists of `k` entries for sites `base..end`.
-#[inline]
-pub fn list_in(j: usize, base: u32, end: u32, k: u32) -> usize {
-    if j < base as usize || j >= end as usize {
-        NO_LIST
-    } else {
-        (j - base as usize) * k as usize
-    }
-}
-
 /// Whether this dispatch answers for site `j` (`own_lo..own_hi`).
 #[inline]
 fn owns(p: &ClipParams, j: usize) -> bool {
@@ -263,10 +243,11 @@ fn owns(p: &ClipParams, j: usize) -> bool {
 }
 
 /// Clips `poly` (relative to site `i`) by the bisectors of `i` and its
-/// neighbours `site_nbrs[base..base + k]`, nearest first, until the next
-/// neighbour is beyond the security radius (twice the farthest vertex
-/// without weights; [`reach2`]) or nothing is left. Without a list (`base
-/// == NO_LIST`) the piece is left unfinished, as if the radius were missed.
+/// neighbours in `lists` (the list at `slot`, from [`Lists::slot`]), nearest
+/// first, until the next neighbour is beyond the security radius (twice the
+/// farthest vertex without weights; [`reach2`]) or nothing is left.
+/// Without a list (`slot == NO_LIST`) the piece is left unfinished, as if
+/// the radius were missed.
 #[inline]
 pub fn clip_by_bisectors<const P: usize, const V: usize>(
     poly: &mut Polyhedron<P, V>,
@@ -274,18 +255,18 @@ pub fn clip_by_bisectors<const P: usize, const V: usize>(
     n_sites: u32,
     weight_range: f32,
     sites: &[SplitPoint],
-    site_nbrs: &[u32],
-    base: usize,
-    k: usize,
+    lists: &Lists,
+    slot: usize,
 ) -> Clipped {
-    if base == NO_LIST {
+    if slot == NO_LIST {
         return Clipped { security_missed: true, ..Clipped::default() };
     }
     let xi = sites[i];
     let mut run = BisectorRun::new(poly, Slack::of(weight_range, sites, i, n_sites));
+    let k = lists.k();
     let mut s = 0;
     while s < k {
-        let nb = site_nbrs[base + s];
+        let nb = lists.get(slot, s);
         if nb == NO_SITE {
             // Every other site has been used: the cell is exact.
             run.out.security_missed = false;
@@ -417,7 +398,7 @@ pub const FACE_SPILLS: usize = 8;
 pub const FACE_SUMS_EXTRA: usize = 5 + 2 * FACE_SPILLS;
 
 /// What [`add_faces`] reads: each site's neighbour list (`site_nbrs`, as
-/// for the clips) and, per tet, which faces lie on the domain's boundary
+/// for the clips, read as [`Lists::of`] the job's parameters) and, per tet, which faces lie on the domain's boundary
 /// (`tet_faces`: 4 bits per tet, 8 tets per word, bit `f` for the face
 /// opposite vertex `f`).
 #[derive(Clone, Copy)]
@@ -454,7 +435,8 @@ pub fn add_faces<const P: usize, const V: usize, A: AtomicSums>(
     }
     let k = p.k_site as usize;
     let base = p.faces_base as usize + j * (k + FACE_SUMS_EXTRA);
-    let list = list_start(p, j);
+    let lists = Lists::of(p, inputs.site_nbrs);
+    let list = lists.slot(j);
     let boundary = inputs.tet_faces[t / 8] >> (4 * (t % 8));
     let mut q = 0;
     while q < (poly.n_planes as usize).min(P) {
@@ -466,10 +448,10 @@ pub fn add_faces<const P: usize, const V: usize, A: AtomicSums>(
                 let mut slot = k + 1;
                 // Without the site's list (the host's pass has none), the
                 // face goes to a spill slot or is summed apart.
-                if list != NO_LIST && list + k <= inputs.site_nbrs.len() {
+                if list != NO_LIST {
                     let mut s = 0;
                     while s < k {
-                        if inputs.site_nbrs[list + s] == id {
+                        if lists.get(list, s) == id {
                             slot = s;
                             s = k;
                         }
@@ -793,8 +775,8 @@ pub fn tet_cell_pair<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
         return;
     }
     let mut poly = Piece::tetrahedron(tv);
-    let k = p.k_site as usize;
-    let c = clip_by_bisectors(&mut poly, j, p.n_sites, p.weight_range, sites, site_nbrs, list_start(p, j), k);
+    let lists = Lists::of(p, site_nbrs);
+    let c = clip_by_bisectors(&mut poly, j, p.n_sites, p.weight_range, sites, &lists, lists.slot(j));
     let paired = Paired::around(tet_sites, i, p.k_tet as usize);
     let faces = FaceInputs { site_nbrs, tet_faces };
     let nonempty = finish_pair(t, j, &poly, &tv, &c, paired, p, sites, verts, tets, faces, sums, unfinished, sink);
@@ -820,8 +802,9 @@ pub fn voronoi_cell<O: OutBuf<[f32; 4]> + ?Sized, C: AtomicSums>(
     let hi = Vec3::new(p.box_hi_x, p.box_hi_y, p.box_hi_z) - xi;
     let mut poly = Cell::cuboid(lo, hi);
     let k = p.k_site as usize;
-    let base = list_start(p, i);
-    let c = clip_by_bisectors(&mut poly, i, p.n_sites, p.weight_range, sites, site_nbrs, base, k);
+    let lists = Lists::of(p, site_nbrs);
+    let slot = lists.slot(i);
+    let c = clip_by_bisectors(&mut poly, i, p.n_sites, p.weight_range, sites, &lists, slot);
     let status = if c.overflow || c.broken {
         cell_status::FAILED
     } else if c.security_missed {
@@ -834,8 +817,8 @@ pub fn voronoi_cell<O: OutBuf<[f32; 4]> + ?Sized, C: AtomicSums>(
     // k-th neighbour ([`reach2`]): `R = (D² - slack) / 2D`, half the
     // distance without weights (with a margin for rounding).
     let mut exact_r2 = 0.0;
-    if status == cell_status::SECURITY_MISSED && k > 0 && base != NO_LIST {
-        let last = site_nbrs[base + k - 1];
+    if status == cell_status::SECURITY_MISSED && k > 0 && slot != NO_LIST {
+        let last = lists.get(slot, k - 1);
         if last != NO_SITE {
             let d2 = between(&sites[last as usize], &sites[i]).length_squared();
             let slack = Slack::of(p.weight_range, sites, i, p.n_sites);

@@ -112,7 +112,7 @@ pub fn knn_grid(
     #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] neighbor_d2: &mut [u64],
 ) {
     let i = thread_index(id.x, id.y, groups.x);
-    knn::grid_thread(i, p, queries, cell_start, cell_count, sorted, neighbors, neighbor_d2);
+    let _ = knn::grid_thread(i, p, queries, cell_start, cell_count, sorted, neighbors, neighbor_d2);
 }
 
 /// k nearest sites of each query by brute force.
@@ -127,7 +127,7 @@ pub fn knn_brute(
     #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] neighbor_d2: &mut [u64],
 ) {
     let i = thread_index(id.x, id.y, groups.x);
-    knn::brute_thread(i, p, queries, sites, neighbors, neighbor_d2);
+    let _ = knn::brute_thread(i, p, queries, sites, neighbors, neighbor_d2);
 }
 
 /// Tet-cell strategy: one thread per (tet, paired site).

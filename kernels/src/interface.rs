@@ -14,10 +14,10 @@ use crate::layout::{Layout, TypeLayout};
 /// their meaning (records per stored cell, the markers in lists, sums per
 /// site). It changes with any of them;
 /// [`fingerprint`] is pinned by a test to make sure it does.
-pub const ABI_VERSION: u32 = 8;
+pub const ABI_VERSION: u32 = 9;
 
 /// The [`fingerprint`] of the interface of [`ABI_VERSION`].
-pub const ABI_FINGERPRINT: u64 = 0xdbc1_932e_36fd_c3fe;
+pub const ABI_FINGERPRINT: u64 = 0xab5f_713b_4fa1_f7a8;
 
 /// How an entry point uses a storage buffer.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -90,8 +90,7 @@ type Vec4 = [f32; 4];
 type Split = SplitPoint;
 
 /// What the clipping kernels' `site_nbrs` binding holds.
-const SITE_NBRS: &str =
-    "(nbr_end - nbr_base) * k_site: the k_site nearest other sites of each site in nbr_base..nbr_end";
+const SITE_NBRS: &str = "(nbr_end - nbr_base) * ceil(k_site * list_bits / 32): the k_site nearest other sites of each site in nbr_base..nbr_end, list_bits bits each (32: plain u32), packed in whole words per list, all ones for none";
 /// What the clipping kernels' `tet_faces` binding holds.
 const TET_FACES: &str = "ceil(n_tets / 8): 4 bits per tet, bit f set when the face opposite vertex f is on the domain's boundary (for the face sums)";
 /// What a site-grid walk's bindings hold.

@@ -328,7 +328,9 @@ pub fn grid_query<N, D>(
 /// queries in grid order — thread `i` answers `sorted[i]`, writing the
 /// slots of that site's own index — so neighbouring threads search the same
 /// cells; a point job, or a site job in parts (`in_order`), answers query
-/// `query_base + i` at slot `i`.
+/// `query_base + i` at slot `i`. Returns the slot (`usize::MAX` past the
+/// queries); with [`KnnParams::local_lists`] the list is in the first `k`
+/// slots of the buffers, for the caller to store at that slot.
 #[inline]
 pub fn grid_thread<N, D>(
     i: usize,
@@ -339,12 +341,13 @@ pub fn grid_thread<N, D>(
     sorted: &[QuantPoint],
     nbr: &mut N,
     d2: &mut D,
-) where
+) -> usize
+where
     N: OutBuf<u32> + ?Sized,
     D: OutBuf<u64> + ?Sized,
 {
     if i >= p.n_queries as usize {
-        return;
+        return usize::MAX;
     }
     let (q, exclude, slot) = if p.exclude_self != 0 && p.in_order == 0 {
         let q = sorted[i];
@@ -353,11 +356,13 @@ pub fn grid_thread<N, D>(
         let q = queries[p.query_base as usize + i];
         (q, if p.exclude_self != 0 { q[3] } else { NO_SITE }, i)
     };
-    let base = slot * p.k as usize;
+    let base = if p.local_lists != 0 { 0 } else { slot * p.k as usize };
     grid_query(&p.grid, cell_start, cell_count, sorted, [q[0], q[1], q[2]], exclude, p.k, base, nbr, d2);
+    slot
 }
 
-/// Thread `i` of a brute-force k-NN job: the neighbours of query `i`.
+/// Thread `i` of a brute-force k-NN job: the neighbours of query `i`, at
+/// slot `i` (returned, as by [`grid_thread`]).
 #[inline]
 pub fn brute_thread<N, D>(
     i: usize,
@@ -366,15 +371,17 @@ pub fn brute_thread<N, D>(
     sites: &[QuantPoint],
     nbr: &mut N,
     d2: &mut D,
-) where
+) -> usize
+where
     N: OutBuf<u32> + ?Sized,
     D: OutBuf<u64> + ?Sized,
 {
     if i >= p.n_queries as usize {
-        return;
+        return usize::MAX;
     }
     let q = queries[p.query_base as usize + i];
     let exclude = if p.exclude_self != 0 { q[3] } else { NO_SITE };
-    let base = i * p.k as usize;
+    let base = if p.local_lists != 0 { 0 } else { i * p.k as usize };
     brute_query(sites, p.grid.n_sites, [q[0], q[1], q[2]], exclude, p.k, base, nbr, d2);
+    i
 }

@@ -119,7 +119,8 @@ structure!(KnnParams {
     exclude_self: u32,
     query_base: u32,
     in_order: u32,
-    _pad: [u32; 3]
+    local_lists: u32,
+    _pad: [u32; 2]
 });
 structure!(ClipParams {
     n_sites: u32,
@@ -144,7 +145,8 @@ structure!(ClipParams {
     capacity: u32,
     weight_range: f32,
     face_masses: u32,
-    _pad: [u32; 2]
+    list_bits: u32,
+    _pad: u32
 });
 structure!(RefineParams {
     clip: ClipParams,

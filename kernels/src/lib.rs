@@ -31,6 +31,7 @@ pub mod interface;
 pub mod knn;
 #[cfg(not(target_arch = "spirv"))]
 pub mod layout;
+pub mod lists;
 pub mod lloyd;
 pub mod polyhedron;
 pub mod refine;

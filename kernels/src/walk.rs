@@ -12,8 +12,9 @@
 //! the list settles them, and a short list trades k-NN time for walks.
 
 use crate::abi::{GridParams, QuantPoint, RefineParams, SplitPoint};
-use crate::clip::{clip_by_bisectors, list_in, BisectorRun, Clipped, Slack, NO_LIST};
+use crate::clip::{clip_by_bisectors, BisectorRun, Clipped, Slack};
 use crate::grid::{cell_index, ring_row, ring_span};
+use crate::lists::{Lists, NO_LIST};
 use crate::polyhedron::{between, bisector_offset, point, weight_gap, Point, Polyhedron};
 use spirv_std::glam::Vec3;
 
@@ -23,14 +24,8 @@ use spirv_std::glam::Vec3;
 #[derive(Clone, Copy)]
 pub struct GridWalk<'a> {
     /// The k-NN's lists, `k_site` per site of `nbr_base..nbr_end`
-    /// (as [`crate::clip::list_start`] reads them); none when empty.
-    pub site_nbrs: &'a [u32],
-    /// Entries per list.
-    pub k_site: u32,
-    /// First site whose list is bound.
-    pub nbr_base: u32,
-    /// End of the sites whose lists are bound.
-    pub nbr_end: u32,
+    /// ([`Lists::of`] the job's parameters); none when empty.
+    pub lists: Lists<'a>,
     /// Sites in all.
     pub n_sites: u32,
     /// The power weights' range (0: Voronoi cells; see
@@ -65,10 +60,7 @@ impl<'a> GridWalk<'a> {
     ) -> Self {
         let c = &p.clip;
         Self {
-            site_nbrs,
-            k_site: c.k_site,
-            nbr_base: c.nbr_base,
-            nbr_end: if site_nbrs.is_empty() { c.nbr_base } else { c.nbr_end },
+            lists: Lists::of(c, site_nbrs),
             n_sites: c.n_sites,
             weight_range: c.weight_range,
             grid: p.grid,
@@ -244,9 +236,9 @@ pub fn clip_to_cell<const P: usize, const V: usize>(
     sites: &[SplitPoint],
     w: GridWalk,
 ) -> Clipped {
-    let k = w.k_site as usize;
-    let base = list_in(i, w.nbr_base, w.nbr_end, w.k_site);
-    let listed = clip_by_bisectors(poly, i, w.n_sites, w.weight_range, sites, w.site_nbrs, base, k);
+    let k = w.lists.k();
+    let slot = w.lists.slot(i);
+    let listed = clip_by_bisectors(poly, i, w.n_sites, w.weight_range, sites, &w.lists, slot);
     if !listed.security_missed || listed.overflow || listed.broken {
         return listed;
     }
@@ -254,10 +246,10 @@ pub fn clip_to_cell<const P: usize, const V: usize>(
     // Sites clearly nearer than the list's last lie in the list (its
     // distances are exact on the quantized sites, which sit within
     // `margin` of these): clipped already.
-    let inner = if base == NO_LIST || k == 0 {
+    let inner = if slot == NO_LIST || k == 0 {
         0.0
     } else {
-        let last = w.site_nbrs[base + k - 1] as usize;
+        let last = w.lists.get(slot, k - 1) as usize;
         let d = between(&sites[last], &si).length() - 4.0 * w.margin;
         if d > 0.0 {
             d * d
@@ -353,16 +345,16 @@ pub fn power_nearest(
         n_sites: w.n_sites,
     };
     search.offer(start);
-    let k = w.k_site as usize;
+    let k = w.lists.k();
     let mut from = NO_LIST as u32;
     let mut steps = 0;
     while search.best != from && steps < 16 {
         from = search.best;
-        let base = list_in(from as usize, w.nbr_base, w.nbr_end, w.k_site);
-        if base != NO_LIST {
+        let slot = w.lists.slot(from as usize);
+        if slot != NO_LIST {
             let mut s = 0;
             while s < k {
-                let j = w.site_nbrs[base + s];
+                let j = w.lists.get(slot, s);
                 if j != crate::abi::NO_SITE {
                     search.offer(j);
                 }

@@ -131,9 +131,9 @@ pub fn reference_knn(job: &KnnJob) -> (Vec<u32>, Vec<u64>) {
     let mut indices = Vec::with_capacity(job.queries.len() * k);
     let mut dist2 = Vec::with_capacity(job.queries.len() * k);
     let mut all = Vec::with_capacity(job.sites.len());
-    for q in &job.queries {
+    for q in job.queries.iter() {
         all.clear();
-        for s in &job.sites {
+        for s in job.sites.iter() {
             if job.params.exclude_self != 0 && s[3] == q[3] {
                 continue;
             }

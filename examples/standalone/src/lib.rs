@@ -601,6 +601,8 @@ pub fn run(spirv_dir: &Path, verts: &[[f64; 3]], tets: &[[u32; 4]], sites: &[[f6
         ("weight_range", F(0.0)),
         // No face sums, so no face masses.
         ("face_masses", U(0)),
+        // The lists as knn_grid writes them: plain u32 entries.
+        ("list_bits", U(32)),
     ];
 
     let used = [
@@ -666,13 +668,22 @@ pub fn run(spirv_dir: &Path, verts: &[[f64; 3]], tets: &[[u32; 4]], sites: &[[f6
             ("exclude_self", U(1)),
             ("query_base", U(0)),
             ("in_order", U(0)),
+            // Each thread sorts its list in its own slots of the outputs.
+            ("local_lists", U(0)),
         ],
     ));
     g.dispatch(m, "knn_grid", &[qsites_b, cell_start, cell_count, sorted, nbrs, nbr_d2], &knn, n as u64)?;
     let mut knn = named("grid.", &grid);
     knn.extend(named(
         "",
-        &[("n_queries", U(nt as u64)), ("k", U(1)), ("exclude_self", U(0)), ("query_base", U(0)), ("in_order", U(0))],
+        &[
+            ("n_queries", U(nt as u64)),
+            ("k", U(1)),
+            ("exclude_self", U(0)),
+            ("query_base", U(0)),
+            ("in_order", U(0)),
+            ("local_lists", U(0)),
+        ],
     ));
     g.dispatch(m, "knn_grid", &[qcent_b, cell_start, cell_count, sorted, tet_sites, tet_d2], &knn, nt as u64)?;
     // 3. Clip every tet by flooding its sites; a piece its site's list does

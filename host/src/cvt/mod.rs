@@ -105,7 +105,13 @@ fn energy_scale(job: &ClipJob, frame: &Frame) -> f64 {
     frame.scale.powi(5) / job.params.fixed_scale as f64
 }
 
-fn report(input: &[[f64; 3]], job: &ClipJob, map: &[Option<usize>], frame: &Frame, out: &LloydOutput) -> CvtRun {
+fn report(
+    input: &[[f64; 3]],
+    job: &ClipJob,
+    map: &crate::diagram::sites::SiteMap,
+    frame: &Frame,
+    out: &LloydOutput,
+) -> CvtRun {
     let to_energy = energy_scale(job, frame);
     let iterations = out
         .stats
@@ -126,7 +132,7 @@ fn report(input: &[[f64; 3]], job: &ClipJob, map: &[Option<usize>], frame: &Fram
         .iter()
         .zip(input)
         .map(|(m, &p)| match m {
-            Some(u) => frame.to_world(out.sites[*u].to_f64()),
+            Some(u) => frame.to_world(out.sites[u].to_f64()),
             None => p,
         })
         .collect();

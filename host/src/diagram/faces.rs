@@ -16,6 +16,7 @@
 use crate::cpu::TaskSink;
 use crate::mesh::TetMesh;
 use cvd_kernels::clip::PieceSink;
+use cvd_kernels::lists::Lists;
 use cvd_kernels::polyhedron::{made_by_site, Polyhedron, NO_ID, TET_FACE};
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -154,11 +155,11 @@ pub(crate) type SiteFaces = (Vec<(u32, f64)>, f64, [f64; 3]);
 /// site after `faces_base`, in units of `1 / area_scale`) and its list
 /// `lists[u * k..]`; the sites with faces outside their list are returned
 /// apart, to be completed.
-pub(crate) fn from_sums(sums: &[i64], lists: &[u32], k: usize, area_scale: f64) -> (Vec<SiteFaces>, Vec<u32>) {
+pub(crate) fn from_sums(sums: &[i64], lists: &Lists, k: usize, area_scale: f64) -> (Vec<SiteFaces>, Vec<u32>) {
     let per = k + cvd_kernels::clip::FACE_SUMS_EXTRA;
     let site = |(u, s): (usize, &[i64])| {
         let mut faces: Vec<(u32, f64)> =
-            (0..k).filter(|&q| s[q] != 0).map(|q| (lists[u * k + q], s[q] as f64 / area_scale)).collect();
+            (0..k).filter(|&q| s[q] != 0).map(|q| (lists.get(u, q), s[q] as f64 / area_scale)).collect();
         // Spilled: (maker + 1, area) pairs.
         for spill in 0..cvd_kernels::clip::FACE_SPILLS {
             let (key, area) = (s[k + 5 + 2 * spill], s[k + 6 + 2 * spill]);
@@ -225,11 +226,16 @@ pub(crate) fn complete(
 /// indices, job frame): shared faces averaged over their two sides,
 /// lengths scaled to the world (`scale`), normals along the sites'
 /// difference in the world (`sites`, input order; `map`: input to unique).
-pub(crate) fn assemble(mut faces: Vec<SiteFaces>, map: &[Option<usize>], sites: &[[f64; 3]], scale: f64) -> Adjacency {
+pub(crate) fn assemble(
+    mut faces: Vec<SiteFaces>,
+    map: &crate::diagram::sites::SiteMap,
+    sites: &[[f64; 3]],
+    scale: f64,
+) -> Adjacency {
     // The input index of each unique site (duplicates map to nothing).
     let mut owner = vec![u32::MAX; faces.len()];
     for (i, m) in map.iter().enumerate() {
-        if let Some(u) = *m {
+        if let Some(u) = m {
             owner[u] = i as u32;
         }
     }
@@ -257,7 +263,7 @@ pub(crate) fn assemble(mut faces: Vec<SiteFaces>, map: &[Option<usize>], sites: 
     };
     let mut offsets = Vec::with_capacity(map.len() + 1);
     offsets.push(0);
-    for m in map {
+    for m in map.iter() {
         let len = m.map_or(0, |u| faces[u].0.len() + extra(u).len());
         offsets.push(offsets[offsets.len() - 1] + len);
     }
@@ -266,7 +272,7 @@ pub(crate) fn assemble(mut faces: Vec<SiteFaces>, map: &[Option<usize>], sites: 
     let lens = || offsets.windows(2).map(|w| w[1] - w[0]);
     let rows = split_rows(&mut neighbors, lens()).into_par_iter().zip(split_rows(&mut areas, lens()));
     rows.zip(split_rows(&mut normals, lens())).enumerate().for_each_init(Vec::new, |row, (i, ((js, as_), ns))| {
-        let Some(u) = map[i] else { return };
+        let Some(u) = map.get(i) else { return };
         let p = sites[i];
         let normal = |v: u32, area: f64| {
             let j = owner[v as usize];

@@ -240,7 +240,7 @@ impl<'a> PeriodicVoronoi<'a> {
 
     /// Computes the cells.
     pub fn compute(&self) -> Result<PeriodicCells> {
-        crate::diagram::voronoi::check_sites(self.sites, self.weights)?;
+        crate::diagram::sites::check_sites(self.sites, self.weights)?;
         let n = self.sites.len();
         let domain = self.domain;
         let clock = Instant::now();

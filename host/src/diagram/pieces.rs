@@ -327,14 +327,14 @@ fn face_loops<const P: usize, const V: usize>(poly: &Polyhedron<P, V>, out: &mut
 pub(crate) fn to_world(
     collected: Vec<PieceCollector>,
     job: &ClipJob,
-    map: &[Option<usize>],
+    map: &crate::diagram::sites::SiteMap,
     frame: &Frame,
     input: &[[f64; 3]],
 ) -> Pieces {
     // The input index that owns each job site: the lowest.
     let mut owner = vec![u32::MAX; job.sites.len()];
     for (i, m) in map.iter().enumerate().rev() {
-        if let Some(u) = *m {
+        if let Some(u) = m {
             owner[u] = i as u32;
         }
     }

@@ -203,7 +203,7 @@ const VOLUME_TOLERANCE: f64 = 1e-4;
 /// in `cpu`, started on first use (most passes have no tet to redo).
 fn tet_lists(job: &ClipJob, cpu: &OnceCell<CpuBackend>, tets: impl Iterator<Item = u32>) -> Result<Vec<u32>> {
     let all = &job.tet_knn;
-    let queries: Vec<_> = tets.map(|t| all.queries[t as usize]).collect();
+    let queries: Vec<_> = tets.map(|t| job.tet_query(t as usize)).collect();
     if queries.is_empty() {
         return Ok(Vec::new());
     }
@@ -215,8 +215,14 @@ fn tet_lists(job: &ClipJob, cpu: &OnceCell<CpuBackend>, tets: impl Iterator<Item
         }
     };
     let params = KnnParams { n_queries: queries.len() as u32, ..all.params };
-    let knn = KnnJob { sites: all.sites.clone(), queries, params, method: all.method, quantizer: all.quantizer };
-    Ok(knn.run(cpu)?.indices)
+    let knn = KnnJob {
+        sites: all.sites.clone(),
+        queries: queries.into(),
+        params,
+        method: all.method,
+        quantizer: all.quantizer,
+    };
+    Ok(cpu.lists(&knn)?.indices)
 }
 
 fn centroid(job: &ClipJob, t: usize) -> [f64; 3] {

@@ -5,14 +5,15 @@ use crate::backend::Backend;
 use crate::cpu::TaskSink;
 use crate::diagram::pieces::{PieceCollector, Pieces};
 use crate::diagram::polyhedra::{merge_pieces, CellPolyhedron};
+use crate::diagram::sites::SiteMap;
 use crate::error::{Error, Result};
 use crate::knn::{KnnJob, KnnMethod};
 use crate::mesh::TetMesh;
 use crate::points;
 use crate::timing::Timings;
-use cvd_kernels::abi::{counter, ClipParams, RefineParams, SplitPoint, ACCUM_PER_SITE};
+use cvd_kernels::abi::{counter, ClipParams, KnnParams, QuantPoint, RefineParams, SplitPoint, ACCUM_PER_SITE};
 use cvd_kernels::clip::NoPieces;
-use std::collections::HashMap;
+use cvd_kernels::lists::NO_LIST;
 use std::sync::Mutex;
 
 /// How tets and cells are intersected (paper section 6).
@@ -82,7 +83,9 @@ pub fn paper_k(n_sites: usize, n_tets: usize) -> usize {
 pub struct ClipJob {
     /// k nearest sites of each (unique) site.
     pub site_knn: KnnJob,
-    /// k nearest sites of each tet centroid: the pairs.
+    /// k nearest sites of each tet centroid: the pairs. Its queries are
+    /// left out (they would take 16 bytes a tet through the whole job):
+    /// [`Self::tet_knn_job`] is the job with them.
     pub tet_knn: KnnJob,
     /// Unique sites, normalised, each as `hi + lo` (w: its power weight,
     /// shifted and scaled into the frame); with weights, each site's local
@@ -111,6 +114,23 @@ pub struct ClipJob {
 }
 
 impl ClipJob {
+    /// Tet `t`'s centroid, quantized as the tets' k-NN queries it.
+    pub fn tet_query(&self, t: usize) -> QuantPoint {
+        let v = self.tets[t].map(|i| self.verts[i as usize].to_f64());
+        let c = [0, 1, 2].map(|a| (v[0][a] + v[1][a] + v[2][a] + v[3][a]) / 4.0);
+        self.site_knn.quantizer.quantize(c, t as u32)
+    }
+
+    /// The tets' k-NN job with its queries, every tet's centroid.
+    pub fn tet_knn_job(&self) -> KnnJob {
+        let queries: Vec<QuantPoint> = (0..self.tets.len()).map(|t| self.tet_query(t)).collect();
+        KnnJob {
+            params: KnnParams { n_queries: queries.len() as u32, ..self.tet_knn.params },
+            queries: queries.into(),
+            ..self.tet_knn.clone()
+        }
+    }
+
     /// How many face sums follow the tets' volumes (0: none).
     pub fn face_sums_len(&self) -> usize {
         if self.params.faces_base == 0 {
@@ -134,7 +154,7 @@ pub struct ClipOutput {
     /// With faces: every site's neighbour list as the kernels read it
     /// (`k_site` per site; empty if the backend did not keep them whole,
     /// and the host computes them again).
-    pub site_lists: Vec<u32>,
+    pub site_lists: crate::knn::PackedLists,
     /// The kernels' counters (see `cvd_kernels::abi::counter`).
     pub counters: Vec<i64>,
     /// `(tet, site)` entries the kernels could not finish even in their
@@ -245,26 +265,6 @@ impl Cells {
     pub fn energy_total(&self) -> f64 {
         self.energy.iter().sum()
     }
-}
-
-/// Refuses no sites, a non-finite coordinate, and weights that are not one
-/// finite number per site, naming the site.
-pub(crate) fn check_sites(sites: &[[f64; 3]], weights: Option<&[f64]>) -> Result<()> {
-    if sites.is_empty() {
-        return Err(Error::InvalidInput("there are no sites".into()));
-    }
-    if let Some(i) = sites.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
-        return Err(Error::InvalidInput(format!("site {i} has a non-finite coordinate: {:?}", sites[i])));
-    }
-    if let Some(w) = weights {
-        if w.len() != sites.len() {
-            return Err(Error::InvalidInput(format!("{} weights for {} sites", w.len(), sites.len())));
-        }
-        if let Some(i) = w.iter().position(|w| !w.is_finite()) {
-            return Err(Error::InvalidInput(format!("the weight of site {i} is {}; it must be finite", w[i])));
-        }
-    }
-    Ok(())
 }
 
 /// Builder for a clipped Voronoi computation.
@@ -378,12 +378,12 @@ impl<'a> ClippedVoronoi<'a> {
 
     /// Validates and normalises the input into a job, with the map from
     /// each input site to its unique site (`None` for a duplicate).
-    pub fn job(&self) -> Result<(ClipJob, Vec<Option<usize>>, Frame)> {
+    pub fn job(&self) -> Result<(ClipJob, SiteMap, Frame)> {
         let mesh = self.mesh;
         if mesh.tets.is_empty() {
             return Err(Error::InvalidInput("the mesh has no tets".into()));
         }
-        check_sites(self.sites, self.weights)?;
+        crate::diagram::sites::check_sites(self.sites, self.weights)?;
         let pairing = self.resolved_pairing();
         if pairing == Pairing::Flood && self.strategy != Strategy::TetCell {
             return Err(Error::InvalidInput("flood pairing works with the tet-cell strategy only".into()));
@@ -407,47 +407,19 @@ impl<'a> ClippedVoronoi<'a> {
             return Err(Error::InvalidInput("k and k_site must be at least 1".into()));
         }
         // Duplicates: the largest weight owns the cell, the lowest index on
-        // a tie (without weights: the lowest index).
+        // a tie (without weights: the lowest index). Sites and tets go to
+        // the kernels in Morton order, for locality; the map sends each
+        // input site to its place in that order.
         let weight = |i: usize| self.weights.map_or(0.0, |w| w[i]);
-        let key = |p: &[f64; 3]| p.map(|c| if c == 0.0 { 0 } else { c.to_bits() });
-        let mut owner: HashMap<[u64; 3], usize> = HashMap::new();
-        for (i, p) in self.sites.iter().enumerate() {
-            let o = owner.entry(key(p)).or_insert(i);
-            if weight(i) > weight(*o) {
-                *o = i;
-            }
-        }
-        let mut unique = Vec::new();
-        let mut unique_weights = Vec::new();
-        let map: Vec<Option<usize>> = (0..self.sites.len())
-            .map(|i| {
-                (owner[&key(&self.sites[i])] == i).then(|| {
-                    unique.push(self.sites[i]);
-                    unique_weights.push(weight(i));
-                    unique.len() - 1
-                })
-            })
-            .collect();
-
-        // Sites and tets go to the kernels in Morton order, for locality;
-        // the map sends each input site to its place in that order.
-        let order = points::morton_order(&unique);
-        let mut rank = vec![0usize; unique.len()];
-        for (new, &old) in order.iter().enumerate() {
-            rank[old as usize] = new;
-        }
-        let map: Vec<Option<usize>> = map.into_iter().map(|m| m.map(|u| rank[u])).collect();
-        let unique: Vec<[f64; 3]> = order.iter().map(|&old| unique[old as usize]).collect();
-        let unique_weights: Vec<f64> = order.iter().map(|&old| unique_weights[old as usize]).collect();
+        let (inputs, map) = crate::diagram::sites::unique_in_morton_order(self.sites, self.weights);
 
         let frame = Frame::of(mesh);
-        let sites: Vec<[f64; 3]> = unique.iter().map(|&p| frame.to_local(p)).collect();
+        let sites: Vec<[f64; 3]> = inputs.iter().map(|&i| frame.to_local(self.sites[i as usize])).collect();
         // Weights in the frame's squared units, shifted so that the
         // smallest is 0 (a constant changes no cell): all in 0..=range.
-        let w_min = unique_weights.iter().copied().fold(f64::INFINITY, f64::min);
-        let local_weights: Vec<f64> =
-            unique_weights.iter().map(|&w| (w - w_min) / (frame.scale * frame.scale)).collect();
-        let weight_range = local_weights.iter().copied().fold(0.0, f64::max);
+        let w_min = inputs.iter().map(|&i| weight(i as usize)).fold(f64::INFINITY, f64::min);
+        let local_weight = |u: usize| (weight(inputs[u] as usize) - w_min) / (frame.scale * frame.scale);
+        let weight_range = (0..inputs.len()).map(local_weight).fold(0.0, f64::max);
         if !weight_range.is_finite() || weight_range > 1e30 {
             return Err(Error::InvalidInput(format!(
                 "the weights span {:e}, too wide for the domain's size {:e}",
@@ -456,18 +428,28 @@ impl<'a> ClippedVoronoi<'a> {
             )));
         }
         let mut split: Vec<SplitPoint> =
-            sites.iter().zip(&local_weights).map(|(&p, &w)| SplitPoint::site(p, w)).collect();
-        check_separable(&split, &unique, &map)?;
+            sites.iter().enumerate().map(|(u, &p)| SplitPoint::site(p, local_weight(u))).collect();
+        crate::diagram::sites::check_separable(&split, self.sites, &inputs)?;
+        drop(inputs);
         if weight_range > 0.0 {
             // Each site's local weight bound, after the sites.
             let volume = mesh.volume() / frame.scale.powi(3);
             split.extend(crate::diagram::weight_bounds::local_bounds(&split, weight_range, volume));
         }
         let verts: Vec<[f64; 3]> = mesh.vertices.iter().map(|&p| frame.to_local(p)).collect();
-        let tet_order = points::morton_order(&mesh.centroids());
-        let tets = tet_order.iter().map(|&t| mesh.tets[t as usize]).collect();
+        // As TetMesh::centroids computes them, without holding them.
+        let centroid = |verts: &[[f64; 3]], tet: &[u32; 4]| {
+            let mut c = [0.0f64; 3];
+            for &v in tet {
+                for (a, ca) in c.iter_mut().enumerate() {
+                    *ca += verts[v as usize][a] / 4.0;
+                }
+            }
+            c
+        };
+        let tet_order = points::morton_order_by(mesh.tets.len(), |t| centroid(&verts, &mesh.tets[t]));
+        let tets: Vec<[u32; 4]> = tet_order.iter().map(|&t| mesh.tets[t as usize]).collect();
         let local_mesh = TetMesh { vertices: verts, tets };
-        let centroids = local_mesh.centroids();
         let n = sites.len();
         let k = match pairing {
             Pairing::Knn => self.k.unwrap_or_else(|| paper_k(n, mesh.tets.len())).min(n),
@@ -476,7 +458,14 @@ impl<'a> ClippedVoronoi<'a> {
         // One frame and grid for both k-NN jobs, covering the mesh: sites
         // that move (Lloyd) stay inside it.
         let site_knn = KnnJob::sites_in_frame(&sites, &local_mesh.vertices, self.resolved_k_site(), KnnMethod::Grid)?;
-        let tet_knn = KnnJob::points_like(&site_knn, &centroids, k)?;
+        // Its queries come when it runs (ClipJob::tet_knn_job).
+        let tet_knn = KnnJob::points_like(&site_knn, &[], k)?;
+        if local_mesh.tets.len().checked_mul(k).is_none_or(|n| n > u32::MAX as usize) {
+            return Err(Error::InvalidInput(format!(
+                "{} tets x k = {k} sites do not fit one buffer",
+                local_mesh.tets.len()
+            )));
+        }
 
         // Box for Algorithm 1 (mesh and sites, with a margin).
         let (lo, hi) = crate::vec3::bounding_box(sites.iter().chain(&local_mesh.vertices));
@@ -528,7 +517,9 @@ impl<'a> ClippedVoronoi<'a> {
             // Rounded up: the security radius must not shrink.
             weight_range: if weight_range > 0.0 { next_up(weight_range as f32) } else { 0.0 },
             face_masses: (self.face_masses && self.density.is_some()) as u32,
-            _pad: [0; 2],
+            // Plain lists; a backend that packs its lists says so.
+            list_bits: 32,
+            _pad: 0,
         };
         let q = &site_knn.quantizer;
         let lo = q.origin();
@@ -606,7 +597,7 @@ impl<'a> ClippedVoronoi<'a> {
     fn finish_job<S: TaskSink>(
         &self,
         job: &ClipJob,
-        map: &[Option<usize>],
+        map: &SiteMap,
         frame: &Frame,
         mut out: ClipOutput,
         sinks: &Mutex<Vec<S>>,
@@ -643,22 +634,23 @@ impl ClippedVoronoi<'_> {
     fn adjacency(
         &self,
         job: &ClipJob,
-        map: &[Option<usize>],
+        map: &SiteMap,
         frame: &Frame,
         out: &ClipOutput,
     ) -> Result<(crate::diagram::faces::Adjacency, usize)> {
         let k = job.params.k_site as usize;
+        let n = job.params.n_sites;
         let mut cpu = None;
         let again;
-        let lists = if out.site_lists.len() == job.params.n_sites as usize * k {
+        let lists = if out.site_lists.k as usize == k && out.site_lists.view(0).slot(n as usize - 1) != NO_LIST {
             &out.site_lists
         } else {
             let c = cpu.insert(crate::cpu::CpuBackend::new(None)?);
-            again = job.site_knn.run(c)?.indices;
+            again = c.packed_lists(&job.site_knn, cvd_kernels::lists::width(n))?;
             &again
         };
         let (mut faces, incomplete) =
-            crate::diagram::faces::from_sums(&out.faces, lists, k, job.params.area_scale as f64);
+            crate::diagram::faces::from_sums(&out.faces, &lists.view(0), k, job.params.area_scale as f64);
         if !incomplete.is_empty() {
             // Those sites' own pieces, else every piece again.
             let all = match crate::diagram::faces::redo_sites(job, out, &incomplete) {
@@ -689,27 +681,6 @@ impl ClippedVoronoi<'_> {
         }
         Ok((crate::diagram::faces::assemble(faces, map, self.sites, frame.scale), incomplete.len()))
     }
-}
-
-/// Refuses distinct sites the kernels could not tell apart: those whose
-/// normalised coordinates, split into `hi + lo` (`split`, in the order of
-/// `unique`), are equal. Names them by their input indices (`map`).
-fn check_separable(split: &[SplitPoint], unique: &[[f64; 3]], map: &[Option<usize>]) -> Result<()> {
-    let mut seen: HashMap<[u32; 6], usize> = HashMap::with_capacity(split.len());
-    for (u, p) in split.iter().enumerate() {
-        let key = [p.hi[0], p.hi[1], p.hi[2], p.lo[0], p.lo[1], p.lo[2]].map(|c| (c + 0.0).to_bits());
-        if let Some(&other) = seen.get(&key) {
-            let input = |u: usize| map.iter().position(|m| *m == Some(u)).unwrap_or(u);
-            let (a, b) = (input(other).min(input(u)), input(other).max(input(u)));
-            return Err(Error::InvalidInput(format!(
-                "sites {a} {:?} and {b} {:?} are distinct but too close to be told apart in the domain's frame \
-                 (about 1e-14 of its size); move or merge them",
-                unique[other], unique[u]
-            )));
-        }
-        seen.insert(key, u);
-    }
-    Ok(())
 }
 
 /// The smallest f32 above a positive finite `x`.
@@ -747,7 +718,7 @@ fn finish(
     density: Option<&[f64]>,
     input: &[[f64; 3]],
     job: &ClipJob,
-    map: &[Option<usize>],
+    map: &SiteMap,
     frame: &Frame,
     out: ClipOutput,
 ) -> Cells {

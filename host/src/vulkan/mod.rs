@@ -124,7 +124,7 @@ impl Backend for VulkanBackend {
     fn clip(&self, job: &ClipJob) -> Result<ClipOutput> {
         let plan = Plan::clip(&self.ctx, job)?;
         let p = &job.params;
-        let (sk, tk) = (&job.site_knn, &job.tet_knn);
+        let (sk, tk) = (&job.site_knn, &job.tet_knn_job());
         let (n, nt) = (p.n_sites as u64, p.n_tets as u64);
         let (ks, kt) = (sk.params.k as u64, p.k_tet as u64);
         let site_parts = n.div_ceil(plan.site_chunk);
@@ -332,7 +332,12 @@ impl Backend for VulkanBackend {
             sums,
             tet_volumes,
             faces,
-            site_lists: lists_back.map_or_else(Vec::new, |b| done.read(b, (n * ks) as usize)),
+            site_lists: lists_back.map_or_else(Default::default, |b| crate::knn::PackedLists {
+                words: done.read(b, (n * ks) as usize),
+                k: ks as u32,
+                bits: 32,
+                timings: Default::default(),
+            }),
             counters: done.read(counters_back, counter::COUNT),
             refined,
             chunks: plan.tet_parts * windows.len() as u64,
@@ -515,7 +520,7 @@ fn lloyd_on_device(
         )));
     }
     let p = &job.params;
-    let (sk, tk) = (&job.site_knn, &job.tet_knn);
+    let (sk, tk) = (&job.site_knn, &job.tet_knn_job());
     let (n, nt, k) = (p.n_sites as u64, p.n_tets as u64, sk.params.k as u64);
     let mut j = Job::new(&b.ctx, &b.pipelines, LLOYD_BATCH as u32 * 12 + 8)?;
     let sites = j.upload(&job.sites)?;

@@ -1,0 +1,179 @@
+//! The sites as the kernels take them: checked, duplicates merged, in
+//! Morton order, told apart in the kernels' split coordinates — with a
+//! map from each input site to its place, in memory proportional to 4
+//! bytes per site beyond the inputs (no hash maps of coordinates).
+
+use crate::error::{Error, Result};
+use cvd_kernels::abi::SplitPoint;
+use std::hash::{BuildHasher, Hash};
+
+/// Refuses no sites, a non-finite coordinate, and weights that are not one
+/// finite number per site, naming the site.
+pub(crate) fn check_sites(sites: &[[f64; 3]], weights: Option<&[f64]>) -> Result<()> {
+    if sites.is_empty() {
+        return Err(Error::InvalidInput("there are no sites".into()));
+    }
+    if let Some(i) = sites.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
+        return Err(Error::InvalidInput(format!("site {i} has a non-finite coordinate: {:?}", sites[i])));
+    }
+    if let Some(w) = weights {
+        if w.len() != sites.len() {
+            return Err(Error::InvalidInput(format!("{} weights for {} sites", w.len(), sites.len())));
+        }
+        if let Some(i) = w.iter().position(|w| !w.is_finite()) {
+            return Err(Error::InvalidInput(format!("the weight of site {i} is {}; it must be finite", w[i])));
+        }
+    }
+    Ok(())
+}
+
+/// Each input site's place among the kernels' sites, or none for a
+/// duplicate (whose cell its twin holds): 4 bytes per site.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct SiteMap(Vec<u32>);
+
+const NONE: u32 = u32::MAX;
+
+impl SiteMap {
+    /// Input sites.
+    pub fn len(&self) -> usize {
+        self.0.len()
+    }
+
+    /// Whether there are no input sites.
+    pub fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
+
+    /// Input site `i`'s place, or `None` for a duplicate.
+    pub fn get(&self, i: usize) -> Option<usize> {
+        match self.0[i] {
+            NONE => None,
+            u => Some(u as usize),
+        }
+    }
+
+    /// Every input site's place, in input order.
+    pub fn iter(&self) -> impl DoubleEndedIterator<Item = Option<usize>> + ExactSizeIterator + '_ {
+        self.0.iter().map(|&u| if u == NONE { None } else { Some(u as usize) })
+    }
+}
+
+/// A set of indices keyed by what `key` says of them, in open addressing:
+/// 8 bytes per index at most (the keys stay where they are).
+struct IndexTable {
+    slots: Vec<u32>,
+    hasher: std::collections::hash_map::RandomState,
+}
+
+impl IndexTable {
+    fn with_capacity(n: usize) -> Self {
+        Self { slots: vec![NONE; (2 * n).next_power_of_two().max(2)], hasher: Default::default() }
+    }
+
+    /// The slot holding an index whose key equals `key(i)`, or the empty
+    /// slot where `i` would go.
+    fn find<K: Hash + Eq>(&self, i: usize, key: impl Fn(usize) -> K) -> usize {
+        let k = key(i);
+        let mask = self.slots.len() - 1;
+        let mut s = self.hasher.hash_one(&k) as usize & mask;
+        loop {
+            match self.slots[s] {
+                NONE => return s,
+                j if key(j as usize) == k => return s,
+                _ => s = (s + 1) & mask,
+            }
+        }
+    }
+}
+
+/// The sites the kernels take: one per distinct position — of duplicates
+/// the largest weight, the lowest index on a tie (without weights: the
+/// lowest index) — in Morton order. Returns the input index of each, in
+/// that order, and each input site's place ([`SiteMap`]).
+pub(crate) fn unique_in_morton_order(sites: &[[f64; 3]], weights: Option<&[f64]>) -> (Vec<u32>, SiteMap) {
+    let weight = |i: usize| weights.map_or(0.0, |w| w[i]);
+    let key = |i: usize| sites[i].map(|c| if c == 0.0 { 0 } else { c.to_bits() });
+    let mut table = IndexTable::with_capacity(sites.len());
+    for i in 0..sites.len() {
+        let s = table.find(i, key);
+        match table.slots[s] {
+            NONE => table.slots[s] = i as u32,
+            o if weight(i) > weight(o as usize) => table.slots[s] = i as u32,
+            _ => {}
+        }
+    }
+    let owners: Vec<u32> = (0..sites.len() as u32).filter(|&i| table.slots[table.find(i as usize, key)] == i).collect();
+    drop(table);
+    let order = crate::points::morton_order_by(owners.len(), |u| sites[owners[u] as usize]);
+    let inputs: Vec<u32> = order.iter().map(|&u| owners[u as usize]).collect();
+    let mut map = vec![NONE; sites.len()];
+    for (place, &i) in inputs.iter().enumerate() {
+        map[i as usize] = place as u32;
+    }
+    (inputs, SiteMap(map))
+}
+
+/// Refuses distinct sites the kernels could not tell apart: those whose
+/// normalised coordinates, split into `hi + lo` (`split`, the kernels'
+/// sites in order, of the input sites `inputs`), are equal. Names them by
+/// their input indices.
+pub(crate) fn check_separable(split: &[SplitPoint], sites: &[[f64; 3]], inputs: &[u32]) -> Result<()> {
+    let key = |u: usize| {
+        let p = &split[u];
+        [p.hi[0], p.hi[1], p.hi[2], p.lo[0], p.lo[1], p.lo[2]].map(|c| (c + 0.0).to_bits())
+    };
+    let mut table = IndexTable::with_capacity(inputs.len());
+    for u in 0..inputs.len() {
+        let s = table.find(u, key);
+        if table.slots[s] != NONE {
+            let other = table.slots[s] as usize;
+            let (a, b) = (inputs[other].min(inputs[u]) as usize, inputs[other].max(inputs[u]) as usize);
+            return Err(Error::InvalidInput(format!(
+                "sites {a} {:?} and {b} {:?} are distinct but too close to be told apart in the domain's frame \
+                 (about 1e-14 of its size); move or merge them",
+                sites[a], sites[b]
+            )));
+        }
+        table.slots[s] = u as u32;
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn duplicates_keep_the_heaviest_then_the_first() {
+        let sites = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [-0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.5, 0.5, 0.5]];
+        let (inputs, map) = unique_in_morton_order(&sites, None);
+        assert_eq!(inputs.len(), 3);
+        assert_eq!(map.iter().filter(|m| m.is_none()).count(), 2);
+        // -0.0 and 0.0 are one position; the lower index owns it.
+        assert!(map.get(0).is_some() && map.get(2).is_none());
+        assert!(map.get(1).is_some() && map.get(3).is_none());
+        for (i, m) in map.iter().enumerate() {
+            if let Some(u) = m {
+                assert_eq!(inputs[u] as usize, i);
+            }
+        }
+        let weights = [0.0, 1.0, 2.0, 1.0, 0.0];
+        let (_, map) = unique_in_morton_order(&sites, Some(&weights));
+        assert!(map.get(2).is_some() && map.get(0).is_none(), "the heavier twin owns the cell");
+        assert!(map.get(1).is_some() && map.get(3).is_none(), "equal weights: the first");
+    }
+
+    #[test]
+    fn many_sites_map_one_to_one_in_morton_order() {
+        let sites = crate::points::uniform(20_000, 7);
+        let mut with_twins = sites.clone();
+        with_twins.extend_from_slice(&sites[..500]);
+        let (inputs, map) = unique_in_morton_order(&with_twins, None);
+        assert_eq!(inputs.len(), sites.len());
+        assert_eq!(map.len(), with_twins.len());
+        assert!((sites.len()..with_twins.len()).all(|i| map.get(i).is_none()));
+        let order = crate::points::morton_order(&sites);
+        assert_eq!(inputs, order, "the owners in the Morton order of the distinct sites");
+    }
+}
