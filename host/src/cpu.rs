@@ -376,7 +376,7 @@ impl CpuBackend {
         let p = KnnParams { local_lists: 1, ..job.params };
         let (k, n) = (p.k as usize, job.queries.len());
         let stride = lists::stride(p.k, bits);
-        let mut words = vec![0u32; n * stride];
+        let mut words = vec![0u32; n * stride + lists::spare(bits)];
         let mut timings = Timings::default();
         if k > 0 && n > 0 {
             self.pool.install(|| {

@@ -70,7 +70,8 @@ impl PackedLists {
     /// The lists as the kernels read them, as those of queries
     /// `base..base + (the number of lists)`.
     pub fn view(&self, base: u32) -> cvd_kernels::lists::Lists<'_> {
-        let n = self.words.len() / cvd_kernels::lists::stride(self.k, self.bits).max(1);
+        let words = self.words.len().saturating_sub(cvd_kernels::lists::spare(self.bits));
+        let n = words / cvd_kernels::lists::stride(self.k, self.bits).max(1);
         cvd_kernels::lists::Lists::new(&self.words, self.k, self.bits, base, base + n as u32)
     }
 }

@@ -7,7 +7,8 @@
 //! layout (entry `s` of list `l` at word `l * k + s`); fewer bits, enough
 //! for the largest index ([`width`]), keep the same lists in less memory —
 //! 20 bits at a million sites, where the lists are most of a job's memory.
-//! An entry of all ones is [`NO_SITE`].
+//! An entry of all ones is [`NO_SITE`]. Packed lists end with one spare
+//! word ([`spare`]): an entry is read with the word after its own.
 
 use crate::abi::{ClipParams, NO_SITE};
 use crate::buffers::OutBuf;
@@ -33,6 +34,13 @@ pub fn stride(k: u32, bits: u32) -> usize {
     (k as usize * bits as usize + 31) / 32
 }
 
+/// Words after the last list of packed lists (`bits` < 32): a spare one,
+/// read with the last entries (see [`Lists::get`]) and never written.
+#[inline]
+pub fn spare(bits: u32) -> usize {
+    (bits < 32) as usize
+}
+
 /// The lists of the sites `base..end`, `k` entries of `bits` bits each,
 /// in `words` (see the module's documentation).
 #[derive(Clone, Copy)]
@@ -51,7 +59,7 @@ impl<'a> Lists<'a> {
     #[inline]
     pub fn new(words: &'a [u32], k: u32, bits: u32, base: u32, end: u32) -> Self {
         let stride = stride(k, bits) as u32;
-        let held = end > base && (end - base) as usize * stride as usize <= words.len();
+        let held = end > base && (end - base) as usize * stride as usize + spare(bits) <= words.len();
         Self { words, k, bits, stride, base, end: if held { end } else { base } }
     }
 
@@ -88,13 +96,11 @@ impl<'a> Lists<'a> {
         }
         let bit = s * self.bits as usize;
         let w = at + bit / 32;
-        let shift = (bit % 32) as u32;
-        let mut v = self.words[w] >> shift;
-        if shift + self.bits > 32 {
-            v |= self.words[w + 1] << (32 - shift);
-        }
+        // The entry's word and the next, whether it reaches into it or not
+        // (the lists end with a spare word): no branch on the bit position.
+        let pair = self.words[w] as u64 | (self.words[w + 1] as u64) << 32;
         let mask = (1u32 << self.bits) - 1;
-        let v = v & mask;
+        let v = (pair >> (bit % 32)) as u32 & mask;
         if v == mask {
             NO_SITE
         } else {
@@ -170,7 +176,7 @@ mod tests {
                 let lists: Vec<Vec<u32>> = (0..7)
                     .map(|_| (0..k).map(|_| if next() % 9 == 0 { NO_SITE } else { next() % n }).collect())
                     .collect();
-                let mut words = vec![u32::MAX; 7 * stride(k, bits)];
+                let mut words = vec![u32::MAX; 7 * stride(k, bits) + spare(bits)];
                 // Written in any order: each list owns its words.
                 for &l in &[3usize, 0, 6, 1, 5, 2, 4] {
                     pack(&lists[l], k, bits, l, &mut words[..]);
@@ -185,7 +191,8 @@ mod tests {
                 }
                 assert_eq!(view.slot(9), NO_LIST);
                 assert_eq!(view.slot(17), NO_LIST);
-                assert_eq!(Lists::new(&words[1..], k, bits, 10, 17).slot(10), NO_LIST, "too few words: none held");
+                let short = &words[..words.len() - 1];
+                assert_eq!(Lists::new(short, k, bits, 10, 17).slot(10), NO_LIST, "too few words: none held");
             }
         }
     }
