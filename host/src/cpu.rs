@@ -45,15 +45,20 @@ impl CpuBackend {
     /// Runs a clipping job like [`Backend::clip`], handing every piece
     /// the kernels finish to the tasks' sinks, which end up in `sinks`.
     pub(crate) fn clip_into<S: TaskSink>(&self, job: &ClipJob, sinks: &Mutex<Vec<S>>) -> Result<ClipOutput> {
+        // The site grid, once: both k-NN jobs search it (the tets' job has
+        // the sites' grid), and so do the walks of the pieces their lists
+        // do not settle and the second pass.
+        let (g, grid_time) = self.pool.install(|| timed(|| build_grid(&job.site_knn)));
         // The sites' lists packed in as few bits as their indices need; the
         // kernels run with parameters that say so.
-        let site_nn = self.packed_lists(&job.site_knn, lists::width(job.params.n_sites))?;
-        let tet_nn = self.lists(&job.tet_knn_job())?;
+        let site_nn = self.packed_lists_on(&job.site_knn, lists::width(job.params.n_sites), Some(&g))?;
+        let tet_nn = self.packed_lists_on(&job.tet_knn_job(), 32, Some(&g))?;
         let refine = RefineParams { clip: ClipParams { list_bits: site_nn.bits, ..job.refine.clip }, ..job.refine };
         self.pool.install(|| {
             let p = &refine.clip;
             let mut timings = Timings::default();
-            timings.push("knn", site_nn.timings.total() + tet_nn.timings.total());
+            timings.push("knn", grid_time + site_nn.timings.total() + tet_nn.timings.total());
+            let tet_nn = Neighbors { k: tet_nn.k as usize, indices: tet_nn.words, ..Default::default() };
             // The sites' sums, then one volume sum per tet (knn pairing's
             // certificate).
             let n_sums = p.n_sites as usize * ACCUM_PER_SITE + p.n_tets as usize + job.face_sums_len();
@@ -63,15 +68,9 @@ impl CpuBackend {
             let unfinished = Mutex::new(Vec::new());
             let n_pairs = p.n_tets as usize * p.k_tet as usize;
             let (sites, verts, tets) = (&job.sites, &job.verts, &job.tets);
-            // The grid the k-NN searched, again, for grid walks (flood
-            // pieces their lists do not settle, the second pass): built
-            // once, on first use.
-            let grid = std::cell::OnceCell::new();
-            let grid = || grid.get_or_init(|| build_grid(&job.site_knn));
             match job.strategy {
                 Strategy::TetCell if job.pairing == Pairing::Flood => {
                     let (_, t) = timed(|| {
-                        let g = grid();
                         let w = GridWalk::new(&refine, &site_nn.words, &g.cell_start, &g.cell_count, &g.sorted);
                         par_indices(
                             p.n_tets as usize,
@@ -138,7 +137,6 @@ impl CpuBackend {
             let mut still = Vec::new();
             if !first.is_empty() {
                 let (_, t) = timed(|| {
-                    let g = grid();
                     let mut list = vec![first.len() as u32];
                     list.extend(first.iter().flatten());
                     let rp =
@@ -233,6 +231,10 @@ impl PairList for LocalPairs {
         self.0.push([tet, site]);
     }
 }
+
+/// A k-NN thread on its task's scratch (`KnnParams::local_lists`):
+/// answers query `i` in the two buffers and returns the query's slot.
+type QueryThread<'a> = dyn Fn(usize, &mut [u32], &mut [u64]) -> usize + Sync + 'a;
 
 /// Calls `body` for every query over rayon, each chunk of queries owning
 /// the windows of the `k`-slot outputs it writes.
@@ -373,6 +375,12 @@ impl CpuBackend {
     /// task's scratch and stores the list at its slot, so the lists are
     /// all the memory the job takes.
     pub(crate) fn packed_lists(&self, job: &KnnJob, bits: u32) -> Result<PackedLists> {
+        self.packed_lists_on(job, bits, None)
+    }
+
+    /// [`Self::packed_lists`], searching `grid` (the job's grid, built
+    /// already) if given.
+    fn packed_lists_on(&self, job: &KnnJob, bits: u32, grid: Option<&CpuGrid>) -> Result<PackedLists> {
         let p = KnnParams { local_lists: 1, ..job.params };
         let (k, n) = (p.k as usize, job.queries.len());
         let stride = lists::stride(p.k, bits);
@@ -382,7 +390,7 @@ impl CpuBackend {
             self.pool.install(|| {
                 let out = SharedSlots::new(&mut words);
                 // Thread `i`'s list into the task's scratch, then to its slot.
-                let each = |thread: &(dyn Fn(usize, &mut [u32], &mut [u64]) -> usize + Sync)| {
+                let each = |thread: &QueryThread| {
                     (0..n).into_par_iter().chunks(CHUNK).for_each(|chunk| {
                         let (mut nbr, mut d2) = (vec![0u32; k], vec![0u64; k]);
                         let mut out = out.share();
@@ -394,8 +402,16 @@ impl CpuBackend {
                 };
                 match job.method {
                     KnnMethod::Grid => {
-                        let (g, t) = timed(|| build_grid(job));
-                        timings.push("grid", t);
+                        let built;
+                        let g = match grid {
+                            Some(g) => g,
+                            None => {
+                                let t;
+                                (built, t) = timed(|| build_grid(job));
+                                timings.push("grid", t);
+                                &built
+                            }
+                        };
                         let (cs, cc, sorted) = (&g.cell_start, &g.cell_count, &g.sorted);
                         let (_, t) = timed(|| {
                             each(&|i, nbr, d2| knn::grid_thread(i, &p, &job.queries, cs, cc, sorted, nbr, d2))

@@ -31,7 +31,7 @@ pub fn width(n_sites: u32) -> u32 {
 /// Words per list of `k` entries of `bits` bits.
 #[inline]
 pub fn stride(k: u32, bits: u32) -> usize {
-    (k as usize * bits as usize + 31) / 32
+    (k as usize * bits as usize).div_ceil(32)
 }
 
 /// Words after the last list of packed lists (`bits` < 32): a spare one,
@@ -160,7 +160,7 @@ mod tests {
             let mask = if b == 32 { u32::MAX } else { (1 << b) - 1 };
             // Every index below n is below the mask; one bit fewer would not do.
             assert!(n - 1 < mask, "{n}: {b} bits");
-            assert!(b == 1 || n - 1 >= (1u32 << (b - 1)) - 1, "{n}: {b} bits is more than needed");
+            assert!(b == 1 || n > (1u32 << (b - 1)) - 1, "{n}: {b} bits is more than needed");
         }
     }
 
