@@ -71,7 +71,8 @@ struct RunArgs {
     /// in the paper's Table 1; others 5000).
     #[arg(long)]
     sites: Option<usize>,
-    /// Sites from a file (.xyz: x y z per line, optional count line).
+    /// Sites from a file: .npy (NumPy, an (N, 3) array of float64 or
+    /// float32) or else .xyz (x y z per line, optional count line).
     #[arg(long)]
     sites_file: Option<PathBuf>,
     /// Random seed of the sites.

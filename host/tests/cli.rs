@@ -432,3 +432,30 @@ fn a_periodic_box_fills_with_cells_whose_faces_carry_image_shifts() {
     assert_eq!(out.status.code(), Some(2));
     assert!(text(&out.stderr).contains("--model cube"), "{}", text(&out.stderr));
 }
+
+/// The bits of each coordinate.
+fn bits(sites: &[[f64; 3]]) -> Vec<u64> {
+    sites.iter().flatten().map(|c| c.to_bits()).collect()
+}
+
+#[test]
+fn a_npy_sites_file_gives_the_cells_of_the_same_xyz() {
+    let dir = temp_dir("npy");
+    let sites = cvd::points::in_mesh(&cvd::TetMesh::cube(3), 300, 5);
+    cvd::io::write_sites_npy(&dir.join("s.npy"), &sites).unwrap();
+    cvd::io::write_sites_xyz(&dir.join("s.xyz"), &sites).unwrap();
+    for (file, out) in [("s.npy", "npy"), ("s.xyz", "xyz")] {
+        let run = cvd_run(&dir, &["--resolution", "3", "--sites-file", file, "--no-geometry", "--out", out]);
+        assert!(run.status.success(), "{file}: {}", text(&run.stderr));
+    }
+    let read = |p: &str| std::fs::read_to_string(dir.join(p)).unwrap();
+    assert_eq!(read("npy/cells.csv"), read("xyz/cells.csv"));
+    assert_eq!(read("npy/sites.xyz"), read("xyz/sites.xyz"));
+    assert_eq!(bits(&cvd::io::read_sites(&dir.join("npy/sites.xyz")).unwrap()), bits(&sites));
+    // A bad array: exit 2, naming the file and what was expected.
+    std::fs::write(dir.join("bad.npy"), b"\x93NUMPY\x01\x00\x11\x00{'descr': '<f8'}\n").unwrap();
+    let run = cvd_run(&dir, &["--resolution", "3", "--sites-file", "bad.npy", "--out", "bad"]);
+    let stderr = text(&run.stderr);
+    assert_eq!(run.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("bad.npy") && stderr.contains("found no 'fortran_order'"), "{stderr}");
+}

@@ -131,7 +131,19 @@ pub(super) struct Lexer<'a> {
 
 impl<'a> Lexer<'a> {
     pub fn new(text: &'a str, path: &'a str) -> Self {
-        Self { path, text, pos: 0, line: 1, last_line: 1 }
+        Self::at_line(text, path, 1)
+    }
+
+    /// A lexer over a piece of a file cut just after a line end, `line`
+    /// being the file's line number of the piece's first line.
+    pub fn at_line(text: &'a str, path: &'a str, line: usize) -> Self {
+        Self { path, text, pos: 0, line, last_line: line }
+    }
+
+    /// The line of the next unread character: once all is read, the
+    /// first line's number plus the line ends in the text.
+    pub fn line_no(&self) -> usize {
+        self.line
     }
 
     /// The line of the last token or line read: where a truncated file ends.

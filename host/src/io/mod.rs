@@ -4,7 +4,8 @@
 //! paper's code, Gmsh `.msh` (2.2 and 4.1, ASCII and binary), legacy VTK
 //! `.vtk`, VTK XML `.vtu` and Medit binary `.meshb`.
 //! Surfaces: `.stl`,
-//! `.obj`, `.off`, `.ply` ([`read_surface`]). Sites: `.xyz`.
+//! `.obj`, `.off`, `.ply` ([`read_surface`]). Sites: `.xyz` (parsed on
+//! all threads) and NumPy `.npy` ([`read_sites`]).
 //!
 //! A bad file is reported as [`Error::Parse`] naming its line and what was
 //! expected there; no input makes a reader panic, and counts read from a
@@ -16,6 +17,7 @@ mod gmsh_binary;
 mod lex;
 mod medit;
 mod meshb;
+mod npy;
 mod surface;
 mod tet;
 mod tetgen;
@@ -30,6 +32,7 @@ pub use gmsh::parse_gmsh;
 pub use gmsh_binary::parse_gmsh_binary;
 pub use medit::parse_medit;
 pub use meshb::parse_meshb;
+pub use npy::{parse_npy, write_sites_npy};
 pub use surface::{parse_obj, parse_off, parse_ply, parse_stl, read_surface};
 pub use tet::parse_tet;
 pub use tetgen::parse_tetgen;
@@ -40,7 +43,7 @@ pub use xyz::{parse_values, parse_xyz};
 use crate::error::{Error, Result};
 use crate::mesh::{signed_volume, TetMesh};
 use lex::parse_error;
-use std::io::Write;
+use std::io::{Read, Seek, SeekFrom, Write};
 use std::path::Path;
 
 /// Reads a tet mesh, choosing the format by the extension (any case):
@@ -82,9 +85,17 @@ pub fn read_mesh(path: &Path) -> Result<TetMesh> {
     }
 }
 
-/// Reads sites from an `.xyz` file (any extension): see [`parse_xyz`].
+/// Reads sites, choosing the format by the extension (any case): `.npy`
+/// (NumPy: an (N, 3) array of little-endian float64 or float32, see
+/// [`parse_npy`]), anything else `.xyz` (text, parsed on all of rayon's
+/// threads, see [`parse_xyz`]).
 pub fn read_sites(path: &Path) -> Result<Vec<[f64; 3]>> {
-    parse_xyz(&read_text(path)?, &path.display().to_string())
+    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
+    if ext.eq_ignore_ascii_case("npy") {
+        npy::read_npy(path)
+    } else {
+        xyz::parse_xyz_bytes(&read_bytes_parallel(path)?, &path.display().to_string())
+    }
 }
 
 /// Reads one number per line: see [`parse_values`].
@@ -138,6 +149,47 @@ pub fn write_medit(path: &Path, mesh: &TetMesh) -> Result<()> {
 /// A file's bytes; errors name the file.
 fn read_bytes(path: &Path) -> Result<Vec<u8>> {
     std::fs::read(path).map_err(|source| Error::Io { path: path.display().to_string(), source })
+}
+
+/// A file's bytes as [`read_bytes`] reads them, a regular file's read by
+/// all of rayon's threads at once, in blocks: for a large file in the page
+/// cache, the copy and the page faults are most of the time of reading.
+fn read_bytes_parallel(path: &Path) -> Result<Vec<u8>> {
+    let io = |source| Error::Io { path: path.display().to_string(), source };
+    let mut file = std::fs::File::open(path).map_err(io)?;
+    let meta = file.metadata().map_err(io)?;
+    let Some(len) = usize::try_from(meta.len()).ok().filter(|_| meta.is_file()) else {
+        return read_bytes(path);
+    };
+    let mut bytes = vec![0; len];
+    read_exact_at(&file, 0, &mut bytes).map_err(io)?;
+    // Whatever was appended since the size was taken.
+    file.seek(SeekFrom::Start(len as u64)).map_err(io)?;
+    file.read_to_end(&mut bytes).map_err(io)?;
+    Ok(bytes)
+}
+
+/// Fills `buf` with the file's bytes from `offset` on, in blocks read by
+/// all of rayon's threads at once (Unix; elsewhere in one read).
+fn read_exact_at(file: &std::fs::File, offset: u64, buf: &mut [u8]) -> std::io::Result<()> {
+    #[cfg(unix)]
+    {
+        use rayon::prelude::*;
+        use std::os::unix::fs::FileExt;
+        const BLOCK: usize = 8 << 20;
+        if buf.len() <= BLOCK {
+            return file.read_exact_at(buf, offset);
+        }
+        buf.par_chunks_mut(BLOCK)
+            .enumerate()
+            .try_for_each(|(i, block)| file.read_exact_at(block, offset + (i * BLOCK) as u64))
+    }
+    #[cfg(not(unix))]
+    {
+        let mut file = file;
+        file.seek(SeekFrom::Start(offset))?;
+        file.read_exact(buf)
+    }
 }
 
 /// A file's text. Bytes that are not UTF-8 become U+FFFD, so that a
@@ -355,6 +407,35 @@ mod tests {
         let back = read_sites(&path);
         std::fs::remove_file(&path).unwrap();
         assert_eq!(back.unwrap(), sites);
+    }
+
+    #[test]
+    fn large_site_files_read_in_blocks_as_in_one_read() {
+        // Over 8 MiB: read in blocks by several threads.
+        let sites: Vec<[f64; 3]> =
+            (0..200_000).map(|i| [i as f64 / 3.0, (i as f64).sqrt() * 1e-7, -(i as f64) * 1e5 / 7.0]).collect();
+        let path = temp_path("large.xyz");
+        write_sites_xyz(&path, &sites).unwrap();
+        let bytes = read_bytes_parallel(&path).unwrap();
+        assert!(bytes.len() > 8 << 20, "{} bytes", bytes.len());
+        assert!(bytes == std::fs::read(&path).unwrap());
+        let back = read_sites(&path).unwrap();
+        assert!(back.iter().zip(&sites).all(|(a, b)| a.map(f64::to_bits) == b.map(f64::to_bits)));
+        assert_eq!(back.len(), sites.len());
+        // An error far into the file names its line (point i on line i + 1).
+        let mut text = String::from_utf8(bytes).unwrap();
+        let at = text.match_indices('\n').nth(150_000).unwrap().0 + 1;
+        text.insert_str(at, "0 0\n");
+        std::fs::write(&path, &text).unwrap();
+        let (line, m) = parse_err(read_sites(&path));
+        assert_eq!((line, m.as_str()), (150_002, "expected 3 coordinates x y z for point 150001, found 2 values"));
+        // .npy by the extension, any case.
+        let npy = temp_path("large.NPY");
+        write_sites_npy(&npy, &sites).unwrap();
+        let from_npy = read_sites(&npy);
+        std::fs::remove_file(&path).unwrap();
+        std::fs::remove_file(&npy).unwrap();
+        assert!(from_npy.unwrap().iter().zip(&sites).all(|(a, b)| a.map(f64::to_bits) == b.map(f64::to_bits)));
     }
 
     #[test]
