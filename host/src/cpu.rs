@@ -236,22 +236,9 @@ impl PairList for LocalPairs {
 /// answers query `i` in the two buffers and returns the query's slot.
 type QueryThread<'a> = dyn Fn(usize, &mut [u32], &mut [u64]) -> usize + Sync + 'a;
 
-/// Calls `body` for every query over rayon, each chunk of queries owning
-/// the windows of the `k`-slot outputs it writes.
-fn per_query_windows<F>(indices: &mut [u32], dist2: &mut [u64], k: usize, body: F)
-where
-    F: Fn(usize, &mut Window<'_, u32>, &mut Window<'_, u64>) + Sync,
-{
-    let per_task = CHUNK * k;
-    indices.par_chunks_mut(per_task).zip(dist2.par_chunks_mut(per_task)).enumerate().for_each(|(c, (nbr, d2))| {
-        let mut nbr = Window { start: c * per_task, data: nbr };
-        let mut d2 = Window { start: c * per_task, data: d2 };
-        let first = c * CHUNK;
-        for i in first..first + nbr.data.len() / k {
-            body(i, &mut nbr, &mut d2);
-        }
-    });
-}
+/// Where a finished list goes: its query's slot, the list, its squared
+/// distances.
+type ListStore<'a> = dyn Fn(usize, &[u32], &[u64]) + Sync + 'a;
 
 /// A rayon task's piece sink: each task fills its own, and hands it over
 /// when done.
@@ -381,52 +368,59 @@ impl CpuBackend {
     /// [`Self::packed_lists`], searching `grid` (the job's grid, built
     /// already) if given.
     fn packed_lists_on(&self, job: &KnnJob, bits: u32, grid: Option<&CpuGrid>) -> Result<PackedLists> {
+        let (k, n) = (job.params.k, job.queries.len());
+        let mut words = vec![0u32; n * lists::stride(k, bits) + lists::spare(bits)];
+        let out = SharedSlots::new(&mut words);
+        let timings = self.each_list(job, grid, &|slot, nbr, _| lists::pack(nbr, k, bits, slot, &mut out.share()));
+        Ok(PackedLists { words, k, bits, timings })
+    }
+
+    /// Runs every query of a k-NN job on its task's scratch
+    /// (`KnnParams::local_lists`), searching `grid` if given (else the
+    /// job's grid, built here), and hands each finished list, with its
+    /// squared distances, to `store` with the query's slot.
+    fn each_list(&self, job: &KnnJob, grid: Option<&CpuGrid>, store: &ListStore) -> Timings {
         let p = KnnParams { local_lists: 1, ..job.params };
         let (k, n) = (p.k as usize, job.queries.len());
-        let stride = lists::stride(p.k, bits);
-        let mut words = vec![0u32; n * stride + lists::spare(bits)];
         let mut timings = Timings::default();
-        if k > 0 && n > 0 {
-            self.pool.install(|| {
-                let out = SharedSlots::new(&mut words);
-                // Thread `i`'s list into the task's scratch, then to its slot.
-                let each = |thread: &QueryThread| {
-                    (0..n).into_par_iter().chunks(CHUNK).for_each(|chunk| {
-                        let (mut nbr, mut d2) = (vec![0u32; k], vec![0u64; k]);
-                        let mut out = out.share();
-                        for i in chunk {
-                            let slot = thread(i, &mut nbr, &mut d2);
-                            lists::pack(&nbr, p.k, bits, slot, &mut out);
-                        }
-                    })
-                };
-                match job.method {
-                    KnnMethod::Grid => {
-                        let built;
-                        let g = match grid {
-                            Some(g) => g,
-                            None => {
-                                let t;
-                                (built, t) = timed(|| build_grid(job));
-                                timings.push("grid", t);
-                                &built
-                            }
-                        };
-                        let (cs, cc, sorted) = (&g.cell_start, &g.cell_count, &g.sorted);
-                        let (_, t) = timed(|| {
-                            each(&|i, nbr, d2| knn::grid_thread(i, &p, &job.queries, cs, cc, sorted, nbr, d2))
-                        });
-                        timings.push("knn", t);
-                    }
-                    KnnMethod::Brute => {
-                        let (_, t) =
-                            timed(|| each(&|i, nbr, d2| knn::brute_thread(i, &p, &job.queries, &job.sites, nbr, d2)));
-                        timings.push("knn", t);
-                    }
-                }
-            });
+        if k == 0 || n == 0 {
+            return timings;
         }
-        Ok(PackedLists { words, k: p.k, bits, timings })
+        self.pool.install(|| {
+            let each = |thread: &QueryThread| {
+                (0..n).into_par_iter().chunks(CHUNK).for_each(|chunk| {
+                    let (mut nbr, mut d2) = (vec![0u32; k], vec![0u64; k]);
+                    for i in chunk {
+                        let slot = thread(i, &mut nbr, &mut d2);
+                        store(slot, &nbr, &d2);
+                    }
+                })
+            };
+            match job.method {
+                KnnMethod::Grid => {
+                    let built;
+                    let g = match grid {
+                        Some(g) => g,
+                        None => {
+                            let t;
+                            (built, t) = timed(|| build_grid(job));
+                            timings.push("grid", t);
+                            &built
+                        }
+                    };
+                    let (cs, cc, sorted) = (&g.cell_start, &g.cell_count, &g.sorted);
+                    let (_, t) =
+                        timed(|| each(&|i, nbr, d2| knn::grid_thread(i, &p, &job.queries, cs, cc, sorted, nbr, d2)));
+                    timings.push("knn", t);
+                }
+                KnnMethod::Brute => {
+                    let (_, t) =
+                        timed(|| each(&|i, nbr, d2| knn::brute_thread(i, &p, &job.queries, &job.sites, nbr, d2)));
+                    timings.push("knn", t);
+                }
+            }
+        });
+        timings
     }
 
     /// The plain neighbour lists of a k-NN job, without their distances
@@ -447,47 +441,18 @@ impl Backend for CpuBackend {
     }
 
     fn knn(&self, job: &KnnJob) -> Result<Neighbors> {
-        self.pool.install(|| {
-            let p = &job.params;
-            let k = p.k as usize;
-            let mut timings = Timings::default();
-            let mut indices = vec![0u32; job.queries.len() * k];
-            let mut dist2 = vec![0u64; job.queries.len() * k];
-            match job.method {
-                KnnMethod::Grid => {
-                    let (g, t) = timed(|| build_grid(job));
-                    timings.push("grid", t);
-                    let (_, t) = timed(|| {
-                        let (cs, cc, sorted) = (&g.cell_start, &g.cell_count, &g.sorted);
-                        if p.exclude_self != 0 {
-                            // Site queries run in grid order and write their own slots.
-                            let nbr = SharedSlots::new(&mut indices);
-                            let d2 = SharedSlots::new(&mut dist2);
-                            (0..job.queries.len()).into_par_iter().chunks(CHUNK).for_each(|chunk| {
-                                let (mut nbr, mut d2) = (nbr.share(), d2.share());
-                                for i in chunk {
-                                    knn::grid_thread(i, p, &job.queries, cs, cc, sorted, &mut nbr, &mut d2);
-                                }
-                            });
-                        } else {
-                            per_query_windows(&mut indices, &mut dist2, k, |i, nbr, d2| {
-                                knn::grid_thread(i, p, &job.queries, cs, cc, sorted, nbr, d2);
-                            });
-                        }
-                    });
-                    timings.push("knn", t);
-                }
-                KnnMethod::Brute => {
-                    let (_, t) = timed(|| {
-                        per_query_windows(&mut indices, &mut dist2, k, |i, nbr, d2| {
-                            knn::brute_thread(i, p, &job.queries, &job.sites, nbr, d2);
-                        })
-                    });
-                    timings.push("knn", t);
-                }
+        let k = job.params.k as usize;
+        let mut indices = vec![0u32; job.queries.len() * k];
+        let mut dist2 = vec![0u64; job.queries.len() * k];
+        let (nbr_out, d2_out) = (SharedSlots::new(&mut indices), SharedSlots::new(&mut dist2));
+        let timings = self.each_list(job, None, &|slot, nbr, d2| {
+            let (mut nbr_out, mut d2_out) = (nbr_out.share(), d2_out.share());
+            for s in 0..k {
+                nbr_out.write(slot * k + s, nbr[s]);
+                d2_out.write(slot * k + s, d2[s]);
             }
-            Ok(Neighbors { k, indices, dist2, timings })
-        })
+        });
+        Ok(Neighbors { k, indices, dist2, timings })
     }
     fn clip(&self, job: &ClipJob) -> Result<ClipOutput> {
         self.clip_into(job, &Mutex::new(Vec::<NoPieces>::new()))

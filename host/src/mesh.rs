@@ -97,20 +97,20 @@ impl TetMesh {
         crate::surface::TriSurface { vertices: self.vertices.clone(), triangles }
     }
 
+    /// Centroid of tet `t`.
+    pub fn centroid(&self, t: usize) -> [f64; 3] {
+        let mut c = [0.0f64; 3];
+        for &v in &self.tets[t] {
+            for (a, ca) in c.iter_mut().enumerate() {
+                *ca += self.vertices[v as usize][a] / 4.0;
+            }
+        }
+        c
+    }
+
     /// Centroid of every tet.
     pub fn centroids(&self) -> Vec<[f64; 3]> {
-        self.tets
-            .iter()
-            .map(|tet| {
-                let mut c = [0.0f64; 3];
-                for &v in tet {
-                    for (a, ca) in c.iter_mut().enumerate() {
-                        *ca += self.vertices[v as usize][a] / 4.0;
-                    }
-                }
-                c
-            })
-            .collect()
+        (0..self.tets.len()).map(|t| self.centroid(t)).collect()
     }
 
     /// Lower and upper corners of the vertices' bounding box.

@@ -437,19 +437,9 @@ impl<'a> ClippedVoronoi<'a> {
             split.extend(crate::diagram::weight_bounds::local_bounds(&split, weight_range, volume));
         }
         let verts: Vec<[f64; 3]> = mesh.vertices.iter().map(|&p| frame.to_local(p)).collect();
-        // As TetMesh::centroids computes them, without holding them.
-        let centroid = |verts: &[[f64; 3]], tet: &[u32; 4]| {
-            let mut c = [0.0f64; 3];
-            for &v in tet {
-                for (a, ca) in c.iter_mut().enumerate() {
-                    *ca += verts[v as usize][a] / 4.0;
-                }
-            }
-            c
-        };
-        let tet_order = points::morton_order_by(mesh.tets.len(), |t| centroid(&verts, &mesh.tets[t]));
-        let tets: Vec<[u32; 4]> = tet_order.iter().map(|&t| mesh.tets[t as usize]).collect();
-        let local_mesh = TetMesh { vertices: verts, tets };
+        let mut local_mesh = TetMesh { vertices: verts, tets: mesh.tets.clone() };
+        let tet_order = points::morton_order_by(mesh.tets.len(), |t| local_mesh.centroid(t));
+        local_mesh.tets = tet_order.iter().map(|&t| mesh.tets[t as usize]).collect();
         let n = sites.len();
         let k = match pairing {
             Pairing::Knn => self.k.unwrap_or_else(|| paper_k(n, mesh.tets.len())).min(n),
