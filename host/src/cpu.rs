@@ -4,16 +4,19 @@
 use crate::backend::Backend;
 use crate::cvt::LloydOutput;
 use crate::diagram::voronoi::{ClipJob, ClipOutput, Pairing, Strategy};
+use crate::distributed::halo::Held;
 use crate::error::{Error, Result};
 use crate::knn::{KnnJob, KnnMethod, Neighbors, PackedLists};
 use crate::timing::{timed, Timings};
-use cvd_kernels::abi::{counter, lloyd_stat, ClipParams, KnnParams, QuantPoint, RefineParams, ACCUM_PER_SITE};
+use cvd_kernels::abi::{
+    counter, ClipParams, KnnParams, QuantPoint, RefineParams, ACCUM_PER_SITE, NO_SITE, OUT_OF_HALO,
+};
 use cvd_kernels::buffers::{DeviceSums, OutBuf, PairList, Window};
 use cvd_kernels::clip::{self, FaceInputs, NoPieces, PieceSink, CELL_RECORDS};
 use cvd_kernels::walk::GridWalk;
-use cvd_kernels::{grid, knn, lists, lloyd, refine, scan};
+use cvd_kernels::{grid, knn, lists, refine, scan};
 use rayon::prelude::*;
-use std::sync::atomic::{AtomicI64, AtomicU32, Ordering};
+use std::sync::atomic::{AtomicI64, AtomicU32, AtomicU64, Ordering};
 use std::sync::Mutex;
 
 /// Thread indices per rayon task.
@@ -51,8 +54,19 @@ impl CpuBackend {
         let (g, grid_time) = self.pool.install(|| timed(|| build_grid(&job.site_knn)));
         // The sites' lists packed in as few bits as their indices need; the
         // kernels run with parameters that say so.
-        let site_nn = self.packed_lists_on(&job.site_knn, lists::width(job.params.n_sites), Some(&g))?;
-        let tet_nn = self.packed_lists_on(&job.tet_knn_job(), 32, Some(&g))?;
+        let bits = lists::width(job.params.n_sites);
+        let (site_nn, tet_nn, certified) = match &job.held {
+            None => (
+                self.packed_lists_on(&job.site_knn, bits, Some(&g))?,
+                self.packed_lists_on(&job.tet_knn_job(), 32, Some(&g))?,
+                0,
+            ),
+            Some(held) => {
+                let (sites, certified) = self.held_lists(&job.site_knn, job.params.n_sites as usize, bits, &g, held);
+                let (tets, _) = self.held_lists(&job.tet_knn_job(), job.tets.len(), 32, &g, held);
+                (sites, tets, certified)
+            }
+        };
         let refine = RefineParams { clip: ClipParams { list_bits: site_nn.bits, ..job.refine.clip }, ..job.refine };
         self.pool.install(|| {
             let p = &refine.clip;
@@ -163,6 +177,8 @@ impl CpuBackend {
                 site_lists,
                 counters: totals.into_iter().map(AtomicI64::into_inner).collect(),
                 refined: (first.len() - still.len()) as u64,
+                unresolved: 0,
+                certified,
                 chunks: 1,
                 unfinished: still,
                 timings,
@@ -375,6 +391,55 @@ impl CpuBackend {
         Ok(PackedLists { words, k, bits, timings })
     }
 
+    /// The lists of a part of a job ([`ClipJob::held`]) at its queries'
+    /// slots, `n` of them: a site job's (its queries tagged with their
+    /// site, the unlisted sites marked unknown), or a point job's with
+    /// `k` = 1 (the tets' nearest sites, in plain entries). A list the held
+    /// cells do not certify ([`Held::certifies`]) is marked unknown; a
+    /// nearest site, [`OUT_OF_HALO`]. Returns the lists and how many were
+    /// certified.
+    pub(crate) fn held_lists(
+        &self,
+        job: &KnnJob,
+        n: usize,
+        bits: u32,
+        grid: &CpuGrid,
+        held: &Held,
+    ) -> (PackedLists, u64) {
+        let k = job.params.k;
+        let sites = job.params.exclude_self != 0;
+        let mut words = vec![0u32; n * lists::stride(k, bits) + lists::spare(bits)];
+        let out = SharedSlots::new(&mut words);
+        if sites {
+            // Unknown until certified: each list begins with its own site.
+            self.pool.install(|| {
+                (0..n).into_par_iter().chunks(CHUNK).for_each(|chunk| {
+                    let mut marker = vec![NO_SITE; k as usize];
+                    for j in chunk {
+                        if let Some(first) = marker.first_mut() {
+                            *first = j as u32;
+                        }
+                        lists::pack(&marker, k, bits, j, &mut out.share());
+                    }
+                })
+            });
+        }
+        let certified = AtomicU64::new(0);
+        let timings = self.each_list(job, Some(grid), &|slot, nbr, d2| {
+            let q = job.queries[slot];
+            let ok = k > 0 && held.certifies([q[0], q[1], q[2]], d2[k as usize - 1]);
+            if sites {
+                if ok {
+                    lists::pack(nbr, k, bits, q[3] as usize, &mut out.share());
+                }
+            } else {
+                lists::pack(&[if ok { nbr[0] } else { OUT_OF_HALO }], 1, bits, slot, &mut out.share());
+            }
+            certified.fetch_add(ok as u64, Ordering::Relaxed);
+        });
+        (PackedLists { words, k, bits, timings }, certified.into_inner())
+    }
+
     /// Runs every query of a k-NN job on its task's scratch
     /// (`KnnParams::local_lists`), searching `grid` if given (else the
     /// job's grid, built here), and hands each finished list, with its
@@ -459,28 +524,6 @@ impl Backend for CpuBackend {
     }
 
     fn lloyd(&self, job: &ClipJob, iterations: usize, progress: &mut dyn FnMut(usize, i64)) -> Result<LloydOutput> {
-        let mut job = job.clone();
-        let mut stats = vec![0i64; iterations * lloyd_stat::COUNT];
-        let mut seconds = Vec::with_capacity(iterations);
-        for it in 0..iterations {
-            let start = std::time::Instant::now();
-            let mut out = self.clip(&job)?;
-            let first = out.refined + out.unfinished.len() as u64;
-            let redone = crate::diagram::second_pass::run(&job, &mut out, &Mutex::new(Vec::<NoPieces>::new()))?;
-            let p = crate::cvt::params(&job, it);
-            let mut quant = job.site_knn.sites.to_vec();
-            let (unfinished, still) = ([first as u32], [redone.unresolved as u32]);
-            for i in 0..job.params.n_sites as usize {
-                let (sites, q) = (&mut job.sites[..], &mut quant[..]);
-                lloyd::move_site(i, &p, &out.sums, &unfinished, &still, sites, q, &mut DeviceSums(&mut stats));
-            }
-            let quant: crate::knn::Points = quant.into();
-            job.site_knn.queries = quant.clone();
-            job.tet_knn.sites = quant.clone();
-            job.site_knn.sites = quant;
-            seconds.push(start.elapsed().as_secs_f64());
-            progress(it + 1, stats[it * lloyd_stat::COUNT + lloyd_stat::ENERGY]);
-        }
-        Ok(LloydOutput { sites: job.sites, stats, seconds })
+        crate::cvt::lloyd_by_diagrams(self, job, iterations, progress)
     }
 }

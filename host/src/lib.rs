@@ -19,6 +19,7 @@ pub mod cpu;
 pub mod cvt;
 pub mod density;
 pub mod diagram;
+pub mod distributed;
 pub mod error;
 pub mod io;
 pub mod knn;

@@ -15,6 +15,15 @@ impl Timings {
         self.phases.push((phase.into(), seconds));
     }
 
+    /// Adds `seconds` to a phase, appended if new (a phase run many times
+    /// is reported once).
+    pub fn add(&mut self, phase: &str, seconds: f64) {
+        match self.phases.iter_mut().find(|(p, _)| p == phase) {
+            Some((_, s)) => *s += seconds,
+            None => self.push(phase, seconds),
+        }
+    }
+
     /// The time of one phase (0 if absent).
     pub fn get(&self, phase: &str) -> f64 {
         // A fold from +0 (an empty `sum` of floats is -0).

@@ -27,6 +27,15 @@ pub const NO_SITE: u32 = u32::MAX;
 /// the tet's missing pieces.
 pub const INCOMPLETE_TET: u32 = u32::MAX - 1;
 
+/// A part of a distributed job holds the sites of some grid cells only
+/// ([`RefineParams::held_lo_x`]). In an unfinished list, `(tet,
+/// OUT_OF_HALO)` says that the tet's flood needed a site it may not hold (a
+/// walk reaching a cell outside, or a neighbour list the host could not
+/// certify): the tet added nothing, and is done again with a wider halo. As
+/// a tet's nearest site (`tet_sites`), it says that the host could not
+/// certify that site.
+pub const OUT_OF_HALO: u32 = u32::MAX - 2;
+
 /// Threads per workgroup of every kernel.
 pub const WORKGROUP_SIZE: u32 = 64;
 
@@ -181,8 +190,11 @@ pub mod counter {
     /// Pieces their neighbour list did not settle, finished in place by a
     /// grid walk (flood pairing).
     pub const WALKS: usize = 7;
+    /// Tets whose flood needed a site outside the held cells (a part of a
+    /// distributed job; see [`super::OUT_OF_HALO`]), left for a wider halo.
+    pub const HALO: usize = 8;
     /// Number of counters.
-    pub const COUNT: usize = 8;
+    pub const COUNT: usize = 9;
 }
 
 /// Push constants of the clipping kernels. Coordinates are normalised on
@@ -284,6 +296,24 @@ pub struct RefineParams {
     pub grid_lo_z: f32,
     /// Side of a grid cell in the clipping frame.
     pub cell_len: f32,
+    /// The grid cells whose sites the job holds, `held_lo + 0..held_dim`
+    /// on each axis (`grid` cell coordinates): the whole grid, or, for a
+    /// part of a distributed job, a box around its tets. The site grid's
+    /// arrays cover these cells only (x fastest); a walk that must search
+    /// a cell outside gives up ([`crate::abi::OUT_OF_HALO`]).
+    pub held_lo_x: u32,
+    /// See `held_lo_x`.
+    pub held_lo_y: u32,
+    /// See `held_lo_x`.
+    pub held_lo_z: u32,
+    /// See `held_lo_x`.
+    pub held_dim_x: u32,
+    /// See `held_lo_x`.
+    pub held_dim_y: u32,
+    /// See `held_lo_x`.
+    pub held_dim_z: u32,
+    /// To a multiple of 16 bytes.
+    pub _pad: [u32; 2],
 }
 
 /// Per-iteration statistics of a Lloyd run (`i64` each), by index within

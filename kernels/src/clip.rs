@@ -21,7 +21,7 @@
 //! shift each bisector by the weights, `n·x <= (|n|² + w_i - w_j)/2`, and
 //! widen the security radius ([`reach2`]).
 
-use crate::abi::{counter, ClipParams, RefineParams, SplitPoint, ACCUM_PER_SITE, INCOMPLETE_TET, NO_SITE};
+use crate::abi::{counter, ClipParams, RefineParams, SplitPoint, ACCUM_PER_SITE, INCOMPLETE_TET, NO_SITE, OUT_OF_HALO};
 use crate::buffers::{AtomicSums, OutBuf, PairList};
 use crate::lists::{Lists, NO_LIST};
 use crate::polyhedron::{
@@ -73,6 +73,9 @@ pub struct Clipped {
     pub broken: bool,
     /// Pieces finished by a grid walk after their list.
     pub walks: i64,
+    /// The piece needed a site the job may not hold (a part of a
+    /// distributed job): not finished ([`crate::abi::OUT_OF_HALO`]).
+    pub out_of_halo: bool,
 }
 
 impl Clipped {
@@ -247,7 +250,8 @@ fn owns(p: &ClipParams, j: usize) -> bool {
 /// first, until the next neighbour is beyond the security radius (twice the
 /// farthest vertex without weights; [`reach2`]) or nothing is left.
 /// Without a list (`slot == NO_LIST`) the piece is left unfinished, as if
-/// the radius were missed.
+/// the radius were missed; with a list marked unknown ([`Lists::unknown`]),
+/// too, and out of the halo.
 #[inline]
 pub fn clip_by_bisectors<const P: usize, const V: usize>(
     poly: &mut Polyhedron<P, V>,
@@ -260,6 +264,9 @@ pub fn clip_by_bisectors<const P: usize, const V: usize>(
 ) -> Clipped {
     if slot == NO_LIST {
         return Clipped { security_missed: true, ..Clipped::default() };
+    }
+    if lists.unknown(slot, i as u32) {
+        return Clipped { security_missed: true, out_of_halo: true, ..Clipped::default() };
     }
     let xi = sites[i];
     let mut run = BisectorRun::new(poly, Slack::of(weight_range, sites, i, n_sites));
@@ -714,6 +721,9 @@ fn count<C: AtomicSums>(counters: &mut C, pieces: i64, nonempty: i64, c: &Clippe
     if c.broken {
         counters.add(counter::BROKEN, 1);
     }
+    if c.out_of_halo {
+        counters.add(counter::HALO, 1);
+    }
 }
 
 /// The tet and site of thread `pair` (knn pairing), with the tet's
@@ -1049,8 +1059,8 @@ pub fn flood<const P: usize, const V: usize, const Q: usize, F, A, C, L, S>(
     queue[0] = start;
     let mut len = 1;
     let mut head = 0;
-    let mut ok = start != NO_SITE;
-    let mut c = Clipped::default();
+    let mut ok = start != NO_SITE && start != OUT_OF_HALO;
+    let mut c = Clipped { out_of_halo: start == OUT_OF_HALO, ..Clipped::default() };
     let mut total = 0.0f32;
     let mut tet_volume = 0.0f32;
     // One polyhedron for all the pieces: no storage cleared per piece.
@@ -1068,6 +1078,7 @@ pub fn flood<const P: usize, const V: usize, const Q: usize, F, A, C, L, S>(
         c.security_missed |= ci.security_missed;
         c.overflow |= ci.overflow;
         c.broken |= ci.broken;
+        c.out_of_halo |= ci.out_of_halo;
         if !ci.finished() {
             ok = false;
         } else if !poly.is_empty() {
@@ -1120,7 +1131,7 @@ pub fn flood<const P: usize, const V: usize, const Q: usize, F, A, C, L, S>(
         }
     } else {
         sink.discard_tet(t as u32);
-        unfinished.push(t as u32, NO_SITE);
+        unfinished.push(t as u32, if c.out_of_halo { OUT_OF_HALO } else { NO_SITE });
         // Take back the faces given so far: the same pieces again (the clip
         // is deterministic), subtracted.
         if p.faces_base != 0 {

@@ -155,6 +155,13 @@ structure!(RefineParams {
     grid_lo_y: f32,
     grid_lo_z: f32,
     cell_len: f32,
+    held_lo_x: u32,
+    held_lo_y: u32,
+    held_lo_z: u32,
+    held_dim_x: u32,
+    held_dim_y: u32,
+    held_dim_z: u32,
+    _pad: [u32; 2]
 });
 structure!(LloydParams {
     n_sites: u32,

@@ -9,6 +9,11 @@
 //! 20 bits at a million sites, where the lists are most of a job's memory.
 //! An entry of all ones is [`NO_SITE`]. Packed lists end with one spare
 //! word ([`spare`]): an entry is read with the word after its own.
+//!
+//! A list that begins with its own site (a site is never its own
+//! neighbour) is unknown ([`Lists::unknown`]): a part of a distributed job
+//! holds the sites near its tets only, and the host could not certify that
+//! site's list from them. What needs it is left for a wider halo.
 
 use crate::abi::{ClipParams, NO_SITE};
 use crate::buffers::OutBuf;
@@ -85,6 +90,13 @@ impl<'a> Lists<'a> {
         } else {
             j - self.base as usize
         }
+    }
+
+    /// Whether the list at `slot`, site `j`'s, is marked unknown (its first
+    /// entry is `j`; see the module's documentation).
+    #[inline]
+    pub fn unknown(&self, slot: usize, j: u32) -> bool {
+        self.k > 0 && self.get(slot, 0) == j
     }
 
     /// Entry `s` of the list at `slot` (from [`Self::slot`]).

@@ -5,7 +5,7 @@
 //! alike. Only a polyhedron or a flood queue that is still too small leaves
 //! an entry unfinished, for the host.
 
-use crate::abi::{RefineParams, SplitPoint, INCOMPLETE_TET, NO_SITE};
+use crate::abi::{RefineParams, SplitPoint, INCOMPLETE_TET, NO_SITE, OUT_OF_HALO};
 use crate::buffers::{AtomicSums, PairList};
 use crate::clip::{finish_pair, flood, tet_vertices, FaceInputs, Paired, PieceSink};
 use crate::polyhedron::{Cell, CELL_PLANES, CELL_VERTS};
@@ -20,7 +20,7 @@ pub const REFINE_QUEUE: usize = 256;
 /// nearest its centroid (`tet_sites[(tet - tet_base) * k_tet]`; in power
 /// distance with weights); a pair's piece is
 /// clipped on its own and checked against the tet's paired sites; a tet
-/// already known to be incomplete is passed on. What fails again, and the
+/// already known to be incomplete, or out of the halo, is passed on. What fails again, and the
 /// incomplete tets, go to `still`.
 #[inline]
 pub fn refine_entry<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
@@ -60,8 +60,10 @@ pub fn refine_entry<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
             still,
             sink,
         );
-    } else if j == INCOMPLETE_TET {
-        still.push(t as u32, INCOMPLETE_TET);
+    } else if j == INCOMPLETE_TET || j == OUT_OF_HALO {
+        // Known incomplete, or to be done again from the start with a
+        // wider halo (this pass's clips differ from the first pass's).
+        still.push(t as u32, j);
     } else {
         let paired = Paired::around(tet_sites, slot, k);
         refine_pair(t, j as usize, paired, p, w, sites, verts, tets, faces, sums, still, sink);

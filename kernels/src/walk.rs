@@ -11,9 +11,9 @@
 //! flood queue too small leaves a piece unfinished. Most pieces never walk:
 //! the list settles them, and a short list trades k-NN time for walks.
 
-use crate::abi::{GridParams, QuantPoint, RefineParams, SplitPoint};
+use crate::abi::{GridParams, QuantPoint, RefineParams, SplitPoint, OUT_OF_HALO};
 use crate::clip::{clip_by_bisectors, BisectorRun, Clipped, Slack};
-use crate::grid::{cell_index, ring_row, ring_span};
+use crate::grid::{ring_row, ring_span};
 use crate::lists::{Lists, NO_LIST};
 use crate::polyhedron::{between, bisector_offset, point, weight_gap, Point, Polyhedron};
 use spirv_std::glam::Vec3;
@@ -45,6 +45,11 @@ pub struct GridWalk<'a> {
     pub cell_count: &'a [u32],
     /// Sites sorted by cell (index in `[3]`).
     pub sorted: &'a [QuantPoint],
+    /// The held cells' first cell and extent ([`RefineParams::held_lo_x`]):
+    /// `cell_start` and `cell_count` cover them only.
+    pub held_lo: [u32; 3],
+    /// See `held_lo`.
+    pub held_dim: [u32; 3],
 }
 
 impl<'a> GridWalk<'a> {
@@ -70,8 +75,40 @@ impl<'a> GridWalk<'a> {
             cell_start,
             cell_count,
             sorted,
+            held_lo: [p.held_lo_x, p.held_lo_y, p.held_lo_z],
+            held_dim: [p.held_dim_x, p.held_dim_y, p.held_dim_z],
         }
     }
+
+    /// The index of grid cell `c` in the held cells' arrays, or
+    /// [`NO_CELL`] when its sites are not held.
+    #[inline]
+    pub fn held_cell(&self, c: [u32; 3]) -> usize {
+        let (lo, dim) = (self.held_lo, self.held_dim);
+        let mut a = 0;
+        while a < 3 {
+            if c[a] < lo[a] || c[a] - lo[a] >= dim[a] {
+                return NO_CELL;
+            }
+            a += 1;
+        }
+        (((c[2] - lo[2]) as usize * dim[1] as usize) + (c[1] - lo[1]) as usize) * dim[0] as usize
+            + (c[0] - lo[0]) as usize
+    }
+}
+
+/// A grid cell whose sites the job does not hold ([`GridWalk::held_cell`]).
+pub const NO_CELL: usize = usize::MAX;
+
+/// How a ring walk ([`walk_rings`]) ended.
+pub mod walk_end {
+    /// Every site within the visitor's reach was met.
+    pub const DONE: u32 = 0;
+    /// The visitor ended the walk.
+    pub const STOPPED: u32 = 1;
+    /// A cell within reach is not held (a part of a distributed job): the
+    /// walk cannot tell what it holds.
+    pub const OUT_OF_HALO: u32 = 2;
 }
 
 #[inline]
@@ -125,9 +162,11 @@ pub trait RingVisitor<T> {
 /// Walks the site grid ring by ring around `x` (clipping frame), handing
 /// [`RingVisitor::visit`] every site of each cell within the visitor's
 /// reach, until the sites not met yet all lie beyond it, the rings cover
-/// the grid, or the visitor ends the walk. Returns whether it did.
+/// the grid, the visitor ends the walk, or a cell within reach is not held.
+/// Returns how it ended ([`walk_end`]). A walk over held cells only is the
+/// same walk whatever else is held.
 #[inline]
-pub fn walk_rings<T, R: RingVisitor<T>>(w: &GridWalk, x: Point, visitor: &mut R, on: &mut T) -> bool {
+pub fn walk_rings<T, R: RingVisitor<T>>(w: &GridWalk, x: Point, visitor: &mut R, on: &mut T) -> u32 {
     let g = w.grid;
     let dims = [g.dim_x, g.dim_y, g.dim_z];
     let c = [
@@ -150,13 +189,16 @@ pub fn walk_rings<T, R: RingVisitor<T>>(w: &GridWalk, x: Point, visitor: &mut R,
                 while xc <= last {
                     let cell = [xc, y, z];
                     if cell_gap2(w, x, cell) <= visitor.reach2() {
-                        let cell = cell_index(&g, cell);
+                        let cell = w.held_cell(cell);
+                        if cell == NO_CELL {
+                            return walk_end::OUT_OF_HALO;
+                        }
                         let start = w.cell_start[cell] as usize;
                         let end = start + w.cell_count[cell] as usize;
                         let mut k = start;
                         while k < end {
                             if visitor.visit(on, w.sorted[k][3]) {
-                                return true;
+                                return walk_end::STOPPED;
                             }
                             k += 1;
                         }
@@ -181,11 +223,11 @@ pub fn walk_rings<T, R: RingVisitor<T>>(w: &GridWalk, x: Point, visitor: &mut R,
         }
         if gap == f32::INFINITY {
             // The rings cover the grid: every site was met.
-            return false;
+            return walk_end::DONE;
         }
         let gap = gap - w.margin;
         if gap > 0.0 && gap * gap > visitor.reach2() * (1.0 + 1e-5) {
-            return false;
+            return walk_end::DONE;
         }
         r += 1;
     }
@@ -239,7 +281,7 @@ pub fn clip_to_cell<const P: usize, const V: usize>(
     let k = w.lists.k();
     let slot = w.lists.slot(i);
     let listed = clip_by_bisectors(poly, i, w.n_sites, w.weight_range, sites, &w.lists, slot);
-    if !listed.security_missed || listed.overflow || listed.broken {
+    if !listed.security_missed || listed.overflow || listed.broken || listed.out_of_halo {
         return listed;
     }
     let si = sites[i];
@@ -263,7 +305,10 @@ pub fn clip_to_cell<const P: usize, const V: usize>(
     // A ring walk meets every site: no security radius to miss.
     run.out.security_missed = false;
     let mut clip = CellClip { run, i: i as u32, sites, inner };
-    walk_rings(&w, point(si.hi), &mut clip, poly);
+    if walk_rings(&w, point(si.hi), &mut clip, poly) == walk_end::OUT_OF_HALO {
+        clip.run.out.security_missed = true;
+        clip.run.out.out_of_halo = true;
+    }
     clip.run.out
 }
 
@@ -320,6 +365,7 @@ impl RingVisitor<()> for PowerNearest<'_> {
 /// neighbour lists while a listed site is nearer, then certified by a ring
 /// walk around `c` to `|c - x_best|² + weight_range - w_best`, beyond
 /// which no site can be nearer. Without weights, `start` itself.
+/// [`OUT_OF_HALO`] when the search needs a list or a cell not held.
 #[inline]
 pub fn power_nearest(
     t: usize,
@@ -329,7 +375,7 @@ pub fn power_nearest(
     tets: &[[u32; 4]],
     w: &GridWalk,
 ) -> u32 {
-    if w.weight_range == 0.0 || start == crate::abi::NO_SITE {
+    if w.weight_range == 0.0 || start == crate::abi::NO_SITE || start == OUT_OF_HALO {
         return start;
     }
     let tv = crate::clip::tet_vertices(t, verts, tets, &sites[start as usize]);
@@ -351,6 +397,9 @@ pub fn power_nearest(
     while search.best != from && steps < 16 {
         from = search.best;
         let slot = w.lists.slot(from as usize);
+        if slot != NO_LIST && w.lists.unknown(slot, from) {
+            return OUT_OF_HALO;
+        }
         if slot != NO_LIST {
             let mut s = 0;
             while s < k {
@@ -363,6 +412,8 @@ pub fn power_nearest(
         }
         steps += 1;
     }
-    walk_rings(w, point(sites[start as usize].hi) + c, &mut search, &mut ());
+    if walk_rings(w, point(sites[start as usize].hi) + c, &mut search, &mut ()) == walk_end::OUT_OF_HALO {
+        return OUT_OF_HALO;
+    }
     search.best
 }

@@ -100,6 +100,43 @@ impl ClippedVoronoi<'_> {
     }
 }
 
+/// `iterations` Lloyd iterations from `job`'s sites, each a diagram from
+/// `backend` (its second pass, then the host's) and every site moved to
+/// its centroid by the kernels' own `move_site` on the host: what a
+/// backend that does not run the whole loop itself does.
+pub(crate) fn lloyd_by_diagrams(
+    backend: &dyn Backend,
+    job: &ClipJob,
+    iterations: usize,
+    progress: &mut dyn FnMut(usize, i64),
+) -> Result<LloydOutput> {
+    use cvd_kernels::buffers::DeviceSums;
+    let mut job = job.clone();
+    let mut stats = vec![0i64; iterations * lloyd_stat::COUNT];
+    let mut seconds = Vec::with_capacity(iterations);
+    for it in 0..iterations {
+        let start = std::time::Instant::now();
+        let mut out = backend.clip(&job)?;
+        let first = out.refined + out.unresolved + out.unfinished.len() as u64;
+        let none = std::sync::Mutex::new(Vec::<cvd_kernels::clip::NoPieces>::new());
+        let redone = crate::diagram::second_pass::run(&job, &mut out, &none)?;
+        let p = params(&job, it);
+        let mut quant = job.site_knn.sites.to_vec();
+        let (unfinished, still) = ([first as u32], [(out.unresolved + redone.unresolved) as u32]);
+        for i in 0..job.params.n_sites as usize {
+            let (sites, q) = (&mut job.sites[..], &mut quant[..]);
+            cvd_kernels::lloyd::move_site(i, &p, &out.sums, &unfinished, &still, sites, q, &mut DeviceSums(&mut stats));
+        }
+        let quant: crate::knn::Points = quant.into();
+        job.site_knn.queries = quant.clone();
+        job.tet_knn.sites = quant.clone();
+        job.site_knn.sites = quant;
+        seconds.push(start.elapsed().as_secs_f64());
+        progress(it + 1, stats[it * lloyd_stat::COUNT + lloyd_stat::ENERGY]);
+    }
+    Ok(LloydOutput { sites: job.sites, stats, seconds })
+}
+
 /// World energy per unit of a fixed-point energy sum.
 fn energy_scale(job: &ClipJob, frame: &Frame) -> f64 {
     frame.scale.powi(5) / job.params.fixed_scale as f64

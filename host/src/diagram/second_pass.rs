@@ -20,7 +20,7 @@ use crate::diagram::voronoi::{ClipJob, ClipOutput};
 use crate::error::Result;
 use crate::knn::KnnJob;
 use crate::site_grid::SiteGrid;
-use cvd_kernels::abi::{counter, KnnParams, INCOMPLETE_TET, NO_SITE};
+use cvd_kernels::abi::{counter, KnnParams, INCOMPLETE_TET, NO_SITE, OUT_OF_HALO};
 use cvd_kernels::clip::{FaceInputs, Paired};
 use cvd_kernels::refine;
 use cvd_kernels::walk::{power_nearest, GridWalk};
@@ -69,7 +69,10 @@ pub(crate) fn run<S: TaskSink>(job: &ClipJob, out: &mut ClipOutput, sinks: &Mute
     let mut incomplete = Vec::new();
     for &e in &out.unfinished {
         match e[1] {
-            NO_SITE => tets.push(e),
+            // A tet out of its halo can only come from a part of a
+            // distributed job, which brings it here once it holds every
+            // site: flooded again like any other.
+            NO_SITE | OUT_OF_HALO => tets.push(e),
             INCOMPLETE_TET => incomplete.push(e[0]),
             _ => pairs.push(e),
         }

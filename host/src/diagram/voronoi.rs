@@ -111,6 +111,10 @@ pub struct ClipJob {
     /// read them ([`crate::diagram::faces::boundary_bits`]; one word of zeros when
     /// no faces are summed).
     pub tet_faces: Vec<u32>,
+    /// For a part of a job ([`crate::distributed`]): the grid cells whose
+    /// sites it holds (its quantized points are shifted by their corner);
+    /// `None`: every site.
+    pub held: Option<crate::distributed::halo::Held>,
 }
 
 impl ClipJob {
@@ -118,7 +122,15 @@ impl ClipJob {
     pub fn tet_query(&self, t: usize) -> QuantPoint {
         let v = self.tets[t].map(|i| self.verts[i as usize].to_f64());
         let c = [0, 1, 2].map(|a| (v[0][a] + v[1][a] + v[2][a] + v[3][a]) / 4.0);
-        self.site_knn.quantizer.quantize(c, t as u32)
+        let q = self.site_knn.quantizer.quantize(c, t as u32);
+        match self.held {
+            // Outside the held cells' corner: at it (not certified).
+            Some(h) => {
+                let s = h.shift();
+                [q[0].saturating_sub(s[0]), q[1].saturating_sub(s[1]), q[2].saturating_sub(s[2]), q[3]]
+            }
+            None => q,
+        }
     }
 
     /// The tets' k-NN job with its queries, every tet's centroid.
@@ -161,8 +173,13 @@ pub struct ClipOutput {
     /// second pass, sorted (`site == NO_SITE`: the whole tet).
     pub unfinished: Vec<[u32; 2]>,
     /// Entries of the first pass's unfinished list the kernels' second
-    /// pass finished.
+    /// pass finished (and the host pass, when the backend ran it).
     pub refined: u64,
+    /// Entries the backend's own host pass could not finish (see
+    /// [`Counters::unresolved`]).
+    pub unresolved: u64,
+    /// A part of a job ([`ClipJob::held`]): the neighbour lists certified.
+    pub certified: u64,
     /// Parts the backend split the job into to stay under its memory
     /// budget (1: none).
     pub chunks: u64,
@@ -207,6 +224,10 @@ pub struct Counters {
     /// With faces: sites whose faces made by sites beyond their list
     /// outnumbered their spill slots, redone by the host on the CPU.
     pub faces_redone: u64,
+    /// A distributed run: tet floods that needed a site outside their
+    /// part's halo, done again with a wider one (their first tries are in
+    /// the other counters too).
+    pub out_of_halo: u64,
 }
 
 /// Per-site results and totals.
@@ -520,6 +541,14 @@ impl<'a> ClippedVoronoi<'a> {
             grid_lo_y: lo[1] as f32,
             grid_lo_z: lo[2] as f32,
             cell_len: (site_knn.params.grid.cell_size as f64 / q.scale()) as f32,
+            // Every site is held.
+            held_lo_x: 0,
+            held_lo_y: 0,
+            held_lo_z: 0,
+            held_dim_x: site_knn.params.grid.dim_x,
+            held_dim_y: site_knn.params.grid.dim_y,
+            held_dim_z: site_knn.params.grid.dim_z,
+            _pad: [0; 2],
         };
         let job = ClipJob {
             refine,
@@ -539,6 +568,7 @@ impl<'a> ClippedVoronoi<'a> {
             strategy: self.strategy,
             pairing,
             tet_faces,
+            held: None,
         };
         Ok((job, map, frame))
     }
@@ -597,7 +627,7 @@ impl<'a> ClippedVoronoi<'a> {
         if redone.finished + redone.unresolved + redone.missed_tets > 0 {
             out.timings.push("host pass", t);
         }
-        let refined = out.refined;
+        let (refined, out_unresolved) = (out.refined, out.unresolved);
         let (adjacency, faces_redone) = if job.face_sums_len() > 0 {
             let (adjacency, t) = crate::timing::timed(|| self.adjacency(job, map, frame, &out));
             out.timings.push("faces", t);
@@ -609,7 +639,7 @@ impl<'a> ClippedVoronoi<'a> {
         let mut cells = finish(self.mesh, self.density, self.sites, job, map, frame, out);
         cells.adjacency = adjacency;
         cells.counters.second_pass = refined + redone.finished;
-        cells.counters.unresolved = redone.unresolved;
+        cells.counters.unresolved = redone.unresolved + out_unresolved;
         cells.counters.missed_tets = redone.missed_tets;
         cells.counters.faces_redone = faces_redone as u64;
         Ok(cells)
@@ -758,6 +788,7 @@ fn finish(
         overflows: c(counter::OVERFLOWS),
         broken: c(counter::BROKEN),
         walks: c(counter::WALKS),
+        out_of_halo: c(counter::HALO),
         duplicate_sites: map.iter().filter(|m| m.is_none()).count() as u64,
         empty_cells: map.iter().zip(&cells.volume).filter(|(m, &v)| m.is_some() && v <= 0.0).count() as u64,
         second_pass: 0,

@@ -122,6 +122,11 @@ impl Backend for VulkanBackend {
     }
 
     fn clip(&self, job: &ClipJob) -> Result<ClipOutput> {
+        if job.held.is_some() {
+            // The lists' certificates are the CPU backend's (the device
+            // k-NN keeps no distances).
+            return Err(Error::InvalidInput("the parts of a distributed job run on the CPU backend".into()));
+        }
         let plan = Plan::clip(&self.ctx, job)?;
         let p = &job.params;
         let (sk, tk) = (&job.site_knn, &job.tet_knn_job());
@@ -340,6 +345,8 @@ impl Backend for VulkanBackend {
             }),
             counters: done.read(counters_back, counter::COUNT),
             refined,
+            unresolved: 0,
+            certified: 0,
             chunks: plan.tet_parts * windows.len() as u64,
             unfinished: left,
             timings,

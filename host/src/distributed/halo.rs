@@ -1,0 +1,421 @@
+//! A part of a job: some of its tets, and the sites of a box of grid cells
+//! around them (the halo), as a job of its own that computes exactly what
+//! the whole job computes for those tets, or says that it cannot.
+//!
+//! The part's sites keep the whole job's order (so ties break alike), its
+//! quantized coordinates are the whole job's shifted by whole cells (so
+//! every distance is the same integer), and its grid is the whole grid's
+//! cells inside the box. Then:
+//! * a site's neighbour list is the whole job's when the ball through its
+//!   k-th neighbour lies inside the box ([`Held::certifies`]); other
+//!   sites get a list marked unknown (`cvd_kernels::lists`), and so does
+//!   every site beyond the listed cells (their lists are not computed);
+//! * a tet's nearest site, likewise, or [`OUT_OF_HALO`];
+//! * a grid walk meets the same sites in the same order as long as it
+//!   stays inside the box, and gives up when it must search a cell outside
+//!   (`RefineParams::held_lo_x`).
+//!
+//! A flood that met an unknown list, an uncertified start or a cell
+//! outside adds nothing and is listed `(tet, OUT_OF_HALO)`: the caller does
+//! that tet again with a wider halo. Every other tet's pieces are clipped
+//! by the same planes in the same order as in the whole job, so its sums
+//! are the same bits.
+
+use crate::diagram::voronoi::ClipJob;
+use crate::error::{Error, Result};
+use crate::knn::KnnJob;
+use cvd_kernels::abi::{ClipParams, GridParams, KnnParams, QuantPoint, RefineParams};
+use cvd_kernels::grid::cell_coords;
+
+/// The grid cells whose sites a part holds: a box of the whole job's grid.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Held {
+    /// The box's first cell, in the whole grid's cell coordinates.
+    pub lo: [u32; 3],
+    /// Cells of the box per axis.
+    pub dim: [u32; 3],
+    /// Cells of the whole grid per axis.
+    pub grid: [u32; 3],
+    /// Side of a cell in quantized units.
+    pub cell_size: u32,
+}
+
+impl Held {
+    /// The cells `lo..=hi` widened by `halo` cells on every side, inside a
+    /// grid of `grid` cells of `cell_size` units.
+    pub fn around(lo: [u32; 3], hi: [u32; 3], halo: u32, grid: [u32; 3], cell_size: u32) -> Self {
+        let first = [0, 1, 2].map(|a| lo[a].saturating_sub(halo));
+        let end = [0, 1, 2].map(|a| hi[a].saturating_add(halo).saturating_add(1).min(grid[a]));
+        Self { lo: first, dim: [0, 1, 2].map(|a| end[a] - first[a]), grid, cell_size }
+    }
+
+    /// Whether the box is the whole grid (every site is held).
+    pub fn is_whole(&self) -> bool {
+        self.lo == [0; 3] && self.dim == self.grid
+    }
+
+    /// What the part subtracts from the whole job's quantized coordinates.
+    pub fn shift(&self) -> [u32; 3] {
+        self.lo.map(|c| c * self.cell_size)
+    }
+
+    /// Whether grid cell `c` (whole grid coordinates) is held.
+    pub fn holds(&self, c: [u32; 3]) -> bool {
+        (0..3).all(|a| c[a] >= self.lo[a] && c[a] - self.lo[a] < self.dim[a])
+    }
+
+    /// Whether every site within `sqrt(d2)` of the point `q` (the part's
+    /// quantized coordinates) is held: the ball lies strictly inside every
+    /// side of the box that has cells beyond it. `d2 = u64::MAX` (fewer
+    /// neighbours than asked for) is certified only by the whole grid.
+    pub fn certifies(&self, q: [u32; 3], d2: u64) -> bool {
+        let cs = self.cell_size as u64;
+        (0..3).all(|a| {
+            let low = self.lo[a] == 0 || {
+                let d = q[a] as u64;
+                d * d > d2
+            };
+            let high = self.lo[a] + self.dim[a] >= self.grid[a] || {
+                let d = (self.dim[a] as u64 * cs).saturating_sub(q[a] as u64);
+                d * d > d2
+            };
+            low && high
+        })
+    }
+
+    /// The part's grid over `n_sites` held sites.
+    fn grid_params(&self, n_sites: usize) -> GridParams {
+        GridParams {
+            dim_x: self.dim[0],
+            dim_y: self.dim[1],
+            dim_z: self.dim[2],
+            cell_size: self.cell_size,
+            n_sites: n_sites as u32,
+            n_cells: self.dim.iter().product(),
+            _pad: [0; 2],
+        }
+    }
+}
+
+/// The whole job's sites by grid cell, to find the sites of a box quickly.
+pub(crate) struct SitesByCell {
+    /// First entry of each cell in `sites`, and the end.
+    start: Vec<u32>,
+    /// Site indices, by cell, each cell's in increasing order.
+    sites: Vec<u32>,
+}
+
+impl SitesByCell {
+    pub(crate) fn new(job: &ClipJob) -> Self {
+        let g = &job.site_knn.params.grid;
+        let quant = &job.site_knn.sites;
+        let cell = |q: &QuantPoint| cvd_kernels::grid::cell_index(g, cell_coords(g, [q[0], q[1], q[2]]));
+        let mut start = vec![0u32; g.n_cells as usize + 1];
+        for q in quant.iter() {
+            start[cell(q) + 1] += 1;
+        }
+        for c in 0..g.n_cells as usize {
+            start[c + 1] += start[c];
+        }
+        let mut next = start.clone();
+        let mut sites = vec![0u32; quant.len()];
+        for (i, q) in quant.iter().enumerate() {
+            let c = cell(q);
+            sites[next[c] as usize] = i as u32;
+            next[c] += 1;
+        }
+        Self { start, sites }
+    }
+
+    /// The sites of the held cells, in increasing order.
+    fn of(&self, job: &ClipJob, held: &Held) -> Vec<u32> {
+        let g = &job.site_knn.params.grid;
+        let mut found = Vec::new();
+        for z in held.lo[2]..held.lo[2] + held.dim[2] {
+            for y in held.lo[1]..held.lo[1] + held.dim[1] {
+                let row = cvd_kernels::grid::cell_index(g, [held.lo[0], y, z]);
+                let (a, b) = (self.start[row] as usize, self.start[row + held.dim[0] as usize] as usize);
+                found.extend_from_slice(&self.sites[a..b]);
+            }
+        }
+        found.sort_unstable();
+        found
+    }
+}
+
+/// The grid cells `lo..=hi` that the vertices of `tets` (the whole job's)
+/// fall in.
+pub(crate) fn cells_of(job: &ClipJob, tets: &[u32]) -> ([u32; 3], [u32; 3]) {
+    let g = &job.site_knn.params.grid;
+    let q = &job.site_knn.quantizer;
+    let (mut lo, mut hi) = ([u32::MAX; 3], [0u32; 3]);
+    for &t in tets {
+        for v in job.tets[t as usize] {
+            let x = q.quantize(job.verts[v as usize].to_f64(), 0);
+            let c = cell_coords(g, [x[0], x[1], x[2]]);
+            for a in 0..3 {
+                lo[a] = lo[a].min(c[a]);
+                hi[a] = hi[a].max(c[a]);
+            }
+        }
+    }
+    (lo, hi)
+}
+
+/// A part of `job`: its tets `tets` (in the job's order), and the sites
+/// of the cells `held`, with neighbour lists for those in `listed` (the
+/// rest marked unknown). Returns the part's job and each of its sites'
+/// index in `job`.
+pub(crate) fn part_job(
+    job: &ClipJob,
+    by_cell: &SitesByCell,
+    tets: &[u32],
+    held: Held,
+    listed: Held,
+) -> Result<(ClipJob, Vec<u32>)> {
+    if job.params.faces_base != 0 {
+        return Err(Error::InvalidInput("a job in parts does not sum faces (yet): ask for cells only".into()));
+    }
+    let sites = by_cell.of(job, &held);
+    let shift = held.shift();
+    let global = &job.site_knn.params.grid;
+    let quant: Vec<QuantPoint> = sites
+        .iter()
+        .enumerate()
+        .map(|(l, &s)| {
+            let q = job.site_knn.sites[s as usize];
+            [q[0] - shift[0], q[1] - shift[1], q[2] - shift[2], l as u32]
+        })
+        .collect();
+    let queries: Vec<QuantPoint> = sites
+        .iter()
+        .zip(&quant)
+        .filter(|(&s, _)| {
+            let q = job.site_knn.sites[s as usize];
+            listed.holds(cell_coords(global, [q[0], q[1], q[2]]))
+        })
+        .map(|(_, &q)| q)
+        .collect();
+    let grid = held.grid_params(sites.len());
+    let quant: crate::knn::Points = quant.into();
+    let site_knn = KnnJob {
+        sites: quant.clone(),
+        params: KnnParams {
+            grid,
+            n_queries: queries.len() as u32,
+            // The whole job's k, whatever this part holds.
+            k: job.site_knn.params.k,
+            exclude_self: 1,
+            query_base: 0,
+            in_order: 1,
+            local_lists: 0,
+            _pad: [0; 2],
+        },
+        queries: queries.into(),
+        method: job.site_knn.method,
+        quantizer: job.site_knn.quantizer,
+    };
+    let tet_knn = KnnJob {
+        sites: quant,
+        queries: Vec::new().into(),
+        params: KnnParams { grid, n_queries: 0, ..job.tet_knn.params },
+        method: job.tet_knn.method,
+        quantizer: job.tet_knn.quantizer,
+    };
+    // The part's vertices, in the whole job's order.
+    let mut verts: Vec<u32> = tets.iter().flat_map(|&t| job.tets[t as usize]).collect();
+    verts.sort_unstable();
+    verts.dedup();
+    let local = |v: u32| verts.binary_search(&v).map_or(0, |i| i as u32);
+    let part_tets: Vec<[u32; 4]> = tets.iter().map(|&t| job.tets[t as usize].map(local)).collect();
+    let n = sites.len();
+    let mut split: Vec<_> = sites.iter().map(|&s| job.sites[s as usize]).collect();
+    if job.sites.len() > job.params.n_sites as usize {
+        // Each site's local weight bound, after the sites.
+        let base = job.params.n_sites as usize;
+        split.extend(sites.iter().map(|&s| job.sites[base + s as usize]));
+    }
+    let params = ClipParams {
+        n_sites: n as u32,
+        n_tets: tets.len() as u32,
+        tet_base: 0,
+        nbr_base: 0,
+        nbr_end: n as u32,
+        own_lo: 0,
+        own_hi: n as u32,
+        capacity: 0,
+        list_bits: 32,
+        ..job.params
+    };
+    let refine = RefineParams {
+        clip: params,
+        held_lo_x: held.lo[0],
+        held_lo_y: held.lo[1],
+        held_lo_z: held.lo[2],
+        held_dim_x: held.dim[0],
+        held_dim_y: held.dim[1],
+        held_dim_z: held.dim[2],
+        ..job.refine
+    };
+    let part = ClipJob {
+        site_knn,
+        tet_knn,
+        sites: split,
+        verts: verts.iter().map(|&v| job.verts[v as usize]).collect(),
+        tets: part_tets,
+        tet_order: tets.iter().map(|&t| job.tet_order[t as usize]).collect(),
+        params,
+        refine,
+        strategy: job.strategy,
+        pairing: job.pairing,
+        tet_faces: vec![0],
+        held: Some(held),
+    };
+    Ok((part, sites))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_ball_is_certified_inside_the_open_sides_only() {
+        // Cells 2..6 of 10 along x, 0..4 of 4 along y and z: only x has
+        // cells beyond, on both sides.
+        let h = Held { lo: [2, 0, 0], dim: [4, 4, 4], grid: [10, 4, 4], cell_size: 10 };
+        assert!(!h.is_whole());
+        assert_eq!(h.shift(), [20, 0, 0]);
+        // x = 5 of 0..40: 5 from the low side, 35 from the high one.
+        assert!(h.certifies([5, 0, 0], 24));
+        assert!(!h.certifies([5, 0, 0], 25), "a site at the side's distance may be outside");
+        assert!(h.certifies([35, 0, 0], 24));
+        assert!(!h.certifies([35, 0, 0], 25));
+        // y and z have nothing beyond: any ball there.
+        assert!(h.certifies([20, 0, 39], 399));
+        assert!(!h.certifies([20, 0, 0], u64::MAX));
+        let whole = Held { lo: [0; 3], dim: [10, 4, 4], grid: [10, 4, 4], cell_size: 10 };
+        assert!(whole.is_whole() && whole.certifies([0, 0, 0], u64::MAX));
+    }
+
+    #[test]
+    fn a_box_around_cells_stays_in_the_grid() {
+        let h = Held::around([1, 5, 0], [3, 9, 0], 2, [10, 10, 1], 7);
+        assert_eq!((h.lo, h.dim), ([0, 3, 0], [6, 7, 1]));
+        assert!(h.holds([5, 9, 0]) && !h.holds([6, 9, 0]) && !h.holds([0, 2, 0]));
+    }
+}
+
+#[cfg(test)]
+mod lists_tests {
+    use super::*;
+    use crate::cpu::{build_grid, CpuBackend};
+    use crate::{points, ClippedVoronoi, TetMesh};
+
+    /// A part's certified lists are the whole job's; the others are marked
+    /// unknown, and so are its tets' uncertified nearest sites.
+    #[test]
+    fn certified_lists_are_the_whole_jobs() {
+        let mesh = TetMesh::cube(12);
+        let mut sites = points::in_mesh(&mesh, 9000, 5);
+        // Sparse corner: long lists there.
+        sites.retain(|p| p[0] > 0.3 || p[1] > 0.3 || p[0] + p[1] > 0.5 || ((p[2] * 1e4) as u64).is_multiple_of(5));
+        let (job, _, _) = ClippedVoronoi::new(&mesh, &sites).job().unwrap();
+        let cpu = CpuBackend::new(Some(2)).unwrap();
+        let whole = cpu.lists(&job.site_knn).unwrap();
+        let by_cell = SitesByCell::new(&job);
+        let g = &job.site_knn.params.grid;
+        let grid = [g.dim_x, g.dim_y, g.dim_z];
+        let (mut certified, mut unknown) = (0, 0);
+        for part in 0..4 {
+            let tets: Vec<u32> = crate::distributed::part_range(job.tets.len(), part, 4).map(|t| t as u32).collect();
+            let (lo, hi) = cells_of(&job, &tets);
+            let held = Held::around(lo, hi, 2, grid, g.cell_size);
+            assert!(!held.is_whole());
+            let (p, held_sites) = part_job(&job, &by_cell, &tets, held, held).unwrap();
+            let k = p.site_knn.params.k as usize;
+            let built = build_grid(&p.site_knn);
+            let (lists, n) = cpu.held_lists(&p.site_knn, held_sites.len(), 32, &built, &held);
+            let view = lists.view(0);
+            let mut marked = 0;
+            for (l, &s) in held_sites.iter().enumerate() {
+                if view.unknown(l, l as u32) {
+                    marked += 1;
+                    continue;
+                }
+                let mine: Vec<u32> = (0..k).map(|e| held_sites[view.get(l, e) as usize]).collect();
+                assert_eq!(mine, whole.of(s as usize), "part {part}: site {s}'s certified list");
+            }
+            assert_eq!(n as usize + marked, held_sites.len());
+            certified += n;
+            unknown += marked;
+            // The tets' nearest sites, where certified.
+            let (starts, _) = cpu.held_lists(&p.tet_knn_job(), tets.len(), 32, &built, &held);
+            let all = cpu.lists(&job.tet_knn_job()).unwrap();
+            for (l, &t) in tets.iter().enumerate() {
+                let s = starts.words[l];
+                if s != cvd_kernels::abi::OUT_OF_HALO {
+                    assert_eq!(held_sites[s as usize], all.of(t as usize)[0], "part {part}: tet {t}'s nearest site");
+                }
+            }
+        }
+        assert!(certified > 0 && unknown > 0, "{certified} certified, {unknown} unknown");
+    }
+}
+
+#[cfg(test)]
+mod walk_tests {
+    use super::*;
+    use crate::cpu::build_grid;
+    use crate::{points, ClippedVoronoi, TetMesh};
+    use cvd_kernels::walk::{walk_end, walk_rings, GridWalk, RingVisitor};
+
+    /// Every site met within a fixed reach.
+    struct Meet {
+        reach2: f32,
+        met: Vec<u32>,
+    }
+
+    impl RingVisitor<()> for Meet {
+        fn reach2(&self) -> f32 {
+            self.reach2
+        }
+        fn visit(&mut self, _: &mut (), s: u32) -> bool {
+            self.met.push(s);
+            false
+        }
+    }
+
+    /// A part's walk meets the whole job's sites in the whole job's order,
+    /// or gives up when its reach leaves the held cells.
+    #[test]
+    fn a_part_walks_as_the_whole_job_or_gives_up() {
+        let mesh = TetMesh::cube(10);
+        let sites = points::in_mesh(&mesh, 8000, 3);
+        let (job, _, _) = ClippedVoronoi::new(&mesh, &sites).job().unwrap();
+        let g = &job.site_knn.params.grid;
+        let grid = [g.dim_x, g.dim_y, g.dim_z];
+        let held = Held::around([3; 3], [6, 7, 5], 1, grid, g.cell_size);
+        assert!(!held.is_whole());
+        let (part, held_sites) = part_job(&job, &SitesByCell::new(&job), &[], held, held).unwrap();
+        let (all, mine) = (build_grid(&job.site_knn), build_grid(&part.site_knn));
+        let whole = GridWalk::new(&job.refine, &[], &all.cell_start, &all.cell_count, &all.sorted);
+        let walk = GridWalk::new(&part.refine, &[], &mine.cell_start, &mine.cell_count, &mine.sorted);
+        let (mut same, mut gave_up) = (0, 0);
+        for (l, &s) in held_sites.iter().enumerate().step_by(7) {
+            let x = cvd_kernels::polyhedron::point(part.sites[l].hi);
+            for reach in [0.02f32, 0.05, 0.1] {
+                let mut a = Meet { reach2: reach * reach, met: Vec::new() };
+                let mut b = Meet { reach2: reach * reach, met: Vec::new() };
+                assert_eq!(walk_rings(&whole, x, &mut a, &mut ()), walk_end::DONE);
+                if walk_rings(&walk, x, &mut b, &mut ()) == walk_end::OUT_OF_HALO {
+                    gave_up += 1;
+                } else {
+                    let met: Vec<u32> = b.met.iter().map(|&m| held_sites[m as usize]).collect();
+                    assert_eq!(met, a.met, "site {s}, reach {reach}");
+                    same += 1;
+                }
+            }
+        }
+        assert!(same > 100 && gave_up > 100, "{same} walks as the whole job's, {gave_up} gave up");
+    }
+}

@@ -1,0 +1,487 @@
+//! A clipping job in parts by space, on one machine or over MPI, with the
+//! same results to the bit as the whole job in one process.
+//!
+//! The job's tets are in Morton order; part `p` of `P` is a run of them
+//! (balanced by count), so each part is a compact piece of the domain.
+//! A part computes with the sites of a box of grid cells around its tets
+//! ([`halo`]), whose neighbour lists, flood starts and walks are
+//! certified, not guessed: a tet whose flood needed a site outside the box
+//! adds nothing and is done again in the next round, grouped with its
+//! nearby tets, with a halo twice as wide, until none is left (at worst the
+//! box is the whole grid). Every tet's pieces are clipped as in one process,
+//! and the sums are fixed point: adding the parts' sums, in any order, gives
+//! the same bits.
+//!
+//! [`Distributed`] is a [`Backend`]: it computes the parts of its rank on
+//! the CPU and adds the sums of all ranks through a [`Reduce`] — an MPI
+//! all-reduce (`cvd::distributed::mpi`, the `mpi` feature), or nothing in
+//! one process ([`Alone`]), where one rank may compute several parts one
+//! after another (what P ranks compute, in one process, and in a
+//! P-th of the memory for the lists and grids). So the diagram, Lloyd's
+//! iterations and everything built on [`Backend::clip`] run distributed.
+
+pub mod halo;
+#[cfg(feature = "mpi")]
+pub mod mpi;
+
+use crate::backend::Backend;
+use crate::cpu::CpuBackend;
+use crate::cvt::LloydOutput;
+use crate::diagram::voronoi::{ClipJob, ClipOutput, Pairing, Strategy};
+use crate::error::{Error, Result};
+use crate::knn::{KnnJob, Neighbors};
+use crate::timing::{timed, Timings};
+use cvd_kernels::abi::{counter, ACCUM_PER_SITE, OUT_OF_HALO};
+use cvd_kernels::clip::NoPieces;
+use halo::{cells_of, part_job, Held, SitesByCell};
+use std::ops::Range;
+use std::sync::Mutex;
+
+/// Adds numbers across the ranks of a distributed run.
+pub trait Reduce: Send + Sync {
+    /// This rank, `0..size`.
+    fn rank(&self) -> usize;
+    /// Ranks in all.
+    fn size(&self) -> usize;
+    /// Replaces `values` on every rank by their sums over all ranks (the
+    /// same on every rank).
+    fn sum(&self, values: &mut [i64]) -> Result<()>;
+    /// What the ranks are, for reports (e.g. `MPI, 4 ranks`).
+    fn describe(&self) -> String;
+}
+
+/// One process: nothing to add.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Alone;
+
+impl Reduce for Alone {
+    fn rank(&self) -> usize {
+        0
+    }
+    fn size(&self) -> usize {
+        1
+    }
+    fn sum(&self, _values: &mut [i64]) -> Result<()> {
+        Ok(())
+    }
+    fn describe(&self) -> String {
+        "one process".into()
+    }
+}
+
+/// Grid cells around a part's tets whose sites' neighbour lists it
+/// computes (the sites whose cells can meet its tets lie within about one
+/// cell of them).
+const LIST_HALO: u32 = 2;
+
+/// Further cells held beyond the listed ones: the reach of the listed
+/// sites' k-th neighbours and walks (a cell holds about five sites).
+const WALK_HALO: u32 = 3;
+
+/// Most cells along an axis of a group of tets done again together.
+const GROUP_CELLS: u32 = 8;
+
+/// Tets `part` of `parts` gets from `n_tets` (in the job's Morton order).
+pub fn part_range(n_tets: usize, part: usize, parts: usize) -> Range<usize> {
+    let at = |p: usize| (n_tets as u128 * p as u128 / parts.max(1) as u128) as usize;
+    at(part)..at(part + 1)
+}
+
+/// What one round of a part did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct Round {
+    /// Tets computed in the round.
+    pub tets: u64,
+    /// Boxes of cells (one in the first round; groups of nearby tets
+    /// after).
+    pub groups: u64,
+    /// Sites held, summed over the groups.
+    pub held_sites: u64,
+    /// Sites with a neighbour list computed, summed over the groups.
+    pub listed_sites: u64,
+    /// Of those, lists certified.
+    pub certified_lists: u64,
+    /// Tets left for the next round (their flood needed a site outside).
+    pub out_of_halo: u64,
+    /// The halo in cells beyond the tets' cells.
+    pub halo_cells: u32,
+    /// Seconds.
+    pub seconds: f64,
+}
+
+/// What this rank's parts did, round by round.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct PartReport {
+    /// This rank.
+    pub rank: usize,
+    /// Ranks.
+    pub ranks: usize,
+    /// The parts this rank computed.
+    pub parts: Vec<usize>,
+    /// Parts in all.
+    pub of: usize,
+    /// Tets of this rank's parts.
+    pub tets: u64,
+    /// Each round, summed over this rank's parts.
+    pub rounds: Vec<Round>,
+    /// Seconds in the all-reduce.
+    pub reduce_seconds: f64,
+}
+
+/// A backend that computes the parts of its rank of a job on the CPU and
+/// adds the sums of every rank (see the module's documentation). Flood
+/// pairing (tet-cell) only, without face sums.
+pub struct Distributed {
+    cpu: CpuBackend,
+    comm: Box<dyn Reduce>,
+    /// Parts per rank.
+    per_rank: usize,
+    /// Cells around a part's tets with lists, and held beyond them, in the
+    /// first round.
+    halo: [u32; 2],
+    report: Mutex<PartReport>,
+}
+
+impl Distributed {
+    /// The parts `rank * per_rank..(rank + 1) * per_rank` of `size *
+    /// per_rank` for `comm`'s rank, on `cpu`.
+    pub fn new(cpu: CpuBackend, comm: Box<dyn Reduce>, per_rank: usize) -> Result<Self> {
+        if per_rank == 0 {
+            return Err(Error::InvalidInput("parts per rank must be at least 1".into()));
+        }
+        Ok(Self { cpu, comm, per_rank, halo: [LIST_HALO, WALK_HALO], report: Mutex::new(PartReport::default()) })
+    }
+
+    /// The first round's halo: `listed` cells around a part's tets whose
+    /// sites get neighbour lists, and `beyond` more cells whose sites are
+    /// held (default 2 and 3). Narrower halos hold fewer sites and leave
+    /// more tets for the next rounds; the results are the same.
+    pub fn with_halo(mut self, listed: u32, beyond: u32) -> Self {
+        self.halo = [listed.max(1), beyond];
+        self
+    }
+
+    /// What the last job's parts did on this rank.
+    pub fn report(&self) -> PartReport {
+        self.report.lock().unwrap_or_else(|e| e.into_inner()).clone()
+    }
+
+    /// This rank.
+    pub fn rank(&self) -> usize {
+        self.comm.rank()
+    }
+
+    /// The ranks' reducer.
+    pub fn comm(&self) -> &dyn Reduce {
+        self.comm.as_ref()
+    }
+
+    /// This rank's parts of `job`, their sums added into `sums` (the whole
+    /// job's layout), counters into `counters`; returns the second pass's
+    /// finished and unresolved entries.
+    fn clip_parts(
+        &self,
+        job: &ClipJob,
+        sums: &mut [i64],
+        counters: &mut [i64],
+        timings: &mut Timings,
+    ) -> Result<[u64; 2]> {
+        let of = self.comm.size() * self.per_rank;
+        let parts: Vec<usize> = (self.comm.rank() * self.per_rank..(self.comm.rank() + 1) * self.per_rank).collect();
+        let (by_cell, t) = timed(|| SitesByCell::new(job));
+        timings.add("halo", t);
+        let mut report = PartReport {
+            rank: self.comm.rank(),
+            ranks: self.comm.size(),
+            parts: parts.clone(),
+            of,
+            ..Default::default()
+        };
+        let mut redone = [0u64; 2];
+        for &p in &parts {
+            let range = part_range(job.tets.len(), p, of);
+            report.tets += range.len() as u64;
+            let tets: Vec<u32> = range.map(|t| t as u32).collect();
+            let r = self.clip_part(job, &by_cell, tets, sums, counters, timings)?;
+            for (i, round) in r.rounds.iter().enumerate() {
+                if report.rounds.len() <= i {
+                    report.rounds.push(Round { halo_cells: round.halo_cells, ..Round::default() });
+                }
+                let to = &mut report.rounds[i];
+                to.tets += round.tets;
+                to.groups += round.groups;
+                to.held_sites += round.held_sites;
+                to.listed_sites += round.listed_sites;
+                to.certified_lists += round.certified_lists;
+                to.out_of_halo += round.out_of_halo;
+                to.seconds += round.seconds;
+            }
+            redone[0] += r.redone[0];
+            redone[1] += r.redone[1];
+        }
+        *self.report.lock().unwrap_or_else(|e| e.into_inner()) = report;
+        Ok(redone)
+    }
+
+    /// The tets `tets` of `job`, round after round (see the module's
+    /// documentation); then, holding every site, the tets the kernels
+    /// could not finish for want of room (the host pass's).
+    fn clip_part(
+        &self,
+        job: &ClipJob,
+        by_cell: &SitesByCell,
+        mut todo: Vec<u32>,
+        sums: &mut [i64],
+        counters: &mut [i64],
+        timings: &mut Timings,
+    ) -> Result<PartOutcome> {
+        let g = &job.site_knn.params.grid;
+        let grid = [g.dim_x, g.dim_y, g.dim_z];
+        let mut outcome = PartOutcome::default();
+        let mut host = Vec::new();
+        let mut scale = 1;
+        while !todo.is_empty() || !host.is_empty() {
+            let start = std::time::Instant::now();
+            let (list_halo, mut halo) = (self.halo[0] * scale, (self.halo[0] + self.halo[1]) * scale);
+            let groups = if todo.is_empty() {
+                // Every site held, the tets for the host pass together.
+                halo = grid.into_iter().max().unwrap_or(0);
+                vec![std::mem::take(&mut host)]
+            } else if outcome.rounds.is_empty() {
+                // The first round in one box; then nearby tets together.
+                vec![std::mem::take(&mut todo)]
+            } else {
+                groups(job, &std::mem::take(&mut todo))
+            };
+            let mut round = Round { groups: groups.len() as u64, halo_cells: halo, ..Round::default() };
+            for group in groups {
+                round.tets += group.len() as u64;
+                let (lo, hi) = cells_of(job, &group);
+                let held = Held::around(lo, hi, halo, grid, g.cell_size);
+                let listed = Held::around(lo, hi, list_halo, grid, g.cell_size);
+                let (part, t) = timed(|| part_job(job, by_cell, &group, held, listed));
+                let (part, sites) = part?;
+                timings.add("halo", t);
+                round.held_sites += sites.len() as u64;
+                round.listed_sites += part.site_knn.queries.len() as u64;
+                let mut out = self.cpu.clip(&part)?;
+                round.certified_lists += out.certified;
+                if held.is_whole() {
+                    // Every site is held: the host pass finishes the rest,
+                    // as in one process.
+                    let none = Mutex::new(Vec::<NoPieces>::new());
+                    let (r, t) = timed(|| crate::diagram::second_pass::run(&part, &mut out, &none));
+                    let r = r?;
+                    timings.add("host pass", t);
+                    outcome.redone[0] += r.finished;
+                    outcome.redone[1] += r.unresolved;
+                } else {
+                    // A tet left unfinished added nothing: all of it again,
+                    // with a wider halo, or with every site for the host
+                    // pass.
+                    for &[t, why] in &out.unfinished {
+                        if why == OUT_OF_HALO {
+                            round.out_of_halo += 1;
+                            todo.push(group[t as usize]);
+                        } else {
+                            host.push(group[t as usize]);
+                        }
+                    }
+                }
+                outcome.redone[0] += out.refined;
+                for (l, &s) in sites.iter().enumerate() {
+                    let (from, to) = (l * ACCUM_PER_SITE, s as usize * ACCUM_PER_SITE);
+                    for a in 0..ACCUM_PER_SITE {
+                        sums[to + a] += out.sums[from + a];
+                    }
+                }
+                for (c, v) in counters.iter_mut().zip(&out.counters) {
+                    *c += v;
+                }
+                for (phase, s) in &out.timings.phases {
+                    timings.add(phase, *s);
+                }
+            }
+            todo.sort_unstable();
+            todo.dedup();
+            host.sort_unstable();
+            host.dedup();
+            round.seconds = start.elapsed().as_secs_f64();
+            outcome.rounds.push(round);
+            scale *= 2;
+        }
+        Ok(outcome)
+    }
+}
+
+/// What a part's rounds did.
+#[derive(Default)]
+struct PartOutcome {
+    rounds: Vec<Round>,
+    /// Entries finished by the second passes, and left unresolved.
+    redone: [u64; 2],
+}
+
+/// `tets` (in the job's order) in runs whose cells span at most
+/// [`GROUP_CELLS`] along each axis.
+fn groups(job: &ClipJob, tets: &[u32]) -> Vec<Vec<u32>> {
+    let mut out: Vec<Vec<u32>> = Vec::new();
+    let (mut lo, mut hi) = ([0u32; 3], [0u32; 3]);
+    for &t in tets {
+        let (a, b) = cells_of(job, &[t]);
+        let (l, h) = ([0, 1, 2].map(|i| a[i].min(lo[i])), [0, 1, 2].map(|i| b[i].max(hi[i])));
+        match out.last_mut() {
+            Some(group) if (0..3).all(|i| h[i] - l[i] < GROUP_CELLS) => {
+                group.push(t);
+                (lo, hi) = (l, h);
+            }
+            _ => {
+                out.push(vec![t]);
+                (lo, hi) = (a, b);
+            }
+        }
+    }
+    out
+}
+
+impl Backend for Distributed {
+    fn kind(&self) -> &'static str {
+        "cpu"
+    }
+
+    fn device(&self) -> String {
+        format!(
+            "{} threads, rank {} of {} ({})",
+            self.cpu.threads(),
+            self.comm.rank(),
+            self.comm.size(),
+            self.comm.describe()
+        )
+    }
+
+    fn name(&self) -> String {
+        format!("distributed {} parts ({})", self.comm.size() * self.per_rank, self.device())
+    }
+
+    fn knn(&self, job: &KnnJob) -> Result<Neighbors> {
+        self.cpu.knn(job)
+    }
+
+    /// The whole job's sums and counters, the same on every rank; nothing
+    /// is left unfinished (the parts' host passes ran).
+    fn clip(&self, job: &ClipJob) -> Result<ClipOutput> {
+        if job.strategy != Strategy::TetCell || job.pairing != Pairing::Flood {
+            return Err(Error::InvalidInput("a distributed run uses flood pairing (tet-cell)".into()));
+        }
+        let n = job.params.n_sites as usize * ACCUM_PER_SITE;
+        let mut all = vec![0i64; n + counter::COUNT + 2];
+        let mut timings = Timings::default();
+        let (sums, rest) = all.split_at_mut(n);
+        let (counters, redone) = rest.split_at_mut(counter::COUNT);
+        let r = self.clip_parts(job, sums, counters, &mut timings)?;
+        redone[0] = r[0] as i64;
+        redone[1] = r[1] as i64;
+        let (reduced, t) = timed(|| self.comm.sum(&mut all));
+        reduced?;
+        timings.push("reduce", t);
+        self.report.lock().unwrap_or_else(|e| e.into_inner()).reduce_seconds = t;
+        let redone = all.split_off(n + counter::COUNT);
+        let counters = all.split_off(n);
+        Ok(ClipOutput {
+            sums: all,
+            tet_volumes: vec![0; job.tets.len()],
+            counters,
+            refined: redone[0] as u64,
+            unresolved: redone[1] as u64,
+            chunks: (self.comm.size() * self.per_rank) as u64,
+            timings,
+            ..Default::default()
+        })
+    }
+
+    fn lloyd(&self, job: &ClipJob, iterations: usize, progress: &mut dyn FnMut(usize, i64)) -> Result<LloydOutput> {
+        crate::cvt::lloyd_by_diagrams(self, job, iterations, progress)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{points, ClippedVoronoi, TetMesh};
+
+    fn in_parts(parts: usize) -> Distributed {
+        Distributed::new(CpuBackend::new(Some(2)).unwrap(), Box::new(Alone), parts).unwrap()
+    }
+
+    fn same_bits(a: &crate::Cells, b: &crate::Cells, what: &str) {
+        assert_eq!(a.volume.len(), b.volume.len());
+        for i in 0..a.volume.len() {
+            assert_eq!(a.volume[i].to_bits(), b.volume[i].to_bits(), "{what}: volume of site {i}");
+            assert_eq!(a.energy[i].to_bits(), b.energy[i].to_bits(), "{what}: energy of site {i}");
+            for c in 0..3 {
+                assert_eq!(a.centroid[i][c].to_bits(), b.centroid[i][c].to_bits(), "{what}: centroid of site {i}");
+            }
+        }
+    }
+
+    #[test]
+    fn parts_give_the_bits_of_one_job() {
+        // Uniform sites, and clustered ones (big cells beside small ones:
+        // long walks, lists not certified), in an L-shaped domain; the
+        // default halo, and one so narrow that many tets need a second or
+        // third round.
+        let mesh = TetMesh::voxels(16, |i, j, _| i < 8 || j < 8);
+        let uniform = points::in_mesh(&mesh, 20_000, 7);
+        let mut clustered = points::in_mesh(&mesh, 2000, 8);
+        clustered.extend(points::clustered(8000, 4, 0.04, 9).into_iter().map(|p| p.map(|x| 0.1 + 0.4 * x)));
+        let cpu = CpuBackend::new(Some(2)).unwrap();
+        // Short lists: most pieces walk the grid, and walks reach past
+        // narrow halos.
+        for (name, sites, k_site) in
+            [("uniform", &uniform, None), ("clustered", &clustered, None), ("walks", &uniform, Some(3))]
+        {
+            let whole = ClippedVoronoi::new(&mesh, sites).k_site(k_site).backend(&cpu).compute().unwrap();
+            let mut retried = 0;
+            for parts in 1..=4 {
+                for halo in [[LIST_HALO, WALK_HALO], [1, 0]] {
+                    let d = in_parts(parts).with_halo(halo[0], halo[1]);
+                    let cells = ClippedVoronoi::new(&mesh, sites).k_site(k_site).backend(&d).compute().unwrap();
+                    same_bits(&whole, &cells, &format!("{name}, {parts} parts, halo {halo:?}"));
+                    let r = d.report();
+                    assert_eq!((r.of, r.parts.len()), (parts, parts));
+                    assert_eq!(r.rounds[0].tets, mesh.tets.len() as u64);
+                    assert_eq!(r.rounds.last().unwrap().out_of_halo, 0);
+                    retried += r.rounds.iter().skip(1).map(|r| r.tets).sum::<u64>();
+                    if parts > 1 {
+                        assert!(r.rounds[0].held_sites > sites.len() as u64, "{name}: parts overlap by their halos");
+                        assert!(
+                            r.rounds[0].held_sites < parts as u64 * sites.len() as u64,
+                            "{name}: halos are partial"
+                        );
+                    }
+                }
+            }
+            assert!(retried > 0, "{name}: the narrow halo sends tets to later rounds");
+        }
+    }
+
+    #[test]
+    fn power_cells_and_lloyd_in_parts_give_the_bits_of_one_job() {
+        let mesh = TetMesh::cube(10);
+        let sites = points::in_mesh(&mesh, 6000, 11);
+        let weights: Vec<f64> = (0..sites.len()).map(|i| 1e-4 * ((i * 7919) % 13) as f64).collect();
+        let cpu = CpuBackend::new(Some(2)).unwrap();
+        let whole = ClippedVoronoi::new(&mesh, &sites).weights(&weights).backend(&cpu).compute().unwrap();
+        let d = in_parts(3).with_halo(1, 1);
+        let cells = ClippedVoronoi::new(&mesh, &sites).weights(&weights).backend(&d).compute().unwrap();
+        same_bits(&whole, &cells, "power cells in 3 parts");
+        let one = ClippedVoronoi::new(&mesh, &sites).backend(&cpu).lloyd(5, &mut |_, _| {}).unwrap();
+        let parts = ClippedVoronoi::new(&mesh, &sites).backend(&d).lloyd(5, &mut |_, _| {}).unwrap();
+        for (a, b) in one.sites.iter().zip(&parts.sites) {
+            assert_eq!(a.map(f64::to_bits), b.map(f64::to_bits), "Lloyd in 3 parts moves the sites alike");
+        }
+        for (a, b) in one.iterations.iter().zip(&parts.iterations) {
+            assert_eq!(a.energy.to_bits(), b.energy.to_bits());
+        }
+    }
+}
