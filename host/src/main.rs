@@ -4,6 +4,7 @@ use clap::{Args, Parser, Subcommand};
 use cvd::backend::{self, BackendKind, BackendOptions};
 use cvd::cpu::CpuBackend;
 use cvd::cvt::transport::Transport;
+use cvd::distributed::Distributed;
 use cvd::mesher::models;
 use cvd::output::{self, CvtRecord, PeriodicRecord, Section, Summary, TransportRecord};
 use cvd::vulkan::{self, VulkanOptions};
@@ -174,8 +175,75 @@ struct RunArgs {
     /// the driver's kernel compilation), as benchmarks do.
     #[arg(long)]
     warm_up: bool,
+    /// Compute in N parts by space, one after another, each with the sites
+    /// of a halo around its tets: the same results to the bit, the lists and
+    /// grids of one part in memory at a time. Started by `mpirun -np P`
+    /// (a build with the `mpi` feature): N parts per rank, P x N in all.
+    /// Cells only (cells.csv, sites.xyz, summary.json): no neighbours,
+    /// polyhedra or transport yet. CPU backend.
+    #[arg(long, value_name = "N")]
+    parts: Option<usize>,
     #[command(flatten)]
     backend: BackendArgs,
+}
+
+/// The backend of a run: one process's, or this rank's of a distributed run.
+enum RunBackend {
+    One(Box<dyn cvd::Backend>),
+    Parts(Box<Distributed>),
+}
+
+impl RunBackend {
+    fn get(&self) -> &dyn cvd::Backend {
+        match self {
+            RunBackend::One(b) => b.as_ref(),
+            RunBackend::Parts(d) => d.as_ref(),
+        }
+    }
+
+    /// This process's rank (0 without MPI).
+    fn rank(&self) -> usize {
+        match self {
+            RunBackend::One(_) => 0,
+            RunBackend::Parts(d) => d.rank(),
+        }
+    }
+}
+
+/// The backend `--backend` and `--parts` ask for (and MPI, when this
+/// process was started by an MPI launcher), and why.
+fn open_backend(args: &RunArgs) -> cvd::Result<(RunBackend, String)> {
+    let launcher = cvd::distributed::mpi_launcher();
+    #[cfg(feature = "mpi")]
+    let comm: Option<Box<dyn cvd::distributed::Reduce>> = match launcher {
+        Some(_) => cvd::distributed::mpi::Mpi::init()?.map(|m| Box::new(m) as Box<dyn cvd::distributed::Reduce>),
+        None => None,
+    };
+    #[cfg(not(feature = "mpi"))]
+    let comm: Option<Box<dyn cvd::distributed::Reduce>> = {
+        if let Some(var) = launcher {
+            eprintln!(
+                "cvd: started by an MPI launcher ({var}), but this cvd was built without the `mpi` feature: \
+                 every rank computes the whole job (build with --features mpi)"
+            );
+        }
+        None
+    };
+    if comm.is_none() && args.parts.is_none() {
+        let backend::Chosen { backend, why } = backend::choose(&args.backend.options())?;
+        return Ok((RunBackend::One(backend), why));
+    }
+    if args.backend.backend == BackendKind::Vulkan {
+        return Err(cvd::Error::InvalidInput("a run in parts uses the CPU backend: drop --backend vulkan".into()));
+    }
+    if transports(args) {
+        return Err(cvd::Error::InvalidInput("optimal transport does not run in parts yet".into()));
+    }
+    let comm = comm.unwrap_or_else(|| Box::new(cvd::distributed::Alone));
+    let why = format!("{} part(s) per rank, {}", args.parts.unwrap_or(1), comm.describe());
+    let cpu = CpuBackend::new(args.backend.threads)?;
+    let d = Distributed::new(cpu, comm, args.parts.unwrap_or(1))?;
+    Ok((RunBackend::Parts(Box::new(d)), why))
 }
 
 /// The model's mesh: an explicit file, a file of that name in the models
@@ -540,9 +608,23 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
     };
     let weights = weights(args, sites.len())?;
     let dir = args.out.clone().unwrap_or_else(|| default_out_dir(&model));
+    let (run_backend, why) = open_backend(args)?;
+    let backend = run_backend.get();
+    // Every rank computes; rank 0 writes and speaks.
+    let writes = run_backend.rank() == 0;
+    if !writes {
+        quiet_stdout();
+    }
     // Before the long part: a folder that cannot be made fails now.
-    create_dir(&dir)?;
-    let backend::Chosen { backend, why } = backend::choose(&args.backend.options())?;
+    if writes {
+        create_dir(&dir)?;
+    }
+    // Cells only in parts (said, not dropped silently).
+    let parts = matches!(run_backend, RunBackend::Parts(_));
+    let (no_neighbors, no_geometry) = (args.no_neighbors || parts, args.no_geometry || parts);
+    if parts && !(args.no_neighbors && args.no_geometry) {
+        println!("in parts: cells only (no neighbors.csv, cells.vtu, walls.ply or pictures yet)");
+    }
     println!(
         "{model}: {} tets, {} sites, {} on {} — {why}",
         mesh.tets.len(),
@@ -551,16 +633,16 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
         backend.name()
     );
     let (sites, record, weights, transported) = if transports(args) {
-        let t = transport(args, &mesh, &sites, weights.as_deref(), backend.as_ref(), None)?;
+        let t = transport(args, &mesh, &sites, weights.as_deref(), backend, None)?;
         (t.sites, t.cvt, Some(t.weights), Some(t.record))
     } else if args.iterations > 0 {
-        let (sites, record) = lloyd(args, &mesh, &sites, backend.as_ref())?;
+        let (sites, record) = lloyd(args, &mesh, &sites, backend)?;
         (sites, Some(record), weights, None)
     } else {
         (sites, None, weights, None)
     };
     // The energy against the iteration.
-    if let Some(record) = &record {
+    if let (Some(record), true) = (&record, writes) {
         let series = [output::Series { name: &record.optimizer, values: &record.energy, x: &[], rgb: [200, 40, 40] }];
         output::write_line_chart_png(&dir.join("energy.png"), "cvt energy", &series)?;
     }
@@ -570,14 +652,14 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
         .k(args.k)
         .k_site(args.k_site)
         .density(density.as_deref())
-        .faces(!args.no_neighbors);
+        .faces(!no_neighbors);
     if let Some(w) = &weights {
         cv = cv.weights(w);
     }
     if let Some(pairing) = args.pairing {
         cv = cv.pairing(pairing);
     }
-    let cv = cv.backend(backend.as_ref());
+    let cv = cv.backend(backend);
     if args.warm_up {
         let first = with_spinner("warm-up run", || cv.compute())?;
         println!("warm-up run: {:.1} ms; the table shows the next", first.timings.total() * 1e3);
@@ -586,7 +668,7 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
     // run (its times then include collecting the pieces and merging them);
     // another backend's pieces stay on its device, so the CPU makes them
     // in a second run below.
-    let cpu_geometry = !args.no_geometry && backend.kind() == "cpu";
+    let cpu_geometry = !no_geometry && backend.kind() == "cpu";
     let (cells, geometry) = if cpu_geometry {
         let cpu = CpuBackend::new(args.backend.threads)?;
         let (cells, pieces) =
@@ -599,9 +681,15 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
     if compiled > 0.0 {
         println!("kernels: the driver compiled them in {compiled:.2} s on first use (not in the times below)");
     }
-    let mut summary = Summary::new(&model, &mesh, sites.len(), args.strategy, backend.as_ref(), &cells);
+    if !writes {
+        return Ok(());
+    }
+    let mut summary = Summary::new(&model, &mesh, sites.len(), args.strategy, backend, &cells);
     summary.cvt = record;
     summary.transport = transported;
+    if let RunBackend::Parts(d) = &run_backend {
+        summary.parts = Some(d.report());
+    }
 
     let mut written = Vec::new();
     let mut file = |name: &str| {
@@ -617,7 +705,7 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
     if let (Some(w), Some(_)) = (&weights, &summary.transport) {
         cvd::io::write_values(&file("weights.txt"), w)?;
     }
-    if !args.no_geometry {
+    if !no_geometry {
         let (with_polyhedra, pieces) = match geometry {
             Some(pieces) => (None, pieces),
             None => {
@@ -895,6 +983,19 @@ fn devices(json: bool) -> cvd::Result<()> {
         println!("(this build has no SPIR-V kernels: it runs on the CPU backend only)");
     }
     Ok(())
+}
+
+/// Sends this process's standard output to nowhere: the ranks of a
+/// distributed run other than 0 compute without speaking.
+fn quiet_stdout() {
+    #[cfg(unix)]
+    if let Ok(null) = std::fs::OpenOptions::new().write(true).open("/dev/null") {
+        use std::os::fd::AsRawFd;
+        // SAFETY: redirecting fd 1 to a file opened here; both stay valid.
+        unsafe {
+            libc::dup2(null.as_raw_fd(), 1);
+        }
+    }
 }
 
 fn cvd_kernels_abi_version() -> u64 {

@@ -81,6 +81,13 @@ const WALK_HALO: u32 = 3;
 /// Most cells along an axis of a group of tets done again together.
 const GROUP_CELLS: u32 = 8;
 
+/// The environment variable by which an MPI launcher (Open MPI's or
+/// MPICH's `mpirun`, Slurm's `srun` with PMI or PMIx) says it started this
+/// process, if one did.
+pub fn mpi_launcher() -> Option<&'static str> {
+    ["OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "PMIX_RANK"].into_iter().find(|v| std::env::var_os(v).is_some())
+}
+
 /// Tets `part` of `parts` gets from `n_tets` (in the job's Morton order).
 pub fn part_range(n_tets: usize, part: usize, parts: usize) -> Range<usize> {
     let at = |p: usize| (n_tets as u128 * p as u128 / parts.max(1) as u128) as usize;
@@ -110,7 +117,7 @@ pub struct Round {
 }
 
 /// What this rank's parts did, round by round.
-#[derive(Clone, Debug, Default, serde::Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
 pub struct PartReport {
     /// This rank.
     pub rank: usize,
@@ -126,6 +133,50 @@ pub struct PartReport {
     pub rounds: Vec<Round>,
     /// Seconds in the all-reduce.
     pub reduce_seconds: f64,
+    /// Every rank's totals (the same on every rank).
+    pub all: Vec<RankTotals>,
+}
+
+/// One rank's totals for a job, gathered on every rank.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct RankTotals {
+    /// Tets of its parts.
+    pub tets: u64,
+    /// Sites held in the first round (its parts' boxes).
+    pub held_sites: u64,
+    /// Sites with neighbour lists in the first round.
+    pub listed_sites: u64,
+    /// Tets done again in later rounds.
+    pub tets_again: u64,
+    /// Rounds.
+    pub rounds: u64,
+    /// Microseconds computing its parts (before the all-reduce).
+    pub micros: u64,
+}
+
+impl RankTotals {
+    const FIELDS: usize = 6;
+
+    fn of(report: &PartReport, seconds: f64) -> Self {
+        let first = report.rounds.first().copied().unwrap_or_default();
+        Self {
+            tets: report.tets,
+            held_sites: first.held_sites,
+            listed_sites: first.listed_sites,
+            tets_again: report.rounds.iter().skip(1).map(|r| r.tets).sum(),
+            rounds: report.rounds.len() as u64,
+            micros: (seconds * 1e6) as u64,
+        }
+    }
+
+    fn to_words(self) -> [i64; Self::FIELDS] {
+        [self.tets, self.held_sites, self.listed_sites, self.tets_again, self.rounds, self.micros].map(|v| v as i64)
+    }
+
+    fn from_words(w: &[i64]) -> Self {
+        let v = |i: usize| w[i].max(0) as u64;
+        Self { tets: v(0), held_sites: v(1), listed_sites: v(2), tets_again: v(3), rounds: v(4), micros: v(5) }
+    }
 }
 
 /// A backend that computes the parts of its rank of a job on the CPU and
@@ -373,18 +424,29 @@ impl Backend for Distributed {
         if job.strategy != Strategy::TetCell || job.pairing != Pairing::Flood {
             return Err(Error::InvalidInput("a distributed run uses flood pairing (tet-cell)".into()));
         }
+        // One all-reduce: the sums, the counters, the passes' entries, and
+        // each rank's totals in its own slots.
         let n = job.params.n_sites as usize * ACCUM_PER_SITE;
-        let mut all = vec![0i64; n + counter::COUNT + 2];
+        let ranks = self.comm.size();
+        let mut all = vec![0i64; n + counter::COUNT + 2 + ranks * RankTotals::FIELDS];
         let mut timings = Timings::default();
         let (sums, rest) = all.split_at_mut(n);
-        let (counters, redone) = rest.split_at_mut(counter::COUNT);
-        let r = self.clip_parts(job, sums, counters, &mut timings)?;
+        let (counters, rest) = rest.split_at_mut(counter::COUNT);
+        let (redone, totals) = rest.split_at_mut(2);
+        let (r, seconds) = timed(|| self.clip_parts(job, sums, counters, &mut timings));
+        let r = r?;
         redone[0] = r[0] as i64;
         redone[1] = r[1] as i64;
+        let mut report = self.report.lock().unwrap_or_else(|e| e.into_inner());
+        let mine = RankTotals::of(&report, seconds).to_words();
+        totals[self.comm.rank() * RankTotals::FIELDS..][..RankTotals::FIELDS].copy_from_slice(&mine);
         let (reduced, t) = timed(|| self.comm.sum(&mut all));
         reduced?;
         timings.push("reduce", t);
-        self.report.lock().unwrap_or_else(|e| e.into_inner()).reduce_seconds = t;
+        report.reduce_seconds = t;
+        let totals = all.split_off(n + counter::COUNT + 2);
+        report.all = totals.chunks(RankTotals::FIELDS).map(RankTotals::from_words).collect();
+        drop(report);
         let redone = all.split_off(n + counter::COUNT);
         let counters = all.split_off(n);
         Ok(ClipOutput {

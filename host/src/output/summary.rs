@@ -65,6 +65,10 @@ pub struct Summary {
     /// otherwise).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub periodic: Option<PeriodicRecord>,
+    /// A run in parts ([`crate::distributed`]): rank 0's rounds and every
+    /// rank's totals (absent otherwise).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub parts: Option<crate::distributed::PartReport>,
 }
 
 /// A periodic box and the images its diagram took.
@@ -256,6 +260,7 @@ impl Summary {
             cvt: None,
             transport: None,
             periodic: None,
+            parts: None,
         }
     }
 
@@ -345,6 +350,24 @@ impl fmt::Display for Summary {
                 ms(r.per_iteration_s),
                 r.energy.first().copied().unwrap_or(self.energy),
                 self.energy,
+            )?;
+        }
+        if let Some(p) = &self.parts {
+            let held: u64 = p.all.iter().map(|r| r.held_sites).sum();
+            let again: u64 = p.all.iter().map(|r| r.tets_again).sum();
+            let rounds = p.all.iter().map(|r| r.rounds).max().unwrap_or(0);
+            let slowest = p.all.iter().map(|r| r.micros).max().unwrap_or(0) as f64 * 1e-3;
+            writeln!(
+                f,
+                "  {:<11}{} parts on {} rank(s): {:.3} sites held per site (halos), {} tets done again, {} rounds, slowest rank {:.1} ms, all-reduce {:.1} ms",
+                "parts",
+                p.of,
+                p.ranks,
+                held as f64 / self.sites.max(1) as f64,
+                again,
+                rounds,
+                slowest,
+                p.reduce_seconds * 1e3
             )?;
         }
         if let Some(p) = &self.periodic {
