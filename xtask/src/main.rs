@@ -15,8 +15,9 @@ usage: cargo xtask <command> [args...]
 commands:
   run [ARGS]          the main job: a clipped Voronoi diagram (cvd run ARGS, release build); the
                       SPIR-V kernels are built only when a GPU (or --backend vulkan) will run them
-  test [ARGS]         the whole test suite, optimised, on the CPU and lavapipe (cargo test ARGS;
-                      without ARGS also the Python package's, python/tests)
+  test [ARGS]         the whole test suite, optimised, on the CPU and lavapipe, and on MPI ranks
+                      where MPI is installed (cargo test ARGS; without ARGS also the Python
+                      package's, python/tests)
   test-python         the Python package alone: built into target/python-venv, pytest
   bench paper [ARGS]  the paper's evaluation: Table 1, Figs. 7, 8, 12, 13 and scale runs, CPU and
                       Vulkan; tables, JSON and charts in bench-results/paper (--sections LIST,
@@ -150,7 +151,9 @@ fn run(args: &[String]) -> Result<(), Failure> {
         }
         "test" => {
             setup::ensure(Needs::Test)?;
-            status(cargo(&["test", "--release", "--workspace"], rest))?;
+            // With MPI here (install-deps installs it), the MPI runs too.
+            let mpi: &[&str] = if setup::has_mpi() { &["--features", "cvd/mpi"] } else { &[] };
+            status(cargo(&[&["test", "--release", "--workspace"], mpi].concat(), rest))?;
             // The whole suite: the Python package's too.
             if rest.is_empty() {
                 python::test(&setup::root())?;

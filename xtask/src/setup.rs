@@ -42,6 +42,13 @@ pub fn root() -> PathBuf {
     })
 }
 
+/// Whether MPI can be built against and run here (`mpicc` and `mpirun`
+/// on the PATH): the tests then build the `mpi` feature.
+pub fn has_mpi() -> bool {
+    let runs = |tool: &str| Command::new(tool).arg("--version").stdout(Stdio::null()).stderr(Stdio::null()).status();
+    runs("mpicc").is_ok_and(|s| s.success()) && runs("mpirun").is_ok_and(|s| s.success())
+}
+
 /// Checks (and where it can, installs) what `needs` asks for.
 pub fn ensure(needs: Needs) -> Result<(), String> {
     ensure_components()?;
