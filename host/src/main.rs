@@ -183,8 +183,26 @@ struct RunArgs {
     /// polyhedra or transport yet. CPU backend.
     #[arg(long, value_name = "N")]
     parts: Option<usize>,
+    /// In parts: the first round's halo, LISTED,BEYOND grid cells (about 5
+    /// sites each) around a part's tets: the sites of the first get
+    /// neighbour lists, those of both are held. Narrower halos hold fewer
+    /// sites and leave more tets to later rounds; the results are the same.
+    #[arg(long, value_name = "LISTED,BEYOND", value_parser = two_counts)]
+    halo: Option<[u32; 2]>,
     #[command(flatten)]
     backend: BackendArgs,
+}
+
+/// `A,B`: two whole numbers.
+fn two_counts(s: &str) -> Result<[u32; 2], String> {
+    let v: Vec<&str> = s.split(',').collect();
+    match v[..] {
+        [a, b] => match (a.trim().parse(), b.trim().parse()) {
+            (Ok(a), Ok(b)) => Ok([a, b]),
+            _ => Err(format!("'{s}': expected two whole numbers of cells, such as 2,3")),
+        },
+        _ => Err(format!("'{s}': expected two numbers of cells separated by a comma, such as 2,3")),
+    }
 }
 
 /// The backend of a run: one process's, or this rank's of a distributed run.
@@ -242,7 +260,10 @@ fn open_backend(args: &RunArgs) -> cvd::Result<(RunBackend, String)> {
     let comm = comm.unwrap_or_else(|| Box::new(cvd::distributed::Alone));
     let why = format!("{} part(s) per rank, {}", args.parts.unwrap_or(1), comm.describe());
     let cpu = CpuBackend::new(args.backend.threads)?;
-    let d = Distributed::new(cpu, comm, args.parts.unwrap_or(1))?;
+    let mut d = Distributed::new(cpu, comm, args.parts.unwrap_or(1))?;
+    if let Some([listed, beyond]) = args.halo {
+        d = d.with_halo(listed, beyond);
+    }
     Ok((RunBackend::Parts(Box::new(d)), why))
 }
 

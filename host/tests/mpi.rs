@@ -32,7 +32,8 @@ fn mpi_here() -> bool {
     false
 }
 
-const JOB: &[&str] = &["run", "--model", "cube", "--resolution", "10", "--backend", "cpu", "--no-geometry", "--no-neighbors"];
+const JOB: &[&str] =
+    &["run", "--model", "cube", "--resolution", "10", "--backend", "cpu", "--no-geometry", "--no-neighbors"];
 
 fn cvd(out: &Path, args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_cvd")).args(JOB).args(args).arg("--out").arg(out).output().unwrap()

@@ -162,8 +162,73 @@ pub(crate) fn cells_of(job: &ClipJob, tets: &[u32]) -> ([u32; 3], [u32; 3]) {
     (lo, hi)
 }
 
+/// The held cells whose sites get neighbour lists: those within a halo of
+/// the cells a part's tets overlap (not of their bounding box: a run of
+/// tets in Morton order may bend around a corner).
+pub(crate) struct Listed {
+    held: Held,
+    /// Per held cell (x fastest).
+    mask: Vec<bool>,
+}
+
+impl Listed {
+    /// Every held cell.
+    #[cfg(test)]
+    pub(crate) fn all(held: Held) -> Self {
+        Self { held, mask: vec![true; held.dim.iter().product::<u32>() as usize] }
+    }
+
+    /// The held cells within `halo` cells (along each axis) of the cells
+    /// the bounding boxes of `tets` overlap.
+    pub(crate) fn around(job: &ClipJob, tets: &[u32], held: Held, halo: u32) -> Self {
+        let d = held.dim.map(|d| d as usize);
+        let index = |c: [usize; 3]| (c[2] * d[1] + c[1]) * d[0] + c[0];
+        let mut mask = vec![false; d[0] * d[1] * d[2]];
+        for &t in tets {
+            let (lo, hi) = cells_of(job, &[t]);
+            let lo = [0, 1, 2].map(|a| lo[a].max(held.lo[a]) - held.lo[a]);
+            let hi = [0, 1, 2].map(|a| (hi[a].max(held.lo[a]) - held.lo[a]).min(held.dim[a] - 1));
+            for z in lo[2]..=hi[2] {
+                for y in lo[1]..=hi[1] {
+                    for x in lo[0]..=hi[0] {
+                        mask[index([x as usize, y as usize, z as usize])] = true;
+                    }
+                }
+            }
+        }
+        // Widened by `halo` along each axis in turn: the cube of cells
+        // around each.
+        let h = halo as usize;
+        for a in 0..3 {
+            let before = mask.clone();
+            for z in 0..d[2] {
+                for y in 0..d[1] {
+                    for x in 0..d[0] {
+                        let c = [x, y, z];
+                        if !before[index(c)] {
+                            continue;
+                        }
+                        for v in c[a].saturating_sub(h)..=(c[a] + h).min(d[a] - 1) {
+                            let mut e = c;
+                            e[a] = v;
+                            mask[index(e)] = true;
+                        }
+                    }
+                }
+            }
+        }
+        Self { held, mask }
+    }
+
+    /// Whether grid cell `c` (whole grid coordinates) is listed.
+    fn holds(&self, c: [u32; 3]) -> bool {
+        let (lo, dim) = (self.held.lo, self.held.dim);
+        self.held.holds(c) && self.mask[(((c[2] - lo[2]) * dim[1] + (c[1] - lo[1])) * dim[0] + (c[0] - lo[0])) as usize]
+    }
+}
+
 /// A part of `job`: its tets `tets` (in the job's order), and the sites
-/// of the cells `held`, with neighbour lists for those in `listed` (the
+/// of the cells `held`, with neighbour lists for those of `listed` (the
 /// rest marked unknown). Returns the part's job and each of its sites'
 /// index in `job`.
 pub(crate) fn part_job(
@@ -171,7 +236,7 @@ pub(crate) fn part_job(
     by_cell: &SitesByCell,
     tets: &[u32],
     held: Held,
-    listed: Held,
+    listed: &Listed,
 ) -> Result<(ClipJob, Vec<u32>)> {
     if job.params.faces_base != 0 {
         return Err(Error::InvalidInput("a job in parts does not sum faces (yet): ask for cells only".into()));
@@ -331,7 +396,7 @@ mod lists_tests {
             let (lo, hi) = cells_of(&job, &tets);
             let held = Held::around(lo, hi, 2, grid, g.cell_size);
             assert!(!held.is_whole());
-            let (p, held_sites) = part_job(&job, &by_cell, &tets, held, held).unwrap();
+            let (p, held_sites) = part_job(&job, &by_cell, &tets, held, &Listed::all(held)).unwrap();
             let k = p.site_knn.params.k as usize;
             let built = build_grid(&p.site_knn);
             let (lists, n) = cpu.held_lists(&p.site_knn, held_sites.len(), 32, &built, &held);
@@ -396,7 +461,7 @@ mod walk_tests {
         let grid = [g.dim_x, g.dim_y, g.dim_z];
         let held = Held::around([3; 3], [6, 7, 5], 1, grid, g.cell_size);
         assert!(!held.is_whole());
-        let (part, held_sites) = part_job(&job, &SitesByCell::new(&job), &[], held, held).unwrap();
+        let (part, held_sites) = part_job(&job, &SitesByCell::new(&job), &[], held, &Listed::all(held)).unwrap();
         let (all, mine) = (build_grid(&job.site_knn), build_grid(&part.site_knn));
         let whole = GridWalk::new(&job.refine, &[], &all.cell_start, &all.cell_count, &all.sorted);
         let walk = GridWalk::new(&part.refine, &[], &mine.cell_start, &mine.cell_count, &mine.sorted);

@@ -33,7 +33,7 @@ use crate::knn::{KnnJob, Neighbors};
 use crate::timing::{timed, Timings};
 use cvd_kernels::abi::{counter, ACCUM_PER_SITE, OUT_OF_HALO};
 use cvd_kernels::clip::NoPieces;
-use halo::{cells_of, part_job, Held, SitesByCell};
+use halo::{cells_of, part_job, Held, Listed, SitesByCell};
 use std::ops::Range;
 use std::sync::Mutex;
 
@@ -69,14 +69,14 @@ impl Reduce for Alone {
     }
 }
 
-/// Grid cells around a part's tets whose sites' neighbour lists it
-/// computes (the sites whose cells can meet its tets lie within about one
-/// cell of them).
-const LIST_HALO: u32 = 2;
+/// Grid cells around the cells a part's tets overlap whose sites get
+/// neighbour lists (the sites whose cells meet its tets lie within about
+/// one cell of them; a cell holds about five sites).
+const LIST_HALO: u32 = 1;
 
-/// Further cells held beyond the listed ones: the reach of the listed
-/// sites' k-th neighbours and walks (a cell holds about five sites).
-const WALK_HALO: u32 = 3;
+/// Further cells held beyond the listed ones' box: the reach of the listed
+/// sites' k-th neighbours (about 1.3 cells at `k_site` = 48) and walks.
+const WALK_HALO: u32 = 2;
 
 /// Most cells along an axis of a group of tets done again together.
 const GROUP_CELLS: u32 = 8;
@@ -205,7 +205,7 @@ impl Distributed {
 
     /// The first round's halo: `listed` cells around a part's tets whose
     /// sites get neighbour lists, and `beyond` more cells whose sites are
-    /// held (default 2 and 3). Narrower halos hold fewer sites and leave
+    /// held (default 1 and 2). Narrower halos hold fewer sites and leave
     /// more tets for the next rounds; the results are the same.
     pub fn with_halo(mut self, listed: u32, beyond: u32) -> Self {
         self.halo = [listed.max(1), beyond];
@@ -309,8 +309,10 @@ impl Distributed {
                 round.tets += group.len() as u64;
                 let (lo, hi) = cells_of(job, &group);
                 let held = Held::around(lo, hi, halo, grid, g.cell_size);
-                let listed = Held::around(lo, hi, list_halo, grid, g.cell_size);
-                let (part, t) = timed(|| part_job(job, by_cell, &group, held, listed));
+                let (part, t) = timed(|| {
+                    let listed = Listed::around(job, &group, held, list_halo);
+                    part_job(job, by_cell, &group, held, &listed)
+                });
                 let (part, sites) = part?;
                 timings.add("halo", t);
                 round.held_sites += sites.len() as u64;
