@@ -151,6 +151,7 @@ pub fn manifest() -> Value {
             "QUANT_MAX": abi::QUANT_MAX,
             "NO_SITE": abi::NO_SITE,
             "INCOMPLETE_TET": abi::INCOMPLETE_TET,
+            "OUT_OF_HALO": abi::OUT_OF_HALO,
             "ACCUM_PER_SITE": abi::ACCUM_PER_SITE,
             "SCAN_BLOCK": cvd_kernels::scan::SCAN_BLOCK,
             "CELL_RECORDS": cvd_kernels::clip::CELL_RECORDS,
@@ -163,6 +164,7 @@ pub fn manifest() -> Value {
                 "BROKEN": counter::BROKEN,
                 "FILTERED": counter::FILTERED,
                 "WALKS": counter::WALKS,
+                "HALO": counter::HALO,
                 "COUNT": counter::COUNT,
             },
             "lloyd_stat": {

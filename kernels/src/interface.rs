@@ -17,7 +17,7 @@ use crate::layout::{Layout, TypeLayout};
 pub const ABI_VERSION: u32 = 10;
 
 /// The [`fingerprint`] of the interface of [`ABI_VERSION`].
-pub const ABI_FINGERPRINT: u64 = 0xbca2_cc9f_44eb_5b9c;
+pub const ABI_FINGERPRINT: u64 = 0xde41_781f_8d24_6db1;
 
 /// How an entry point uses a storage buffer.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -301,6 +301,8 @@ pub fn fingerprint() -> u64 {
         crate::clip::CELL_RECORDS as u64,
         crate::abi::NO_SITE as u64,
         crate::abi::INCOMPLETE_TET as u64,
+        crate::abi::OUT_OF_HALO as u64,
+        crate::abi::counter::COUNT as u64,
         crate::abi::ACCUM_PER_SITE as u64,
         crate::clip::FACE_SUMS_EXTRA as u64,
     ] {

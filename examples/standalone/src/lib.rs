@@ -698,6 +698,14 @@ pub fn run(spirv_dir: &Path, verts: &[[f64; 3]], tets: &[[u32; 4]], sites: &[[f6
             ("grid_lo_y", F(qlo[1])),
             ("grid_lo_z", F(qlo[2])),
             ("cell_len", F(cell as f64 / qscale)),
+            // Every grid cell's sites are held (a part of a distributed job
+            // would hold a box of them).
+            ("held_lo_x", U(0)),
+            ("held_lo_y", U(0)),
+            ("held_lo_z", U(0)),
+            ("held_dim_x", U(dims[0])),
+            ("held_dim_y", U(dims[1])),
+            ("held_dim_z", U(dims[2])),
         ],
     ));
     let args = [
