@@ -459,3 +459,20 @@ fn a_npy_sites_file_gives_the_cells_of_the_same_xyz() {
     assert_eq!(run.status.code(), Some(2), "{stderr}");
     assert!(stderr.contains("bad.npy") && stderr.contains("found no 'fortran_order'"), "{stderr}");
 }
+
+#[test]
+fn parts_give_the_cells_of_one_run_and_bad_counts_are_refused() {
+    let dir = temp_dir("parts");
+    let args = ["--sites", "3000", "--resolution", "8", "--no-geometry", "--no-neighbors"];
+    let one = cvd_run(&dir, &[&args[..], &["--out", "one"]].concat());
+    assert!(one.status.success(), "{}", text(&one.stderr));
+    let parts = cvd_run(&dir, &[&args[..], &["--out", "parts", "--parts", "3", "--halo", "1,0"]].concat());
+    assert!(parts.status.success(), "{}", text(&parts.stderr));
+    let read = |d: &str| std::fs::read(dir.join(d).join("cells.csv")).unwrap();
+    assert_eq!(read("one"), read("parts"), "3 parts: the same cells.csv");
+    assert!(text(&parts.stdout).contains("3 parts on 1 rank(s)"), "{}", text(&parts.stdout));
+    for bad in [&["--parts", "0"][..], &["--parts", "2", "--halo", "1"], &["--parts", "2", "--halo", "a,2"]] {
+        let out = cvd_run(&dir, &[&args[..], bad].concat());
+        assert_eq!(out.status.code(), Some(2), "{bad:?}: {}", text(&out.stderr));
+    }
+}
