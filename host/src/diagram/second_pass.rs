@@ -69,10 +69,13 @@ pub(crate) fn run<S: TaskSink>(job: &ClipJob, out: &mut ClipOutput, sinks: &Mute
     let mut incomplete = Vec::new();
     for &e in &out.unfinished {
         match e[1] {
-            // A tet out of its halo can only come from a part of a
-            // distributed job, which brings it here once it holds every
-            // site: flooded again like any other.
-            NO_SITE | OUT_OF_HALO => tets.push(e),
+            NO_SITE => tets.push(e),
+            // A part of a distributed job does such a tet again with a
+            // wider halo: finished here, its clips would differ from the
+            // whole job's.
+            OUT_OF_HALO => {
+                return Err(crate::error::Error::Internal(format!("tet {} out of its part's halo", e[0])));
+            }
             INCOMPLETE_TET => incomplete.push(e[0]),
             _ => pairs.push(e),
         }

@@ -127,6 +127,11 @@ impl SitesByCell {
         Self { start, sites }
     }
 
+    /// Sites in grid cell `c` (its linear index).
+    pub(crate) fn count(&self, c: usize) -> u32 {
+        self.start[c + 1] - self.start[c]
+    }
+
     /// The sites of the held cells, in increasing order.
     fn of(&self, job: &ClipJob, held: &Held) -> Vec<u32> {
         let g = &job.site_knn.params.grid;
