@@ -18,10 +18,10 @@ pub const REFINE_QUEUE: usize = 256;
 /// (`list[0]` entries `(tet, site)` from `list[1]`): a whole tet
 /// (`site == NO_SITE`, a failed flood) is flooded again from the site
 /// nearest its centroid (`tet_sites[(tet - tet_base) * k_tet]`; in power
-/// distance with weights); a pair's piece is
-/// clipped on its own and checked against the tet's paired sites; a tet
-/// already known to be incomplete, or out of the halo, is passed on. What fails again, and the
-/// incomplete tets, go to `still`.
+/// distance with weights); a pair's piece is clipped on its own and
+/// checked against the tet's paired sites; a tet already known to be
+/// incomplete, or out of its part's halo, is passed on. What fails again,
+/// and those tets, go to `still`.
 #[inline]
 pub fn refine_entry<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     e: usize,
