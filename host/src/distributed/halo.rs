@@ -21,6 +21,7 @@
 //! by the same planes in the same order as in the whole job, so its sums
 //! are the same bits.
 
+use crate::cpu::{build_grid, CpuGrid};
 use crate::diagram::voronoi::ClipJob;
 use crate::error::{Error, Result};
 use crate::knn::KnnJob;
@@ -97,50 +98,32 @@ impl Held {
     }
 }
 
-/// The whole job's sites by grid cell, to find the sites of a box quickly.
-pub(crate) struct SitesByCell {
-    /// First entry of each cell in `sites`, and the end.
-    start: Vec<u32>,
-    /// Site indices, by cell, each cell's in increasing order.
-    sites: Vec<u32>,
-}
+/// The whole job's sites by grid cell, to find the sites of a box quickly:
+/// the site grid the kernels build (each cell's sites in index order).
+pub(crate) struct SitesByCell(CpuGrid);
 
 impl SitesByCell {
     pub(crate) fn new(job: &ClipJob) -> Self {
-        let g = &job.site_knn.params.grid;
-        let quant = &job.site_knn.sites;
-        let cell = |q: &QuantPoint| cvd_kernels::grid::cell_index(g, cell_coords(g, [q[0], q[1], q[2]]));
-        let mut start = vec![0u32; g.n_cells as usize + 1];
-        for q in quant.iter() {
-            start[cell(q) + 1] += 1;
-        }
-        for c in 0..g.n_cells as usize {
-            start[c + 1] += start[c];
-        }
-        let mut next = start.clone();
-        let mut sites = vec![0u32; quant.len()];
-        for (i, q) in quant.iter().enumerate() {
-            let c = cell(q);
-            sites[next[c] as usize] = i as u32;
-            next[c] += 1;
-        }
-        Self { start, sites }
+        Self(build_grid(&job.site_knn))
     }
 
     /// Sites in grid cell `c` (its linear index).
     pub(crate) fn count(&self, c: usize) -> u32 {
-        self.start[c + 1] - self.start[c]
+        self.0.cell_count[c]
     }
 
     /// The sites of the held cells, in increasing order.
     fn of(&self, job: &ClipJob, held: &Held) -> Vec<u32> {
         let g = &job.site_knn.params.grid;
+        let grid = &self.0;
         let mut found = Vec::new();
         for z in held.lo[2]..held.lo[2] + held.dim[2] {
             for y in held.lo[1]..held.lo[1] + held.dim[1] {
-                let row = cvd_kernels::grid::cell_index(g, [held.lo[0], y, z]);
-                let (a, b) = (self.start[row] as usize, self.start[row + held.dim[0] as usize] as usize);
-                found.extend_from_slice(&self.sites[a..b]);
+                // A row of cells is one run of the sorted sites.
+                let first = cvd_kernels::grid::cell_index(g, [held.lo[0], y, z]);
+                let last = first + held.dim[0] as usize - 1;
+                let (a, b) = (grid.cell_start[first], grid.cell_start[last] + grid.cell_count[last]);
+                found.extend(grid.sorted[a as usize..b as usize].iter().map(|q| q[3]));
             }
         }
         found.sort_unstable();
@@ -397,7 +380,8 @@ mod lists_tests {
         let grid = [g.dim_x, g.dim_y, g.dim_z];
         let (mut certified, mut unknown) = (0, 0);
         for part in 0..4 {
-            let tets: Vec<u32> = crate::distributed::part_range(job.tets.len(), part, 4).map(|t| t as u32).collect();
+            let n = job.tets.len();
+            let tets: Vec<u32> = (n * part / 4..n * (part + 1) / 4).map(|t| t as u32).collect();
             let (lo, hi) = cells_of(&job, &tets);
             let held = Held::around(lo, hi, 2, grid, g.cell_size);
             assert!(!held.is_whole());

@@ -35,7 +35,6 @@ use crate::timing::{timed, Timings};
 use cvd_kernels::abi::{counter, ACCUM_PER_SITE, OUT_OF_HALO};
 use cvd_kernels::clip::NoPieces;
 use halo::{cells_of, part_job, Held, Listed, SitesByCell};
-use std::ops::Range;
 use std::sync::Mutex;
 
 /// Adds numbers across the ranks of a distributed run.
@@ -87,13 +86,6 @@ const GROUP_CELLS: u32 = 8;
 /// process, if one did.
 pub fn mpi_launcher() -> Option<&'static str> {
     ["OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "PMIX_RANK"].into_iter().find(|v| std::env::var_os(v).is_some())
-}
-
-/// Tets `part` of `parts` gets from `n_tets` (in the job's Morton order),
-/// by count.
-pub fn part_range(n_tets: usize, part: usize, parts: usize) -> Range<usize> {
-    let at = |p: usize| (n_tets as u128 * p as u128 / parts.max(1) as u128) as usize;
-    at(part)..at(part + 1)
 }
 
 /// Where each of `parts` runs of `job`'s tets begins (and the last ends),
