@@ -47,7 +47,7 @@ pub type QuantPoint = [u32; 4];
 /// rounded to f32 and `lo` what that rounding left, so the pair holds about
 /// 48 bits per coordinate. The kernels take the vector between two nearby
 /// points as `(hi_a - hi_b) + (lo_a - lo_b)` (see
-/// [`crate::polyhedron::between`]): the first difference is exact or
+/// `polyhedron::between`): the first difference is exact or
 /// rounded relative to itself, so the vector is accurate to f32 relative to
 /// its own length, however far the points are from the frame's origin.
 /// `hi[3] + lo[3]` carries a value of the point, split the same way: a
@@ -243,7 +243,7 @@ pub struct ClipParams {
     pub own_lo: u32,
     /// See `own_lo`.
     pub own_hi: u32,
-    /// Where the faces' sums begin in `sums` ([`crate::clip::add_faces`]),
+    /// Where the faces' sums begin in `sums` (`clip::add_faces`),
     /// or 0: no faces are summed.
     pub faces_base: u32,
     /// Fixed-point scale of the face areas (a power of two).
@@ -263,7 +263,7 @@ pub struct ClipParams {
     /// `weight_range`, or at most a local bound `W_k` when `r <= R_k`: the
     /// sites buffer may then hold `n_sites` more records after the sites,
     /// record `n_sites + i` with `hi = [W_0, R_0², W_1, R_1²]` and `lo =
-    /// [W_2, R_2², 0, 0]`, `R_0 < R_1 < R_2` (see [`crate::clip::Slack`];
+    /// [W_2, R_2², 0, 0]`, `R_0 < R_1 < R_2` (see `cell::Slack`;
     /// without them the global bound serves).
     pub weight_range: f32,
     /// With face sums and a density: 1 sums each face's mass `∫ρ dA`
@@ -273,13 +273,13 @@ pub struct ClipParams {
     pub face_masses: u32,
     /// Bits per entry of the neighbour lists (`site_nbrs`): 32 for plain
     /// `u32` entries, fewer for lists packed into whole words per list
-    /// (see [`crate::lists`]).
+    /// (see `lists`).
     pub list_bits: u32,
     /// To a multiple of 16 bytes.
     pub _pad: u32,
 }
 
-/// Push constants of the second pass ([`crate::refine`]): the clipping
+/// Push constants of the second pass (`refine`): the clipping
 /// job's parameters and the site grid in the clipping frame.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]

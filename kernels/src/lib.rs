@@ -23,6 +23,7 @@ pub use spirv_std::glam;
 
 pub mod abi;
 pub mod buffers;
+pub mod cell;
 pub mod clip;
 pub mod entry;
 pub mod grid;

@@ -7,7 +7,8 @@
 
 use crate::abi::{RefineParams, SplitPoint, INCOMPLETE_TET, NO_SITE, OUT_OF_HALO};
 use crate::buffers::{AtomicSums, PairList};
-use crate::clip::{finish_pair, flood, tet_vertices, FaceInputs, Paired, PieceSink};
+use crate::cell::tet_vertices;
+use crate::clip::{finish_pair, flood, FaceInputs, Paired, PieceSink};
 use crate::polyhedron::{Cell, CELL_PLANES, CELL_VERTS};
 use crate::walk::{clip_to_cell, power_nearest, GridWalk};
 

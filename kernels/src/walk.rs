@@ -6,13 +6,13 @@
 //! every site met whose bisector can still reach it (the order does not
 //! change the result). Once the sites not yet met are all beyond the
 //! security radius (twice the piece's farthest vertex without weights, see
-//! [`crate::clip::reach2`]), nothing can cut it any more: the piece is
+//! [`crate::cell::reach2`]), nothing can cut it any more: the piece is
 //! exact. So no security radius is ever missed; only a polyhedron or a
 //! flood queue too small leaves a piece unfinished. Most pieces never walk:
 //! the list settles them, and a short list trades k-NN time for walks.
 
 use crate::abi::{GridParams, QuantPoint, RefineParams, SplitPoint, OUT_OF_HALO};
-use crate::clip::{clip_by_bisectors, BisectorRun, Clipped, Slack};
+use crate::cell::{clip_by_bisectors, tet_vertices, BisectorRun, Clipped, Slack};
 use crate::grid::{ring_row, ring_span};
 use crate::lists::{Lists, NO_LIST};
 use crate::polyhedron::{between, bisector_offset, point, weight_gap, Point, Polyhedron};
@@ -378,7 +378,7 @@ pub fn power_nearest(
     if w.weight_range == 0.0 || start == crate::abi::NO_SITE || start == OUT_OF_HALO {
         return start;
     }
-    let tv = crate::clip::tet_vertices(t, verts, tets, &sites[start as usize]);
+    let tv = tet_vertices(t, verts, tets, &sites[start as usize]);
     let c = Point::from((tv[0] + tv[1] + tv[2] + tv[3]) * 0.25);
     let mut search = PowerNearest {
         sites,
