@@ -3,6 +3,7 @@
 //! Each command first checks what it needs (see `setup`), and passes the
 //! exit status of what it runs through unchanged.
 
+mod layers;
 mod python;
 mod setup;
 
@@ -32,7 +33,9 @@ commands:
   build               build everything, optimised
   spirv --out DIR     write the kernels as SPIR-V (one module per entry point) and manifest.json into DIR
                       (docs/EMBEDDING.md); then: cargo run --release -p cvd-embed-example -- DIR
-  lint                cargo fmt --check and cargo clippy -D warnings
+  lint                the module layering (layers), cargo fmt --check and cargo clippy -D warnings
+  layers              the top-level modules of each crate must not import each other in a circle
+                      (each imports only modules below it); reads the sources only, builds nothing
 
 Each command first checks what it needs from the system and installs what is missing where it
 can (xtask/install-deps; CVD_XTASK_NO_SETUP=1 skips this), and exits with the status of what it ran.
@@ -181,10 +184,13 @@ fn run(args: &[String]) -> Result<(), Failure> {
             bench(rest)
         }
         "lint" => {
+            // First: it needs nothing and takes a moment.
+            layers::check(&setup::root())?;
             setup::ensure(Needs::Build)?;
             status(cargo(&["fmt", "--all", "--check"], &[]))?;
             status(cargo(&["clippy", "--release", "--workspace", "--all-targets", "--", "-D", "warnings"], &[]))
         }
+        "layers" => Ok(layers::check(&setup::root())?),
         "help" | "--help" | "-h" => {
             print!("{USAGE}");
             Ok(())
