@@ -14,10 +14,10 @@
 
 mod common;
 
-use cvd::cpu::CpuBackend;
 use cvd::cvt::CvtRun;
+use cvd::exec::CpuBackend;
 use cvd::output::Series;
-use cvd::{points, Backend, ClippedVoronoi, TetMesh};
+use cvd::{geom::points, Backend, ClippedVoronoi, TetMesh};
 use std::path::PathBuf;
 
 struct Options {

@@ -5,10 +5,10 @@
 //! Options: `--sizes 10000,100000,1000000` `--ks 20,90` `--brute-max 100000`
 //! `--threads N` `--device D` `--repeat R` `--json PATH`.
 
-use cvd::cpu::CpuBackend;
-use cvd::timing::timed;
-use cvd::vulkan::{VulkanBackend, VulkanOptions};
-use cvd::{points, Backend, KnnJob, KnnMethod};
+use cvd::backends::vulkan::{VulkanBackend, VulkanOptions};
+use cvd::exec::CpuBackend;
+use cvd::geom::timing::timed;
+use cvd::{geom::points, Backend, KnnJob, KnnMethod};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use std::num::NonZeroUsize;
 

@@ -11,8 +11,8 @@
 //! every cell's volume and centroid. Prints the ratios and the images.
 //! `--json PATH` writes the rows.
 
-use cvd::cpu::CpuBackend;
-use cvd::{points, Backend, ClippedVoronoi, PeriodicBox, PeriodicVoronoi};
+use cvd::exec::CpuBackend;
+use cvd::{geom::points, Backend, ClippedVoronoi, PeriodicBox, PeriodicVoronoi};
 use std::time::Instant;
 use voro_rs::prelude::*;
 

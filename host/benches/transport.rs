@@ -12,9 +12,9 @@
 
 mod common;
 
-use cvd::cpu::CpuBackend;
 use cvd::cvt::transport::Transport;
-use cvd::{points, Backend, ClippedVoronoi, TetMesh};
+use cvd::exec::CpuBackend;
+use cvd::{geom::points, Backend, ClippedVoronoi, TetMesh};
 use std::path::PathBuf;
 use std::time::Instant;
 

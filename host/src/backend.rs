@@ -1,16 +1,10 @@
-//! One small trait over the CPU and Vulkan backends, and the options that
-//! choose one. The trait knows no implementation; [`choose`], beside it,
-//! opens them.
-
-mod choose;
-
-pub use choose::{auto_choice, choose, open, AutoChoice, Chosen};
+//! One small trait over the backends. It knows no implementation: the
+//! backends ([`crate::backends`]) implement it, and open one.
 
 use crate::cvt::LloydOutput;
 use crate::diagram::voronoi::{ClipJob, ClipOutput};
 use crate::error::Result;
-use crate::knn::{KnnJob, Neighbors};
-use crate::vulkan::VulkanOptions;
+use crate::job::knn::{KnnJob, Neighbors};
 
 /// Something that runs the kernels.
 pub trait Backend: Send + Sync {
@@ -35,31 +29,4 @@ pub trait Backend: Send + Sync {
     fn kernel_compile_seconds(&self) -> f64 {
         0.0
     }
-}
-
-/// Which backend to use.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
-pub enum BackendKind {
-    /// Vulkan on a real GPU (discrete, integrated or virtual) if there is
-    /// one, else the CPU backend. A Vulkan device that runs on the CPU
-    /// (lavapipe, SwiftShader) is slower than the CPU backend: it is used
-    /// only when asked for.
-    #[default]
-    Auto,
-    /// The CPU backend (rayon).
-    Cpu,
-    /// The Vulkan backend on the best device (or `--device`), GPU or not;
-    /// fails if there is none.
-    Vulkan,
-}
-
-/// Options for choosing and configuring a backend.
-#[derive(Clone, Debug, Default)]
-pub struct BackendOptions {
-    /// Which backend.
-    pub kind: BackendKind,
-    /// CPU threads (None: all cores).
-    pub threads: Option<usize>,
-    /// Vulkan device selection and validation.
-    pub vulkan: VulkanOptions,
 }

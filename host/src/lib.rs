@@ -5,40 +5,48 @@
 //! ([`cpu::CpuBackend`]), behind one [`Backend`] trait.
 //!
 //! ```no_run
-//! use cvd::{backend, KnnJob, KnnMethod};
+//! use cvd::{backends, KnnJob, KnnMethod};
 //! let sites = vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 2.0, 0.0]];
-//! let backend = backend::open(&Default::default())?;
+//! let backend = backends::open(&Default::default())?;
 //! let nn = KnnJob::sites(&sites, 1, KnnMethod::Grid)?.run(backend.as_ref())?;
 //! assert_eq!(nn.of(0), &[1]);
 //! # Ok::<(), cvd::Error>(())
 //! ```
 
-pub mod backend;
-pub mod bench;
-pub mod cpu;
-pub mod cvt;
-pub mod density;
-pub mod diagram;
-pub mod distributed;
+// The layers, lowest first: a module imports only from its own layer or
+// below (`cargo xtask layers` checks that no two import each other).
 pub mod error;
-pub mod io;
-pub mod knn;
-pub mod mesh;
-pub mod mesher;
-pub mod output;
-pub mod points;
-pub mod quantize;
-pub mod site_grid;
-pub mod spirv;
-pub mod surface;
-pub mod timing;
-pub mod vec3;
-pub mod vulkan;
 
-pub use backend::{Backend, BackendKind, BackendOptions};
+pub mod geom;
+
+pub mod job;
+
+pub mod exec;
+
+pub mod passes;
+
+pub mod backend;
+
+pub mod backends;
+
+pub mod diagram;
+
+pub mod cvt;
+
+// Leaves beside the layers: meshing shapes over `geom`, the SPIR-V export.
+pub mod mesher;
+pub mod spirv;
+
+pub mod bench;
+pub mod io;
+pub mod output;
+
+pub use backend::Backend;
+pub use backends::{BackendKind, BackendOptions};
 pub use diagram::periodic::{PeriodicBox, PeriodicCells, PeriodicVoronoi};
-pub use diagram::pieces::{Piece, Pieces};
 pub use diagram::voronoi::{Cells, ClippedVoronoi, Counters, Pairing, Strategy};
 pub use error::{Error, Result};
-pub use knn::{KnnJob, KnnMethod, Neighbors};
-pub use mesh::TetMesh;
+pub use exec::CpuBackend;
+pub use geom::mesh::TetMesh;
+pub use job::knn::{KnnJob, KnnMethod, Neighbors};
+pub use passes::pieces::{Piece, Pieces};

@@ -1,14 +1,14 @@
 //! `cvd`: the command-line tool.
 
 use clap::{Args, Parser, Subcommand};
-use cvd::backend::{self, BackendKind, BackendOptions};
-use cvd::cpu::CpuBackend;
+use cvd::backends::distributed::Distributed;
+use cvd::backends::vulkan::{self, VulkanOptions};
+use cvd::backends::{self, BackendKind, BackendOptions};
 use cvd::cvt::transport::Transport;
-use cvd::distributed::Distributed;
+use cvd::exec::CpuBackend;
 use cvd::mesher::models;
 use cvd::output::{self, CvtRecord, PeriodicRecord, Section, Summary, TransportRecord};
-use cvd::vulkan::{self, VulkanOptions};
-use cvd::{points, ClippedVoronoi, KnnJob, KnnMethod, Pairing, PeriodicBox, PeriodicVoronoi, Strategy, TetMesh};
+use cvd::{geom::points, ClippedVoronoi, KnnJob, KnnMethod, Pairing, PeriodicBox, PeriodicVoronoi, Strategy, TetMesh};
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -231,14 +231,15 @@ impl RunBackend {
 /// The backend `--backend` and `--parts` ask for (and MPI, when this
 /// process was started by an MPI launcher), and why.
 fn open_backend(args: &RunArgs) -> cvd::Result<(RunBackend, String)> {
-    let launcher = cvd::distributed::mpi_launcher();
+    let launcher = cvd::backends::distributed::mpi_launcher();
     #[cfg(feature = "mpi")]
-    let comm: Option<Box<dyn cvd::distributed::Reduce>> = match launcher {
-        Some(_) => cvd::distributed::mpi::Mpi::init()?.map(|m| Box::new(m) as Box<dyn cvd::distributed::Reduce>),
+    let comm: Option<Box<dyn cvd::backends::distributed::Reduce>> = match launcher {
+        Some(_) => cvd::backends::distributed::mpi::Mpi::init()?
+            .map(|m| Box::new(m) as Box<dyn cvd::backends::distributed::Reduce>),
         None => None,
     };
     #[cfg(not(feature = "mpi"))]
-    let comm: Option<Box<dyn cvd::distributed::Reduce>> = {
+    let comm: Option<Box<dyn cvd::backends::distributed::Reduce>> = {
         if let Some(var) = launcher {
             eprintln!(
                 "cvd: started by an MPI launcher ({var}), but this cvd was built without the `mpi` feature: \
@@ -248,7 +249,7 @@ fn open_backend(args: &RunArgs) -> cvd::Result<(RunBackend, String)> {
         None
     };
     if comm.is_none() && args.parts.is_none() {
-        let backend::Chosen { backend, why } = backend::choose(&args.backend.options())?;
+        let backends::Chosen { backend, why } = backends::choose(&args.backend.options())?;
         return Ok((RunBackend::One(backend), why));
     }
     if args.backend.backend == BackendKind::Vulkan {
@@ -257,7 +258,7 @@ fn open_backend(args: &RunArgs) -> cvd::Result<(RunBackend, String)> {
     if transports(args) {
         return Err(cvd::Error::InvalidInput("optimal transport does not run in parts yet".into()));
     }
-    let comm = comm.unwrap_or_else(|| Box::new(cvd::distributed::Alone));
+    let comm = comm.unwrap_or_else(|| Box::new(cvd::backends::distributed::Alone));
     let why = format!("{} part(s) per rank, {}", args.parts.unwrap_or(1), comm.describe());
     let cpu = CpuBackend::new(args.backend.threads)?;
     let mut d = Distributed::new(cpu, comm, args.parts.unwrap_or(1))?;
@@ -436,7 +437,7 @@ fn create_dir(dir: &Path) -> cvd::Result<()> {
 /// The density per mesh vertex the arguments ask for, if any.
 fn density(args: &RunArgs, mesh: &TetMesh) -> cvd::Result<Option<Vec<f64>>> {
     if let Some(text) = &args.density {
-        return Ok(Some(cvd::density::Expr::parse(text)?.at_vertices(mesh, text)?));
+        return Ok(Some(cvd::geom::density::Expr::parse(text)?.at_vertices(mesh, text)?));
     }
     let Some(path) = &args.density_file else { return Ok(None) };
     let values = cvd::io::read_values(path)?;
@@ -816,7 +817,7 @@ fn run_periodic(args: &RunArgs) -> cvd::Result<()> {
     let model = "periodic box".to_string();
     let dir = args.out.clone().unwrap_or_else(|| default_out_dir("periodic"));
     create_dir(&dir)?;
-    let backend::Chosen { backend, why } = backend::choose(&args.backend.options())?;
+    let backends::Chosen { backend, why } = backends::choose(&args.backend.options())?;
     let pv = PeriodicVoronoi::new(domain, &sites)
         .strategy(args.strategy)
         .k_site(args.k_site)
@@ -959,7 +960,7 @@ struct KnnArgs {
 }
 
 fn knn(args: &KnnArgs) -> cvd::Result<()> {
-    let backend = backend::open(&args.backend.options())?;
+    let backend = backends::open(&args.backend.options())?;
     let sites = points::uniform(args.sites, args.seed);
     let job = KnnJob::sites(&sites, args.k, args.method)?;
     println!("k-NN of {} uniform sites, k = {}, {:?}, on {}", args.sites, job.params.k, args.method, backend.name());
@@ -967,7 +968,7 @@ fn knn(args: &KnnArgs) -> cvd::Result<()> {
     let again = job.run(backend.as_ref())?;
     println!("first run: {}", first.timings);
     println!("second run: {} (total {:.3} ms)", again.timings, again.timings.total() * 1e3);
-    let reference = job.run(&cvd::cpu::CpuBackend::new(args.backend.threads)?)?;
+    let reference = job.run(&cvd::exec::CpuBackend::new(args.backend.threads)?)?;
     let same = reference.indices == again.indices && reference.dist2 == again.dist2;
     println!("same neighbours as the CPU backend: {}", if same { "yes" } else { "NO" });
     if !same {

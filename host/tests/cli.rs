@@ -66,7 +66,7 @@ fn run_writes_every_output() {
     assert_eq!(rows.len(), 150);
     let sites = cvd::io::read_sites(&folder.join("sites.xyz")).unwrap();
     let cube = cvd::mesher::models::builtin("cube", Some(3)).unwrap();
-    let generated: Vec<[f64; 3]> = cvd::points::in_mesh(&cube, 150, 1).iter().map(|p| p.map(f64::from)).collect();
+    let generated: Vec<[f64; 3]> = cvd::geom::points::in_mesh(&cube, 150, 1).iter().map(|p| p.map(f64::from)).collect();
     assert_eq!(sites, generated, "sites.xyz holds the sites used");
     let summary = std::fs::read_to_string(folder.join("summary.json")).unwrap();
     assert_eq!(std::fs::read_to_string(&json).unwrap(), summary, "--json writes the same summary");
@@ -441,7 +441,7 @@ fn bits(sites: &[[f64; 3]]) -> Vec<u64> {
 #[test]
 fn a_npy_sites_file_gives_the_cells_of_the_same_xyz() {
     let dir = temp_dir("npy");
-    let sites = cvd::points::in_mesh(&cvd::TetMesh::cube(3), 300, 5);
+    let sites = cvd::geom::points::in_mesh(&cvd::TetMesh::cube(3), 300, 5);
     cvd::io::write_sites_npy(&dir.join("s.npy"), &sites).unwrap();
     cvd::io::write_sites_xyz(&dir.join("s.xyz"), &sites).unwrap();
     for (file, out) in [("s.npy", "npy"), ("s.xyz", "xyz")] {

@@ -177,7 +177,7 @@ fn mesh_surface(py: Python<'_>, path: PathBuf, resolution: Option<u32>) -> PyRes
 #[pyfunction]
 #[pyo3(signature = (mesh, n, seed=1))]
 fn sample<'py>(py: Python<'py>, mesh: &Mesh, n: usize, seed: u64) -> Bound<'py, PyArray2<f64>> {
-    let points = py.detach(|| cvd::points::in_mesh(&mesh.inner, n, seed));
+    let points = py.detach(|| cvd::geom::points::in_mesh(&mesh.inner, n, seed));
     flat(points).into_pyarray(py).reshape([n, 3]).expect("n x 3 values")
 }
 
@@ -353,13 +353,13 @@ fn clipped_voronoi(
             if let Some(w) = &weights {
                 cv = cv.weights(w);
             }
-            let b = cvd::backend::open(&options)?;
+            let b = cvd::backends::open(&options)?;
             if !polyhedra {
                 return cv.backend(b.as_ref()).compute();
             }
             // The polyhedra come from the CPU's pieces: one run there, and
             // the numbers from the backend asked for when it is another.
-            let cpu = cvd::cpu::CpuBackend::new(None)?;
+            let cpu = cvd::exec::CpuBackend::new(None)?;
             let (mut with, _) = cv.compute_with_polyhedra(&cpu)?;
             if b.kind() == "cpu" {
                 return Ok(with);
@@ -392,7 +392,7 @@ fn periodic_voronoi<'py>(
     let out = py
         .detach(|| -> cvd::Result<cvd::PeriodicCells> {
             let domain = cvd::PeriodicBox::new(lo, hi)?;
-            let b = cvd::backend::open(&options)?;
+            let b = cvd::backends::open(&options)?;
             let mut pv = cvd::PeriodicVoronoi::new(domain, &sites).faces(faces).backend(b.as_ref());
             if let Some(w) = &weights {
                 pv = pv.weights(w);
@@ -430,7 +430,7 @@ fn lloyd<'py>(
     };
     let density: Option<Vec<f64>> = density.map(|d| d.as_array().to_vec());
     let options = self::backend(backend)?;
-    let b = py.detach(|| cvd::backend::open(&options)).map_err(err)?;
+    let b = py.detach(|| cvd::backends::open(&options)).map_err(err)?;
     let (mut energy, mut empty) = (Vec::new(), Vec::new());
     // One iteration at a time (L-BFGS: all at once, its memory spans
     // them), the signals checked in between.
@@ -495,7 +495,7 @@ fn transport<'py>(
         return Err(PyValueError::new_err(format!("tolerance must be positive, not {tolerance}")));
     }
     let options = self::backend(backend)?;
-    let b = py.detach(|| cvd::backend::open(&options)).map_err(err)?;
+    let b = py.detach(|| cvd::backends::open(&options)).map_err(err)?;
     let cv = cvd::ClippedVoronoi::new(&mesh.inner, &sites).density(density.as_deref()).backend(b.as_ref());
     let mut ot = cvd::cvt::transport::Transport::new(cv).tolerance(tolerance).max_steps(max_steps);
     if let Some(c) = &capacities {
@@ -533,7 +533,7 @@ fn transport<'py>(
 /// empty without a Vulkan loader or driver.
 #[pyfunction]
 fn devices<'py>(py: Python<'py>) -> PyResult<Vec<Bound<'py, PyDict>>> {
-    let list = match py.detach(cvd::vulkan::list_devices) {
+    let list = match py.detach(cvd::backends::vulkan::list_devices) {
         Ok(list) => list,
         Err(cvd::Error::VulkanUnavailable(_)) => Vec::new(),
         Err(e) => return Err(err(e)),

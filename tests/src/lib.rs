@@ -4,8 +4,8 @@
 pub mod reference;
 pub mod voro;
 
-use cvd::cpu::CpuBackend;
-use cvd::vulkan::{validation_errors, VulkanBackend, VulkanOptions};
+use cvd::backends::vulkan::{validation_errors, VulkanBackend, VulkanOptions};
+use cvd::exec::CpuBackend;
 use cvd::{Backend, KnnJob};
 use std::sync::OnceLock;
 

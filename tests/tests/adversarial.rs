@@ -5,7 +5,7 @@
 //! matches the exact f64 reference (all bisectors) to 1e-5 of
 //! max(V_i, V_M / n).
 
-use cvd::{points, Cells, ClippedVoronoi, TetMesh};
+use cvd::{geom::points, Cells, ClippedVoronoi, TetMesh};
 use cvd_tests::reference::clipped_cells;
 use cvd_tests::{assert_no_validation_errors, backends, Placement};
 

@@ -2,7 +2,7 @@
 //! modules and their manifest, nothing of the library) against the
 //! library, on the same input: every cell's volume within 1e-6.
 
-use cvd::cpu::CpuBackend;
+use cvd::exec::CpuBackend;
 use cvd::{Backend, ClippedVoronoi, TetMesh};
 
 fn check(dir: &std::path::Path, cubes: u32, n_sites: usize, seed: u64, vulkan: &dyn Backend) {

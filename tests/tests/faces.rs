@@ -5,7 +5,7 @@
 //! hold on any domain (a shared face has one area seen from either side,
 //! the boundary areas add up to the mesh's surface).
 
-use cvd::{points, ClippedVoronoi, Pairing, Strategy, TetMesh};
+use cvd::{geom::points, ClippedVoronoi, Pairing, Strategy, TetMesh};
 use cvd_tests::{assert_no_validation_errors, backends};
 use std::collections::HashMap;
 use voro_rs::prelude::*;
@@ -180,7 +180,7 @@ fn faces_close_on_a_non_convex_domain() {
 fn the_pieces_faces_name_their_makers() {
     let mesh = cvd::mesher::models::builtin("joint", Some(10)).unwrap();
     let sites = points::in_mesh(&mesh, 200, 8);
-    let cpu = cvd::cpu::CpuBackend::new(None).unwrap();
+    let cpu = cvd::exec::CpuBackend::new(None).unwrap();
     let cv = ClippedVoronoi::new(&mesh, &sites).faces(true);
     let (cells, pieces) = cv.compute_with_pieces(&cpu).unwrap();
     let adj = cells.adjacency().unwrap();
@@ -206,7 +206,7 @@ fn the_pieces_faces_name_their_makers() {
             let got = sums.get(&(i as u32, j as i64)).copied().unwrap_or(0.0);
             assert!((got - a).abs() <= 1e-5 * surface, "cell {i}, neighbour {j}: {got} vs {a}");
         }
-        let boundary = sums.get(&(i as u32, cvd::diagram::pieces::ON_BOUNDARY)).copied().unwrap_or(0.0);
+        let boundary = sums.get(&(i as u32, cvd::passes::pieces::ON_BOUNDARY)).copied().unwrap_or(0.0);
         assert!((boundary - adj.boundary[i]).abs() <= 1e-5 * surface, "cell {i}: {boundary} vs {}", adj.boundary[i]);
     }
 }

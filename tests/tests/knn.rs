@@ -1,8 +1,8 @@
 //! k-NN: CPU brute == CPU grid == Vulkan brute == Vulkan grid == a naive
 //! sort of all distances, index for index.
 
-use cvd::cpu::CpuBackend;
-use cvd::{points, Backend, KnnJob, KnnMethod};
+use cvd::exec::CpuBackend;
+use cvd::{geom::points, Backend, KnnJob, KnnMethod};
 use cvd_tests::{assert_no_validation_errors, reference_knn, vulkan};
 use proptest::prelude::*;
 

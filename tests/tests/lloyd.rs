@@ -2,7 +2,7 @@
 //! tessellation is a fixed point, and the backends agree.
 
 use cvd::cvt::CvtRun;
-use cvd::{points, Backend, ClippedVoronoi, TetMesh};
+use cvd::{geom::points, Backend, ClippedVoronoi, TetMesh};
 use cvd_tests::{assert_no_validation_errors, backends};
 
 fn lloyd(mesh: &TetMesh, sites: &[[f64; 3]], iterations: usize, backend: &dyn Backend) -> CvtRun {

@@ -2,9 +2,9 @@
 //! `pieces.vtu` read by an independent reader (Python's meshio), the
 //! picture's pixels.
 
-use cvd::cpu::CpuBackend;
+use cvd::exec::CpuBackend;
 use cvd::output::{self, Section, Summary};
-use cvd::{points, Cells, ClippedVoronoi, Error, Pieces, Strategy, TetMesh};
+use cvd::{geom::points, Cells, ClippedVoronoi, Error, Pieces, Strategy, TetMesh};
 use std::path::PathBuf;
 use std::process::Command;
 

@@ -9,7 +9,7 @@
 //! thin box).
 
 use cvd::cvt::transport::Transport;
-use cvd::{points, PeriodicBox, PeriodicCells, PeriodicVoronoi, Strategy};
+use cvd::{geom::points, PeriodicBox, PeriodicCells, PeriodicVoronoi, Strategy};
 use cvd_tests::backends;
 use cvd_tests::voro::periodic_power_cells;
 

@@ -3,8 +3,8 @@
 //! computed here from the face loops — add up to each tet, to each site's
 //! cell and to the mesh.
 
-use cvd::cpu::CpuBackend;
-use cvd::{points, Cells, ClippedVoronoi, Pairing, Piece, Strategy, TetMesh};
+use cvd::exec::CpuBackend;
+use cvd::{geom::points, Cells, ClippedVoronoi, Pairing, Piece, Strategy, TetMesh};
 use cvd_tests::Shape;
 use proptest::prelude::*;
 use std::collections::{HashMap, HashSet};

@@ -5,8 +5,8 @@
 //! the cell, the faces' areas those of the adjacency, the boundary faces
 //! adding up to the mesh's surface.
 
-use cvd::diagram::polyhedra::CellPolyhedron;
-use cvd::{points, Cells, ClippedVoronoi, TetMesh};
+use cvd::passes::polyhedra::CellPolyhedron;
+use cvd::{geom::points, Cells, ClippedVoronoi, TetMesh};
 use std::collections::{BTreeSet, HashMap};
 use voro_rs::prelude::*;
 
@@ -52,11 +52,14 @@ fn assert_closed(cell: &CellPolyhedron, what: &str) {
         assert_eq!(edges.get(&(b, a)), Some(&1), "{what}: edge {a}-{b} has no reverse");
     }
     assert!(used.iter().all(|&u| u), "{what}: unused points");
-    let diag = cvd::vec3::bounding_box(&cell.vertices);
-    let size = cvd::vec3::norm(cvd::vec3::sub(diag.1, diag.0));
+    let diag = cvd::geom::vec3::bounding_box(&cell.vertices);
+    let size = cvd::geom::vec3::norm(cvd::geom::vec3::sub(diag.1, diag.0));
     for (i, p) in cell.vertices.iter().enumerate() {
         for q in &cell.vertices[i + 1..] {
-            assert!(cvd::vec3::norm(cvd::vec3::sub(*p, *q)) > 1e-7 * size, "{what}: two points at one place");
+            assert!(
+                cvd::geom::vec3::norm(cvd::geom::vec3::sub(*p, *q)) > 1e-7 * size,
+                "{what}: two points at one place"
+            );
         }
     }
 }
@@ -107,7 +110,7 @@ fn check_against_cells(cells: &Cells, what: &str) -> (f64, f64) {
 fn joint_cells(n: usize, seed: u64) -> (TetMesh, Vec<[f64; 3]>, Cells) {
     let mesh = cvd::mesher::models::builtin("joint", Some(16)).unwrap();
     let sites = points::in_mesh(&mesh, n, seed);
-    let cpu = cvd::cpu::CpuBackend::new(None).unwrap();
+    let cpu = cvd::exec::CpuBackend::new(None).unwrap();
     let (cells, _) = ClippedVoronoi::new(&mesh, &sites).faces(true).compute_with_polyhedra(&cpu).unwrap();
     (mesh, sites, cells)
 }
@@ -124,7 +127,7 @@ fn merged_cells_are_voro_plus_plus_cells_in_a_box() {
     let mesh = TetMesh::cube(4);
     let sites = points::uniform(400, 11);
     let exact = voro_cells(&sites);
-    let cpu = cvd::cpu::CpuBackend::new(None).unwrap();
+    let cpu = cvd::exec::CpuBackend::new(None).unwrap();
     let (cells, _) = ClippedVoronoi::new(&mesh, &sites).faces(true).compute_with_polyhedra(&cpu).unwrap();
     let (dv, da) = check_against_cells(&cells, "box");
     println!("box: volume {dv:.2e}, face areas {da:.2e}");
@@ -149,7 +152,7 @@ fn a_lattice_gives_cubes() {
     let h = 1.0 / n as f64;
     let sites = cvd_tests::cube_lattice(n);
     let mesh = TetMesh::cube(4);
-    let cpu = cvd::cpu::CpuBackend::new(None).unwrap();
+    let cpu = cvd::exec::CpuBackend::new(None).unwrap();
     let (cells, _) = ClippedVoronoi::new(&mesh, &sites).faces(true).compute_with_polyhedra(&cpu).unwrap();
     let (dv, da) = check_against_cells(&cells, "lattice");
     assert!(dv < 1e-6 && da < 1e-6, "volume {dv:.2e}, face areas {da:.2e}");
@@ -241,9 +244,9 @@ fn walls_ply_has_every_wall_once() {
         let mut n = [0.0; 3];
         for k in 1..ring.len() - 1 {
             let (p, q) = (vertices[ring[k] as usize], vertices[ring[k + 1] as usize]);
-            n = cvd::vec3::add(n, cvd::vec3::cross(cvd::vec3::sub(p, o), cvd::vec3::sub(q, o)));
+            n = cvd::geom::vec3::add(n, cvd::geom::vec3::cross(cvd::geom::vec3::sub(p, o), cvd::geom::vec3::sub(q, o)));
         }
-        *by_pair.entry((a, b)).or_insert(0.0) += cvd::vec3::norm(n) / 2.0;
+        *by_pair.entry((a, b)).or_insert(0.0) += cvd::geom::vec3::norm(n) / 2.0;
     }
     let adj = cells.adjacency().unwrap();
     let mut worst = 0.0f64;

@@ -7,7 +7,7 @@
 //! both strategies and both pairings against those references, zero
 //! weights against the Voronoi cells.
 
-use cvd::{points, Backend, ClippedVoronoi, Pairing, Strategy, TetMesh};
+use cvd::{geom::points, Backend, ClippedVoronoi, Pairing, Strategy, TetMesh};
 use cvd_tests::l_mesh;
 use cvd_tests::reference::clipped_power_cells;
 use cvd_tests::voro::power_cells;

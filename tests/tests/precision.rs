@@ -16,7 +16,7 @@
 //! relative to the piece, `ε L / h` for a needle of length `L` and width
 //! `h` lying oblique to the axes (docs/BENCHMARKS.md, Precision).
 
-use cvd::{points, Cells, ClippedVoronoi, TetMesh};
+use cvd::{geom::points, Cells, ClippedVoronoi, TetMesh};
 use cvd_tests::reference::clipped_cells;
 use cvd_tests::{assert_no_validation_errors, backends, Placement};
 use voro_rs::prelude::*;

@@ -80,7 +80,7 @@ for name, arr in [('f8', a), ('f4', f.astype(np.float64))]:
     let cells = |file: &str| {
         let mesh = cvd::TetMesh::cube(3);
         let sites = read(file);
-        let cpu = cvd::cpu::CpuBackend::new(None).unwrap();
+        let cpu = cvd::exec::CpuBackend::new(None).unwrap();
         cvd::ClippedVoronoi::new(&mesh, &sites).backend(&cpu).compute().unwrap()
     };
     let (a, b) = (cells("cube.npy"), cells("cube.xyz"));

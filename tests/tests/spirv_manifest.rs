@@ -257,7 +257,7 @@ fn manifest_matches_the_spirv() {
     assert_eq!(modules.len(), cvd_kernels::interface::ENTRY_POINTS.len());
     assert_eq!(modules.len(), cvd::spirv::MODULES.len(), "one module per entry point");
     // Every entry point of the host's single module is exported.
-    let single = rspirv::dr::load_bytes(cvd::vulkan::KERNELS_SPV).expect("the host's module");
+    let single = rspirv::dr::load_bytes(cvd::backends::vulkan::KERNELS_SPV).expect("the host's module");
     let host: BTreeSet<String> =
         single.entry_points.iter().map(|e| e.operands[2].unwrap_literal_string().to_string()).collect();
     let exported: BTreeSet<String> = modules.iter().map(|m| m["entry_point"].as_str().unwrap().to_string()).collect();

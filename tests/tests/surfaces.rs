@@ -8,7 +8,7 @@
 
 use cvd::mesher::mesh_surface;
 use cvd::mesher::quality::{Conformity, Quality};
-use cvd::{points, ClippedVoronoi};
+use cvd::{geom::points, ClippedVoronoi};
 use cvd_tests::{assert_no_validation_errors, backends};
 use std::path::{Path, PathBuf};
 

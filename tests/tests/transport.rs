@@ -5,7 +5,7 @@
 //! backend; with a density; the capacity-constrained CVT; bad input.
 
 use cvd::cvt::transport::Transport;
-use cvd::{points, ClippedVoronoi, Error, TetMesh};
+use cvd::{geom::points, ClippedVoronoi, Error, TetMesh};
 use cvd_tests::l_mesh;
 use cvd_tests::reference::clipped_power_cells;
 use cvd_tests::voro::power_cells;

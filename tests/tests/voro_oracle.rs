@@ -12,8 +12,8 @@
 //! furthest Voronoi neighbour of site 95 is its 94th nearest site. Such a
 //! cell may be wrong, but then it must be counted in `security_missed`.
 
-use cvd::cpu::CpuBackend;
-use cvd::{points, Cells, ClippedVoronoi, Strategy, TetMesh};
+use cvd::exec::CpuBackend;
+use cvd::{geom::points, Cells, ClippedVoronoi, Strategy, TetMesh};
 use voro_rs::prelude::*;
 
 const N: usize = 200;

@@ -1,8 +1,8 @@
 //! Clipped Voronoi cells: both strategies on both backends against the
 //! exact f64 reference, against each other, and the volume balance.
 
-use cvd::cpu::CpuBackend;
-use cvd::{points, Backend, Cells, ClippedVoronoi, Pairing, Strategy, TetMesh};
+use cvd::exec::CpuBackend;
+use cvd::{geom::points, Backend, Cells, ClippedVoronoi, Pairing, Strategy, TetMesh};
 use cvd_tests::reference::clipped_cells;
 use cvd_tests::{assert_no_validation_errors, backends, vulkan};
 use cvd_tests::{Placement, Shape};
@@ -327,7 +327,7 @@ fn many_sites_per_tet() {
 
 /// Sets `backend`'s memory budget to the smallest (to 64 KiB) that `cv`
 /// fits, so that it runs in several parts; returns that budget.
-fn tighten(backend: &cvd::vulkan::VulkanBackend, cv: ClippedVoronoi) -> u64 {
+fn tighten(backend: &cvd::backends::vulkan::VulkanBackend, cv: ClippedVoronoi) -> u64 {
     let fits = |budget: u64| {
         backend.set_memory_budget(budget);
         match cv.backend(backend).compute() {
@@ -356,8 +356,9 @@ fn tighten(backend: &cvd::vulkan::VulkanBackend, cv: ClippedVoronoi) -> u64 {
 #[test]
 fn a_memory_budget_splits_the_job_and_changes_nothing() {
     let Some(roomy) = vulkan() else { return };
-    let options = cvd::vulkan::VulkanOptions { device: std::env::var("CVD_TEST_DEVICE").ok(), ..Default::default() };
-    let tight = cvd::vulkan::VulkanBackend::new(&options).unwrap();
+    let options =
+        cvd::backends::vulkan::VulkanOptions { device: std::env::var("CVD_TEST_DEVICE").ok(), ..Default::default() };
+    let tight = cvd::backends::vulkan::VulkanBackend::new(&options).unwrap();
     let mesh = TetMesh::cube(10);
     let sites = sites_in_box(1500, 21);
     let runs = [

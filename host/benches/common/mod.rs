@@ -1,7 +1,7 @@
 //! What the benchmarks share: the Vulkan device with its kernels compiled
 //! before anything is timed.
 
-use cvd::vulkan::{VulkanBackend, VulkanOptions};
+use cvd::backends::vulkan::{VulkanBackend, VulkanOptions};
 
 pub use cvd::bench::default_models_dir;
 

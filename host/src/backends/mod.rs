@@ -1,9 +1,14 @@
-//! How a backend is chosen and opened from [`BackendOptions`].
+//! The backends — the CPU runtime's ([`CpuBackend`]), Vulkan's
+//! ([`vulkan`]) and a job in parts ([`distributed`]) — and how one is
+//! chosen and opened from [`BackendOptions`].
 
-use super::{Backend, BackendKind, BackendOptions};
-use crate::cpu::CpuBackend;
+pub mod distributed;
+pub mod vulkan;
+
+use crate::backend::Backend;
 use crate::error::{Error, Result};
-use crate::vulkan::{list_devices, DeviceInfo, VulkanBackend, VulkanOptions, HAS_KERNELS};
+use crate::exec::CpuBackend;
+use vulkan::{list_devices, DeviceInfo, VulkanBackend, VulkanOptions, HAS_KERNELS};
 
 /// A backend and why it was chosen.
 pub struct Chosen {
@@ -115,4 +120,31 @@ mod tests {
         };
         assert!(why.contains("Intel(R) UHD Graphics") && why.contains("no SPIR-V kernels"), "{why}");
     }
+}
+
+/// Which backend to use.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum BackendKind {
+    /// Vulkan on a real GPU (discrete, integrated or virtual) if there is
+    /// one, else the CPU backend. A Vulkan device that runs on the CPU
+    /// (lavapipe, SwiftShader) is slower than the CPU backend: it is used
+    /// only when asked for.
+    #[default]
+    Auto,
+    /// The CPU backend (rayon).
+    Cpu,
+    /// The Vulkan backend on the best device (or `--device`), GPU or not;
+    /// fails if there is none.
+    Vulkan,
+}
+
+/// Options for choosing and configuring a backend.
+#[derive(Clone, Debug, Default)]
+pub struct BackendOptions {
+    /// Which backend.
+    pub kind: BackendKind,
+    /// CPU threads (None: all cores).
+    pub threads: Option<usize>,
+    /// Vulkan device selection and validation.
+    pub vulkan: VulkanOptions,
 }

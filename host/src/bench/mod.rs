@@ -12,9 +12,9 @@ mod report;
 pub use paper::{run, Section};
 pub use report::{Report, Row};
 
-use crate::cpu::CpuBackend;
+use crate::backends::vulkan::{VulkanBackend, VulkanOptions};
 use crate::error::Result;
-use crate::vulkan::{VulkanBackend, VulkanOptions};
+use crate::exec::CpuBackend;
 use crate::TetMesh;
 use std::path::PathBuf;
 

@@ -2,10 +2,10 @@
 
 use super::report::{cpu_name, Axis, Chart, Report, Row};
 use super::{Backends, Config, Model};
+use crate::backends::vulkan::VulkanBackend;
 use crate::error::{Error, Result};
-use crate::timing::timed;
-use crate::vulkan::VulkanBackend;
-use crate::{points, Backend, Cells, ClippedVoronoi, Pairing, Strategy, TetMesh};
+use crate::geom::timing::timed;
+use crate::{geom::points, Backend, Cells, ClippedVoronoi, Pairing, Strategy, TetMesh};
 use std::str::FromStr;
 
 /// A part of the suite.

@@ -90,7 +90,7 @@ impl ClippedVoronoi<'_> {
         let backend: &dyn Backend = match self.backend {
             Some(b) => b,
             None => {
-                cpu = crate::cpu::CpuBackend::new(None)?;
+                cpu = crate::exec::CpuBackend::new(None)?;
                 &cpu
             }
         };
@@ -119,7 +119,7 @@ pub(crate) fn lloyd_by_diagrams(
         let mut out = backend.clip(&job)?;
         let first = out.refined + out.unresolved + out.unfinished.len() as u64;
         let none = std::sync::Mutex::new(Vec::<cvd_kernels::clip::NoPieces>::new());
-        let redone = crate::diagram::second_pass::run(&job, &mut out, &none)?;
+        let redone = crate::passes::second_pass::run(&job, &mut out, &none)?;
         let p = params(&job, it);
         let mut quant = job.site_knn.sites.to_vec();
         let (unfinished, still) = ([first as u32], [(out.unresolved + redone.unresolved) as u32]);
@@ -127,7 +127,7 @@ pub(crate) fn lloyd_by_diagrams(
             let (sites, q) = (&mut job.sites[..], &mut quant[..]);
             cvd_kernels::lloyd::move_site(i, &p, &out.sums, &unfinished, &still, sites, q, &mut DeviceSums(&mut stats));
         }
-        let quant: crate::knn::Points = quant.into();
+        let quant: crate::job::knn::Points = quant.into();
         job.site_knn.queries = quant.clone();
         job.tet_knn.sites = quant.clone();
         job.site_knn.sites = quant;
@@ -145,7 +145,7 @@ fn energy_scale(job: &ClipJob, frame: &Frame) -> f64 {
 fn report(
     input: &[[f64; 3]],
     job: &ClipJob,
-    map: &crate::diagram::sites::SiteMap,
+    map: &crate::job::sites::SiteMap,
     frame: &Frame,
     out: &LloydOutput,
 ) -> CvtRun {

@@ -30,11 +30,11 @@
 
 use crate::backend::Backend;
 use crate::cvt::{CvtRun, Iteration};
-use crate::diagram::faces::Adjacency;
 use crate::diagram::voronoi::{Cells, ClippedVoronoi, Strategy};
 use crate::error::{Error, Result};
-use crate::mesh::TetMesh;
-use crate::site_grid::SiteGrid;
+use crate::geom::mesh::TetMesh;
+use crate::geom::site_grid::SiteGrid;
+use crate::passes::faces::Adjacency;
 use cvd_kernels::abi::SplitPoint;
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -240,7 +240,7 @@ impl<'a> PeriodicVoronoi<'a> {
 
     /// Computes the cells.
     pub fn compute(&self) -> Result<PeriodicCells> {
-        crate::diagram::sites::check_sites(self.sites, self.weights)?;
+        crate::job::sites::check_sites(self.sites, self.weights)?;
         let n = self.sites.len();
         let domain = self.domain;
         let clock = Instant::now();

@@ -2,15 +2,15 @@
 //! backends.
 
 use crate::backend::Backend;
-use crate::cpu::TaskSink;
-use crate::diagram::pieces::{PieceCollector, Pieces};
-use crate::diagram::polyhedra::{merge_pieces, CellPolyhedron};
-use crate::diagram::sites::SiteMap;
 use crate::error::{Error, Result};
-use crate::knn::{KnnJob, KnnMethod};
-use crate::mesh::TetMesh;
-use crate::points;
-use crate::timing::Timings;
+use crate::exec::TaskSink;
+use crate::geom::mesh::TetMesh;
+use crate::geom::points;
+use crate::geom::timing::Timings;
+use crate::job::knn::{KnnJob, KnnMethod};
+use crate::job::sites::SiteMap;
+use crate::passes::pieces::{PieceCollector, Pieces};
+use crate::passes::polyhedra::{merge_pieces, CellPolyhedron};
 use cvd_kernels::abi::{counter, ClipParams, KnnParams, QuantPoint, RefineParams, SplitPoint, ACCUM_PER_SITE};
 use cvd_kernels::clip::NoPieces;
 use cvd_kernels::lists::NO_LIST;
@@ -108,13 +108,13 @@ pub struct ClipJob {
     /// How tets and sites are paired.
     pub pairing: Pairing,
     /// Which faces of each tet lie on the mesh's boundary, as the kernels
-    /// read them ([`crate::diagram::faces::boundary_bits`]; one word of zeros when
+    /// read them ([`crate::passes::faces::boundary_bits`]; one word of zeros when
     /// no faces are summed).
     pub tet_faces: Vec<u32>,
-    /// For a part of a job ([`crate::distributed`]): the grid cells whose
+    /// For a part of a job ([`crate::backends::distributed`]): the grid cells whose
     /// sites it holds (its quantized points are shifted by their corner);
     /// `None`: every site.
-    pub held: Option<crate::distributed::halo::Held>,
+    pub held: Option<crate::backends::distributed::halo::Held>,
 }
 
 impl ClipJob {
@@ -166,7 +166,7 @@ pub struct ClipOutput {
     /// With faces: every site's neighbour list as the kernels read it
     /// (`k_site` per site; empty if the backend did not keep them whole,
     /// and the host computes them again).
-    pub site_lists: crate::knn::PackedLists,
+    pub site_lists: crate::job::knn::PackedLists,
     /// The kernels' counters (see `cvd_kernels::abi::counter`).
     pub counters: Vec<i64>,
     /// `(tet, site)` entries the kernels could not finish even in their
@@ -261,7 +261,7 @@ pub struct Cells {
     pub timings: Timings,
     /// The cells' faces and neighbours, when asked for
     /// ([`ClippedVoronoi::faces`]).
-    pub adjacency: Option<crate::diagram::faces::Adjacency>,
+    pub adjacency: Option<crate::passes::faces::Adjacency>,
     /// Each cell as one closed polyhedron, when asked for
     /// ([`ClippedVoronoi::compute_with_polyhedra`]).
     pub polyhedra: Option<Vec<CellPolyhedron>>,
@@ -271,12 +271,12 @@ impl Cells {
     /// The clipped Voronoi adjacency (shared faces, their areas and
     /// normals; each cell's boundary area), when asked for
     /// ([`ClippedVoronoi::faces`]).
-    pub fn adjacency(&self) -> Option<&crate::diagram::faces::Adjacency> {
+    pub fn adjacency(&self) -> Option<&crate::passes::faces::Adjacency> {
         self.adjacency.as_ref()
     }
 
     /// Each cell that has a volume as one closed polyhedron, in site
-    /// order (see [`crate::diagram::polyhedra`]), when asked for
+    /// order (see [`crate::passes::polyhedra`]), when asked for
     /// ([`ClippedVoronoi::compute_with_polyhedra`]).
     pub fn polyhedra(&self) -> Option<&[CellPolyhedron]> {
         self.polyhedra.as_deref()
@@ -404,7 +404,7 @@ impl<'a> ClippedVoronoi<'a> {
         if mesh.tets.is_empty() {
             return Err(Error::InvalidInput("the mesh has no tets".into()));
         }
-        crate::diagram::sites::check_sites(self.sites, self.weights)?;
+        crate::job::sites::check_sites(self.sites, self.weights)?;
         let pairing = self.resolved_pairing();
         if pairing == Pairing::Flood && self.strategy != Strategy::TetCell {
             return Err(Error::InvalidInput("flood pairing works with the tet-cell strategy only".into()));
@@ -432,7 +432,7 @@ impl<'a> ClippedVoronoi<'a> {
         // the kernels in Morton order, for locality; the map sends each
         // input site to its place in that order.
         let weight = |i: usize| self.weights.map_or(0.0, |w| w[i]);
-        let (inputs, map) = crate::diagram::sites::unique_in_morton_order(self.sites, self.weights);
+        let (inputs, map) = crate::job::sites::unique_in_morton_order(self.sites, self.weights);
 
         let frame = Frame::of(mesh);
         let sites: Vec<[f64; 3]> = inputs.iter().map(|&i| frame.to_local(self.sites[i as usize])).collect();
@@ -450,12 +450,12 @@ impl<'a> ClippedVoronoi<'a> {
         }
         let mut split: Vec<SplitPoint> =
             sites.iter().enumerate().map(|(u, &p)| SplitPoint::site(p, local_weight(u))).collect();
-        crate::diagram::sites::check_separable(&split, self.sites, &inputs)?;
+        crate::job::sites::check_separable(&split, self.sites, &inputs)?;
         drop(inputs);
         if weight_range > 0.0 {
             // Each site's local weight bound, after the sites.
             let volume = mesh.volume() / frame.scale.powi(3);
-            split.extend(crate::diagram::weight_bounds::local_bounds(&split, weight_range, volume));
+            split.extend(crate::job::weight_bounds::local_bounds(&split, weight_range, volume));
         }
         let verts: Vec<[f64; 3]> = mesh.vertices.iter().map(|&p| frame.to_local(p)).collect();
         let mut local_mesh = TetMesh { vertices: verts, tets: mesh.tets.clone() };
@@ -479,7 +479,7 @@ impl<'a> ClippedVoronoi<'a> {
         }
 
         // Box for Algorithm 1 (mesh and sites, with a margin).
-        let (lo, hi) = crate::vec3::bounding_box(sites.iter().chain(&local_mesh.vertices));
+        let (lo, hi) = crate::geom::vec3::bounding_box(sites.iter().chain(&local_mesh.vertices));
         let diag = (0..3).map(|a| (hi[a] - lo[a]).powi(2)).sum::<f64>().sqrt();
         let margin = 0.01 * diag.max(1e-3);
         // Per-site sums, and their total over all sites, are at most (mesh
@@ -494,7 +494,7 @@ impl<'a> ClippedVoronoi<'a> {
         // at most a cell's surface (inside the unit box: 6) plus the
         // mesh's boundary area.
         let (tet_faces, faces_base, area_bits) = if self.faces {
-            let bits = crate::diagram::faces::boundary_bits(&local_mesh);
+            let bits = crate::passes::faces::boundary_bits(&local_mesh);
             let boundary: f64 = local_mesh.boundary().area();
             // Masses: areas times at most the largest density.
             let rho = if self.face_masses { rho_max } else { 1.0 };
@@ -580,7 +580,7 @@ impl<'a> ClippedVoronoi<'a> {
         let backend = match self.backend {
             Some(b) => b,
             None => {
-                cpu = crate::cpu::CpuBackend::new(None)?;
+                cpu = crate::exec::CpuBackend::new(None)?;
                 &cpu
             }
         };
@@ -593,21 +593,21 @@ impl<'a> ClippedVoronoi<'a> {
     /// site's cell inside one tet — numbered by site and tet, each given in
     /// world coordinates on request ([`Pieces::get`]). The cells are those
     /// [`Self::compute`] returns on `cpu`.
-    pub fn compute_with_pieces(&self, cpu: &crate::cpu::CpuBackend) -> Result<(Cells, Pieces)> {
+    pub fn compute_with_pieces(&self, cpu: &crate::exec::CpuBackend) -> Result<(Cells, Pieces)> {
         let (job, map, frame) = self.job()?;
         let sinks = Mutex::new(Vec::new());
         let out = cpu.clip_into::<PieceCollector>(&job, &sinks)?;
         let cells = self.finish_job(&job, &map, &frame, out, &sinks)?;
         let collected = sinks.into_inner().unwrap_or_else(|e| e.into_inner());
-        Ok((cells, crate::diagram::pieces::to_world(collected, &job, &map, &frame, self.sites)))
+        Ok((cells, crate::passes::pieces::to_world(collected, &job, &map, &frame, self.sites)))
     }
 
     /// Computes the clipped cells on the CPU backend `cpu`, as
     /// [`Self::compute_with_pieces`], with each cell as one closed
     /// polyhedron ([`Cells::polyhedra`]): its pieces merged.
-    pub fn compute_with_polyhedra(&self, cpu: &crate::cpu::CpuBackend) -> Result<(Cells, Pieces)> {
+    pub fn compute_with_polyhedra(&self, cpu: &crate::exec::CpuBackend) -> Result<(Cells, Pieces)> {
         let (mut cells, pieces) = self.compute_with_pieces(cpu)?;
-        let (polyhedra, t) = crate::timing::timed(|| merge_pieces(&pieces));
+        let (polyhedra, t) = crate::geom::timing::timed(|| merge_pieces(&pieces));
         cells.polyhedra = Some(polyhedra);
         cells.timings.push("polyhedra", t);
         Ok((cells, pieces))
@@ -622,14 +622,14 @@ impl<'a> ClippedVoronoi<'a> {
         mut out: ClipOutput,
         sinks: &Mutex<Vec<S>>,
     ) -> Result<Cells> {
-        let (redone, t) = crate::timing::timed(|| crate::diagram::second_pass::run(job, &mut out, sinks));
+        let (redone, t) = crate::geom::timing::timed(|| crate::passes::second_pass::run(job, &mut out, sinks));
         let redone = redone?;
         if redone.finished + redone.unresolved + redone.missed_tets > 0 {
             out.timings.push("host pass", t);
         }
         let (refined, out_unresolved) = (out.refined, out.unresolved);
         let (adjacency, faces_redone) = if job.face_sums_len() > 0 {
-            let (adjacency, t) = crate::timing::timed(|| self.adjacency(job, map, frame, &out));
+            let (adjacency, t) = crate::geom::timing::timed(|| self.adjacency(job, map, frame, &out));
             out.timings.push("faces", t);
             let (adjacency, redone) = adjacency?;
             (Some(adjacency), redone)
@@ -657,7 +657,7 @@ impl ClippedVoronoi<'_> {
         map: &SiteMap,
         frame: &Frame,
         out: &ClipOutput,
-    ) -> Result<(crate::diagram::faces::Adjacency, usize)> {
+    ) -> Result<(crate::passes::faces::Adjacency, usize)> {
         let k = job.params.k_site as usize;
         let n = job.params.n_sites;
         let mut cpu = None;
@@ -665,24 +665,24 @@ impl ClippedVoronoi<'_> {
         let lists = if out.site_lists.k as usize == k && out.site_lists.view(0).slot(n as usize - 1) != NO_LIST {
             &out.site_lists
         } else {
-            let c = cpu.insert(crate::cpu::CpuBackend::new(None)?);
+            let c = cpu.insert(crate::exec::CpuBackend::new(None)?);
             again = c.packed_lists(&job.site_knn, cvd_kernels::lists::width(n))?;
             &again
         };
         let (mut faces, incomplete) =
-            crate::diagram::faces::from_sums(&out.faces, &lists.view(0), k, job.params.area_scale as f64);
+            crate::passes::faces::from_sums(&out.faces, &lists.view(0), k, job.params.area_scale as f64);
         if !incomplete.is_empty() {
             // Those sites' own pieces, else every piece again.
-            let all = match crate::diagram::faces::redo_sites(job, out, &incomplete) {
+            let all = match crate::passes::faces::redo_sites(job, out, &incomplete) {
                 Some(all) => all,
                 None => {
                     let cpu = match cpu {
                         Some(c) => c,
-                        None => crate::cpu::CpuBackend::new(None)?,
+                        None => crate::exec::CpuBackend::new(None)?,
                     };
                     let sinks = Mutex::new(Vec::new());
-                    let mut again = cpu.clip_into::<crate::diagram::faces::FaceCollector>(job, &sinks)?;
-                    crate::diagram::second_pass::run(job, &mut again, &sinks)?;
+                    let mut again = cpu.clip_into::<crate::passes::faces::FaceCollector>(job, &sinks)?;
+                    crate::passes::second_pass::run(job, &mut again, &sinks)?;
                     sinks.into_inner().unwrap_or_else(|e| e.into_inner())
                 }
             };
@@ -691,7 +691,7 @@ impl ClippedVoronoi<'_> {
             let tet_density =
                 |t: usize| job.tets[t].iter().map(|&v| job.verts[v as usize].hi[3] as f64).sum::<f64>() / 4.0;
             let masses = job.params.face_masses != 0;
-            crate::diagram::faces::complete(&mut faces, &incomplete, &all, &job.tet_faces, |t| {
+            crate::passes::faces::complete(&mut faces, &incomplete, &all, &job.tet_faces, |t| {
                 if masses {
                     tet_density(t)
                 } else {
@@ -699,7 +699,7 @@ impl ClippedVoronoi<'_> {
                 }
             });
         }
-        Ok((crate::diagram::faces::assemble(faces, map, self.sites, frame.scale), incomplete.len()))
+        Ok((crate::passes::faces::assemble(faces, map, self.sites, frame.scale), incomplete.len()))
     }
 }
 

@@ -2,12 +2,12 @@
 //! per thread index, in chunks of consecutive indices.
 
 use crate::backend::Backend;
+use crate::backends::distributed::halo::Held;
 use crate::cvt::LloydOutput;
 use crate::diagram::voronoi::{ClipJob, ClipOutput, Pairing, Strategy};
-use crate::distributed::halo::Held;
 use crate::error::{Error, Result};
-use crate::knn::{KnnJob, KnnMethod, Neighbors, PackedLists};
-use crate::timing::{timed, Timings};
+use crate::geom::timing::{timed, Timings};
+use crate::job::knn::{KnnJob, KnnMethod, Neighbors, PackedLists};
 use cvd_kernels::abi::{
     counter, ClipParams, KnnParams, QuantPoint, RefineParams, ACCUM_PER_SITE, NO_SITE, OUT_OF_HALO,
 };

@@ -3,7 +3,7 @@
 //! (world coordinates) such as `1+10*x` or `exp(-8*((x-0.5)^2+y^2))`.
 
 use crate::error::{Error, Result};
-use crate::mesh::TetMesh;
+use crate::geom::mesh::TetMesh;
 
 /// A parsed density expression.
 #[derive(Clone, Debug)]

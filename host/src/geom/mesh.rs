@@ -77,7 +77,7 @@ impl TetMesh {
 
     /// The mesh's boundary: the tet faces no other tet shares, facing out
     /// of their tet, on the mesh's vertices (unused ones included).
-    pub fn boundary(&self) -> crate::surface::TriSurface {
+    pub fn boundary(&self) -> crate::geom::surface::TriSurface {
         let mut faces: std::collections::HashMap<[u32; 3], (u32, [u32; 3])> = Default::default();
         for (t, tet) in self.tets.iter().enumerate() {
             let [a, b, c, d] = *tet;
@@ -94,7 +94,7 @@ impl TetMesh {
         }
         let mut triangles: Vec<[u32; 3]> = faces.into_values().filter(|(n, _)| *n == 1).map(|(_, f)| f).collect();
         triangles.sort_unstable();
-        crate::surface::TriSurface { vertices: self.vertices.clone(), triangles }
+        crate::geom::surface::TriSurface { vertices: self.vertices.clone(), triangles }
     }
 
     /// Centroid of tet `t`.
@@ -115,7 +115,7 @@ impl TetMesh {
 
     /// Lower and upper corners of the vertices' bounding box.
     pub fn bounding_box(&self) -> ([f64; 3], [f64; 3]) {
-        crate::vec3::bounding_box(&self.vertices)
+        crate::geom::vec3::bounding_box(&self.vertices)
     }
 
     /// The unit cube cut into `n³` sub-cubes, each split into 6 tets.

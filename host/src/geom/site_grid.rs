@@ -108,7 +108,7 @@ mod tests {
 
     #[test]
     fn ball_and_nearest_match_brute_force() {
-        let mut rng = crate::points::Rng::new(7);
+        let mut rng = crate::geom::points::Rng::new(7);
         let sites: Vec<SplitPoint> =
             (0..2000).map(|_| SplitPoint::new([rng.unit(), rng.unit(), 0.3 * rng.unit()], 0.0)).collect();
         let grid = SiteGrid::new(&sites);

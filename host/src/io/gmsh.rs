@@ -3,7 +3,7 @@
 use super::lex::{Lexer, Line, Tok, Tokens};
 use super::{build, TetList};
 use crate::error::Result;
-use crate::mesh::TetMesh;
+use crate::geom::mesh::TetMesh;
 use std::collections::HashMap;
 
 const CONVERT: &str = "convert it with `gmsh in.msh -0 -format msh22 -o out.msh`";

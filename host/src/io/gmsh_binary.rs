@@ -15,7 +15,7 @@
 use super::binary::ByteReader;
 use super::gmsh::element_kind;
 use crate::error::{Error, Result};
-use crate::mesh::TetMesh;
+use crate::geom::mesh::TetMesh;
 use std::collections::HashMap;
 
 impl ByteReader<'_> {

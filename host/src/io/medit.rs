@@ -3,7 +3,7 @@
 use super::lex::{Lexer, Tokens};
 use super::{build, TetList};
 use crate::error::Result;
-use crate::mesh::TetMesh;
+use crate::geom::mesh::TetMesh;
 
 /// Sections skipped by count, with the numbers in each entry (3D files).
 const SKIPPED: &[(&str, usize)] = &[

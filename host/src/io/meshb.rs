@@ -11,7 +11,7 @@
 
 use super::binary::ByteReader;
 use crate::error::{Error, Result};
-use crate::mesh::TetMesh;
+use crate::geom::mesh::TetMesh;
 
 const DIMENSION: u32 = 3;
 const VERTICES: u32 = 4;

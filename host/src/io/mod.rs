@@ -41,7 +41,7 @@ pub use vtu::parse_vtu;
 pub use xyz::{parse_values, parse_xyz};
 
 use crate::error::{Error, Result};
-use crate::mesh::{signed_volume, TetMesh};
+use crate::geom::mesh::{signed_volume, TetMesh};
 use lex::parse_error;
 use std::io::{Read, Seek, SeekFrom, Write};
 use std::path::Path;

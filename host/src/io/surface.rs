@@ -10,7 +10,7 @@
 
 use super::lex::{Lexer, Tokens};
 use crate::error::{Error, Result};
-use crate::surface::TriSurface;
+use crate::geom::surface::TriSurface;
 use std::io::Cursor;
 use std::path::Path;
 
@@ -204,7 +204,7 @@ pub fn parse_off(text: &str, path: &str) -> Result<TriSurface> {
 mod tests {
     use super::super::tests::no_panic_on_mutations;
     use super::*;
-    use crate::surface::tests::box_surface;
+    use crate::geom::surface::tests::box_surface;
 
     fn unit_box() -> TriSurface {
         box_surface([0.0; 3], [1.0, 2.0, 3.0])

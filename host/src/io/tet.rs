@@ -3,7 +3,7 @@
 use super::lex::{Lexer, Tokens};
 use super::{build, TetList};
 use crate::error::Result;
-use crate::mesh::TetMesh;
+use crate::geom::mesh::TetMesh;
 
 /// Parses a line `N vertices`, a line `M cells`, N lines `x y z` and M
 /// lines `4 a b c d` (0-based vertex indices). Read line by line, so that

@@ -3,7 +3,7 @@
 use super::lex::{Lexer, Line, Tokens};
 use super::{build, TetList};
 use crate::error::Result;
-use crate::mesh::TetMesh;
+use crate::geom::mesh::TetMesh;
 
 /// Parses a TetGen `.node` text (first line `n 3 attributes markers`, then
 /// `index x y z [attributes] [marker]`) and `.ele` text (first line

@@ -13,7 +13,7 @@
 //! Data sections after the cells (`POINT_DATA`, `CELL_DATA`) are ignored.
 
 use crate::error::{Error, Result};
-use crate::mesh::TetMesh;
+use crate::geom::mesh::TetMesh;
 
 /// VTK cell types of dimension below 3 (skipped).
 pub(super) const LOWER_DIMENSIONAL: [i64; 12] = [1, 2, 3, 4, 5, 6, 7, 8, 9, 21, 22, 23];

@@ -8,7 +8,7 @@
 
 use super::vtk::{LOWER_DIMENSIONAL, TETRA};
 use crate::error::{Error, Result};
-use crate::mesh::TetMesh;
+use crate::geom::mesh::TetMesh;
 use base64::Engine;
 use quick_xml::events::{BytesStart, Event};
 use std::io::Read;

@@ -2,8 +2,8 @@
 
 use crate::backend::Backend;
 use crate::error::{Error, Result};
-use crate::quantize::Quantizer;
-use crate::timing::Timings;
+use crate::geom::quantize::Quantizer;
+use crate::geom::timing::Timings;
 use cvd_kernels::abi::{GridParams, KnnParams, QuantPoint, QUANT_MAX};
 
 /// How the neighbours are searched.

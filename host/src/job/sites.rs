@@ -105,7 +105,7 @@ pub(crate) fn unique_in_morton_order(sites: &[[f64; 3]], weights: Option<&[f64]>
     }
     let owners: Vec<u32> = (0..sites.len() as u32).filter(|&i| table.slots[table.find(i as usize, key)] == i).collect();
     drop(table);
-    let order = crate::points::morton_order_by(owners.len(), |u| sites[owners[u] as usize]);
+    let order = crate::geom::points::morton_order_by(owners.len(), |u| sites[owners[u] as usize]);
     let inputs: Vec<u32> = order.iter().map(|&u| owners[u as usize]).collect();
     let mut map = vec![NONE; sites.len()];
     for (place, &i) in inputs.iter().enumerate() {
@@ -166,14 +166,14 @@ mod tests {
 
     #[test]
     fn many_sites_map_one_to_one_in_morton_order() {
-        let sites = crate::points::uniform(20_000, 7);
+        let sites = crate::geom::points::uniform(20_000, 7);
         let mut with_twins = sites.clone();
         with_twins.extend_from_slice(&sites[..500]);
         let (inputs, map) = unique_in_morton_order(&with_twins, None);
         assert_eq!(inputs.len(), sites.len());
         assert_eq!(map.len(), with_twins.len());
         assert!((sites.len()..with_twins.len()).all(|i| map.get(i).is_none()));
-        let order = crate::points::morton_order(&sites);
+        let order = crate::geom::points::morton_order(&sites);
         assert_eq!(inputs, order, "the owners in the Morton order of the distinct sites");
     }
 }

@@ -34,7 +34,7 @@ pub(crate) fn local_bounds(sites: &[SplitPoint], range: f64, volume: f64) -> Vec
     let n = sites.len();
     let points: Vec<[f64; 3]> = sites.iter().map(SplitPoint::to_f64).collect();
     let weights: Vec<f64> = sites.iter().map(SplitPoint::value).collect();
-    let (lo, hi) = crate::vec3::bounding_box(points.iter());
+    let (lo, hi) = crate::geom::vec3::bounding_box(points.iter());
     let spacing = (volume.max(1e-30) / n as f64).cbrt();
     // The grid: at most about 2^21 cells.
     let longest = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max).max(1e-30);

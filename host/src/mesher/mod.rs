@@ -31,10 +31,10 @@ pub mod surface_field;
 pub const DEFAULT_SURFACE_RESOLUTION: u32 = 40;
 
 /// Fills the volume a closed, outward-oriented triangle surface encloses
-/// ([`crate::surface::TriSurface::into_closed`]) with tets by isosurface
+/// ([`crate::geom::surface::TriSurface::into_closed`]) with tets by isosurface
 /// stuffing on a lattice of `resolution` cubes along the surface's longest
 /// side. Sharp creases and corners are bevelled at the lattice's scale.
-pub fn mesh_surface(surface: &crate::surface::TriSurface, resolution: u32) -> crate::Result<crate::TetMesh> {
+pub fn mesh_surface(surface: &crate::geom::surface::TriSurface, resolution: u32) -> crate::Result<crate::TetMesh> {
     let field = surface_field::SurfaceDistance::new(surface);
     let (lo, hi) = surface.bounding_box();
     let longest = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
@@ -57,7 +57,7 @@ pub fn mesh_surface(surface: &crate::surface::TriSurface, resolution: u32) -> cr
 /// The resolution at which [`mesh_surface`] gives about `tets` tets: the
 /// count at a coarse lattice, scaled by the cube root of the ratio (the
 /// count grows as the cube of the resolution).
-pub fn resolution_for_tets(surface: &crate::surface::TriSurface, tets: usize) -> crate::Result<u32> {
+pub fn resolution_for_tets(surface: &crate::geom::surface::TriSurface, tets: usize) -> crate::Result<u32> {
     const PROBE: u32 = 12;
     let probe = mesh_surface(surface, PROBE)?.tets.len().max(1);
     let r = PROBE as f64 * (tets.max(1) as f64 / probe as f64).cbrt();

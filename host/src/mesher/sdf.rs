@@ -8,7 +8,7 @@
 //! which is all the mesher's root finding along lattice edges needs: a
 //! continuous function whose sign says inside or outside.
 
-use crate::vec3::{dot, norm, sub};
+use crate::geom::vec3::{dot, norm, sub};
 
 /// What the mesher fills: a function negative inside the shape, zero on its
 /// surface, positive outside — continuous, with the magnitude a lower bound

@@ -588,9 +588,9 @@ fn reference_volume(lattice: &Lattice, tet: [Node; 4]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geom::points::Rng;
     use crate::mesher::quality::{Conformity, Quality};
     use crate::mesher::sdf::Sdf;
-    use crate::points::Rng;
 
     /// The paper's bounds on the dihedral angles for the default `alpha`s.
     const PAPER_MIN: f64 = 10.7;

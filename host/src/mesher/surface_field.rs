@@ -10,7 +10,7 @@
 //! angle-weighted normal at a vertex. For a closed, consistently oriented
 //! surface this sign is exact, however sharp the surface's creases and
 //! corners. [`TriSurface::into_closed`] also lets through small cracks
-//! (open edges around gaps narrower than [`crate::surface::MAX_CRACK`]);
+//! (open edges around gaps narrower than [`crate::geom::surface::MAX_CRACK`]);
 //! where the nearest feature lies on a crack's rim, the sign is the
 //! generalised winding number's instead (inside above 1/2), which a small
 //! gap barely moves. Shells touching at a vertex keep the pseudo-normal
@@ -19,11 +19,11 @@
 //! crossing each other are refused before they get here.
 
 use super::sdf::Shape;
-use crate::surface::TriSurface;
+use crate::geom::surface::TriSurface;
 use std::collections::HashMap;
 
-use crate::surface::bvh::TriangleTree;
-use crate::vec3::{add, cross, dot, scale, sub, unit, P};
+use crate::geom::surface::bvh::TriangleTree;
+use crate::geom::vec3::{add, cross, dot, scale, sub, unit, P};
 
 /// The feature of a triangle a point is nearest to.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -196,8 +196,8 @@ impl Shape for SurfaceDistance<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::points::Rng;
-    use crate::surface::tests::box_surface;
+    use crate::geom::points::Rng;
+    use crate::geom::surface::tests::box_surface;
 
     #[test]
     fn the_distance_to_a_box_is_exact_inside_and_out() {
@@ -220,7 +220,7 @@ mod tests {
     /// the closed surface.
     #[test]
     fn a_crack_changes_no_sign() {
-        let closed = crate::surface::tests::fine_box(100);
+        let closed = crate::geom::surface::tests::fine_box(100);
         let mut cracked = closed.clone();
         // Triangles on the face x = 0 and on the edge x = 0, y = 0.
         let on =

@@ -11,9 +11,9 @@
 //! their cell data by increasing count, which agree only then.
 
 use super::Progress;
-use crate::diagram::polyhedra::CellPolyhedron;
 use crate::diagram::voronoi::Cells;
 use crate::error::{Error, Result};
+use crate::passes::polyhedra::CellPolyhedron;
 use flate2::write::ZlibEncoder;
 use flate2::Compression;
 use rayon::prelude::*;

@@ -9,9 +9,9 @@
 //! face is shared with (its site plus that many box lengths; see
 //! [`Adjacency::shifts`]), and there is no boundary.
 
-use crate::diagram::faces::Adjacency;
 use crate::error::Result;
 use crate::io::write_file;
+use crate::passes::faces::Adjacency;
 use std::path::Path;
 
 /// The header line.

@@ -5,9 +5,9 @@
 //! black (the mesh's cross-section outline).
 
 use super::Progress;
-use crate::diagram::pieces::{Piece, Pieces};
 use crate::error::Result;
-use crate::mesh::TetMesh;
+use crate::geom::mesh::TetMesh;
+use crate::passes::pieces::{Piece, Pieces};
 use std::path::Path;
 
 /// The cutting plane `z = z`.

@@ -5,9 +5,9 @@ use crate::backend::Backend;
 use crate::cvt::Iteration;
 use crate::diagram::voronoi::{Cells, Counters};
 use crate::error::Result;
+use crate::geom::mesh::TetMesh;
+use crate::geom::timing::Timings;
 use crate::io::write_file;
-use crate::mesh::TetMesh;
-use crate::timing::Timings;
 use std::fmt;
 use std::path::Path;
 
@@ -50,7 +50,7 @@ pub struct Summary {
     pub pieces: Option<usize>,
     /// Lids the polyhedra needed: holes where a corner of a cell poked into
     /// a tet by a sliver the flood did not reach (see
-    /// [`crate::diagram::polyhedra::CellPolyhedron::repaired_holes`]).
+    /// [`crate::passes::polyhedra::CellPolyhedron::repaired_holes`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub lids: Option<u64>,
     /// The optimiser's record, when CVT iterations moved the sites before
@@ -65,10 +65,10 @@ pub struct Summary {
     /// otherwise).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub periodic: Option<PeriodicRecord>,
-    /// A run in parts ([`crate::distributed`]): rank 0's rounds and every
+    /// A run in parts ([`crate::backends::distributed`]): rank 0's rounds and every
     /// rank's totals (absent otherwise).
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub parts: Option<crate::distributed::PartReport>,
+    pub parts: Option<crate::backends::distributed::PartReport>,
 }
 
 /// A periodic box and the images its diagram took.

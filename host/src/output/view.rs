@@ -8,8 +8,8 @@
 
 use super::picture::colour;
 use super::Progress;
-use crate::diagram::pieces::Pieces;
 use crate::error::Result;
+use crate::passes::pieces::Pieces;
 use std::path::Path;
 
 type V3 = [f64; 3];

@@ -9,8 +9,8 @@
 //! but their cell data by increasing count, which agree only then.
 
 use super::Progress;
-use crate::diagram::pieces::{Piece, Pieces};
 use crate::error::{Error, Result};
+use crate::passes::pieces::{Piece, Pieces};
 use std::io::Write;
 use std::path::Path;
 

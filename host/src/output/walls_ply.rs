@@ -5,8 +5,8 @@
 //! `neighbor` (the other cell, or -1 on the boundary). A wall's points are
 //! its cell's: walls of different cells do not share points.
 
-use crate::diagram::polyhedra::CellPolyhedron;
 use crate::error::{Error, Result};
+use crate::passes::polyhedra::CellPolyhedron;
 use std::io::Write;
 use std::path::Path;
 

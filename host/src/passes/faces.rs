@@ -13,8 +13,8 @@
 //! shared face is then measured from both sides; the adjacency holds their
 //! mean, so `area(i, j) == area(j, i)` exactly.
 
-use crate::cpu::TaskSink;
-use crate::mesh::TetMesh;
+use crate::exec::TaskSink;
+use crate::geom::mesh::TetMesh;
 use cvd_kernels::clip::PieceSink;
 use cvd_kernels::lists::Lists;
 use cvd_kernels::polyhedron::{made_by_site, Polyhedron, NO_ID, TET_FACE};
@@ -228,7 +228,7 @@ pub(crate) fn complete(
 /// difference in the world (`sites`, input order; `map`: input to unique).
 pub(crate) fn assemble(
     mut faces: Vec<SiteFaces>,
-    map: &crate::diagram::sites::SiteMap,
+    map: &crate::job::sites::SiteMap,
     sites: &[[f64; 3]],
     scale: f64,
 ) -> Adjacency {
@@ -340,7 +340,7 @@ pub(crate) fn redo_sites(
         return None;
     }
     let neighbors = tet_neighbors(&job.tets);
-    let g = crate::cpu::build_grid(&job.site_knn);
+    let g = crate::exec::build_grid(&job.site_knn);
     let walk = GridWalk::new(&job.refine, &[], &g.cell_start, &g.cell_count, &g.sorted);
     let faces = FaceInputs { site_nbrs: &[], tet_faces: &job.tet_faces };
     let verts: Vec<[f64; 3]> = job.verts.iter().map(|v| v.to_f64()).collect();
@@ -367,7 +367,7 @@ pub(crate) fn redo_sites(
             let mut queue = vec![start];
             while let Some(t) = queue.pop() {
                 let before = pieces.volume;
-                let mut still = crate::cpu::LocalPairs::default();
+                let mut still = crate::exec::LocalPairs::default();
                 let refine = cvd_kernels::abi::RefineParams {
                     clip: cvd_kernels::abi::ClipParams { faces_base: 0, ..job.refine.clip },
                     ..job.refine

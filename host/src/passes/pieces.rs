@@ -8,8 +8,8 @@
 //! on its plane through the edges they share (see
 //! [`Polyhedron::vertex_planes`]).
 
-use crate::cpu::TaskSink;
 use crate::diagram::voronoi::{ClipJob, Frame};
+use crate::exec::TaskSink;
 use cvd_kernels::clip::PieceSink;
 use cvd_kernels::polyhedron::{made_by_site, Polyhedron, NO_ID, TET_FACE};
 use rayon::prelude::*;
@@ -43,12 +43,12 @@ pub const IN_MESH: i64 = -2;
 impl Piece {
     /// The faces' vertex loops.
     pub fn faces(&self) -> impl Iterator<Item = &[u32]> + '_ {
-        crate::diagram::polyhedra::loops(&self.face_vertices, &self.face_ends)
+        crate::passes::polyhedra::loops(&self.face_vertices, &self.face_ends)
     }
 
     /// The volume, by the divergence theorem over the face loops.
     pub fn volume(&self) -> f64 {
-        crate::diagram::polyhedra::enclosed_volume(&self.vertices, self.faces())
+        crate::passes::polyhedra::enclosed_volume(&self.vertices, self.faces())
     }
 }
 
@@ -327,7 +327,7 @@ fn face_loops<const P: usize, const V: usize>(poly: &Polyhedron<P, V>, out: &mut
 pub(crate) fn to_world(
     collected: Vec<PieceCollector>,
     job: &ClipJob,
-    map: &crate::diagram::sites::SiteMap,
+    map: &crate::job::sites::SiteMap,
     frame: &Frame,
     input: &[[f64; 3]],
 ) -> Pieces {
@@ -339,7 +339,7 @@ pub(crate) fn to_world(
         }
     }
     let local = crate::TetMesh { vertices: Vec::new(), tets: job.tets.clone() };
-    let bits = crate::diagram::faces::boundary_bits(&local);
+    let bits = crate::passes::faces::boundary_bits(&local);
     let mut parts: Vec<Part> = collected.into_iter().map(|c| c.0).collect();
     parts.par_iter_mut().for_each(|part| {
         // Each face's maker: the input site, or where the face lies.

@@ -19,8 +19,8 @@
 //! (each a face with the same neighbour), so that every face is a simple
 //! polygon.
 
-use crate::diagram::pieces::{Pieces, IN_MESH, ON_BOUNDARY};
-use crate::vec3::{add, bounding_box, cross, dot, norm, sub};
+use crate::geom::vec3::{add, bounding_box, cross, dot, norm, sub};
+use crate::passes::pieces::{Pieces, IN_MESH, ON_BOUNDARY};
 use rayon::prelude::*;
 use std::collections::HashMap;
 

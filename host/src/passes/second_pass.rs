@@ -15,11 +15,11 @@
 //!   pieces of the sites that may own part of it but were not among its k
 //!   nearest.
 
-use crate::cpu::{build_grid, par_indices, CpuBackend, LocalPairs, TaskSink};
 use crate::diagram::voronoi::{ClipJob, ClipOutput};
 use crate::error::Result;
-use crate::knn::KnnJob;
-use crate::site_grid::SiteGrid;
+use crate::exec::{build_grid, par_indices, CpuBackend, LocalPairs, TaskSink};
+use crate::geom::site_grid::SiteGrid;
+use crate::job::knn::KnnJob;
 use cvd_kernels::abi::{counter, KnnParams, INCOMPLETE_TET, NO_SITE, OUT_OF_HALO};
 use cvd_kernels::clip::{FaceInputs, Paired};
 use cvd_kernels::refine;
@@ -163,7 +163,7 @@ pub(crate) fn run<S: TaskSink>(job: &ClipJob, out: &mut ClipOutput, sinks: &Mute
         let inv = 1.0 / job.params.fixed_scale as f64;
         incomplete.extend((0..job.tets.len() as u32).filter(|&t| {
             let v = job.tets[t as usize].map(|i| job.verts[i as usize].to_f64());
-            let vol = crate::mesh::signed_volume(v[0], v[1], v[2], v[3]).abs();
+            let vol = crate::geom::mesh::signed_volume(v[0], v[1], v[2], v[3]).abs();
             let found = sums[n_site_sums + t as usize].load(Ordering::Relaxed) as f64 * inv;
             (found - vol).abs() > VOLUME_TOLERANCE * vol
         }));
@@ -280,7 +280,7 @@ fn candidate_pairs(job: &ClipJob, grid: &SiteGrid, walk: &GridWalk, tets: &[[u32
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::{points, ClippedVoronoi, TetMesh};
+    use crate::{geom::points, ClippedVoronoi, TetMesh};
     use cvd_kernels::abi::ACCUM_PER_SITE;
     use cvd_kernels::clip::NoPieces;
 

@@ -21,10 +21,10 @@
 //! by the same planes in the same order as in the whole job, so its sums
 //! are the same bits.
 
-use crate::cpu::{build_grid, CpuGrid};
 use crate::diagram::voronoi::ClipJob;
 use crate::error::{Error, Result};
-use crate::knn::KnnJob;
+use crate::exec::{build_grid, CpuGrid};
+use crate::job::knn::KnnJob;
 use cvd_kernels::abi::{ClipParams, GridParams, KnnParams, QuantPoint, RefineParams};
 use cvd_kernels::grid::cell_coords;
 
@@ -250,7 +250,7 @@ pub(crate) fn part_job(
         .map(|(_, &q)| q)
         .collect();
     let grid = held.grid_params(sites.len());
-    let quant: crate::knn::Points = quant.into();
+    let quant: crate::job::knn::Points = quant.into();
     let site_knn = KnnJob {
         sites: quant.clone(),
         params: KnnParams {
@@ -361,8 +361,8 @@ mod tests {
 #[cfg(test)]
 mod lists_tests {
     use super::*;
-    use crate::cpu::{build_grid, CpuBackend};
-    use crate::{points, ClippedVoronoi, TetMesh};
+    use crate::exec::{build_grid, CpuBackend};
+    use crate::{geom::points, ClippedVoronoi, TetMesh};
 
     /// A part's certified lists are the whole job's; the others are marked
     /// unknown, and so are its tets' uncertified nearest sites.
@@ -419,8 +419,8 @@ mod lists_tests {
 #[cfg(test)]
 mod walk_tests {
     use super::*;
-    use crate::cpu::build_grid;
-    use crate::{points, ClippedVoronoi, TetMesh};
+    use crate::exec::build_grid;
+    use crate::{geom::points, ClippedVoronoi, TetMesh};
     use cvd_kernels::walk::{walk_end, walk_rings, GridWalk, RingVisitor};
 
     /// Every site met within a fixed reach.

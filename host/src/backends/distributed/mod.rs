@@ -15,7 +15,7 @@
 //!
 //! [`Distributed`] is a [`Backend`]: it computes the parts of its rank on
 //! the CPU and adds the sums of all ranks through a [`Reduce`] — an MPI
-//! all-reduce (`cvd::distributed::mpi`, the `mpi` feature), or nothing in
+//! all-reduce (`cvd::backends::distributed::mpi`, the `mpi` feature), or nothing in
 //! one process ([`Alone`]), where one rank may compute several parts one
 //! after another (what P ranks compute, in one process, and in a
 //! P-th of the memory for the lists and grids). So the diagram, Lloyd's
@@ -26,12 +26,12 @@ pub mod halo;
 pub mod mpi;
 
 use crate::backend::Backend;
-use crate::cpu::CpuBackend;
 use crate::cvt::LloydOutput;
 use crate::diagram::voronoi::{ClipJob, ClipOutput, Pairing, Strategy};
 use crate::error::{Error, Result};
-use crate::knn::{KnnJob, Neighbors};
-use crate::timing::{timed, Timings};
+use crate::exec::CpuBackend;
+use crate::geom::timing::{timed, Timings};
+use crate::job::knn::{KnnJob, Neighbors};
 use cvd_kernels::abi::{counter, ACCUM_PER_SITE, OUT_OF_HALO};
 use cvd_kernels::clip::NoPieces;
 use halo::{cells_of, part_job, Held, Listed, SitesByCell};
@@ -106,7 +106,7 @@ fn balanced_bounds(job: &ClipJob, by_cell: &SitesByCell, parts: usize) -> Vec<us
     let prefix: Vec<f64> = (0..job.tets.len())
         .map(|t| {
             let v = job.tets[t].map(|i| job.verts[i as usize].to_f64());
-            let volume = crate::mesh::signed_volume(v[0], v[1], v[2], v[3]).abs();
+            let volume = crate::geom::mesh::signed_volume(v[0], v[1], v[2], v[3]).abs();
             total += (1.0 + (density(t) * volume).cbrt()).powi(3);
             total
         })
@@ -358,7 +358,7 @@ impl Distributed {
                     round.out_of_halo += halo_left.len() as u64;
                     host.extend(halo_left.iter().map(|e| group[e[0] as usize]));
                     let none = Mutex::new(Vec::<NoPieces>::new());
-                    let (r, t) = timed(|| crate::diagram::second_pass::run(&part, &mut out, &none));
+                    let (r, t) = timed(|| crate::passes::second_pass::run(&part, &mut out, &none));
                     let r = r?;
                     timings.add("host pass", t);
                     outcome.redone[0] += r.finished;
@@ -506,7 +506,7 @@ impl Backend for Distributed {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::{points, ClippedVoronoi, TetMesh};
+    use crate::{geom::points, ClippedVoronoi, TetMesh};
 
     fn in_parts(parts: usize) -> Distributed {
         Distributed::new(CpuBackend::new(Some(2)).unwrap(), Box::new(Alone), parts).unwrap()

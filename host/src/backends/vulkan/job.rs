@@ -5,7 +5,7 @@ use super::context::Context;
 use super::memory::{Buffer, Location};
 use super::pipelines::Pipelines;
 use crate::error::{Error, Result, VkContext};
-use crate::timing::Timings;
+use crate::geom::timing::Timings;
 use ash::vk;
 use cvd_kernels::abi::WORKGROUP_SIZE;
 

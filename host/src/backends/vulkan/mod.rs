@@ -13,9 +13,9 @@ use crate::backend::Backend;
 use crate::cvt::LloydOutput;
 use crate::diagram::voronoi::{ClipJob, ClipOutput, Pairing, Strategy};
 use crate::error::{Error, Result};
-use crate::knn::{KnnJob, KnnMethod, Neighbors};
-use crate::timing::timed;
-use crate::timing::Timings;
+use crate::geom::timing::timed;
+use crate::geom::timing::Timings;
+use crate::job::knn::{KnnJob, KnnMethod, Neighbors};
 use context::Context;
 use cvd_kernels::abi::{
     counter, lloyd_stat, ClipParams, GridBuildParams, GridParams, KnnParams, RefineParams, SplitPoint, ACCUM_PER_SITE,
@@ -337,7 +337,7 @@ impl Backend for VulkanBackend {
             sums,
             tet_volumes,
             faces,
-            site_lists: lists_back.map_or_else(Default::default, |b| crate::knn::PackedLists {
+            site_lists: lists_back.map_or_else(Default::default, |b| crate::job::knn::PackedLists {
                 words: done.read(b, (n * ks) as usize),
                 k: ks as u32,
                 bits: 32,

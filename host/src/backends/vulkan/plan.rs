@@ -167,7 +167,7 @@ impl Plan {
 mod tests {
     use super::*;
     use crate::diagram::voronoi::DEFAULT_K_SITE;
-    use crate::{points, ClippedVoronoi, TetMesh};
+    use crate::{geom::points, ClippedVoronoi, TetMesh};
 
     fn job(n: usize) -> ClipJob {
         let mesh = TetMesh::cube(6);

@@ -5,7 +5,7 @@
 //! boxes overlap a box (the check that a surface does not cross itself).
 
 use super::TriSurface;
-use crate::vec3::{add, bounding_box, cross, dot, norm, scale, sub, P};
+use crate::geom::vec3::{add, bounding_box, cross, dot, norm, scale, sub, P};
 
 /// A node: a box and either two children or a range of the ordered
 /// triangles.
@@ -211,7 +211,7 @@ impl TriangleTree {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::points::Rng;
+    use crate::geom::points::Rng;
 
     /// The hierarchical winding number agrees with the exact one (the sum
     /// over every triangle) to a few hundredths, inside, outside and near a

@@ -9,7 +9,7 @@
 
 use super::bvh::TriangleTree;
 use super::TriSurface;
-use crate::vec3::{cross, dot, sub, P};
+use crate::geom::vec3::{cross, dot, sub, P};
 use rayon::prelude::*;
 
 /// The sign of the volume of `a, b, c, d`, zero within rounding of its
@@ -55,7 +55,7 @@ fn triangles_cross(x: [P; 3], y: [P; 3]) -> bool {
 /// The pairs of triangles that cross: how many, and the first (by index).
 pub fn crossings(surface: &TriSurface, tree: &TriangleTree) -> (usize, Option<(u32, u32)>) {
     let boxes: Vec<(P, P)> =
-        (0..surface.triangles.len()).map(|t| crate::vec3::bounding_box(&surface.corners(t))).collect();
+        (0..surface.triangles.len()).map(|t| crate::geom::vec3::bounding_box(&surface.corners(t))).collect();
     let found: Vec<(usize, Option<(u32, u32)>)> = (0..surface.triangles.len())
         .into_par_iter()
         .map(|t| {
@@ -86,7 +86,7 @@ pub fn crossings(surface: &TriSurface, tree: &TriangleTree) -> (usize, Option<(u
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::surface::tests::box_surface;
+    use crate::geom::surface::tests::box_surface;
 
     fn union(a: TriSurface, b: &TriSurface) -> TriSurface {
         let mut s = a;

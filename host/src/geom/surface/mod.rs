@@ -58,7 +58,7 @@ pub struct SurfaceReport {
     pub volume: f64,
 }
 
-use crate::vec3::{cross, dot, norm, sub, P};
+use crate::geom::vec3::{cross, dot, norm, sub, P};
 
 /// The widest gap, relative to the surface's longest side, that
 /// [`TriSurface::into_closed`] accepts as a crack (1 %): the mesher's
@@ -192,7 +192,7 @@ impl TriSurface {
 
     /// Lower and upper corners of the vertices' bounding box.
     pub fn bounding_box(&self) -> (P, P) {
-        crate::vec3::bounding_box(&self.vertices)
+        crate::geom::vec3::bounding_box(&self.vertices)
     }
 
     /// The generalised winding number of the surface at `p`: 1 inside a
