@@ -15,6 +15,7 @@
 mod common;
 
 use cvd::cvt::CvtRun;
+use cvd::cvt::SiteDiagram;
 use cvd::exec::CpuBackend;
 use cvd::output::Series;
 use cvd::{geom::points, Backend, ClippedVoronoi, TetMesh};

@@ -42,11 +42,13 @@ pub mod io;
 pub mod output;
 
 pub use backend::Backend;
-pub use backends::{BackendKind, BackendOptions};
+pub use backends::{BackendChoice, BackendOptions};
 pub use diagram::periodic::{PeriodicBox, PeriodicCells, PeriodicVoronoi};
-pub use diagram::voronoi::{Cells, ClippedVoronoi, Counters, Pairing, Strategy};
+pub use diagram::voronoi::{Cells, ClippedVoronoi, Counters};
 pub use error::{Error, Result};
 pub use exec::CpuBackend;
 pub use geom::mesh::TetMesh;
+pub use job::clip::{Pairing, Strategy};
 pub use job::knn::{KnnJob, KnnMethod, Neighbors};
+pub use job::BackendKind;
 pub use passes::pieces::{Piece, Pieces};

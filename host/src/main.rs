@@ -3,8 +3,9 @@
 use clap::{Args, Parser, Subcommand};
 use cvd::backends::distributed::Distributed;
 use cvd::backends::vulkan::{self, VulkanOptions};
-use cvd::backends::{self, BackendKind, BackendOptions};
+use cvd::backends::{self, BackendChoice, BackendOptions};
 use cvd::cvt::transport::Transport;
+use cvd::cvt::{Optimizer, SiteDiagram};
 use cvd::exec::CpuBackend;
 use cvd::mesher::models;
 use cvd::output::{self, CvtRecord, PeriodicRecord, Section, Summary, TransportRecord};
@@ -252,7 +253,7 @@ fn open_backend(args: &RunArgs) -> cvd::Result<(RunBackend, String)> {
         let backends::Chosen { backend, why } = backends::choose(&args.backend.options())?;
         return Ok((RunBackend::One(backend), why));
     }
-    if args.backend.backend == BackendKind::Vulkan {
+    if args.backend.backend == BackendChoice::Vulkan {
         return Err(cvd::Error::InvalidInput("a run in parts uses the CPU backend: drop --backend vulkan".into()));
     }
     if transports(args) {
@@ -516,12 +517,25 @@ fn transport(
     let capacities = args.capacities.as_deref().map(|p| per_site(p, "capacities", sites.len())).transpose()?;
     let density = density(args, mesh)?;
     let cv = ClippedVoronoi::new(mesh, sites).k_site(args.k_site).backend(backend).density(density.as_deref());
-    let ot = match periodic {
-        Some(domain) => Transport::periodic(PeriodicVoronoi::new(domain, sites).k_site(args.k_site).backend(backend)),
-        None => Transport::new(cv),
-    };
-    let mut ot = ot.tolerance(args.tolerance).max_steps(args.newton_steps);
-    if let Some(c) = &capacities {
+    match periodic {
+        Some(domain) => {
+            let pv = PeriodicVoronoi::new(domain, sites).k_site(args.k_site).backend(backend);
+            transport_on(args, pv, start, capacities.as_deref())
+        }
+        None => transport_on(args, cv, start, capacities.as_deref()),
+    }
+}
+
+/// [`transport`] on `diagram`.
+fn transport_on<D: SiteDiagram>(
+    args: &RunArgs,
+    diagram: D,
+    start: Option<&[f64]>,
+    capacities: Option<&[f64]>,
+) -> cvd::Result<Transported> {
+    let sites = diagram.starting_sites().to_vec();
+    let mut ot = Transport::new(diagram).tolerance(args.tolerance).max_steps(args.newton_steps);
+    if let Some(c) = capacities {
         ot = ot.capacities(c);
     }
     if let Some(w) = start {
@@ -550,7 +564,7 @@ fn transport(
             }
             true
         })?;
-        (sites.to_vec(), None, run)
+        (sites, None, run)
     };
     let record = TransportRecord::of(targets, args.tolerance, &run);
     if !run.converged {
@@ -566,16 +580,6 @@ fn transport(
         );
     }
     Ok(Transported { sites, cvt, weights: run.weights, record })
-}
-
-/// CVT optimisers.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-enum Optimizer {
-    /// Lloyd's iteration: every site to its cell's centroid (on Vulkan, the
-    /// whole loop runs on the device).
-    Lloyd,
-    /// L-BFGS (memory 7) with a line search that only accepts decreases.
-    Lbfgs,
 }
 
 /// Runs the CVT iterations with a progress bar; returns the final sites and
@@ -597,10 +601,7 @@ fn lloyd(
         bar.set_position(done as u64);
         bar.set_message(format!("{:?}, energy {energy:.6e}", args.optimizer));
     };
-    let run = match args.optimizer {
-        Optimizer::Lloyd => cv.lloyd(args.iterations, &mut |done, energy| show(done, energy))?,
-        Optimizer::Lbfgs => cv.lbfgs(args.iterations, &mut |done, energy| show(done, energy))?,
-    };
+    let run = args.optimizer.run(&cv, args.iterations, &mut |done, energy| show(done, energy))?;
     bar.finish_and_clear();
     let name = output::value_name(&args.optimizer);
     let record = CvtRecord::of(&name, &run.iterations);
@@ -690,7 +691,7 @@ fn run(args: &RunArgs) -> cvd::Result<()> {
     // run (its times then include collecting the pieces and merging them);
     // another backend's pieces stay on its device, so the CPU makes them
     // in a second run below.
-    let cpu_geometry = !no_geometry && backend.kind() == "cpu";
+    let cpu_geometry = !no_geometry && backend.kind() == cvd::BackendKind::Cpu;
     let (cells, geometry) = if cpu_geometry {
         let cpu = CpuBackend::new(args.backend.threads)?;
         let (cells, pieces) =
@@ -842,10 +843,7 @@ fn run_periodic(args: &RunArgs) -> cvd::Result<()> {
             bar.set_position(done as u64);
             bar.set_message(format!("{name}, energy {energy:.6e}"));
         };
-        let run = match args.optimizer {
-            Optimizer::Lloyd => pv.lloyd(args.iterations, &mut show)?,
-            Optimizer::Lbfgs => pv.lbfgs(args.iterations, &mut show)?,
-        };
+        let run = args.optimizer.run(&pv, args.iterations, &mut show)?;
         bar.finish_and_clear();
         (Some(run.sites), Some(CvtRecord::of(&name, &run.iterations)), weights, None)
     } else {
@@ -909,8 +907,8 @@ const PICTURE_SIZE: usize = 1024;
 #[derive(Args, Clone)]
 struct BackendArgs {
     /// Where the kernels run.
-    #[arg(long, value_enum, default_value_t = BackendKind::Auto)]
-    backend: BackendKind,
+    #[arg(long, value_enum, default_value_t = BackendChoice::Auto)]
+    backend: BackendChoice,
     /// CPU backend threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
@@ -930,7 +928,7 @@ struct BackendArgs {
 impl BackendArgs {
     fn options(&self) -> BackendOptions {
         BackendOptions {
-            kind: self.backend,
+            choice: self.backend,
             threads: self.threads,
             vulkan: VulkanOptions {
                 device: self.device.clone(),

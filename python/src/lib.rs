@@ -7,6 +7,7 @@
 //! when they lie in the input (file, line and what was expected in the
 //! message) and `RuntimeError` otherwise.
 
+use cvd::cvt::SiteDiagram;
 use numpy::{
     IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods,
 };
@@ -183,15 +184,15 @@ fn sample<'py>(py: Python<'py>, mesh: &Mesh, n: usize, seed: u64) -> Bound<'py, 
 
 /// The backend options for a name.
 fn backend(name: &str) -> PyResult<cvd::BackendOptions> {
-    let kind = match name {
-        "auto" => cvd::BackendKind::Auto,
-        "cpu" => cvd::BackendKind::Cpu,
-        "vulkan" => cvd::BackendKind::Vulkan,
+    let choice = match name {
+        "auto" => cvd::BackendChoice::Auto,
+        "cpu" => cvd::BackendChoice::Cpu,
+        "vulkan" => cvd::BackendChoice::Vulkan,
         other => {
             return Err(PyValueError::new_err(format!("backend must be 'auto', 'cpu' or 'vulkan', not {other:?}")))
         }
     };
-    Ok(cvd::BackendOptions { kind, ..Default::default() })
+    Ok(cvd::BackendOptions { choice, ..Default::default() })
 }
 
 /// The clipped cells, as numpy arrays and dicts.
@@ -361,7 +362,7 @@ fn clipped_voronoi(
             // the numbers from the backend asked for when it is another.
             let cpu = cvd::exec::CpuBackend::new(None)?;
             let (mut with, _) = cv.compute_with_polyhedra(&cpu)?;
-            if b.kind() == "cpu" {
+            if b.kind() == cvd::BackendKind::Cpu {
                 return Ok(with);
             }
             let mut cells = cv.backend(b.as_ref()).compute()?;

@@ -2,6 +2,7 @@
 //! tessellation is a fixed point, and the backends agree.
 
 use cvd::cvt::CvtRun;
+use cvd::cvt::SiteDiagram;
 use cvd::{geom::points, Backend, ClippedVoronoi, TetMesh};
 use cvd_tests::{assert_no_validation_errors, backends};
 

@@ -9,6 +9,7 @@
 //! thin box).
 
 use cvd::cvt::transport::Transport;
+use cvd::cvt::SiteDiagram;
 use cvd::{geom::points, PeriodicBox, PeriodicCells, PeriodicVoronoi, Strategy};
 use cvd_tests::backends;
 use cvd_tests::voro::periodic_power_cells;
@@ -257,8 +258,7 @@ fn transport_in_a_periodic_box_gives_equal_cells() {
     let domain = PeriodicBox::new([0.0; 3], [2.0, 1.0, 1.0]).unwrap();
     let sites: Vec<[f64; 3]> = points::uniform(300, 91).iter().map(|p| [2.0 * p[0], p[1], p[2]]).collect();
     for backend in backends() {
-        let run =
-            Transport::periodic(PeriodicVoronoi::new(domain, &sites).backend(backend)).solve(&mut |_| true).unwrap();
+        let run = Transport::new(PeriodicVoronoi::new(domain, &sites).backend(backend)).solve(&mut |_| true).unwrap();
         assert!(run.converged, "{}: {:?}", backend.kind(), run.steps);
         let (vol, _) = periodic_power_cells(domain.lo(), domain.hi(), &sites, &run.weights);
         let target = domain.volume() / sites.len() as f64;
@@ -270,7 +270,7 @@ fn transport_in_a_periodic_box_gives_equal_cells() {
         );
         assert!(worst < 1e-6, "{}: a cell {worst:.1e} off its share", backend.kind());
     }
-    let (cvt, solved) = Transport::periodic(PeriodicVoronoi::new(domain, &sites)).cvt(4, &mut |_, _| {}).unwrap();
+    let (cvt, solved) = Transport::new(PeriodicVoronoi::new(domain, &sites)).cvt(4, &mut |_, _| {}).unwrap();
     let e: Vec<f64> = cvt.iterations.iter().map(|i| i.energy).collect();
     assert!(e.windows(2).all(|w| w[1] < w[0]), "the capacity-constrained CVT raised the energy: {e:?}");
     assert!(solved.converged && solved.max_error() < 1e-6);

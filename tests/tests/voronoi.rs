@@ -1,6 +1,7 @@
 //! Clipped Voronoi cells: both strategies on both backends against the
 //! exact f64 reference, against each other, and the volume balance.
 
+use cvd::cvt::SiteDiagram;
 use cvd::exec::CpuBackend;
 use cvd::{geom::points, Backend, Cells, ClippedVoronoi, Pairing, Strategy, TetMesh};
 use cvd_tests::reference::clipped_cells;
@@ -217,7 +218,7 @@ fn sites_outside_and_very_few_sites() {
 
 #[test]
 fn paper_k_follows_eq_6() {
-    use cvd::diagram::voronoi::paper_k;
+    use cvd::job::clip::paper_k;
     assert_eq!(paper_k(5, 1000), 5);
     assert_eq!(paper_k(19, 1000), 19);
     assert_eq!(paper_k(20, 100_000), 20);

@@ -2,6 +2,7 @@
 //! ([`vulkan`]) and a job in parts ([`distributed`]) — and how one is
 //! chosen and opened from [`BackendOptions`].
 
+mod cpu;
 pub mod distributed;
 pub mod vulkan;
 
@@ -19,7 +20,7 @@ pub struct Chosen {
     pub why: String,
 }
 
-/// What [`BackendKind::Auto`] does with the Vulkan devices found.
+/// What [`BackendChoice::Auto`] does with the Vulkan devices found.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum AutoChoice {
     /// Vulkan on the device of this index.
@@ -28,7 +29,7 @@ pub enum AutoChoice {
     Cpu(String),
 }
 
-/// [`BackendKind::Auto`]'s rule: the first real GPU, by kind (discrete,
+/// [`BackendChoice::Auto`]'s rule: the first real GPU, by kind (discrete,
 /// integrated, virtual), when this build has the kernels; otherwise the CPU
 /// backend, saying why.
 pub fn auto_choice(devices: &[DeviceInfo], has_kernels: bool) -> AutoChoice {
@@ -65,11 +66,13 @@ pub fn choose(options: &BackendOptions) -> Result<Chosen> {
     let vulkan = |vulkan: &VulkanOptions, why: String| -> Result<Chosen> {
         Ok(Chosen { backend: Box::new(VulkanBackend::new(vulkan)?), why })
     };
-    match options.kind {
-        BackendKind::Cpu => cpu("asked for".into()),
-        BackendKind::Vulkan => vulkan(&options.vulkan, "asked for".into()),
-        BackendKind::Auto if options.vulkan.device.is_some() => vulkan(&options.vulkan, "the device asked for".into()),
-        BackendKind::Auto => {
+    match options.choice {
+        BackendChoice::Cpu => cpu("asked for".into()),
+        BackendChoice::Vulkan => vulkan(&options.vulkan, "asked for".into()),
+        BackendChoice::Auto if options.vulkan.device.is_some() => {
+            vulkan(&options.vulkan, "the device asked for".into())
+        }
+        BackendChoice::Auto => {
             let devices = match list_devices() {
                 Ok(devices) => devices,
                 Err(Error::VulkanUnavailable(why)) => return cpu(format!("auto: no Vulkan device ({why})")),
@@ -88,6 +91,33 @@ pub fn choose(options: &BackendOptions) -> Result<Chosen> {
             }
         }
     }
+}
+
+/// Which backend to use.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum BackendChoice {
+    /// Vulkan on a real GPU (discrete, integrated or virtual) if there is
+    /// one, else the CPU backend. A Vulkan device that runs on the CPU
+    /// (lavapipe, SwiftShader) is slower than the CPU backend: it is used
+    /// only when asked for.
+    #[default]
+    Auto,
+    /// The CPU backend (rayon).
+    Cpu,
+    /// The Vulkan backend on the best device (or `--device`), GPU or not;
+    /// fails if there is none.
+    Vulkan,
+}
+
+/// Options for choosing and configuring a backend.
+#[derive(Clone, Debug, Default)]
+pub struct BackendOptions {
+    /// Which backend.
+    pub choice: BackendChoice,
+    /// CPU threads (None: all cores).
+    pub threads: Option<usize>,
+    /// Vulkan device selection and validation.
+    pub vulkan: VulkanOptions,
 }
 
 #[cfg(test)]
@@ -120,31 +150,4 @@ mod tests {
         };
         assert!(why.contains("Intel(R) UHD Graphics") && why.contains("no SPIR-V kernels"), "{why}");
     }
-}
-
-/// Which backend to use.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
-pub enum BackendKind {
-    /// Vulkan on a real GPU (discrete, integrated or virtual) if there is
-    /// one, else the CPU backend. A Vulkan device that runs on the CPU
-    /// (lavapipe, SwiftShader) is slower than the CPU backend: it is used
-    /// only when asked for.
-    #[default]
-    Auto,
-    /// The CPU backend (rayon).
-    Cpu,
-    /// The Vulkan backend on the best device (or `--device`), GPU or not;
-    /// fails if there is none.
-    Vulkan,
-}
-
-/// Options for choosing and configuring a backend.
-#[derive(Clone, Debug, Default)]
-pub struct BackendOptions {
-    /// Which backend.
-    pub kind: BackendKind,
-    /// CPU threads (None: all cores).
-    pub threads: Option<usize>,
-    /// Vulkan device selection and validation.
-    pub vulkan: VulkanOptions,
 }

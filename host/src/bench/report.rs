@@ -1,8 +1,9 @@
 //! The suite's measurements and how they are written: one JSON file with
 //! every row, one Markdown file with a table per section, PNG charts.
 
-use crate::diagram::voronoi::{Cells, Counters, Pairing, Strategy};
+use crate::diagram::voronoi::{Cells, Counters};
 use crate::error::{Error, Result};
+use crate::job::clip::{Pairing, Strategy};
 use crate::output::{write_chart_png, Axes, Series};
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -69,7 +70,7 @@ impl Row {
             model: model.to_string(),
             tets,
             sites: cells.volume.len(),
-            backend: backend.kind(),
+            backend: backend.kind().name(),
             device: backend.device(),
             threads: rayon::current_num_threads(),
             strategy: cells.strategy,

@@ -15,9 +15,8 @@
 //! one's `α` first, at most 1.
 //! Every trial is one diagram, with faces, on the diagram's backend.
 
-use crate::cvt::{CvtRun, Iteration};
-use crate::diagram::periodic::PeriodicVoronoi;
-use crate::diagram::voronoi::{Cells, ClippedVoronoi};
+use crate::cvt::{CvtRun, Iteration, SiteDiagram};
+use crate::diagram::voronoi::Cells;
 use crate::error::{Error, Result};
 use rayon::prelude::*;
 use std::time::Instant;
@@ -73,15 +72,12 @@ impl TransportRun {
     }
 }
 
-/// Builder of an optimal-transport solve: the diagram's mesh, sites,
-/// density and backend, with power weights found so that each cell gets
-/// its target mass.
+/// Builder of an optimal-transport solve on a diagram (a clipped one: its
+/// mesh, sites, density and backend; or a periodic box), with power
+/// weights found so that each cell gets its target mass.
 #[derive(Clone, Copy)]
-pub struct Transport<'a> {
-    diagram: ClippedVoronoi<'a>,
-    /// In a periodic box: its diagram (`diagram` then holds only the
-    /// sites).
-    periodic: Option<PeriodicVoronoi<'a>>,
+pub struct Transport<'a, D> {
+    diagram: D,
     capacities: Option<&'a [f64]>,
     start: Option<&'a [f64]>,
     tolerance: f64,
@@ -98,23 +94,14 @@ const MAX_HALVINGS: u32 = 12;
 /// step that does not improve them meets, and halving on finds nothing.
 const NEAR: (f64, u32) = (1e-4, 3);
 
-impl<'a> Transport<'a> {
-    /// Optimal transport on `diagram`'s mesh, sites, density and backend
-    /// (its weights, if any, are ignored: see [`Self::start`]): by default
-    /// every cell gets the same mass, the mesh's mass over the sites.
-    pub fn new(diagram: ClippedVoronoi<'a>) -> Self {
-        Self { diagram, periodic: None, capacities: None, start: None, tolerance: 1e-6, max_steps: 50, restart: false }
-    }
-
-    /// Optimal transport in a periodic box, on `periodic`'s sites and
-    /// backend: every cell gets the same volume, the box's over the sites,
-    /// or its share by [`Self::capacities`].
-    pub fn periodic(periodic: PeriodicVoronoi<'a>) -> Self {
-        // The box's diagram makes its own mesh: this one only carries the
-        // sites.
-        static NO_MESH: crate::TetMesh = crate::TetMesh { vertices: Vec::new(), tets: Vec::new() };
-        let diagram = ClippedVoronoi::new(&NO_MESH, periodic.input_sites());
-        Self { periodic: Some(periodic), ..Self::new(diagram) }
+impl<'a, D: SiteDiagram> Transport<'a, D> {
+    /// Optimal transport on `diagram`'s sites (a clipped diagram: its mesh,
+    /// density and backend; or a periodic box; its weights, if any, are
+    /// ignored: see [`Self::start`]): by default every cell gets the same
+    /// mass, the domain's mass over the sites, or its share by
+    /// [`Self::capacities`].
+    pub fn new(diagram: D) -> Self {
+        Self { diagram, capacities: None, start: None, tolerance: 1e-6, max_steps: 50, restart: false }
     }
 
     /// A capacity per site (positive; normalised so that they sum to the
@@ -147,7 +134,7 @@ impl<'a> Transport<'a> {
     /// The targets per site from the capacities (or uniform) and the mesh's
     /// mass.
     fn targets(&self, mass: f64) -> Result<Vec<f64>> {
-        let n = self.diagram.sites.len();
+        let n = self.diagram.starting_sites().len();
         let Some(c) = self.capacities else { return Ok(vec![mass / n as f64; n]) };
         if c.len() != n {
             return Err(Error::InvalidInput(format!("{} capacities for {n} sites", c.len())));
@@ -159,27 +146,6 @@ impl<'a> Transport<'a> {
         Ok(c.iter().map(|x| x / total * mass).collect())
     }
 
-    /// The diagram with weights `w`, with its faces (their masses under a
-    /// density).
-    fn cells(&self, w: &[f64]) -> Result<Cells> {
-        match &self.periodic {
-            Some(p) => Ok(p.weights(w).faces(true).compute()?.cells),
-            None => ClippedVoronoi { face_masses: true, ..self.diagram.weights(w).faces(true) }.compute(),
-        }
-    }
-
-    /// The sites as the diagram sees them (wrapped into a periodic box),
-    /// and the box's sides, if periodic.
-    fn frame(&self) -> (Vec<[f64; 3]>, Option<[f64; 3]>) {
-        match &self.periodic {
-            Some(p) => {
-                let domain = p.domain();
-                (self.diagram.sites.iter().map(|&x| domain.wrap(x)).collect(), Some(domain.lengths()))
-            }
-            None => (self.diagram.sites.to_vec(), None),
-        }
-    }
-
     /// The capacity-constrained CVT (as blue noise through optimal
     /// transport, de Goes et al. 2012): `iterations` times, the weights
     /// that give every cell its target mass (warm-started from the last
@@ -189,14 +155,10 @@ impl<'a> Transport<'a> {
     /// seconds include its Newton steps), and the transport solved once
     /// more at the moved sites, so that the weights are theirs.
     pub fn cvt(&self, iterations: usize, progress: &mut dyn FnMut(usize, f64)) -> Result<(CvtRun, TransportRun)> {
-        let mut sites = self.diagram.sites.to_vec();
+        let mut sites = self.diagram.starting_sites().to_vec();
         let mut weights = self.start.map(<[f64]>::to_vec);
         // The last weights may empty a moved site's cell: then from zero.
-        let solve = |sites: &[[f64; 3]], weights: Option<&[f64]>| {
-            let diagram = ClippedVoronoi { sites, ..self.diagram };
-            let periodic = self.periodic.map(|p| p.sites(sites));
-            Transport { diagram, periodic, start: weights, restart: true, ..*self }.solve(&mut |_| true)
-        };
+        let solve = |sites: &[[f64; 3]], weights: Option<&[f64]>| self.solve_at(sites, weights, true, &mut |_| true);
         let mut run = CvtRun::default();
         for it in 0..iterations {
             let solved = solve(&sites, weights.as_deref())?;
@@ -227,9 +189,20 @@ impl<'a> Transport<'a> {
     /// the last diagram's); `progress` returning false stops the solve
     /// after that step (not converged).
     pub fn solve(&self, progress: &mut dyn FnMut(&NewtonStep) -> bool) -> Result<TransportRun> {
-        let sites = self.diagram.sites;
+        self.solve_at(self.diagram.starting_sites(), self.start, self.restart, progress)
+    }
+
+    /// [`Self::solve`] at `sites`, from weights `start` (zero if none; with
+    /// `restart`, zero if they empty a cell).
+    fn solve_at(
+        &self,
+        sites: &[[f64; 3]],
+        start: Option<&[f64]>,
+        restart: bool,
+        progress: &mut dyn FnMut(&NewtonStep) -> bool,
+    ) -> Result<TransportRun> {
         let n = sites.len();
-        let mut w = match self.start {
+        let mut w = match start {
             Some(s) if s.len() != n => {
                 return Err(Error::InvalidInput(format!("{} starting weights for {n} sites", s.len())));
             }
@@ -240,11 +213,14 @@ impl<'a> Transport<'a> {
             return Err(Error::InvalidInput(format!("the tolerance must be positive, not {}", self.tolerance)));
         }
         let clock = Instant::now();
-        let frame = self.frame();
-        let mut cells = self.cells(&w)?;
-        if self.restart && self.start.is_some() && cells.volume.iter().any(|&m| m.is_nan() || m <= 0.0) {
+        // The sites as the diagram sees them (wrapped into a periodic box),
+        // and the box's sides, if periodic.
+        let frame: (Vec<[f64; 3]>, _) = (sites.iter().map(|&x| self.diagram.place(x)).collect(), self.diagram.period());
+        let at = |w: &[f64]| self.diagram.power_cells_at(sites, w);
+        let mut cells = at(&w)?;
+        if restart && start.is_some() && cells.volume.iter().any(|&m| m.is_nan() || m <= 0.0) {
             w = vec![0.0; n];
-            cells = self.cells(&w)?;
+            cells = at(&w)?;
         }
         if cells.counters.duplicate_sites > 0 {
             return Err(Error::InvalidInput(format!(
@@ -296,7 +272,7 @@ impl<'a> Transport<'a> {
             for _ in 0..=halvings {
                 let clock = Instant::now();
                 let trial: Vec<f64> = w.iter().zip(&delta).map(|(w, d)| w + alpha * d).collect();
-                let next = self.cells(&trial)?;
+                let next = at(&trial)?;
                 record.diagrams += 1;
                 seconds += clock.elapsed().as_secs_f64();
                 let after = norm(&run.targets.iter().zip(&next.volume).map(|(t, m)| t - m).collect::<Vec<_>>());

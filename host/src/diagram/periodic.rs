@@ -29,11 +29,11 @@
 //! wrap done in lattice coordinates; the kernels need nothing new.
 
 use crate::backend::Backend;
-use crate::cvt::{CvtRun, Iteration};
-use crate::diagram::voronoi::{Cells, ClippedVoronoi, Strategy};
+use crate::diagram::voronoi::{Cells, ClippedVoronoi};
 use crate::error::{Error, Result};
 use crate::geom::mesh::TetMesh;
 use crate::geom::site_grid::SiteGrid;
+use crate::job::clip::Strategy;
 use crate::passes::faces::Adjacency;
 use cvd_kernels::abi::SplitPoint;
 use rayon::prelude::*;
@@ -281,72 +281,6 @@ impl<'a> PeriodicVoronoi<'a> {
         cells.timings.phases.insert(0, ("images".into(), images_s));
         cells.timings.push("fold", clock.elapsed().as_secs_f64());
         Ok(PeriodicCells { cells, sites, offsets, wrapped, images: images.len(), halo })
-    }
-
-    /// Lloyd's iterations in the box: `iterations` times, every site with
-    /// a cell to its cell's centroid (wrapped into the box); `progress` is
-    /// called with the iterations done and the energy the last one started
-    /// from. Returns the sites reached and each iteration's record.
-    pub fn lloyd(&self, iterations: usize, progress: &mut dyn FnMut(usize, f64)) -> Result<CvtRun> {
-        let mut sites: Vec<[f64; 3]> = self.sites.iter().map(|&p| self.domain.wrap(p)).collect();
-        let mut run = CvtRun::default();
-        for it in 0..iterations {
-            let clock = Instant::now();
-            let out = self.sites(&sites).compute()?;
-            let c = &out.cells;
-            let energy = c.energy_total();
-            for (s, (&centroid, &m)) in sites.iter_mut().zip(c.centroid.iter().zip(&c.volume)) {
-                if m > 0.0 {
-                    *s = centroid;
-                }
-            }
-            run.iterations.push(Iteration {
-                energy,
-                empty_cells: c.counters.empty_cells,
-                second_pass: c.counters.second_pass,
-                unresolved: c.counters.unresolved,
-                seconds: clock.elapsed().as_secs_f64(),
-                newton_steps: 0,
-            });
-            progress(it + 1, energy);
-        }
-        run.sites = sites;
-        Ok(run)
-    }
-
-    /// L-BFGS on the CVT energy in the box (as [`ClippedVoronoi::lbfgs`]):
-    /// sites move through the box's faces, and come back wrapped into it.
-    pub fn lbfgs(&self, iterations: usize, progress: &mut dyn FnMut(usize, f64)) -> Result<CvtRun> {
-        let evaluate = |x: &[f64]| -> Result<(crate::cvt::Evaluation, f64)> {
-            let sites = crate::cvt::to_points(x);
-            let clock = Instant::now();
-            let out = PeriodicVoronoi { faces: false, ..self.sites(&sites) }.compute()?;
-            let seconds = clock.elapsed().as_secs_f64();
-            let c = &out.cells;
-            let mut gradient = vec![0.0; x.len()];
-            let mut precondition = vec![0.0; x.len()];
-            for (i, &v) in c.volume.iter().enumerate() {
-                if v > 0.0 {
-                    for a in 0..3 {
-                        // 2 V (x - c): the centroid unwrapped around the site.
-                        gradient[3 * i + a] = -2.0 * v * out.offsets[i][a];
-                        precondition[3 * i + a] = 1.0 / (2.0 * v);
-                    }
-                }
-            }
-            let eval = crate::cvt::Evaluation {
-                energy: c.energy_total(),
-                gradient,
-                precondition,
-                empty: c.counters.empty_cells,
-                second_pass: c.counters.second_pass,
-                unresolved: c.counters.unresolved,
-            };
-            Ok((eval, seconds))
-        };
-        let mut run = crate::cvt::lbfgs(self.sites, iterations, &evaluate, progress)?;
-        run.sites.iter_mut().for_each(|p| *p = self.domain.wrap(*p));
-        Ok(run)
     }
 }
 

@@ -1,12 +1,12 @@
-//! The CPU backend: the kernels' bodies called natively over rayon, one call
-//! per thread index, in chunks of consecutive indices.
+//! The CPU runtime: the kernels' bodies called natively over rayon, one
+//! call per thread index, in chunks of consecutive indices. The CPU
+//! backend ([`CpuBackend`]; its `Backend` implementation in
+//! `backends::cpu`) and every host pass run on it.
 
-use crate::backend::Backend;
-use crate::backends::distributed::halo::Held;
-use crate::cvt::LloydOutput;
-use crate::diagram::voronoi::{ClipJob, ClipOutput, Pairing, Strategy};
 use crate::error::{Error, Result};
 use crate::geom::timing::{timed, Timings};
+use crate::job::clip::{ClipJob, ClipOutput, Pairing, Strategy};
+use crate::job::held::Held;
 use crate::job::knn::{KnnJob, KnnMethod, Neighbors, PackedLists};
 use cvd_kernels::abi::{
     counter, ClipParams, KnnParams, QuantPoint, RefineParams, ACCUM_PER_SITE, NO_SITE, OUT_OF_HALO,
@@ -494,18 +494,9 @@ impl CpuBackend {
         let l = self.packed_lists(job, 32)?;
         Ok(Neighbors { k: l.k as usize, indices: l.words, dist2: Vec::new(), timings: l.timings })
     }
-}
 
-impl Backend for CpuBackend {
-    fn kind(&self) -> &'static str {
-        "cpu"
-    }
-
-    fn device(&self) -> String {
-        format!("{} threads", self.threads())
-    }
-
-    fn knn(&self, job: &KnnJob) -> Result<Neighbors> {
+    /// The neighbours of a k-NN job, with their distances (`Backend::knn`).
+    pub fn neighbors(&self, job: &KnnJob) -> Result<Neighbors> {
         let k = job.params.k as usize;
         let mut indices = vec![0u32; job.queries.len() * k];
         let mut dist2 = vec![0u64; job.queries.len() * k];
@@ -518,12 +509,5 @@ impl Backend for CpuBackend {
             }
         });
         Ok(Neighbors { k, indices, dist2, timings })
-    }
-    fn clip(&self, job: &ClipJob) -> Result<ClipOutput> {
-        self.clip_into(job, &Mutex::new(Vec::<NoPieces>::new()))
-    }
-
-    fn lloyd(&self, job: &ClipJob, iterations: usize, progress: &mut dyn FnMut(usize, i64)) -> Result<LloydOutput> {
-        crate::cvt::lloyd_by_diagrams(self, job, iterations, progress)
     }
 }

@@ -1,6 +1,5 @@
 //! k nearest neighbours: the job description shared by the backends.
 
-use crate::backend::Backend;
 use crate::error::{Error, Result};
 use crate::geom::quantize::Quantizer;
 use crate::geom::timing::Timings;
@@ -156,14 +155,6 @@ impl KnnJob {
             _pad: [0; 2],
         };
         Ok(Self { sites, queries, params, method, quantizer })
-    }
-
-    /// Runs the job on a backend.
-    pub fn run(&self, backend: &dyn Backend) -> Result<Neighbors> {
-        if self.params.k == 0 || self.queries.is_empty() {
-            return Ok(Neighbors { k: self.params.k as usize, ..Default::default() });
-        }
-        backend.knn(self)
     }
 }
 

@@ -329,8 +329,8 @@ impl PieceSink for SitePieces {
 /// one does not (a cell the domain cuts in two), or under a density, `None`
 /// — the caller then takes every piece again.
 pub(crate) fn redo_sites(
-    job: &crate::diagram::voronoi::ClipJob,
-    out: &crate::diagram::voronoi::ClipOutput,
+    job: &crate::job::clip::ClipJob,
+    out: &crate::job::clip::ClipOutput,
     which: &[u32],
 ) -> Option<Vec<FaceCollector>> {
     use cvd_kernels::abi::ACCUM_PER_SITE;

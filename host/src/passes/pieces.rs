@@ -1,15 +1,15 @@
 //! The pieces of a clipped Voronoi diagram — each site's cell inside each
 //! tet — as polyhedra with explicit faces, collected from the kernels'
 //! bodies through their piece sink (see
-//! [`ClippedVoronoi::compute_with_pieces`](crate::ClippedVoronoi::compute_with_pieces)).
+//! `ClippedVoronoi::compute_with_pieces`).
 //!
 //! The kernels store a polyhedron as planes and, per vertex, the triple of
 //! planes meeting there; a face's loop is found by chaining the vertices
 //! on its plane through the edges they share (see
 //! [`Polyhedron::vertex_planes`]).
 
-use crate::diagram::voronoi::{ClipJob, Frame};
 use crate::exec::TaskSink;
+use crate::job::clip::{ClipJob, Frame};
 use cvd_kernels::clip::PieceSink;
 use cvd_kernels::polyhedron::{made_by_site, Polyhedron, NO_ID, TET_FACE};
 use rayon::prelude::*;
@@ -323,7 +323,7 @@ fn face_loops<const P: usize, const V: usize>(poly: &Polyhedron<P, V>, out: &mut
 
 /// The collected pieces with input site and tet indices and the sites'
 /// positions, numbered by site and tet. `map` sends each input site to its
-/// job site (`None` for a duplicate), as [`ClippedVoronoi::job`](crate::ClippedVoronoi::job) gives it.
+/// job site (`None` for a duplicate), as `ClippedVoronoi::job` gives it.
 pub(crate) fn to_world(
     collected: Vec<PieceCollector>,
     job: &ClipJob,
@@ -338,7 +338,7 @@ pub(crate) fn to_world(
             owner[u] = i as u32;
         }
     }
-    let local = crate::TetMesh { vertices: Vec::new(), tets: job.tets.clone() };
+    let local = crate::geom::mesh::TetMesh { vertices: Vec::new(), tets: job.tets.clone() };
     let bits = crate::passes::faces::boundary_bits(&local);
     let mut parts: Vec<Part> = collected.into_iter().map(|c| c.0).collect();
     parts.par_iter_mut().for_each(|part| {

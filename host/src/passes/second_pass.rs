@@ -15,10 +15,10 @@
 //!   pieces of the sites that may own part of it but were not among its k
 //!   nearest.
 
-use crate::diagram::voronoi::{ClipJob, ClipOutput};
 use crate::error::Result;
 use crate::exec::{build_grid, par_indices, CpuBackend, LocalPairs, TaskSink};
 use crate::geom::site_grid::SiteGrid;
+use crate::job::clip::{ClipJob, ClipOutput};
 use crate::job::knn::KnnJob;
 use cvd_kernels::abi::{counter, KnnParams, INCOMPLETE_TET, NO_SITE, OUT_OF_HALO};
 use cvd_kernels::clip::{FaceInputs, Paired};
@@ -48,7 +48,7 @@ pub struct Redone {
 /// Finishes `out.unfinished`, adding the pieces to `out.sums` and handing
 /// them to the tasks' sinks, which end up in `sinks`.
 pub(crate) fn run<S: TaskSink>(job: &ClipJob, out: &mut ClipOutput, sinks: &Mutex<Vec<S>>) -> Result<Redone> {
-    let knn = job.pairing == crate::diagram::voronoi::Pairing::Knn;
+    let knn = job.pairing == crate::job::clip::Pairing::Knn;
     if out.unfinished.is_empty() && !knn {
         return Ok(Redone::default());
     }

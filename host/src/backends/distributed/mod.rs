@@ -26,15 +26,16 @@ pub mod halo;
 pub mod mpi;
 
 use crate::backend::Backend;
-use crate::cvt::LloydOutput;
-use crate::diagram::voronoi::{ClipJob, ClipOutput, Pairing, Strategy};
 use crate::error::{Error, Result};
 use crate::exec::CpuBackend;
 use crate::geom::timing::{timed, Timings};
+use crate::job::clip::{ClipJob, ClipOutput, Pairing, Strategy};
+use crate::job::held::Held;
 use crate::job::knn::{KnnJob, Neighbors};
+use crate::job::BackendKind;
 use cvd_kernels::abi::{counter, ACCUM_PER_SITE, OUT_OF_HALO};
 use cvd_kernels::clip::NoPieces;
-use halo::{cells_of, part_job, Held, Listed, SitesByCell};
+use halo::{cells_of, part_job, Listed, SitesByCell};
 use std::sync::Mutex;
 
 /// Adds numbers across the ranks of a distributed run.
@@ -433,8 +434,8 @@ fn groups(job: &ClipJob, tets: &[u32]) -> Vec<Vec<u32>> {
 }
 
 impl Backend for Distributed {
-    fn kind(&self) -> &'static str {
-        "cpu"
+    fn kind(&self) -> BackendKind {
+        BackendKind::Cpu
     }
 
     fn device(&self) -> String {
@@ -497,15 +498,12 @@ impl Backend for Distributed {
             ..Default::default()
         })
     }
-
-    fn lloyd(&self, job: &ClipJob, iterations: usize, progress: &mut dyn FnMut(usize, i64)) -> Result<LloydOutput> {
-        crate::cvt::lloyd_by_diagrams(self, job, iterations, progress)
-    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::cvt::SiteDiagram;
     use crate::{geom::points, ClippedVoronoi, TetMesh};
 
     fn in_parts(parts: usize) -> Distributed {

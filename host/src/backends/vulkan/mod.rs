@@ -10,12 +10,13 @@ pub use context::{list_devices, validation_errors, DeviceInfo, VulkanOptions};
 pub use pipelines::KERNELS_SPV;
 
 use crate::backend::Backend;
-use crate::cvt::LloydOutput;
-use crate::diagram::voronoi::{ClipJob, ClipOutput, Pairing, Strategy};
 use crate::error::{Error, Result};
 use crate::geom::timing::timed;
 use crate::geom::timing::Timings;
+use crate::job::clip::{ClipJob, ClipOutput, Pairing, Strategy};
 use crate::job::knn::{KnnJob, KnnMethod, Neighbors};
+use crate::job::lloyd::LloydOutput;
+use crate::job::BackendKind;
 use context::Context;
 use cvd_kernels::abi::{
     counter, lloyd_stat, ClipParams, GridBuildParams, GridParams, KnnParams, RefineParams, SplitPoint, ACCUM_PER_SITE,
@@ -88,8 +89,8 @@ impl VulkanBackend {
 }
 
 impl Backend for VulkanBackend {
-    fn kind(&self) -> &'static str {
-        "vulkan"
+    fn kind(&self) -> BackendKind {
+        BackendKind::Vulkan
     }
 
     fn device(&self) -> String {
@@ -240,7 +241,7 @@ impl Backend for VulkanBackend {
         let (mut refined, mut left, mut timings) = (0, Vec::new(), Timings::default());
         // Entries the second pass finished, and those left, of a part.
         let mut collect = |first: u32, list: &[u32]| {
-            let still = crate::diagram::voronoi::pair_list(list);
+            let still = crate::job::clip::pair_list(list);
             refined += first as u64 - still.len() as u64;
             left.extend(still);
         };
@@ -573,7 +574,7 @@ fn lloyd_on_device(
         ];
         j.dispatch("refine", &args, &rp, nt)?;
         j.barrier();
-        let lp = crate::cvt::params(job, it);
+        let lp = crate::job::lloyd::lloyd_params(job, it);
         j.dispatch("move_sites", &[sums, unfinished, still, sites, quant, stats], &lp, n.max(1))?;
         j.mark("iteration");
         if (it + 1) % LLOYD_BATCH == 0 && it + 1 < iterations {

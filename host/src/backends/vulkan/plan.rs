@@ -17,8 +17,8 @@
 //! window that owns the site binds.)
 
 use super::context::Context;
-use crate::diagram::voronoi::{ClipJob, Strategy};
 use crate::error::{Error, Result};
+use crate::job::clip::{ClipJob, Strategy};
 use cvd_kernels::abi::{counter, ACCUM_PER_SITE, WORKGROUP_SIZE};
 use cvd_kernels::clip::CELL_RECORDS;
 
@@ -166,7 +166,7 @@ impl Plan {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::diagram::voronoi::DEFAULT_K_SITE;
+    use crate::job::clip::DEFAULT_K_SITE;
     use crate::{geom::points, ClippedVoronoi, TetMesh};
 
     fn job(n: usize) -> ClipJob {

@@ -1,5 +1,5 @@
 //! Closed triangle surfaces: the domains users bring as STL, OBJ, OFF or
-//! PLY files ([`crate::io::read_surface`]), checked and oriented before
+//! PLY files (read by `io::read_surface`), checked and oriented before
 //! anything is meshed from them.
 //!
 //! [`TriSurface::into_closed`] says exactly what keeps a surface from
