@@ -37,10 +37,6 @@ pub mod cvt;
 pub mod mesher;
 pub mod spirv;
 
-pub mod bench;
-pub mod io;
-pub mod output;
-
 pub use backend::Backend;
 pub use backends::{BackendChoice, BackendOptions};
 pub use diagram::periodic::{PeriodicBox, PeriodicCells, PeriodicVoronoi};

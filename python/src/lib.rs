@@ -157,7 +157,7 @@ fn builtin(py: Python<'_>, name: &str, resolution: Option<u32>) -> PyResult<Mesh
 /// A tet mesh read from a file (every format `cvd run --mesh` reads).
 #[pyfunction]
 fn read_mesh(py: Python<'_>, path: PathBuf) -> PyResult<Mesh> {
-    py.detach(move || cvd::io::read_mesh(&path)).map(|inner| Mesh { inner }).map_err(err)
+    py.detach(move || cvd_io::read_mesh(&path)).map(|inner| Mesh { inner }).map_err(err)
 }
 
 /// The inside of a closed triangle surface (STL, OBJ, OFF, PLY), meshed
@@ -167,7 +167,7 @@ fn read_mesh(py: Python<'_>, path: PathBuf) -> PyResult<Mesh> {
 #[pyo3(signature = (path, resolution=None))]
 fn mesh_surface(py: Python<'_>, path: PathBuf, resolution: Option<u32>) -> PyResult<Mesh> {
     py.detach(move || {
-        let surface = cvd::io::read_surface(&path)?;
+        let surface = cvd_io::read_surface(&path)?;
         cvd::mesher::mesh_surface(&surface, resolution.unwrap_or(cvd::mesher::DEFAULT_SURFACE_RESOLUTION))
     })
     .map(|inner| Mesh { inner })

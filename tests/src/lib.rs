@@ -99,7 +99,7 @@ pub fn shared_models() -> Vec<(&'static str, cvd::TetMesh)> {
     for name in ["torus_8k", "bunny_10k", "fandisk_26k", "joint_31k"] {
         let path = dir.join(format!("{name}.mesh"));
         if path.is_file() {
-            models.push((name, cvd::io::read_mesh(&path).expect("a shared model")));
+            models.push((name, cvd_io::read_mesh(&path).expect("a shared model")));
         } else {
             println!("{name}: not present, skipped");
         }

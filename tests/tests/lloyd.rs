@@ -17,7 +17,7 @@ fn lloyd(mesh: &TetMesh, sites: &[[f64; 3]], iterations: usize, backend: &dyn Ba
     assert_eq!(last, (iterations, run.iterations[iterations - 1].energy), "{}: progress", backend.name());
     assert!(calls.windows(2).all(|w| w[0].0 < w[1].0), "{}: progress went backwards: {calls:?}", backend.name());
     // What the progress bar showed is what summary.json records.
-    let record = cvd::output::CvtRecord::of("lloyd", &run.iterations);
+    let record = cvd_io::CvtRecord::of("lloyd", &run.iterations);
     for &(done, energy) in &calls {
         assert_eq!(record.energy[done - 1], energy, "{}: iteration {done}", backend.name());
     }
@@ -103,7 +103,7 @@ fn lbfgs_decreases_the_energy_and_ends_no_worse_than_lloyd() {
         let lbfgs =
             ClippedVoronoi::new(&mesh, &sites).backend(backend).lbfgs(100, &mut |d, e| calls.push((d, e))).unwrap();
         // One progress call per iteration, showing what the record keeps.
-        let record = cvd::output::CvtRecord::of("lbfgs", &lbfgs.iterations);
+        let record = cvd_io::CvtRecord::of("lbfgs", &lbfgs.iterations);
         let shown: Vec<(usize, f64)> = record.energy.iter().enumerate().map(|(i, &e)| (i + 1, e)).collect();
         assert_eq!(calls, shown, "{}", backend.name());
         let e: Vec<f64> = lbfgs.iterations.iter().map(|i| i.energy).collect();

@@ -27,8 +27,8 @@ fn source(tag: &str) -> (TetMesh, PathBuf, PathBuf) {
         *v = v.map(|c| c * 1.000_000_1 + 1e6);
     }
     let source = dir.join("source.mesh");
-    cvd::io::write_medit(&source, &mesh).unwrap();
-    let expected = cvd::io::read_mesh(&source).unwrap();
+    cvd_io::write_medit(&source, &mesh).unwrap();
+    let expected = cvd_io::read_mesh(&source).unwrap();
     (expected, source, dir)
 }
 
@@ -37,7 +37,7 @@ fn vtu_files_written_by_vtk_read_back_exactly() {
     let (expected, source, dir) = source("vtk");
     let Some(listing) = written_by("write_vtk_xml.py", "vtk", &source, &dir) else { return };
     for (name, path) in listing.as_object().unwrap() {
-        let read = cvd::io::read_mesh(Path::new(path.as_str().unwrap())).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let read = cvd_io::read_mesh(Path::new(path.as_str().unwrap())).unwrap_or_else(|e| panic!("{name}: {e}"));
         assert_eq!(read, expected, "{name}");
     }
     std::fs::remove_dir_all(&dir).ok();
@@ -61,7 +61,7 @@ fn vtk_files_written_by_meshio_read_back() {
         "zlib.vtu",
     ] {
         let path = PathBuf::from(listing[name].as_str().unwrap());
-        let read = cvd::io::read_mesh(&path).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let read = cvd_io::read_mesh(&path).unwrap_or_else(|e| panic!("{name}: {e}"));
         assert_eq!(read.tets, expected.tets, "{name}");
         assert_eq!(read.vertices.len(), expected.vertices.len(), "{name}");
         for (a, b) in read.vertices.iter().zip(&expected.vertices) {
@@ -71,7 +71,7 @@ fn vtk_files_written_by_meshio_read_back() {
         }
     }
     let hexa = listing["hexahedron"].as_str().unwrap();
-    let e = cvd::io::read_mesh(&PathBuf::from(hexa)).unwrap_err().to_string();
+    let e = cvd_io::read_mesh(&PathBuf::from(hexa)).unwrap_err().to_string();
     assert!(e.contains(hexa) && e.contains("1 of VTK cell type 12"), "{e}");
     std::fs::remove_dir_all(&dir).ok();
 }

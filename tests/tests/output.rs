@@ -3,8 +3,8 @@
 //! picture's pixels.
 
 use cvd::exec::CpuBackend;
-use cvd::output::{self, Section, Summary};
 use cvd::{geom::points, Cells, ClippedVoronoi, Error, Pieces, Strategy, TetMesh};
+use cvd_io::{Section, Summary};
 use std::path::PathBuf;
 use std::process::Command;
 
@@ -39,8 +39,8 @@ fn cells_csv_reads_back_exactly() {
     sites.push([5.0, 5.0, 5.0]); // outside: an empty cell
     let cells = ClippedVoronoi::new(&mesh, &sites).compute().unwrap();
     let path = temp_dir("csv").join("cells.csv");
-    output::write_cells_csv(&path, &cells).unwrap();
-    let rows = output::read_cells_csv(&path).unwrap();
+    cvd_io::write_cells_csv(&path, &cells).unwrap();
+    let rows = cvd_io::read_cells_csv(&path).unwrap();
     assert_eq!(rows.len(), sites.len());
     for (i, row) in rows.iter().enumerate() {
         assert_eq!(row.site, i);
@@ -54,8 +54,8 @@ fn cells_csv_reads_back_exactly() {
     assert!(rows.iter().all(|r| r.area.is_none() && r.neighbors.is_none()));
     // With the faces: each cell's surface area and neighbour count too.
     let cells = ClippedVoronoi::new(&mesh, &sites).faces(true).compute().unwrap();
-    output::write_cells_csv(&path, &cells).unwrap();
-    let rows = output::read_cells_csv(&path).unwrap();
+    cvd_io::write_cells_csv(&path, &cells).unwrap();
+    let rows = cvd_io::read_cells_csv(&path).unwrap();
     let adjacency = cells.adjacency().unwrap();
     for (i, row) in rows.iter().enumerate() {
         assert_eq!(row.area, Some(adjacency.surface_area(i)));
@@ -79,7 +79,7 @@ fn bad_cells_csv_names_the_line() {
     for (k, (text, line, message)) in cases.into_iter().enumerate() {
         let path = dir.join(format!("{k}.csv"));
         std::fs::write(&path, text).unwrap();
-        match output::read_cells_csv(&path) {
+        match cvd_io::read_cells_csv(&path) {
             Err(Error::Parse { line: l, message: m, path: p }) => {
                 assert_eq!(l, line, "{m}");
                 assert!(m.contains(message), "{m}");
@@ -157,7 +157,7 @@ fn vtu_polyhedra_add_up_to_the_cells() {
     let sites = points::in_mesh(&mesh, 100, 3);
     let (cells, pieces) = diagram(&mesh, &sites);
     let path = temp_dir("vtu-here").join("pieces.vtu");
-    output::write_pieces_vtu(&path, &pieces, &mut |_, _| {}).unwrap();
+    cvd_io::write_pieces_vtu(&path, &pieces, &mut |_, _| {}).unwrap();
     let vtu = std::fs::read_to_string(&path).unwrap();
     assert!(vtu.contains(&format!("NumberOfCells=\"{}\"", pieces.len())));
     let points: Vec<[f64; 3]> = data_array(&vtu, "Points").chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
@@ -218,7 +218,7 @@ fn meshio_reads_the_pieces_back() {
     let (cells, pieces) = diagram(&mesh, &sites);
     let path = temp_dir("vtu").join("pieces.vtu");
     let mut calls = 0;
-    output::write_pieces_vtu(&path, &pieces, &mut |done, total| {
+    cvd_io::write_pieces_vtu(&path, &pieces, &mut |done, total| {
         assert!(done <= total);
         calls += 1;
     })
@@ -251,7 +251,7 @@ fn picture_shows_cells_and_the_hole() {
     sites.extend([[0.1, 0.1, 0.5], [0.9, 0.9, 0.5]]);
     let (_, pieces) = diagram(&mesh, &sites);
     let path = temp_dir("png").join("picture.png");
-    output::write_section_png(&path, &mesh, &pieces, Section::middle(&mesh), 200, &mut |_, _| {}).unwrap();
+    cvd_io::write_section_png(&path, &mesh, &pieces, Section::middle(&mesh), 200, &mut |_, _| {}).unwrap();
     let decoder = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&path).unwrap()));
     let mut reader = decoder.read_info().unwrap();
     let mut buf = vec![0; reader.output_buffer_size().unwrap()];
@@ -282,7 +282,7 @@ fn the_3d_view_shows_the_lower_cells_shaded() {
     let sites = points::in_mesh(&mesh, 120, 2);
     let (_, pieces) = diagram(&mesh, &sites);
     let path = temp_dir("view").join("cells.png");
-    output::write_cells_view_png(&path, &pieces, &sites, 0.5, 300, &mut |_, _| {}).unwrap();
+    cvd_io::write_cells_view_png(&path, &pieces, &sites, 0.5, 300, &mut |_, _| {}).unwrap();
     let decoder = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&path).unwrap()));
     let mut reader = decoder.read_info().unwrap();
     let mut buf = vec![0; reader.output_buffer_size().unwrap()];
@@ -297,7 +297,7 @@ fn the_3d_view_shows_the_lower_cells_shaded() {
     let drawn = pixels.iter().filter(|&&p| p != [255; 3]).count();
     assert!(drawn > pixels.len() / 5, "{drawn} of {} pixels drawn", pixels.len());
     // Only the cells below the cut: below every site, nothing is drawn.
-    output::write_cells_view_png(&path, &pieces, &sites, -1.0, 300, &mut |_, _| {}).unwrap();
+    cvd_io::write_cells_view_png(&path, &pieces, &sites, -1.0, 300, &mut |_, _| {}).unwrap();
     let mut reader =
         png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&path).unwrap())).read_info().unwrap();
     let mut buf = vec![0; reader.output_buffer_size().unwrap()];

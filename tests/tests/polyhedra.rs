@@ -192,7 +192,7 @@ fn vtk_reads_cells_vtu_back() {
     let (_, _, cells) = joint_cells(600, 5);
     let path = temp_file("cells.vtu");
     let polyhedra = cells.polyhedra().unwrap();
-    cvd::output::write_cells_vtu(&path, &cells, polyhedra, &mut |_, _| {}).unwrap();
+    cvd_io::write_cells_vtu(&path, &cells, polyhedra, &mut |_, _| {}).unwrap();
     let script = cvd_tests::script("read_cells_vtu.py");
     let Some(out) = cvd_tests::python(&[script.as_os_str(), path.as_os_str()], "vtk") else { return };
     let read: serde_json::Value = serde_json::from_slice(&out).unwrap();
@@ -219,7 +219,7 @@ fn walls_ply_has_every_wall_once() {
     use ply_rs::ply::{DefaultElement, Property};
     let (mesh, sites, cells) = joint_cells(400, 8);
     let path = temp_file("walls.ply");
-    let written = cvd::output::write_walls_ply(&path, cells.polyhedra().unwrap()).unwrap();
+    let written = cvd_io::write_walls_ply(&path, cells.polyhedra().unwrap()).unwrap();
     let mut file = std::io::BufReader::new(std::fs::File::open(&path).unwrap());
     let ply = Parser::<DefaultElement>::new().read_ply(&mut file).unwrap();
     let xyz = |e: &DefaultElement| {

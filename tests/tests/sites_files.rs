@@ -55,7 +55,7 @@ for name, arr in [('f8', a), ('f4', f.astype(np.float64))]:
     };
     let (f8, f4) = (printed("f8"), printed("f4"));
     assert_eq!((f8.len(), f4.len()), (3000, 1500));
-    let read = |file: &str| cvd::io::read_sites(&dir.join(file)).unwrap_or_else(|e| panic!("{file}: {e}"));
+    let read = |file: &str| cvd_io::read_sites(&dir.join(file)).unwrap_or_else(|e| panic!("{file}: {e}"));
     for file in ["f8.npy", "f8_fortran.npy", "f8_v2.npy"] {
         assert_eq!(bits(&read(file)), f8, "{file}");
     }
@@ -72,7 +72,7 @@ for name, arr in [('f8', a), ('f4', f.astype(np.float64))]:
         ("flat.npy", "shape (3000,): expected (N, 3)"),
         ("xy.npy", "shape (1000, 2): expected (N, 3)"),
     ] {
-        let e = cvd::io::read_sites(&dir.join(file)).unwrap_err().to_string();
+        let e = cvd_io::read_sites(&dir.join(file)).unwrap_err().to_string();
         assert!(e.contains(file) && e.contains(expected), "{file}: {e}");
     }
     // The same sites from numpy's .npy and from Python's repr in .xyz.

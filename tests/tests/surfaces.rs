@@ -30,7 +30,7 @@ fn surfaces_from_trimesh_read_check_and_mesh() {
         for file in shape["files"].as_array().unwrap() {
             let path = PathBuf::from(file.as_str().unwrap());
             let what = path.display().to_string();
-            let surface = cvd::io::read_surface(&path).unwrap_or_else(|e| panic!("{what}: {e}"));
+            let surface = cvd_io::read_surface(&path).unwrap_or_else(|e| panic!("{what}: {e}"));
             let (surface, report) = surface.into_closed(&what).unwrap_or_else(|e| panic!("{e}"));
             // STL stores f32 coordinates; OBJ and OFF as trimesh prints them.
             assert!(
@@ -58,13 +58,13 @@ fn surfaces_from_trimesh_read_check_and_mesh() {
         }
     }
     let open = listing["open"].as_str().unwrap();
-    let surface = cvd::io::read_surface(Path::new(open)).unwrap();
+    let surface = cvd_io::read_surface(Path::new(open)).unwrap();
     let e = surface.into_closed(open).unwrap_err().to_string();
     assert!(e.contains(open) && e.contains("boundary (open) edges"), "{e}");
     // A crack (one triangle missing): let through, and meshed as if closed.
     let mesh_of = |key: &str| {
         let path = listing[key].as_str().unwrap();
-        let (surface, report) = cvd::io::read_surface(Path::new(path)).unwrap().into_closed(path).unwrap();
+        let (surface, report) = cvd_io::read_surface(Path::new(path)).unwrap().into_closed(path).unwrap();
         (mesh_surface(&surface, 16).unwrap(), report)
     };
     let ((closed, _), (cracked, report)) = (mesh_of("closed_sphere"), mesh_of("cracked_sphere"));
@@ -72,7 +72,7 @@ fn surfaces_from_trimesh_read_check_and_mesh() {
     assert_eq!(closed.tets.len(), cracked.tets.len());
     assert!((closed.volume() - cracked.volume()).abs() <= 1e-9 * closed.volume());
     let overlapping = listing["overlapping"].as_str().unwrap();
-    let surface = cvd::io::read_surface(Path::new(overlapping)).unwrap();
+    let surface = cvd_io::read_surface(Path::new(overlapping)).unwrap();
     let e = surface.into_closed(overlapping).unwrap_err().to_string();
     assert!(e.contains(overlapping) && e.contains("crosses itself") && e.contains("shells 0 and 1"), "{e}");
     std::fs::remove_dir_all(&dir).ok();
@@ -88,7 +88,7 @@ fn the_volume_converges_as_the_lattice_refines() {
     let Some(listing) = trimesh_files(&dir) else { return };
     for name in ["box", "sphere", "torus", "annulus"] {
         let file = PathBuf::from(listing["shapes"][name]["files"][0].as_str().unwrap());
-        let (surface, report) = cvd::io::read_surface(&file).unwrap().into_closed(name).unwrap();
+        let (surface, report) = cvd_io::read_surface(&file).unwrap().into_closed(name).unwrap();
         let mut gaps = Vec::new();
         for resolution in [8, 16, 32] {
             let mesh = mesh_surface(&surface, resolution).unwrap();
@@ -111,7 +111,7 @@ fn a_diagram_on_a_meshed_surface_adds_up() {
     let dir = std::env::temp_dir().join(format!("cvd-surfaces-diagram-{}", std::process::id()));
     let Some(listing) = trimesh_files(&dir) else { return };
     let file = PathBuf::from(listing["shapes"]["capsule"]["files"][2].as_str().unwrap());
-    let (surface, _) = cvd::io::read_surface(&file).unwrap().into_closed("capsule").unwrap();
+    let (surface, _) = cvd_io::read_surface(&file).unwrap().into_closed("capsule").unwrap();
     let mesh = mesh_surface(&surface, 12).unwrap();
     let sites = points::in_mesh(&mesh, 500, 3);
     for backend in backends() {
@@ -161,14 +161,14 @@ fn shared_model_surfaces_mesh_again() {
         return;
     }
     let x: Vec<f64> = RESOLUTIONS.iter().map(|&r| r as f64).collect();
-    let series: Vec<cvd::output::Series> = lines
+    let series: Vec<cvd_io::Series> = lines
         .iter()
         .zip(COLOURS)
-        .map(|((name, gaps), rgb)| cvd::output::Series { name: name.as_str(), values: gaps, x: &x, rgb })
+        .map(|((name, gaps), rgb)| cvd_io::Series { name: name.as_str(), values: gaps, x: &x, rgb })
         .collect();
     let figure = std::env::var_os("CVD_SURFACE_FIGURE")
         .map_or_else(|| std::env::temp_dir().join("surface_volume_gap.png"), PathBuf::from);
-    let axes = cvd::output::Axes { x_name: "resolution", y_name: "volume gap", log_y: true };
-    cvd::output::write_chart_png(&figure, &axes, &series).unwrap();
+    let axes = cvd_io::Axes { x_name: "resolution", y_name: "volume gap", log_y: true };
+    cvd_io::write_chart_png(&figure, &axes, &series).unwrap();
     println!("figure: {}", figure.display());
 }

@@ -124,7 +124,7 @@ fn run_needs_kernels(args: &[String]) -> Result<bool, Failure> {
         Some(_) => return Ok(false),
     }
     eprintln!("xtask: listing the Vulkan devices: the SPIR-V kernels are built only if a GPU will run them");
-    let out = cargo(&["run", "--release", "--package", "cvd", "--no-default-features", "--"], &[])
+    let out = cargo(&["run", "--release", "--package", "cvd-cli", "--no-default-features", "--"], &[])
         .args(["devices", "--json"])
         .stderr(std::process::Stdio::inherit())
         .output()
@@ -148,7 +148,7 @@ fn run(args: &[String]) -> Result<(), Failure> {
                 setup::ensure(Needs::Build)?;
             }
             let features: &[&str] = if kernels { &[] } else { &["--no-default-features"] };
-            let mut cmd = cargo(&["run", "--release", "--package", "cvd"], &[]);
+            let mut cmd = cargo(&["run", "--release", "--package", "cvd-cli"], &[]);
             cmd.args(features).args(["--", "run"]).args(absolute_paths(rest));
             status(cmd)
         }
@@ -165,7 +165,7 @@ fn run(args: &[String]) -> Result<(), Failure> {
         }
         "test-python" => {
             setup::ensure(Needs::Test)?;
-            status(cargo(&["build", "--release", "--package", "cvd"], &[]))?;
+            status(cargo(&["build", "--release", "--package", "cvd-cli"], &[]))?;
             Ok(python::test(&setup::root())?)
         }
         "build" => {
@@ -177,7 +177,7 @@ fn run(args: &[String]) -> Result<(), Failure> {
                 return Err(format!("spirv needs --out DIR\n\n{USAGE}").into());
             }
             setup::ensure(Needs::Build)?;
-            status(cargo(&["run", "--quiet", "--release", "--package", "cvd", "--", "spirv"], rest))
+            status(cargo(&["run", "--quiet", "--release", "--package", "cvd-cli", "--", "spirv"], rest))
         }
         "bench" => {
             setup::ensure(if rest.iter().any(|a| a == "--cpu-only") { Needs::Build } else { Needs::Test })?;
@@ -202,10 +202,10 @@ fn run(args: &[String]) -> Result<(), Failure> {
 fn bench(rest: &[String]) -> Result<(), Failure> {
     match rest.split_first() {
         Some((which, extra)) if ["knn", "paper", "cvt", "transport", "periodic"].contains(&which.as_str()) => {
-            status(cargo(&["bench", "--package", "cvd", "--bench", which, "--"], extra))
+            status(cargo(&["bench", "--package", "cvd-bench", "--bench", which, "--"], extra))
         }
         Some((cvd, extra)) if cvd == "cvd" => {
-            status(cargo(&["bench", "--package", "cvd", "--bench", "paper", "--", "--sections", "table1"], extra))
+            status(cargo(&["bench", "--package", "cvd-bench", "--bench", "paper", "--", "--sections", "table1"], extra))
         }
         _ => Err(format!("unknown benchmark; expected: paper, cvd, knn, cvt, transport or periodic\n\n{USAGE}").into()),
     }

@@ -94,7 +94,8 @@ pub fn choose(options: &BackendOptions) -> Result<Chosen> {
 }
 
 /// Which backend to use.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum BackendChoice {
     /// Vulkan on a real GPU (discrete, integrated or virtual) if there is
     /// one, else the CPU backend. A Vulkan device that runs on the CPU
@@ -107,6 +108,17 @@ pub enum BackendChoice {
     /// The Vulkan backend on the best device (or `--device`), GPU or not;
     /// fails if there is none.
     Vulkan,
+}
+
+impl BackendChoice {
+    /// Its name on the command line: `auto`, `cpu`, `vulkan`.
+    pub fn name(self) -> &'static str {
+        match self {
+            BackendChoice::Auto => "auto",
+            BackendChoice::Cpu => "cpu",
+            BackendChoice::Vulkan => "vulkan",
+        }
+    }
 }
 
 /// Options for choosing and configuring a backend.

@@ -116,7 +116,8 @@ pub trait SiteDiagram: Sync {
 }
 
 /// The CVT optimisers, by name.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum Optimizer {
     /// Lloyd's iteration: every site to its cell's centroid (on Vulkan, the
     /// whole loop runs on the device).
@@ -127,6 +128,14 @@ pub enum Optimizer {
 }
 
 impl Optimizer {
+    /// Its name on the command line and in files: `lloyd`, `lbfgs`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Optimizer::Lloyd => "lloyd",
+            Optimizer::Lbfgs => "lbfgs",
+        }
+    }
+
     /// Runs `iterations` iterations of this optimiser on `diagram`, calling
     /// `progress` with the iterations done and the energy the last one
     /// started from.

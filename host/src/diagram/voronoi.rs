@@ -19,7 +19,8 @@ use cvd_kernels::lists::NO_LIST;
 use std::sync::Mutex;
 
 /// Counters of a computation: nothing is lost without being counted.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub struct Counters {
     /// Tet-site pairs tried.
     pub pairs: u64,

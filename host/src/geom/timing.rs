@@ -3,7 +3,8 @@
 use std::fmt;
 
 /// Named phases with their duration in seconds, in execution order.
-#[derive(Clone, Debug, Default, serde::Serialize)]
+#[derive(Clone, Debug, Default)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub struct Timings {
     /// `(phase, seconds)` pairs.
     pub phases: Vec<(String, f64)>,

@@ -11,7 +11,9 @@ use crate::job::BackendKind;
 use cvd_kernels::abi::{ClipParams, KnnParams, QuantPoint, RefineParams, SplitPoint};
 
 /// How tets and cells are intersected (paper section 6).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, clap::ValueEnum, serde::Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub enum Strategy {
     /// Start from the tet, clip by bisectors (Algorithm 4).
     #[default]
@@ -20,9 +22,21 @@ pub enum Strategy {
     CellTet,
 }
 
+impl Strategy {
+    /// Its name on the command line and in files: `tet-cell`, `cell-tet`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Strategy::TetCell => "tet-cell",
+            Strategy::CellTet => "cell-tet",
+        }
+    }
+}
+
 /// How tets are paired with the sites whose cells may meet them. Default:
 /// flood for the tet-cell strategy, knn for cell-tet.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, clap::ValueEnum, serde::Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub enum Pairing {
     /// The k nearest sites of each tet's centroid (paper Eq. 6), the
     /// paper's heuristic. A site owning part of a tet but not among its k
@@ -31,11 +45,21 @@ pub enum Pairing {
     /// pieces from the host (counted in `missed_tets`).
     Knn,
     #[default]
-    #[value(alias = "exact")]
+    #[cfg_attr(feature = "clap", value(alias = "exact"))]
     /// From the site nearest the centroid, visit the sites whose bisectors
     /// are faces of the pieces found so far: exactly the sites that own
     /// part of the tet (tet-cell only).
     Flood,
+}
+
+impl Pairing {
+    /// Its name on the command line and in files: `knn`, `flood`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Pairing::Knn => "knn",
+            Pairing::Flood => "flood",
+        }
+    }
 }
 
 /// Neighbours per site used to build its cell (paper: 90): the default on

@@ -6,12 +6,24 @@ use crate::geom::timing::Timings;
 use cvd_kernels::abi::{GridParams, KnnParams, QuantPoint, QUANT_MAX};
 
 /// How the neighbours are searched.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, clap::ValueEnum, serde::Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub enum KnnMethod {
     /// Uniform grid with ring search (paper section 5.2).
     Grid,
     /// Every query against every site (paper section 5.1).
     Brute,
+}
+
+impl KnnMethod {
+    /// Its name on the command line and in files: `grid`, `brute`.
+    pub fn name(self) -> &'static str {
+        match self {
+            KnnMethod::Grid => "grid",
+            KnnMethod::Brute => "brute",
+        }
+    }
 }
 
 /// Target number of sites per grid cell (paper section 5.2).

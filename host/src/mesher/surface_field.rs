@@ -197,11 +197,11 @@ impl Shape for SurfaceDistance<'_> {
 mod tests {
     use super::*;
     use crate::geom::points::Rng;
-    use crate::geom::surface::tests::box_surface;
+    use crate::geom::surface::TriSurface;
 
     #[test]
     fn the_distance_to_a_box_is_exact_inside_and_out() {
-        let s = box_surface([0.0; 3], [1.0, 2.0, 3.0]);
+        let s = TriSurface::cuboid([0.0; 3], [1.0, 2.0, 3.0]);
         let f = SurfaceDistance::new(&s);
         let exact = super::super::sdf::Sdf::cuboid([0.5, 1.0, 1.5], [0.5, 1.0, 1.5]);
         let mut rng = Rng::new(5);
@@ -252,7 +252,7 @@ mod tests {
     /// two cones around it): the sign is right all around it.
     #[test]
     fn a_box_and_a_tet_touching_at_a_corner() {
-        let mut s = box_surface([0.0; 3], [1.0; 3]);
+        let mut s = TriSurface::cuboid([0.0; 3], [1.0; 3]);
         // The tet's apex is the box's corner 7, (1, 1, 1); its base far off.
         let base = [[2.0, 1.6, 1.1], [2.1, 0.7, 1.3], [1.9, 1.2, 0.2]];
         s.vertices.extend(base);
@@ -282,8 +282,8 @@ mod tests {
 
     #[test]
     fn a_nested_hole_is_outside() {
-        let outer = box_surface([0.0; 3], [3.0; 3]);
-        let inner = box_surface([1.0; 3], [2.0; 3]);
+        let outer = TriSurface::cuboid([0.0; 3], [3.0; 3]);
+        let inner = TriSurface::cuboid([1.0; 3], [2.0; 3]);
         let mut s = outer;
         s.vertices.extend(&inner.vertices);
         s.triangles.extend(inner.triangles.iter().map(|t| t.map(|v| v + 8)));

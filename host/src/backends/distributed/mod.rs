@@ -89,6 +89,30 @@ pub fn mpi_launcher() -> Option<&'static str> {
     ["OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "PMIX_RANK"].into_iter().find(|v| std::env::var_os(v).is_some())
 }
 
+/// Whether this build speaks MPI (its `mpi` feature).
+pub const HAS_MPI: bool = cfg!(feature = "mpi");
+
+/// This process's communicator when an MPI launcher started it
+/// ([`mpi_launcher`]): MPI's in a build with the `mpi` feature; in a build
+/// without it, none and a warning that every rank computes the whole job.
+/// Without a launcher: none, and no warning.
+pub fn launched_comm() -> Result<(Option<Box<dyn Reduce>>, Option<String>)> {
+    let Some(var) = mpi_launcher() else { return Ok((None, None)) };
+    #[cfg(feature = "mpi")]
+    {
+        let _ = var;
+        Ok((mpi::Mpi::init()?.map(|m| Box::new(m) as Box<dyn Reduce>), None))
+    }
+    #[cfg(not(feature = "mpi"))]
+    Ok((
+        None,
+        Some(format!(
+            "started by an MPI launcher ({var}), but this cvd was built without the `mpi` feature: \
+             every rank computes the whole job (build with --features mpi)"
+        )),
+    ))
+}
+
 /// Where each of `parts` runs of `job`'s tets begins (and the last ends),
 /// balanced by an estimate of each tet's pieces: a tet of volume `V` where
 /// the sites have density `ρ` (those of its centroid's grid cell) meets
@@ -123,7 +147,8 @@ fn balanced_bounds(job: &ClipJob, by_cell: &SitesByCell, parts: usize) -> Vec<us
 }
 
 /// What one round of a part did.
-#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub struct Round {
     /// Tets computed in the round.
     pub tets: u64,
@@ -145,7 +170,8 @@ pub struct Round {
 }
 
 /// What this rank's parts did, round by round.
-#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+#[derive(Clone, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub struct PartReport {
     /// This rank.
     pub rank: usize,
@@ -166,7 +192,8 @@ pub struct PartReport {
 }
 
 /// One rank's totals for a job, gathered on every rank.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub struct RankTotals {
     /// Tets of its parts.
     pub tets: u64,

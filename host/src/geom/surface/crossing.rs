@@ -86,7 +86,7 @@ pub fn crossings(surface: &TriSurface, tree: &TriangleTree) -> (usize, Option<(u
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geom::surface::tests::box_surface;
+    use crate::geom::surface::TriSurface;
 
     fn union(a: TriSurface, b: &TriSurface) -> TriSurface {
         let mut s = a;
@@ -99,14 +99,14 @@ mod tests {
     #[test]
     fn overlapping_boxes_cross_and_nested_or_touching_ones_do_not() {
         let count = |s: &TriSurface| crossings(s, &TriangleTree::new(s));
-        let a = box_surface([0.0; 3], [2.0; 3]);
+        let a = TriSurface::cuboid([0.0; 3], [2.0; 3]);
         assert_eq!(count(&a), (0, None));
         // Overlapping: crossing pairs found.
-        let (n, first) = count(&union(a.clone(), &box_surface([0.9, 1.2, 1.3], [3.1, 2.7, 3.3])));
+        let (n, first) = count(&union(a.clone(), &TriSurface::cuboid([0.9, 1.2, 1.3], [3.1, 2.7, 3.3])));
         assert!(n > 0 && first.is_some_and(|(t, u)| t < 12 && u >= 12), "{n} {first:?}");
         // Nested, apart, or touching face to face: none.
-        assert_eq!(count(&union(a.clone(), &box_surface([0.5; 3], [1.5; 3]))).0, 0);
-        assert_eq!(count(&union(a.clone(), &box_surface([3.0; 3], [4.0; 3]))).0, 0);
-        assert_eq!(count(&union(a, &box_surface([2.0, 0.0, 0.0], [4.0, 2.0, 2.0]))).0, 0);
+        assert_eq!(count(&union(a.clone(), &TriSurface::cuboid([0.5; 3], [1.5; 3]))).0, 0);
+        assert_eq!(count(&union(a.clone(), &TriSurface::cuboid([3.0; 3], [4.0; 3]))).0, 0);
+        assert_eq!(count(&union(a, &TriSurface::cuboid([2.0, 0.0, 0.0], [4.0, 2.0, 2.0]))).0, 0);
     }
 }

@@ -31,7 +31,8 @@ pub struct TriSurface {
 }
 
 /// What [`TriSurface::into_closed`] found and fixed.
-#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+#[derive(Clone, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub struct SurfaceReport {
     /// Triangles left (after dropping those with a repeated vertex).
     pub triangles: usize,
@@ -139,6 +140,15 @@ pub(crate) fn solid_angle([a, b, c]: [P; 3], p: P) -> f64 {
 }
 
 impl TriSurface {
+    /// The axis-aligned box `lo..hi`: 12 triangles facing outward.
+    pub fn cuboid(lo: P, hi: P) -> Self {
+        let vertices = (0..8).map(|i| [0, 1, 2].map(|a| if (i >> a) & 1 == 1 { hi[a] } else { lo[a] })).collect();
+        // Each face as a quad of corner indices, counter-clockwise from outside.
+        let quads = [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]];
+        let triangles = quads.iter().flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]]).collect();
+        TriSurface { vertices, triangles }
+    }
+
     /// A surface from vertices and triangles, rejecting (by index)
     /// out-of-range vertex references and non-finite coordinates.
     pub fn new(vertices: Vec<[f64; 3]>, triangles: Vec<[u32; 3]>) -> Result<Self> {
@@ -427,18 +437,9 @@ impl TriSurface {
 pub(crate) mod tests {
     use super::*;
 
-    /// The axis-aligned box `lo..hi`, 12 triangles facing outward.
-    pub(crate) fn box_surface(lo: P, hi: P) -> TriSurface {
-        let vertices = (0..8).map(|i| [0, 1, 2].map(|a| if (i >> a) & 1 == 1 { hi[a] } else { lo[a] })).collect();
-        // Each face as a quad of corner indices, counter-clockwise from outside.
-        let quads = [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]];
-        let triangles = quads.iter().flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]]).collect();
-        TriSurface { vertices, triangles }
-    }
-
     #[test]
     fn a_closed_box_is_kept_and_measured() {
-        let s = box_surface([0.0; 3], [1.0, 2.0, 3.0]);
+        let s = TriSurface::cuboid([0.0; 3], [1.0, 2.0, 3.0]);
         assert!((s.signed_volume() - 6.0).abs() < 1e-12);
         assert!((s.area() - 22.0).abs() < 1e-12);
         assert!((s.winding_number([0.5, 1.0, 1.5]) - 1.0).abs() < 1e-9);
@@ -451,7 +452,7 @@ pub(crate) mod tests {
 
     #[test]
     fn inconsistent_and_inward_triangles_are_turned() {
-        let mut s = box_surface([0.0; 3], [1.0; 3]);
+        let mut s = TriSurface::cuboid([0.0; 3], [1.0; 3]);
         s.triangles[3].swap(1, 2);
         s.triangles[7].swap(0, 1);
         let (c, r) = s.clone().into_closed("box").unwrap();
@@ -468,8 +469,8 @@ pub(crate) mod tests {
 
     #[test]
     fn overlapping_shells_are_refused_by_name() {
-        let mut s = box_surface([0.0; 3], [2.0; 3]);
-        let b = box_surface([0.9, 1.2, 1.3], [3.1, 2.7, 3.3]);
+        let mut s = TriSurface::cuboid([0.0; 3], [2.0; 3]);
+        let b = TriSurface::cuboid([0.9, 1.2, 1.3], [3.1, 2.7, 3.3]);
         s.vertices.extend(&b.vertices);
         s.triangles.extend(b.triangles.iter().map(|t| t.map(|v| v + 8)));
         let e = s.into_closed("two.stl").unwrap_err().to_string();
@@ -478,8 +479,8 @@ pub(crate) mod tests {
 
     #[test]
     fn a_nested_shell_is_a_hole() {
-        let outer = box_surface([0.0; 3], [3.0; 3]);
-        let inner = box_surface([1.0; 3], [2.0; 3]);
+        let outer = TriSurface::cuboid([0.0; 3], [3.0; 3]);
+        let inner = TriSurface::cuboid([1.0; 3], [2.0; 3]);
         let mut s = outer.clone();
         s.vertices.extend(&inner.vertices);
         s.triangles.extend(inner.triangles.iter().map(|t| t.map(|v| v + 8)));
@@ -488,7 +489,7 @@ pub(crate) mod tests {
         assert!((c.signed_volume() - 26.0).abs() < 1e-12, "{}", c.signed_volume());
         // Two separate boxes: two shells, no hole.
         let mut s = outer;
-        let apart = box_surface([5.0; 3], [6.0; 3]);
+        let apart = TriSurface::cuboid([5.0; 3], [6.0; 3]);
         s.vertices.extend(&apart.vertices);
         s.triangles.extend(apart.triangles.iter().map(|t| t.map(|v| v + 8)));
         let (c, r) = s.into_closed("boxes").unwrap();
@@ -498,11 +499,11 @@ pub(crate) mod tests {
 
     #[test]
     fn open_and_non_manifold_surfaces_are_named_errors() {
-        let mut s = box_surface([0.0; 3], [1.0; 3]);
+        let mut s = TriSurface::cuboid([0.0; 3], [1.0; 3]);
         s.triangles.pop();
         let e = s.into_closed("open.stl").unwrap_err().to_string();
         assert!(e.contains("open.stl") && e.contains("3 boundary (open) edges"), "{e}");
-        let mut s = box_surface([0.0; 3], [1.0; 3]);
+        let mut s = TriSurface::cuboid([0.0; 3], [1.0; 3]);
         // A fin on edge 0-1: a third triangle there (and its twin, closed).
         s.vertices.push([0.5, -1.0, 0.0]);
         s.triangles.push([0, 1, 8]);
@@ -605,7 +606,7 @@ pub(crate) mod tests {
 
     #[test]
     fn repeated_vertices_are_dropped_and_counted() {
-        let mut s = box_surface([0.0; 3], [1.0; 3]);
+        let mut s = TriSurface::cuboid([0.0; 3], [1.0; 3]);
         s.triangles.push([2, 2, 5]);
         let (_, r) = s.into_closed("box").unwrap();
         assert_eq!((r.dropped, r.triangles), (1, 12));

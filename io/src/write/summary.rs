@@ -1,0 +1,391 @@
+//! `summary.json` and the terminal table: what was computed, where, how
+//! fast, and how well (`E_vol`, counters).
+
+use crate::read::write_file;
+use cvd::backend::Backend;
+use cvd::cvt::Iteration;
+use cvd::diagram::voronoi::{Cells, Counters};
+use cvd::error::Result;
+use cvd::geom::mesh::TetMesh;
+use cvd::geom::timing::Timings;
+use std::fmt;
+use std::path::Path;
+
+/// A run in numbers; serialised as `summary.json`, shown as a table by
+/// `Display`.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct Summary {
+    /// The model's name or mesh file.
+    pub model: String,
+    /// Tets in the mesh.
+    pub tets: usize,
+    /// Input sites (duplicates included).
+    pub sites: usize,
+    /// `cpu` or `vulkan`.
+    pub backend: String,
+    /// The GPU's name, or the CPU and its threads.
+    pub device: String,
+    /// `tet-cell` or `cell-tet`.
+    pub strategy: String,
+    /// `flood` or `knn`.
+    pub pairing: String,
+    /// Sites paired with each tet (1 for flood pairing: its first site).
+    pub k: usize,
+    /// Neighbours per site.
+    pub k_site: usize,
+    /// The mesh's volume.
+    pub mesh_volume: f64,
+    /// The sum of the cells' volumes.
+    pub volume_sum: f64,
+    /// `|volume_sum - mesh_volume| / mesh_volume`.
+    pub e_vol: f64,
+    /// The CVT energy `Σ_i ∫ |x - x_i|²`.
+    pub energy: f64,
+    /// Times, in seconds.
+    pub times: Times,
+    /// What the kernels and the second pass counted.
+    pub counters: Counters,
+    /// Pieces merged into the cells' polyhedra (absent when they were not).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub pieces: Option<usize>,
+    /// Lids the polyhedra needed: holes where a corner of a cell poked into
+    /// a tet by a sliver the flood did not reach (see
+    /// [`cvd::passes::polyhedra::CellPolyhedron::repaired_holes`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub lids: Option<u64>,
+    /// The optimiser's record, when CVT iterations moved the sites before
+    /// this diagram (absent otherwise).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub cvt: Option<CvtRecord>,
+    /// The optimal transport that found this diagram's weights (absent
+    /// otherwise).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub transport: Option<TransportRecord>,
+    /// The periodic box, when the cells are those of one (absent
+    /// otherwise).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub periodic: Option<PeriodicRecord>,
+    /// A run in parts ([`cvd::backends::distributed`]): rank 0's rounds and every
+    /// rank's totals (absent otherwise).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub parts: Option<cvd::backends::distributed::PartReport>,
+}
+
+/// A periodic box and the images its diagram took.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct PeriodicRecord {
+    /// The box's lower corner.
+    pub lo: [f64; 3],
+    /// The box's upper corner.
+    pub hi: [f64; 3],
+    /// Sites given outside the box, wrapped into it.
+    pub wrapped: usize,
+    /// Images of sites that joined them (the final diagram's).
+    pub images: usize,
+    /// The halo the images were taken within.
+    pub halo: f64,
+}
+
+impl PeriodicRecord {
+    /// The record of `cells`, computed in `domain`.
+    pub fn of(domain: &cvd::PeriodicBox, cells: &cvd::PeriodicCells) -> Self {
+        Self { lo: domain.lo(), hi: domain.hi(), wrapped: cells.wrapped, images: cells.images, halo: cells.halo }
+    }
+}
+
+/// What an optimal-transport solve did, Newton step by Newton step.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct TransportRecord {
+    /// `uniform` (every cell the same mass) or `capacities` (from a file).
+    pub targets: String,
+    /// The largest relative mass error asked for.
+    pub tolerance: f64,
+    /// Whether every cell's mass came within it.
+    pub converged: bool,
+    /// The final `max_i |m_i - t_i| / t_i`.
+    pub max_error: f64,
+    /// Newton steps taken.
+    pub steps: usize,
+    /// Diagrams computed (each step's trials, and the first).
+    pub diagrams: u32,
+    /// Seconds of the whole solve.
+    pub total_s: f64,
+    /// Per diagram the steps started from (the last: the final one): the
+    /// largest relative mass error.
+    pub step_max_error: Vec<f64>,
+    /// Per step: the damping `α` taken (1: a full Newton step).
+    pub step_length: Vec<f64>,
+    /// Per step: conjugate-gradient iterations of its linear solve.
+    pub cg_iterations: Vec<u32>,
+    /// Per step: seconds (its diagrams and its solve).
+    pub seconds: Vec<f64>,
+}
+
+impl TransportRecord {
+    /// The record of `run`, solved to `tolerance` for `targets`.
+    pub fn of(targets: &str, tolerance: f64, run: &cvd::cvt::transport::TransportRun) -> Self {
+        let steps = &run.steps;
+        let taken = &steps[..steps.len().saturating_sub(1)];
+        Self {
+            targets: targets.to_string(),
+            tolerance,
+            converged: run.converged,
+            max_error: run.max_error(),
+            steps: taken.len(),
+            diagrams: steps.iter().map(|s| s.diagrams).sum(),
+            total_s: steps.iter().map(|s| s.seconds).sum(),
+            step_max_error: steps.iter().map(|s| s.max_error).collect(),
+            step_length: taken.iter().map(|s| s.step).collect(),
+            cg_iterations: taken.iter().map(|s| s.cg_iterations).collect(),
+            seconds: taken.iter().map(|s| s.seconds).collect(),
+        }
+    }
+}
+
+/// What a CVT run did, iteration by iteration.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct CvtRecord {
+    /// `lloyd` or `lbfgs`.
+    pub optimizer: String,
+    /// Iterations run (L-BFGS stops early at a minimum).
+    pub iterations: usize,
+    /// Seconds of all the iterations together.
+    pub total_s: f64,
+    /// `total_s / iterations`.
+    pub per_iteration_s: f64,
+    /// Per iteration: the CVT energy of the diagram it started from, as the
+    /// progress bar shows it (so `energy[i]` is the energy after `i`
+    /// iterations; after the last one it is the summary's `energy`).
+    pub energy: Vec<f64>,
+    /// Per iteration: sites whose cell was empty in that diagram.
+    pub empty_cells: Vec<u64>,
+    /// Per iteration: pieces the second pass finished.
+    pub second_pass: Vec<u64>,
+    /// Per iteration: pieces not even the second pass could finish.
+    pub unresolved: Vec<u64>,
+    /// Per iteration: seconds on the backend.
+    pub seconds: Vec<f64>,
+    /// Per iteration: Newton steps of its optimal transport (the
+    /// capacity-constrained CVT; absent otherwise).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub newton_steps: Vec<u32>,
+}
+
+impl CvtRecord {
+    /// The record of `iterations` run by `optimizer`.
+    pub fn of(optimizer: &str, iterations: &[Iteration]) -> Self {
+        let total_s: f64 = iterations.iter().map(|i| i.seconds).sum();
+        Self {
+            optimizer: optimizer.to_string(),
+            iterations: iterations.len(),
+            total_s,
+            per_iteration_s: total_s / iterations.len().max(1) as f64,
+            energy: iterations.iter().map(|i| i.energy).collect(),
+            empty_cells: iterations.iter().map(|i| i.empty_cells).collect(),
+            second_pass: iterations.iter().map(|i| i.second_pass).collect(),
+            unresolved: iterations.iter().map(|i| i.unresolved).collect(),
+            seconds: iterations.iter().map(|i| i.seconds).collect(),
+            newton_steps: if iterations.iter().any(|i| i.newton_steps > 0) {
+                iterations.iter().map(|i| i.newton_steps).collect()
+            } else {
+                Vec::new()
+            },
+        }
+    }
+}
+
+/// Times of a run, in seconds.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct Times {
+    /// Neighbour search: site grid and k-NN of the sites and tets.
+    pub knn_s: f64,
+    /// Clipping: cells (cell-tet), pieces, second and host passes.
+    pub clip_s: f64,
+    /// Every phase, transfers included.
+    pub total_s: f64,
+    /// The driver's compilation of the kernels on their first use in this
+    /// process (Vulkan; 0 on the CPU). Not part of `total_s`.
+    pub kernel_compile_s: f64,
+    /// Each phase as the backend names it, in order (a JSON object).
+    #[serde(serialize_with = "in_order")]
+    pub phases: Vec<(String, f64)>,
+}
+
+/// `(name, value)` pairs as a JSON object that keeps their order.
+fn in_order<S: serde::Serializer>(pairs: &[(String, f64)], s: S) -> std::result::Result<S::Ok, S::Error> {
+    s.collect_map(pairs.iter().map(|(k, v)| (k, v)))
+}
+
+impl Times {
+    /// Sorts a backend's phases into k-NN, clipping and total.
+    pub fn of(t: &Timings) -> Self {
+        Self { knn_s: t.knn(), clip_s: t.clip(), total_s: t.total(), kernel_compile_s: 0.0, phases: t.phases.clone() }
+    }
+}
+
+impl Summary {
+    /// The summary of `cells`, computed for `model` with `n_sites` sites on
+    /// `backend`.
+    pub fn new(
+        model: &str,
+        mesh: &TetMesh,
+        n_sites: usize,
+        strategy: cvd::Strategy,
+        backend: &dyn Backend,
+        cells: &Cells,
+    ) -> Self {
+        Self {
+            model: model.to_string(),
+            tets: mesh.tets.len(),
+            sites: n_sites,
+            backend: backend.kind().to_string(),
+            device: backend.device(),
+            strategy: strategy.name().to_string(),
+            pairing: cells.pairing.name().to_string(),
+            k: cells.k,
+            k_site: cells.k_site,
+            mesh_volume: cells.mesh_volume,
+            volume_sum: cells.total_volume,
+            e_vol: cells.e_vol,
+            energy: cells.energy_total(),
+            times: Times { kernel_compile_s: backend.kernel_compile_seconds(), ..Times::of(&cells.timings) },
+            counters: cells.counters,
+            pieces: None,
+            lids: None,
+            cvt: None,
+            transport: None,
+            periodic: None,
+            parts: None,
+        }
+    }
+
+    /// Writes the summary as pretty-printed JSON.
+    pub fn write_json(&self, path: &Path) -> Result<()> {
+        write_file(path, |w| {
+            serde_json::to_writer_pretty(&mut *w, self).map_err(std::io::Error::other)?;
+            writeln!(w)
+        })
+    }
+}
+
+fn ms(s: f64) -> String {
+    format!("{:.1} ms", s * 1e3)
+}
+
+impl fmt::Display for Summary {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let c = &self.counters;
+        let phases: Vec<String> = self.times.phases.iter().map(|(p, s)| format!("{p} {}", ms(*s))).collect();
+        let rows = [
+            ("model", format!("{} ({} tets, volume {:.6})", self.model, self.tets, self.mesh_volume)),
+            ("sites", format!("{} ({} duplicates)", self.sites, c.duplicate_sites)),
+            ("backend", format!("{} on {}", self.backend, self.device)),
+            (
+                "strategy",
+                format!("{}, {} pairing, k = {}, k_site = {}", self.strategy, self.pairing, self.k, self.k_site),
+            ),
+            (
+                "time",
+                format!(
+                    "k-NN {}, clip {}, total {} ({})",
+                    ms(self.times.knn_s),
+                    ms(self.times.clip_s),
+                    ms(self.times.total_s),
+                    phases.join(", ")
+                ),
+            ),
+            ("E_vol", format!("{:.2e} (volume {:.6} of {:.6})", self.e_vol, self.volume_sum, self.mesh_volume)),
+            ("energy", format!("{:.6e}", self.energy)),
+            (
+                "pairs",
+                format!(
+                    "{} tried, {} non-empty, {} dropped before clipping; {} clips; {} pieces beyond their list, walked",
+                    c.pairs, c.nonempty, c.filtered, c.clips, c.walks
+                ),
+            ),
+            (
+                "unfinished",
+                format!(
+                    "security radius {}, overflows {}, broken {}; second pass finished {}, unresolved {}",
+                    c.security_missed, c.overflows, c.broken, c.second_pass, c.unresolved
+                ),
+            ),
+            (
+                "empty",
+                format!(
+                    "{} cells besides duplicates; knn pairing: {} tets missing a site's pieces, completed",
+                    c.empty_cells, c.missed_tets
+                ),
+            ),
+        ];
+        let mut rows = rows.to_vec();
+        if c.faces_redone > 0 {
+            rows.push((
+                "faces",
+                format!("{} sites' faces redone on the CPU (beyond their spill slots)", c.faces_redone),
+            ));
+        }
+        for (key, value) in rows {
+            writeln!(f, "  {key:<11}{value}")?;
+        }
+        if let Some(n) = self.pieces {
+            writeln!(f, "  {:<11}{n}", "pieces")?;
+        }
+        if let Some(n) = self.lids.filter(|&n| n > 0) {
+            writeln!(f, "  {:<11}{n} holes in the cells' polyhedra closed by lids", "lids")?;
+        }
+        if let Some(r) = &self.cvt {
+            let empty = r.empty_cells.iter().max().copied().unwrap_or(0);
+            writeln!(
+                f,
+                "  {:<11}{} iterations in {:.3} s ({} each), energy {:.6e} -> {:.6e}, up to {empty} empty cells",
+                r.optimizer,
+                r.iterations,
+                r.total_s,
+                ms(r.per_iteration_s),
+                r.energy.first().copied().unwrap_or(self.energy),
+                self.energy,
+            )?;
+        }
+        if let Some(p) = &self.parts {
+            let held: u64 = p.all.iter().map(|r| r.held_sites).sum();
+            let again: u64 = p.all.iter().map(|r| r.tets_again).sum();
+            let rounds = p.all.iter().map(|r| r.rounds).max().unwrap_or(0);
+            let slowest = p.all.iter().map(|r| r.micros).max().unwrap_or(0) as f64 * 1e-3;
+            writeln!(
+                f,
+                "  {:<11}{} parts on {} rank(s): {:.3} sites held per site (halos), {} tets done again, {} rounds, slowest rank {:.1} ms, all-reduce {:.1} ms",
+                "parts",
+                p.of,
+                p.ranks,
+                held as f64 / self.sites.max(1) as f64,
+                again,
+                rounds,
+                slowest,
+                p.reduce_seconds * 1e3
+            )?;
+        }
+        if let Some(p) = &self.periodic {
+            writeln!(
+                f,
+                "  {:<11}box {:?} to {:?}: {} images within {:.4} of it, {} sites wrapped into it",
+                "periodic", p.lo, p.hi, p.images, p.halo, p.wrapped
+            )?;
+        }
+        if let Some(t) = &self.transport {
+            writeln!(
+                f,
+                "  {:<11}{} targets: max mass error {:.2e} ({}converged to {:.0e}) in {} Newton steps, {} diagrams, {:.3} s",
+                "transport",
+                t.targets,
+                t.max_error,
+                if t.converged { "" } else { "NOT " },
+                t.tolerance,
+                t.steps,
+                t.diagrams,
+                t.total_s
+            )?;
+        }
+        Ok(())
+    }
+}
