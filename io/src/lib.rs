@@ -1,8 +1,8 @@
 //! # cvd-io: what `cvd` reads and writes
 //!
-//! Readers ([`read`]): tet meshes, closed surfaces, sites and per-line
+//! Readers ([`read`](mod@read)): tet meshes, closed surfaces, sites and per-line
 //! values, each format chosen by its file's extension. Writers
-//! ([`write`]): the cells as CSV, VTK and PLY, pictures as PNG, the run as
+//! ([`write`](mod@write)): the cells as CSV, VTK and PLY, pictures as PNG, the run as
 //! JSON. The engine (`cvd`) knows no file format; this crate knows no
 //! command line.
 

@@ -5,6 +5,7 @@ use super::{build, TetList};
 use cvd::error::Result;
 use cvd::geom::mesh::TetMesh;
 use std::collections::HashMap;
+use std::path::Path;
 
 const CONVERT: &str = "convert it with `gmsh in.msh -0 -format msh22 -o out.msh`";
 
@@ -41,6 +42,16 @@ impl Nodes {
             .get(&id)
             .copied()
             .ok_or_else(|| tag.error(format!("element {element} refers to node {id}, which is not in $Nodes")))
+    }
+}
+
+/// Reads a `.msh` file, binary or ASCII as its `$MeshFormat` says.
+pub(super) fn read_msh(path: &Path) -> Result<TetMesh> {
+    let (bytes, name) = (super::read_bytes(path)?, path.display().to_string());
+    if super::gmsh_binary::is_binary_gmsh(&bytes) {
+        super::parse_gmsh_binary(&bytes, &name)
+    } else {
+        parse_gmsh(&String::from_utf8_lossy(&bytes), &name)
     }
 }
 

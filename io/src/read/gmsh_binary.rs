@@ -221,11 +221,11 @@ pub fn parse_gmsh_binary(bytes: &[u8], name: &str) -> Result<TetMesh> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
 
     /// Two tets (and a triangle) as a binary msh 2.2 file, little-endian.
-    fn two_tets() -> Vec<u8> {
+    pub(in crate::read) fn two_tets() -> Vec<u8> {
         let mut b = b"$MeshFormat\n2.2 1 8\n".to_vec();
         b.extend(1i32.to_le_bytes());
         b.extend(b"\n$EndMeshFormat\n$Nodes\n5\n");

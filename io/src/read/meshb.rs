@@ -116,11 +116,11 @@ pub fn parse_meshb(bytes: &[u8], name: &str) -> Result<TetMesh> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
 
     /// Two tets in version `version`, little-endian.
-    fn two_tets(version: i32) -> Vec<u8> {
+    pub(in crate::read) fn two_tets(version: i32) -> Vec<u8> {
         let mut b = Vec::new();
         let int = |b: &mut Vec<u8>, x: i64| {
             if version >= 4 {

@@ -1,17 +1,15 @@
-//! Reading tet meshes and site files, and writing them back.
+//! Reading tet meshes, surfaces and site files, and writing them back.
 //!
-//! Meshes: Medit `.mesh`, TetGen `.node`/`.ele`, the `.tet` files of the
-//! paper's code, Gmsh `.msh` (2.2 and 4.1, ASCII and binary), legacy VTK
-//! `.vtk`, VTK XML `.vtu` and Medit binary `.meshb`.
-//! Surfaces: `.stl`,
-//! `.obj`, `.off`, `.ply` ([`read_surface`]). Sites: `.xyz` (parsed on
-//! all threads) and NumPy `.npy` ([`read_sites`]).
+//! [`read_mesh`], [`read_surface`] and [`read_sites`] choose the format by
+//! the file's extension, from the tables in [`formats`] (the list of
+//! formats, the variants each reads, and how to add one).
 //!
 //! A bad file is reported as [`Error::Parse`] naming its line and what was
 //! expected there; no input makes a reader panic, and counts read from a
 //! file only reserve as much memory as the file could actually fill.
 
 mod binary;
+pub mod formats;
 mod gmsh;
 mod gmsh_binary;
 mod lex;
@@ -46,56 +44,19 @@ use lex::parse_error;
 use std::io::{Read, Seek, SeekFrom, Write};
 use std::path::Path;
 
-/// Reads a tet mesh, choosing the format by the extension (any case):
-/// `.mesh` (Medit), `.node` or `.ele` (TetGen: both files are read),
-/// `.tet` (the paper's code), `.msh` (Gmsh 2.2 or 4.1, ASCII or binary), `.vtk`
-/// (legacy VTK unstructured grids, ASCII or binary, versions 2 to 5.1),
-/// `.vtu` (VTK XML, inline ASCII or base64, raw or zlib), `.meshb` (Medit
-/// binary, versions 1 to 4).
+/// Reads a tet mesh, choosing the format by the extension (any case) from
+/// [`formats::MESHES`]; an extension no row names is an
+/// [`Error::InvalidInput`] listing them.
 pub fn read_mesh(path: &Path) -> Result<TetMesh> {
-    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
-    let name = path.display().to_string();
-    match ext.to_ascii_lowercase().as_str() {
-        "mesh" => parse_medit(&read_text(path)?, &name),
-        "tet" => parse_tet(&read_text(path)?, &name),
-        "msh" => {
-            let bytes = read_bytes(path)?;
-            if gmsh_binary::is_binary_gmsh(&bytes) {
-                parse_gmsh_binary(&bytes, &name)
-            } else {
-                parse_gmsh(&String::from_utf8_lossy(&bytes), &name)
-            }
-        }
-        "vtk" => parse_vtk(&read_bytes(path)?, &name),
-        "vtu" => parse_vtu(&read_bytes(path)?, &name),
-        "meshb" => parse_meshb(&read_bytes(path)?, &name),
-        "node" | "ele" => {
-            // The sibling keeps the case of the given extension.
-            let upper = ext.bytes().any(|b| b.is_ascii_uppercase());
-            let node = path.with_extension(if upper { "NODE" } else { "node" });
-            let ele = path.with_extension(if upper { "ELE" } else { "ele" });
-            let (node_name, ele_name) = (node.display().to_string(), ele.display().to_string());
-            parse_tetgen(&read_text(&node)?, &node_name, &read_text(&ele)?, &ele_name)
-        }
-        _ => Err(Error::InvalidInput(format!(
-            "{name}: unknown mesh format; supported extensions: .mesh (Medit ASCII), .node/.ele (TetGen), \
-             .tet (the paper's code), .msh (Gmsh 2.2 or 4.1, ASCII or binary), .vtk (legacy VTK, ASCII or binary), \
-             .vtu (VTK XML), .meshb (Medit binary)"
-        ))),
-    }
+    formats::read(formats::MESHES, "mesh", path)
 }
 
-/// Reads sites, choosing the format by the extension (any case): `.npy`
-/// (NumPy: an (N, 3) array of little-endian float64 or float32, see
-/// [`parse_npy`]), anything else `.xyz` (text, parsed on all of rayon's
-/// threads, see [`parse_xyz`]).
+/// Reads sites, choosing the format by the extension (any case) from
+/// [`formats::SITES`]: `.npy` (NumPy: an (N, 3) array of little-endian
+/// float64 or float32, see [`parse_npy`]), anything else `.xyz` (text,
+/// parsed on all of rayon's threads, see [`parse_xyz`]).
 pub fn read_sites(path: &Path) -> Result<Vec<[f64; 3]>> {
-    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
-    if ext.eq_ignore_ascii_case("npy") {
-        npy::read_npy(path)
-    } else {
-        xyz::parse_xyz_bytes(&read_bytes_parallel(path)?, &path.display().to_string())
-    }
+    formats::read(formats::SITES, "sites", path)
 }
 
 /// Reads one number per line: see [`parse_values`].

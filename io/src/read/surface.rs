@@ -15,25 +15,22 @@ use std::io::Cursor;
 use std::path::Path;
 
 /// Reads a triangle surface, choosing the format by the extension (any
-/// case): `.stl`, `.obj`, `.off`, `.ply`. The surface is not checked:
-/// [`TriSurface::into_closed`] does that.
+/// case) from [`SURFACES`](super::formats::SURFACES). The surface is not
+/// checked: [`TriSurface::into_closed`] does that.
 pub fn read_surface(path: &Path) -> Result<TriSurface> {
-    let name = path.display().to_string();
-    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
-    let bytes = super::read_bytes(path)?;
-    match ext.as_str() {
-        "stl" => parse_stl(&bytes, &name),
-        "obj" => parse_obj(&bytes, &name),
-        "ply" => parse_ply(&bytes, &name),
-        "off" => parse_off(text(&bytes, &name)?, &name),
-        _ => Err(Error::InvalidInput(format!(
-            "{name}: unknown surface format; supported extensions: .stl (binary or ASCII), .obj, .off, \
-             .ply (binary or ASCII)"
-        ))),
+    use super::formats::{find, unknown, SURFACES};
+    match find(SURFACES, path) {
+        Some(format) => format.read(path),
+        None => {
+            // The file is read first, as it always was: a missing file is
+            // an I/O error whatever its extension.
+            super::read_bytes(path)?;
+            Err(unknown(SURFACES, "surface", path))
+        }
     }
 }
 
-fn text<'a>(bytes: &'a [u8], name: &str) -> Result<&'a str> {
+pub(super) fn text<'a>(bytes: &'a [u8], name: &str) -> Result<&'a str> {
     std::str::from_utf8(bytes).map_err(|e| Error::InvalidInput(format!("{name}: not a text file: {e}")))
 }
 
@@ -201,7 +198,7 @@ pub fn parse_off(text: &str, path: &str) -> Result<TriSurface> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::super::tests::no_panic_on_mutations;
     use super::*;
     use cvd::geom::surface::TriSurface;
@@ -210,7 +207,7 @@ mod tests {
         TriSurface::cuboid([0.0; 3], [1.0, 2.0, 3.0])
     }
 
-    pub(crate) fn as_off(s: &TriSurface) -> String {
+    pub(in crate::read) fn as_off(s: &TriSurface) -> String {
         let mut t = format!("OFF\n{} {} 0\n", s.vertices.len(), s.triangles.len());
         for v in &s.vertices {
             t += &format!("{} {} {}\n", v[0], v[1], v[2]);
@@ -221,7 +218,7 @@ mod tests {
         t
     }
 
-    fn as_obj(s: &TriSurface) -> String {
+    pub(in crate::read) fn as_obj(s: &TriSurface) -> String {
         let mut t = String::from("# a box\no box\n");
         for v in &s.vertices {
             t += &format!("v {} {} {}\n", v[0], v[1], v[2]);
@@ -232,7 +229,7 @@ mod tests {
         t
     }
 
-    fn as_ply_ascii(s: &TriSurface) -> String {
+    pub(in crate::read) fn as_ply_ascii(s: &TriSurface) -> String {
         let mut t = format!(
             "ply\nformat ascii 1.0\nelement vertex {}\nproperty double x\nproperty double y\nproperty double z\n\
              element face {}\nproperty list uchar int vertex_indices\nend_header\n",
@@ -248,7 +245,7 @@ mod tests {
         t
     }
 
-    fn as_ply_binary(s: &TriSurface) -> Vec<u8> {
+    pub(in crate::read) fn as_ply_binary(s: &TriSurface) -> Vec<u8> {
         let mut b = format!(
             "ply\nformat binary_little_endian 1.0\nelement vertex {}\nproperty float x\nproperty float y\n\
              property float z\nelement face {}\nproperty list uchar uint vertex_indices\nend_header\n",
@@ -270,7 +267,7 @@ mod tests {
         b
     }
 
-    fn as_stl(s: &TriSurface, binary: bool) -> Vec<u8> {
+    pub(in crate::read) fn as_stl(s: &TriSurface, binary: bool) -> Vec<u8> {
         let tris: Vec<stl_io::Triangle> = s
             .triangles
             .iter()

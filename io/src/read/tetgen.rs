@@ -4,6 +4,7 @@ use super::lex::{Lexer, Line, Tokens};
 use super::{build, TetList};
 use cvd::error::Result;
 use cvd::geom::mesh::TetMesh;
+use std::path::Path;
 
 /// Parses a TetGen `.node` text (first line `n 3 attributes markers`, then
 /// `index x y z [attributes] [marker]`) and `.ele` text (first line
@@ -63,6 +64,17 @@ pub fn parse_tetgen(node: &str, node_path: &str, ele: &str, ele_path: &str) -> R
     }
     lex.expect_end(format_args!("{m} tets (the count on line {})", head.no))?;
     build(ele_path, vertices, tets, base, lex.last_line())
+}
+
+/// Reads the pair `NAME.node` and `NAME.ele` from either path; the sibling
+/// keeps the case of the given extension (`.NODE` goes with `.ELE`).
+pub(super) fn read_pair(path: &Path) -> Result<TetMesh> {
+    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
+    let upper = ext.bytes().any(|b| b.is_ascii_uppercase());
+    let node = path.with_extension(if upper { "NODE" } else { "node" });
+    let ele = path.with_extension(if upper { "ELE" } else { "ele" });
+    let (node_name, ele_name) = (node.display().to_string(), ele.display().to_string());
+    parse_tetgen(&super::read_text(&node)?, &node_name, &super::read_text(&ele)?, &ele_name)
 }
 
 /// Requires `n` values or more on the line.

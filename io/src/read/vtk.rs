@@ -238,11 +238,12 @@ pub fn parse_vtk(bytes: &[u8], name: &str) -> Result<TetMesh> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::super::tests::no_panic_on_mutations;
     use super::*;
 
-    const TWO_TETS: &str = "# vtk DataFile Version 4.2\ntwo tets\nASCII\nDATASET UNSTRUCTURED_GRID\n\
+    pub(in crate::read) const TWO_TETS: &str =
+        "# vtk DataFile Version 4.2\ntwo tets\nASCII\nDATASET UNSTRUCTURED_GRID\n\
         POINTS 5 double\n0 0 0 1 0 0 0 1 0 0 0 1 1 1 1\nCELLS 3 14\n4 0 1 2 3\n4 1 2 3 4\n3 1 2 3\n\
         CELL_TYPES 3\n10\n10\n5\n";
 

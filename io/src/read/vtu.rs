@@ -333,11 +333,11 @@ pub fn parse_vtu(bytes: &[u8], name: &str) -> Result<TetMesh> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::super::tests::no_panic_on_mutations;
     use super::*;
 
-    const TWO_TETS: &str = r#"<?xml version="1.0"?>
+    pub(in crate::read) const TWO_TETS: &str = r#"<?xml version="1.0"?>
 <VTKFile type="UnstructuredGrid" version="0.1" byte_order="LittleEndian">
 <UnstructuredGrid>
 <Piece NumberOfPoints="5" NumberOfCells="3">
