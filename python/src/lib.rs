@@ -355,19 +355,11 @@ fn clipped_voronoi(
                 cv = cv.weights(w);
             }
             let b = cvd::backends::open(&options)?;
+            let cv = cv.backend(b.as_ref());
             if !polyhedra {
-                return cv.backend(b.as_ref()).compute();
+                return cv.compute();
             }
-            // The polyhedra come from the CPU's pieces: one run there, and
-            // the numbers from the backend asked for when it is another.
-            let cpu = cvd::exec::CpuBackend::new(None)?;
-            let (mut with, _) = cv.compute_with_polyhedra(&cpu)?;
-            if b.kind() == cvd::BackendKind::Cpu {
-                return Ok(with);
-            }
-            let mut cells = cv.backend(b.as_ref()).compute()?;
-            cells.polyhedra = with.polyhedra.take();
-            Ok(cells)
+            Ok(cv.compute_with_geometry(&cvd::exec::CpuBackend::new(None)?)?.0)
         })
         .map_err(err)?;
     to_python(py, cells)

@@ -445,6 +445,21 @@ impl<'a> ClippedVoronoi<'a> {
         Ok((cells, pieces))
     }
 
+    /// The cells on the diagram's backend, each also as one closed
+    /// polyhedron ([`Cells::polyhedra`]), and the pieces they were merged
+    /// from. On the CPU backend (or none) they come from one run on `cpu`;
+    /// another backend's pieces stay on its device, so its cells come with
+    /// the polyhedra of a second run, without faces, on `cpu`.
+    pub fn compute_with_geometry(&self, cpu: &crate::exec::CpuBackend) -> Result<(Cells, Pieces)> {
+        if self.backend.is_none_or(|b| b.kind() == BackendKind::Cpu) {
+            return self.compute_with_polyhedra(cpu);
+        }
+        let mut cells = self.compute()?;
+        let (mut with, pieces) = self.faces(false).compute_with_polyhedra(cpu)?;
+        cells.polyhedra = with.polyhedra.take();
+        Ok((cells, pieces))
+    }
+
     /// The second pass, then the per-site results.
     fn finish_job<S: TaskSink>(
         &self,

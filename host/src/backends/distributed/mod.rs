@@ -89,6 +89,9 @@ pub fn mpi_launcher() -> Option<&'static str> {
     ["OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "PMIX_RANK"].into_iter().find(|v| std::env::var_os(v).is_some())
 }
 
+/// A communicator between the processes of a run.
+pub type Comm = Box<dyn Reduce>;
+
 /// Whether this build speaks MPI (its `mpi` feature).
 pub const HAS_MPI: bool = cfg!(feature = "mpi");
 
@@ -96,7 +99,7 @@ pub const HAS_MPI: bool = cfg!(feature = "mpi");
 /// ([`mpi_launcher`]): MPI's in a build with the `mpi` feature; in a build
 /// without it, none and a warning that every rank computes the whole job.
 /// Without a launcher: none, and no warning.
-pub fn launched_comm() -> Result<(Option<Box<dyn Reduce>>, Option<String>)> {
+pub fn launched_comm() -> Result<(Option<Comm>, Option<String>)> {
     let Some(var) = mpi_launcher() else { return Ok((None, None)) };
     #[cfg(feature = "mpi")]
     {

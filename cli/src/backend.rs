@@ -1,0 +1,81 @@
+//! The backend of a run: one process's, or this rank's of a job in parts.
+
+use crate::args::RunArgs;
+use cvd::backends::distributed::{Alone, Distributed};
+use cvd::backends::{self, BackendChoice};
+use cvd::exec::CpuBackend;
+use cvd::Backend;
+
+/// The backend of a run: one process's, or this rank's of a distributed run.
+pub enum RunBackend {
+    /// The whole job in this process.
+    One(Box<dyn Backend>),
+    /// The job in parts (and over MPI ranks).
+    Parts(Box<Distributed>),
+}
+
+impl RunBackend {
+    /// The backend, as the diagrams take it.
+    pub fn get(&self) -> &dyn Backend {
+        match self {
+            RunBackend::One(b) => b.as_ref(),
+            RunBackend::Parts(d) => d.as_ref(),
+        }
+    }
+
+    /// This process's rank (0 without MPI).
+    pub fn rank(&self) -> usize {
+        match self {
+            RunBackend::One(_) => 0,
+            RunBackend::Parts(d) => d.rank(),
+        }
+    }
+
+    /// Whether the job runs in parts.
+    pub fn in_parts(&self) -> bool {
+        matches!(self, RunBackend::Parts(_))
+    }
+
+    /// The job in parts, if it runs so.
+    pub fn parts(&self) -> Option<&Distributed> {
+        match self {
+            RunBackend::One(_) => None,
+            RunBackend::Parts(d) => Some(d),
+        }
+    }
+}
+
+/// The backend `--backend` and `--parts` ask for (and MPI, when this
+/// process was started by an MPI launcher), and why. A periodic box runs
+/// in one process.
+pub fn open(args: &RunArgs) -> cvd::Result<(RunBackend, String)> {
+    if args.periodic() {
+        if args.parts.is_some() {
+            return Err(cvd::Error::InvalidInput("--parts: a periodic box runs in one process".into()));
+        }
+        let backends::Chosen { backend, why } = backends::choose(&args.backend.options())?;
+        return Ok((RunBackend::One(backend), why));
+    }
+    let (comm, warning) = cvd::backends::distributed::launched_comm()?;
+    if let Some(warning) = warning {
+        eprintln!("cvd: {warning}");
+    }
+    if comm.is_none() && args.parts.is_none() {
+        let backends::Chosen { backend, why } = backends::choose(&args.backend.options())?;
+        return Ok((RunBackend::One(backend), why));
+    }
+    if args.backend.backend == BackendChoice::Vulkan {
+        return Err(cvd::Error::InvalidInput("a run in parts uses the CPU backend: drop --backend vulkan".into()));
+    }
+    if args.transports() {
+        return Err(cvd::Error::InvalidInput("optimal transport does not run in parts yet".into()));
+    }
+    let comm = comm.unwrap_or_else(|| Box::new(Alone));
+    let why = format!("{} part(s) per rank, {}", args.parts.unwrap_or(1), comm.describe());
+    let cpu = CpuBackend::new(args.backend.threads)?;
+    let mut d = Distributed::new(cpu, comm, args.parts.unwrap_or(1))?;
+    if let Some([listed, beyond]) = args.halo {
+        d = d.with_halo(listed, beyond);
+    }
+    Ok((RunBackend::Parts(Box::new(d)), why))
+}

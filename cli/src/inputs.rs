@@ -1,0 +1,286 @@
+//! What a run reads: its domain (a tet mesh from a file, a surface meshed,
+//! a built-in model, or a periodic box), its sites, and the numbers given
+//! per site or per vertex (weights, capacities, a density).
+
+use crate::args::RunArgs;
+use cvd::mesher::models;
+use cvd::{geom::points, PeriodicBox, TetMesh};
+use std::path::{Path, PathBuf};
+
+/// Where the cells live.
+pub enum Domain {
+    /// A tet mesh: the cells are clipped to it.
+    Mesh(TetMesh),
+    /// A periodic box: the cells of the space it tiles, cut into it.
+    Box(PeriodicBox),
+}
+
+/// A run's inputs.
+pub struct Inputs {
+    /// The model's name, or the mesh or surface file's.
+    pub name: String,
+    /// The domain.
+    pub domain: Domain,
+    /// The sites as given (a file's coordinates to the last digit).
+    pub sites: Vec<[f64; 3]>,
+    /// Power weights from `--weights`, one per site.
+    pub weights: Option<Vec<f64>>,
+    /// A density per mesh vertex (`--density`, `--density-file`).
+    pub density: Option<Vec<f64>>,
+    /// Sites given outside a periodic box (wrapped into it).
+    pub wrapped: usize,
+}
+
+impl Inputs {
+    /// Reads (or makes) everything the arguments name, checked.
+    pub fn read(args: &RunArgs) -> cvd::Result<Self> {
+        if args.periodic() {
+            let domain = periodic_box(args)?;
+            let sites: Vec<[f64; 3]> = match &args.sites_file {
+                Some(path) => cvd_io::read_sites(path)?,
+                None => {
+                    let (lo, l) = (domain.lo(), domain.lengths());
+                    let unit = points::uniform(args.sites.unwrap_or(5000), args.seed);
+                    unit.iter().map(|p| [0, 1, 2].map(|a| lo[a] + p[a] * l[a])).collect()
+                }
+            };
+            let weights = weights(args, sites.len())?;
+            // Said of the sites as given (the iterations move wrapped ones).
+            let wrapped = sites.iter().filter(|&&p| domain.wrap(p) != p).count();
+            let name = "periodic box".to_string();
+            return Ok(Self { name, domain: Domain::Box(domain), sites, weights, density: None, wrapped });
+        }
+        let (name, mesh) = load_model(args)?;
+        let sites: Vec<[f64; 3]> = match &args.sites_file {
+            Some(path) => cvd_io::read_sites(path)?,
+            None => {
+                let n = match args.sites {
+                    Some(n) => n,
+                    None => models::default_sites(&args.model).unwrap_or(5000),
+                };
+                points::in_mesh(&mesh, n, args.seed)
+            }
+        };
+        let weights = weights(args, sites.len())?;
+        let density = density(args, &mesh)?;
+        Ok(Self { name, domain: Domain::Mesh(mesh), sites, weights, density, wrapped: 0 })
+    }
+
+    /// The folder `--out` names, or `out/<name>`: the model's name, the
+    /// mesh file's name without extension, or `periodic`.
+    pub fn out_dir(&self, args: &RunArgs) -> PathBuf {
+        if let Some(dir) = &args.out {
+            return dir.clone();
+        }
+        let name = match self.domain {
+            Domain::Mesh(_) => self.name.as_str(),
+            Domain::Box(_) => "periodic",
+        };
+        let stem = Path::new(name).file_stem().map(|s| s.to_string_lossy().into_owned());
+        Path::new("out").join(stem.filter(|s| !s.is_empty()).unwrap_or_else(|| "model".into()))
+    }
+}
+
+/// The model's mesh: an explicit file, a file of that name in the models
+/// folder, or a built-in model; inverted tets turned.
+fn load_model(args: &RunArgs) -> cvd::Result<(String, TetMesh)> {
+    let (name, mut mesh) = find_model(args)?;
+    let flipped = mesh.orient_positively();
+    if flipped > 0 {
+        eprintln!("{name}: {flipped} inverted tets, reoriented");
+    }
+    Ok((name, mesh))
+}
+
+/// Reads, checks and meshes a closed surface, saying what was fixed and how
+/// good the mesh is.
+fn mesh_surface_file(path: &Path, resolution: Option<u32>, tets: Option<usize>) -> cvd::Result<(String, TetMesh)> {
+    let name = path.display().to_string();
+    let (surface, r) = cvd_io::read_surface(path)?.into_closed(&name)?;
+    let mut fixed = Vec::new();
+    for (n, what) in [
+        (r.dropped, "triangles with a repeated vertex dropped"),
+        (r.reoriented, "triangles turned to agree with their neighbours"),
+        (r.flipped_shells, "shells turned outward"),
+        (r.zero_area, "triangles of zero area"),
+    ] {
+        if n > 0 {
+            fixed.push(format!("{n} {what}"));
+        }
+    }
+    if r.open_edges > 0 {
+        fixed.push(format!(
+            "{} open edges in {} cracks up to {:.2e} across, let through (the sign across them is the winding number's)",
+            r.open_edges, r.cracks, r.widest_crack
+        ));
+    }
+    let holes = if r.holes > 0 { format!(" ({} holes)", r.holes) } else { String::new() };
+    println!(
+        "{name}: {} triangles, {} shells{holes}, volume {:.6e}{}",
+        r.triangles,
+        r.shells,
+        r.volume,
+        if fixed.is_empty() { String::new() } else { format!("; {}", fixed.join(", ")) }
+    );
+    let resolution = match (resolution, tets) {
+        (Some(r), _) => r,
+        (None, Some(n)) => cvd::mesher::resolution_for_tets(&surface, n)?,
+        (None, None) => cvd::mesher::DEFAULT_SURFACE_RESOLUTION,
+    };
+    let mesh = cvd::mesher::mesh_surface(&surface, resolution)?;
+    let q = cvd::mesher::quality::Quality::of(&mesh);
+    println!(
+        "meshed at resolution {resolution}: {} tets, dihedral angles {:.1}..{:.1} degrees, volume {:+.3} % of the surface's",
+        mesh.tets.len(),
+        q.min_dihedral,
+        q.max_dihedral,
+        100.0 * (mesh.volume() - r.volume) / r.volume
+    );
+    Ok((name, mesh))
+}
+
+/// The model's mesh as found, before any repair.
+fn find_model(args: &RunArgs) -> cvd::Result<(String, TetMesh)> {
+    if let Some(path) = &args.mesh {
+        return Ok((path.display().to_string(), cvd_io::read_mesh(path)?));
+    }
+    if let Some(path) = &args.surface {
+        return mesh_surface_file(path, args.resolution, args.tets);
+    }
+    let dir = args.models_dir.clone().or_else(|| std::env::var_os("CVD_MODELS").map(PathBuf::from));
+    if let Some(dir) = dir {
+        let name = &args.model;
+        let mut candidates = vec![dir.join(format!("{name}.mesh")), dir.join(format!("{name}.tet"))];
+        if let Ok(entries) = std::fs::read_dir(&dir) {
+            let mut more: Vec<PathBuf> = entries
+                .filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|p| {
+                    let file = p.file_name().and_then(|f| f.to_str()).unwrap_or("");
+                    file.starts_with(&format!("{name}_")) && file.ends_with(".mesh")
+                })
+                .collect();
+            // joint_31k before joint_100k: numbers compare as numbers.
+            more.sort_by_key(|p| natural_key(&p.to_string_lossy()));
+            candidates.extend(more);
+        }
+        if let Some(path) = candidates.into_iter().find(|p| p.is_file()) {
+            return Ok((path.display().to_string(), cvd_io::read_mesh(&path)?));
+        }
+        let mut surfaces =
+            cvd_io::formats::extensions(cvd_io::formats::SURFACES).map(|e| dir.join(format!("{name}.{e}")));
+        if let Some(path) = surfaces.find(|p| p.is_file()) {
+            return mesh_surface_file(&path, args.resolution, args.tets);
+        }
+    }
+    let name = args.model.as_str();
+    if !models::NAMES.contains(&name) {
+        return Err(cvd::Error::InvalidInput(format!(
+            "unknown model '{name}': built-in models: {}; or give --mesh PATH, or --models-dir DIR holding {name}.mesh",
+            models::NAMES.join(", ")
+        )));
+    }
+    let mesh = models::builtin(name, args.resolution)?;
+    let resolution = args.resolution.map_or_else(|| models::default_resolution(name), Ok)?;
+    println!("{name} (built-in, resolution {resolution}): {}", cvd::mesher::quality::Quality::of(&mesh));
+    Ok((name.to_string(), mesh))
+}
+
+/// A sort key in which runs of digits compare by value.
+fn natural_key(s: &str) -> Vec<(String, u64)> {
+    let mut key = Vec::new();
+    let mut text = String::new();
+    let mut chars = s.chars().peekable();
+    while let Some(c) = chars.next() {
+        if c.is_ascii_digit() {
+            let mut n = c.to_digit(10).unwrap_or(0) as u64;
+            while let Some(d) = chars.peek().and_then(|d| d.to_digit(10)) {
+                n = n.saturating_mul(10).saturating_add(d as u64);
+                chars.next();
+            }
+            key.push((std::mem::take(&mut text), n));
+        } else {
+            text.push(c);
+        }
+    }
+    key.push((text, 0));
+    key
+}
+
+/// The density per mesh vertex the arguments ask for, if any.
+fn density(args: &RunArgs, mesh: &TetMesh) -> cvd::Result<Option<Vec<f64>>> {
+    if let Some(text) = &args.density {
+        return Ok(Some(cvd::geom::density::Expr::parse(text)?.at_vertices(mesh, text)?));
+    }
+    let Some(path) = &args.density_file else { return Ok(None) };
+    let values = cvd_io::read_values(path)?;
+    if values.len() != mesh.vertices.len() {
+        return Err(cvd::Error::InvalidInput(format!(
+            "{}: {} density values for {} mesh vertices",
+            path.display(),
+            values.len(),
+            mesh.vertices.len()
+        )));
+    }
+    Ok(Some(values))
+}
+
+/// The power weights the arguments give, if any: one per site.
+fn weights(args: &RunArgs, n_sites: usize) -> cvd::Result<Option<Vec<f64>>> {
+    let Some(path) = &args.weights else { return Ok(None) };
+    if args.iterations > 0 && !args.transports() {
+        return Err(cvd::Error::InvalidInput(
+            "--weights with --iterations: CVT iterations keep power weights only with --transport \
+             (the capacity-constrained CVT)"
+                .into(),
+        ));
+    }
+    per_site(path, "weights", n_sites).map(Some)
+}
+
+/// One value per site from `path`, the count checked.
+pub fn per_site(path: &Path, what: &str, n_sites: usize) -> cvd::Result<Vec<f64>> {
+    let values = cvd_io::read_values(path)?;
+    if values.len() != n_sites {
+        return Err(cvd::Error::InvalidInput(format!(
+            "{}: {} {what} for {n_sites} sites",
+            path.display(),
+            values.len()
+        )));
+    }
+    Ok(values)
+}
+
+/// The periodic box of `--periodic` / `--box`.
+fn periodic_box(args: &RunArgs) -> cvd::Result<PeriodicBox> {
+    let refuse = |what: &str| Err(cvd::Error::InvalidInput(format!("--periodic: {what}")));
+    let given = [
+        (args.mesh.is_some(), "--mesh"),
+        (args.surface.is_some(), "--surface"),
+        (args.density.is_some() || args.density_file.is_some(), "a density"),
+        (args.pieces, "--pieces"),
+    ];
+    if let Some((_, what)) = given.iter().find(|g| g.0) {
+        return refuse(&format!("{what} is not available in a periodic box yet"));
+    }
+    match &args.periodic_box {
+        Some(c) if c.len() == 6 => PeriodicBox::new([c[0], c[1], c[2]], [c[3], c[4], c[5]]),
+        Some(c) => refuse(&format!("--box takes six numbers, X0,Y0,Z0,X1,Y1,Z1, not {}", c.len())),
+        None if args.model == "cube" => Ok(PeriodicBox::unit()),
+        None => refuse(&format!(
+            "give the box (--box X0,Y0,Z0,X1,Y1,Z1), or --model cube for the unit cube, not --model {}",
+            args.model
+        )),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::natural_key;
+
+    #[test]
+    fn numbers_in_names_compare_as_numbers() {
+        let mut names = ["joint_100k.mesh", "joint_31k.mesh", "joint_8k.mesh", "joint.mesh"];
+        names.sort_by_key(|n| natural_key(n));
+        assert_eq!(names, ["joint.mesh", "joint_8k.mesh", "joint_31k.mesh", "joint_100k.mesh"]);
+    }
+}

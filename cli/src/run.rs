@@ -1,0 +1,289 @@
+//! `cvd run`: one path for meshes and periodic boxes — inputs, backend,
+//! the optimiser (CVT iterations or optimal transport), the final diagram,
+//! then the outputs ([`crate::outputs`]).
+
+use crate::args::RunArgs;
+use crate::backend::{self, RunBackend};
+use crate::inputs::{per_site, Domain, Inputs};
+use crate::outputs::{self, Results};
+use crate::progress::{with_iterations, with_spinner};
+use cvd::cvt::transport::Transport;
+use cvd::cvt::SiteDiagram;
+use cvd::exec::CpuBackend;
+use cvd::{Backend, Cells, ClippedVoronoi, PeriodicVoronoi, Pieces};
+use cvd_io::{CvtRecord, PeriodicRecord, Summary, TransportRecord};
+
+/// What the optimiser gives the final diagram.
+struct Optimised {
+    /// The sites: as given, or moved by the iterations.
+    sites: Vec<[f64; 3]>,
+    /// The iterations' record.
+    cvt: Option<CvtRecord>,
+    /// The weights: `--weights`, or those optimal transport found.
+    weights: Option<Vec<f64>>,
+    /// Optimal transport's record.
+    transport: Option<TransportRecord>,
+}
+
+/// The final diagram.
+struct Diagram {
+    /// The cells (with their faces unless `--no-neighbors`).
+    cells: Cells,
+    /// The sites as the diagram holds them (a periodic box's wrapped).
+    sites: Vec<[f64; 3]>,
+    /// The pieces the cells' polyhedra were merged from, when drawn.
+    pieces: Option<Pieces>,
+    /// A periodic box's record.
+    periodic: Option<PeriodicRecord>,
+}
+
+pub fn run(args: &RunArgs) -> cvd::Result<()> {
+    let inputs = Inputs::read(args)?;
+    let dir = inputs.out_dir(args);
+    let (run_backend, why) = backend::open(args)?;
+    let backend = run_backend.get();
+    // Every rank computes; rank 0 writes and speaks.
+    let writes = run_backend.rank() == 0;
+    if !writes {
+        quiet_stdout();
+    }
+    // Before the long part: a folder that cannot be made fails now.
+    if writes {
+        create_dir(&dir)?;
+    }
+    let strategy = args.strategy.name();
+    match &inputs.domain {
+        Domain::Mesh(mesh) => {
+            // Cells only in parts (said, not dropped silently).
+            if run_backend.in_parts() && !(args.no_neighbors && args.no_geometry) {
+                println!("in parts: cells only (no neighbors.csv, cells.vtu, walls.ply or pictures yet)");
+            }
+            let (tets, sites, name) = (mesh.tets.len(), inputs.sites.len(), backend.name());
+            println!("{}: {tets} tets, {sites} sites, {strategy} on {name} — {why}", inputs.name);
+        }
+        Domain::Box(b) => {
+            let (lo, hi, sites, name) = (b.lo(), b.hi(), inputs.sites.len(), backend.name());
+            println!("{} {lo:?} to {hi:?}: {sites} sites, {strategy} on {name} — {why}", inputs.name);
+        }
+    }
+    let optimised = optimise(args, &inputs, backend)?;
+    let diagram = final_diagram(args, &inputs, &optimised, &run_backend)?;
+    let compiled = backend.kernel_compile_seconds();
+    if compiled > 0.0 {
+        println!("kernels: the driver compiled them in {compiled:.2} s on first use (not in the times below)");
+    }
+    if !writes {
+        return Ok(());
+    }
+    let box_mesh;
+    let mesh = match &inputs.domain {
+        Domain::Mesh(mesh) => mesh,
+        Domain::Box(b) => {
+            box_mesh = b.mesh(inputs.sites.len());
+            &box_mesh
+        }
+    };
+    let mut summary = Summary::new(&inputs.name, mesh, diagram.sites.len(), args.strategy, backend, &diagram.cells);
+    summary.cvt = optimised.cvt;
+    summary.transport = optimised.transport;
+    summary.parts = run_backend.parts().map(|d| d.report());
+    summary.periodic = diagram.periodic.map(|p| PeriodicRecord { wrapped: inputs.wrapped, ..p });
+    let polyhedra = diagram.cells.polyhedra();
+    if let (Some(pieces), Some(polyhedra)) = (&diagram.pieces, polyhedra) {
+        summary.pieces = Some(pieces.len());
+        summary.lids = Some(polyhedra.iter().map(|p| p.repaired_holes as u64).sum());
+    }
+    let results = Results {
+        args,
+        mesh: match &inputs.domain {
+            Domain::Mesh(mesh) => Some(mesh),
+            Domain::Box(_) => None,
+        },
+        cells: &diagram.cells,
+        sites: &diagram.sites,
+        weights: optimised.weights.as_deref().filter(|_| summary.transport.is_some()),
+        pieces: diagram.pieces.as_ref(),
+        summary: &summary,
+    };
+    let written = outputs::write_all(&dir, &results)?;
+    print!("{summary}");
+    if inputs.wrapped > 0 {
+        println!("{} sites were outside the box: wrapped into it (sites.xyz holds them wrapped)", inputs.wrapped);
+    }
+    if matches!(inputs.domain, Domain::Box(_)) && !args.no_geometry {
+        println!("the cells' geometry (cells.vtu, walls.ply, the pictures) is not drawn for periodic boxes");
+    }
+    println!("wrote {}: {}", dir.display(), written.join(", "));
+    outputs::write_copies(&results)
+}
+
+/// The CVT iterations or optimal transport the arguments ask for, if any.
+fn optimise(args: &RunArgs, inputs: &Inputs, backend: &dyn Backend) -> cvd::Result<Optimised> {
+    let sites = &inputs.sites;
+    match &inputs.domain {
+        Domain::Mesh(mesh) => {
+            let cv = ClippedVoronoi::new(mesh, sites).k_site(args.k_site).backend(backend);
+            let cv = cv.density(inputs.density.as_deref());
+            optimise_on(args, inputs, &cv, cv)
+        }
+        Domain::Box(b) => {
+            let pv = PeriodicVoronoi::new(*b, sites).strategy(args.strategy).k_site(args.k_site);
+            let pv = pv.faces(!args.no_neighbors).backend(backend);
+            let ot = PeriodicVoronoi::new(*b, sites).k_site(args.k_site).backend(backend);
+            optimise_on(args, inputs, &pv, ot)
+        }
+    }
+}
+
+/// [`optimise`] with the diagram the optimisers iterate on, and the one
+/// optimal transport solves on.
+fn optimise_on<D: SiteDiagram>(
+    args: &RunArgs,
+    inputs: &Inputs,
+    iterated: &dyn SiteDiagram,
+    transported: D,
+) -> cvd::Result<Optimised> {
+    let weights = inputs.weights.clone();
+    if args.transports() {
+        return transport(args, transported, weights.as_deref());
+    }
+    if args.iterations == 0 {
+        return Ok(Optimised { sites: inputs.sites.clone(), cvt: None, weights, transport: None });
+    }
+    let name = args.optimizer.name();
+    let run = with_iterations(name, args.iterations, |show| args.optimizer.run(iterated, args.iterations, show))?;
+    let record = CvtRecord::of(name, &run.iterations);
+    // The table shows the empty cells; what no pass could finish is said here.
+    let unresolved: u64 = record.unresolved.iter().sum();
+    if unresolved > 0 {
+        println!("{name}: {unresolved} pieces unresolved over the iterations (their volume was missing)");
+    }
+    Ok(Optimised { sites: run.sites, cvt: Some(record), weights, transport: None })
+}
+
+/// The optimal transport the arguments ask for on `diagram`, from the
+/// weights `start` (if any): the weights that give every cell its target
+/// mass, with the solve's record; with `--iterations`, the
+/// capacity-constrained CVT first (its moved sites and record). Prints
+/// each Newton step of a single solve.
+fn transport<D: SiteDiagram>(args: &RunArgs, diagram: D, start: Option<&[f64]>) -> cvd::Result<Optimised> {
+    if args.optimizer != cvd::cvt::Optimizer::Lloyd {
+        return Err(cvd::Error::InvalidInput(
+            "--transport with --optimizer lbfgs: the capacity-constrained CVT moves sites by Lloyd steps".into(),
+        ));
+    }
+    let sites = diagram.starting_sites().to_vec();
+    let capacities = args.capacities.as_deref().map(|p| per_site(p, "capacities", sites.len())).transpose()?;
+    let mut ot = Transport::new(diagram).tolerance(args.tolerance).max_steps(args.newton_steps);
+    if let Some(c) = &capacities {
+        ot = ot.capacities(c);
+    }
+    if let Some(w) = start {
+        ot = ot.start(w);
+    }
+    let targets = if capacities.is_some() { "capacities" } else { "uniform" };
+    let (sites, cvt, run) = if args.iterations > 0 {
+        let what = "capacity-constrained CVT";
+        let (cvt, run) = with_iterations(what, args.iterations, |show| ot.cvt(args.iterations, show))?;
+        let record = CvtRecord::of("lloyd-transport", &cvt.iterations);
+        (cvt.sites, Some(record), run)
+    } else {
+        let mut step = 0;
+        let run = ot.solve(&mut |s| {
+            if s.step > 0.0 {
+                step += 1;
+                println!("transport: Newton step {step}: {s}");
+            }
+            true
+        })?;
+        (sites, None, run)
+    };
+    let record = TransportRecord::of(targets, args.tolerance, &run);
+    if !run.converged {
+        eprintln!(
+            "transport: the masses came within {:.2e} of their targets, not {:.0e}: {}",
+            record.max_error,
+            args.tolerance,
+            if record.steps == args.newton_steps {
+                "out of Newton steps (--newton-steps)"
+            } else {
+                "no step along Newton's direction improved them (the diagram's precision, about 1e-6 of a cell)"
+            }
+        );
+    }
+    Ok(Optimised { sites, cvt, weights: Some(run.weights), transport: Some(record) })
+}
+
+/// The diagram of the optimised sites: its cells, and on a mesh, unless
+/// `--no-geometry` (or in parts), each cell's polyhedron.
+fn final_diagram(args: &RunArgs, inputs: &Inputs, o: &Optimised, run: &RunBackend) -> cvd::Result<Diagram> {
+    let backend = run.get();
+    match &inputs.domain {
+        Domain::Mesh(mesh) => {
+            let no_neighbors = args.no_neighbors || run.in_parts();
+            let mut cv = ClippedVoronoi::new(mesh, &o.sites)
+                .strategy(args.strategy)
+                .k(args.k)
+                .k_site(args.k_site)
+                .density(inputs.density.as_deref())
+                .faces(!no_neighbors);
+            if let Some(w) = &o.weights {
+                cv = cv.weights(w);
+            }
+            if let Some(pairing) = args.pairing {
+                cv = cv.pairing(pairing);
+            }
+            let cv = cv.backend(backend);
+            if args.warm_up {
+                let first = with_spinner("warm-up run", || cv.compute())?;
+                println!("warm-up run: {:.1} ms; the table shows the next", first.timings.total() * 1e3);
+            }
+            let (cells, pieces) = if args.no_geometry || run.in_parts() {
+                (with_spinner("clipped Voronoi diagram", || cv.compute())?, None)
+            } else {
+                // On the CPU backend the polyhedra come from the diagram's
+                // own run (its times then include collecting the pieces and
+                // merging them); another backend's, from a run on the CPU.
+                let cpu = CpuBackend::new(args.backend.threads)?;
+                let what = "clipped Voronoi diagram and its cells' polyhedra";
+                let (cells, pieces) = with_spinner(what, || cv.compute_with_geometry(&cpu))?;
+                (cells, Some(pieces))
+            };
+            Ok(Diagram { cells, sites: o.sites.clone(), pieces, periodic: None })
+        }
+        Domain::Box(b) => {
+            let mut pv = PeriodicVoronoi::new(*b, &o.sites)
+                .strategy(args.strategy)
+                .k_site(args.k_site)
+                .faces(!args.no_neighbors)
+                .backend(backend);
+            if let Some(w) = &o.weights {
+                pv = pv.weights(w);
+            }
+            if args.warm_up {
+                let first = with_spinner("warm-up run", || pv.compute())?;
+                println!("warm-up run: {:.1} ms; the table shows the next", first.cells.timings.total() * 1e3);
+            }
+            let out = with_spinner("periodic Voronoi diagram", || pv.compute())?;
+            let periodic = PeriodicRecord::of(b, &out);
+            Ok(Diagram { cells: out.cells, sites: out.sites, pieces: None, periodic: Some(periodic) })
+        }
+    }
+}
+
+fn create_dir(dir: &std::path::Path) -> cvd::Result<()> {
+    std::fs::create_dir_all(dir).map_err(|source| cvd::Error::Write { path: dir.display().to_string(), source })
+}
+
+/// Sends this process's standard output to nowhere: the ranks of a
+/// distributed run other than 0 compute without speaking.
+fn quiet_stdout() {
+    #[cfg(unix)]
+    if let Ok(null) = std::fs::OpenOptions::new().write(true).open("/dev/null") {
+        use std::os::fd::AsRawFd;
+        // SAFETY: redirecting fd 1 to a file opened here; both stay valid.
+        unsafe {
+            libc::dup2(null.as_raw_fd(), 1);
+        }
+    }
+}
