@@ -14,8 +14,9 @@ use crate::job::sites::SiteMap;
 use cvd_kernels::abi::lloyd_stat;
 use std::time::Instant;
 
-/// `iterations` Lloyd iterations of `diagram`, one diagram each: every
-/// site with a cell to its centroid (as the diagram places it); `progress`
+/// `iterations` Lloyd iterations of `diagram` from its sites as it places
+/// them, one diagram each: every site with a cell to its centroid (as the
+/// diagram's cells give it: a periodic box's are wrapped); `progress`
 /// is called with the iterations done and the energy the last one started
 /// from. Returns the sites reached and each iteration's record.
 pub fn by_diagrams<D: SiteDiagram + ?Sized>(
@@ -106,4 +107,55 @@ fn report(input: &[[f64; 3]], job: &ClipJob, map: &SiteMap, frame: &Frame, out: 
         })
         .collect();
     CvtRun { sites, iterations }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::cvt::tests::{Quadratic, BOGUS};
+
+    #[test]
+    fn sites_move_to_their_centroids() {
+        let start = vec![[0.1, 0.9, 0.3], [0.7, 0.2, 0.8], [0.4, 0.4, 0.1]];
+        let centre = vec![[0.3, 0.6, 0.5], [0.5, 0.5, 0.5], [0.2, 0.7, 0.4]];
+        let q = Quadratic::new(start.clone(), centre.clone());
+        let mut calls = Vec::new();
+        let run = by_diagrams(&q, 3, &mut |done, e| calls.push((done, e))).unwrap();
+        assert_eq!(run.sites, centre);
+        let e0 = q.energy(&start);
+        let energies: Vec<f64> = run.iterations.iter().map(|i| i.energy).collect();
+        assert_eq!(energies, vec![e0, 0.0, 0.0], "the energy each iteration started from");
+        assert_eq!(calls, vec![(1, e0), (2, 0.0), (3, 0.0)]);
+        let asked: Vec<Vec<[f64; 3]>> = q.asked().into_iter().map(|(s, _)| s).collect();
+        assert_eq!(asked, vec![start, centre.clone(), centre], "one diagram per iteration");
+        for it in &run.iterations {
+            assert_eq!((it.empty_cells, it.second_pass, it.unresolved, it.newton_steps), (0, 3, 1, 0));
+        }
+    }
+
+    #[test]
+    fn a_site_whose_cell_is_empty_stays() {
+        let start = vec![[0.1, 0.9, 0.3], [0.7, 0.2, 0.8]];
+        let centre = vec![[0.3, 0.6, 0.5], [0.5, 0.5, 0.5]];
+        let mut q = Quadratic::new(start.clone(), centre.clone());
+        q.empty[1] = true;
+        let run = by_diagrams(&q, 2, &mut |_, _| {}).unwrap();
+        assert_eq!(run.sites, vec![centre[0], start[1]], "moved to the empty cell's centroid {BOGUS:?}?");
+        assert!(run.iterations.iter().all(|i| i.empty_cells == 1));
+    }
+
+    #[test]
+    fn the_starting_sites_are_placed_first() {
+        let start = vec![[1.25, -0.5, 0.5], [0.5, 2.75, -3.0]];
+        let centre = vec![[0.25, 0.5, 0.5], [0.5, 0.75, 0.0]];
+        let mut q = Quadratic::new(start, centre.clone());
+        q.wrap = true;
+        let run = by_diagrams(&q, 0, &mut |_, _| {}).unwrap();
+        assert_eq!(run.sites, centre, "no iterations: the placed start");
+        assert!(run.iterations.is_empty() && q.asked().is_empty());
+        // The first diagram is asked at the placed sites, not the given ones.
+        let run = by_diagrams(&q, 1, &mut |_, _| {}).unwrap();
+        assert_eq!(q.asked()[0].0, centre);
+        assert_eq!(run.iterations[0].energy, 0.0, "the placed start is the centroids already");
+    }
 }

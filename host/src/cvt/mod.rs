@@ -156,3 +156,209 @@ impl Optimizer {
 pub(crate) fn to_points(x: &[f64]) -> Vec<[f64; 3]> {
     x.as_chunks::<3>().0.to_vec()
 }
+
+#[cfg(test)]
+pub(super) mod tests {
+    //! A mock diagram for the optimisers' own tests ([`Quadratic`]), and
+    //! [`Optimizer`]'s names and dispatch.
+
+    use super::*;
+    use crate::diagram::voronoi::Counters;
+    use std::sync::Mutex;
+
+    /// A diagram whose "cells" have volume 1 and centroid `centre[i]`
+    /// (volume 0 and a bogus centroid where `empty[i]`), with the energy
+    /// `Σ_k a_k (x_k - c_k)²` over flat coordinates (`a` = `stiffness`),
+    /// its exact gradient (negated with `lie`) and the preconditioner
+    /// `1 / 2V` = 1/2. It records every set of sites it is asked about.
+    pub(in crate::cvt) struct Quadratic {
+        pub start: Vec<[f64; 3]>,
+        pub centre: Vec<[f64; 3]>,
+        pub stiffness: Vec<f64>,
+        pub empty: Vec<bool>,
+        /// `place` wraps into `[0, 1)³`.
+        pub wrap: bool,
+        /// Reports the gradient with the wrong sign.
+        pub lie: bool,
+        /// Every set of sites asked about (`cells_at` and `evaluate`), with
+        /// the energy there.
+        pub asked: Mutex<Vec<(Vec<[f64; 3]>, f64)>>,
+    }
+
+    /// The centroid reported for an empty cell: never a place to move to.
+    pub(in crate::cvt) const BOGUS: [f64; 3] = [9.0, 9.0, 9.0];
+
+    impl Quadratic {
+        pub fn new(start: Vec<[f64; 3]>, centre: Vec<[f64; 3]>) -> Self {
+            let n = start.len();
+            assert_eq!(centre.len(), n);
+            Self {
+                start,
+                centre,
+                stiffness: vec![1.0; 3 * n],
+                empty: vec![false; n],
+                wrap: false,
+                lie: false,
+                asked: Mutex::new(Vec::new()),
+            }
+        }
+
+        /// Each cell's energy at `sites`.
+        pub fn energies(&self, sites: &[[f64; 3]]) -> Vec<f64> {
+            (0..sites.len())
+                .map(|i| {
+                    if self.empty[i] {
+                        return 0.0;
+                    }
+                    (0..3).map(|a| self.stiffness[3 * i + a] * (sites[i][a] - self.centre[i][a]).powi(2)).sum()
+                })
+                .collect()
+        }
+
+        pub fn energy(&self, sites: &[[f64; 3]]) -> f64 {
+            self.energies(sites).iter().sum()
+        }
+
+        fn record(&self, sites: &[[f64; 3]]) {
+            let e = self.energy(sites);
+            self.asked.lock().unwrap().push((sites.to_vec(), e));
+        }
+
+        pub fn asked(&self) -> Vec<(Vec<[f64; 3]>, f64)> {
+            self.asked.lock().unwrap().clone()
+        }
+    }
+
+    impl SiteDiagram for Quadratic {
+        fn starting_sites(&self) -> &[[f64; 3]] {
+            &self.start
+        }
+
+        fn place(&self, p: [f64; 3]) -> [f64; 3] {
+            if self.wrap {
+                p.map(|c| c.rem_euclid(1.0))
+            } else {
+                p
+            }
+        }
+
+        fn cells_at(&self, sites: &[[f64; 3]]) -> Result<Cells> {
+            assert_eq!(sites.len(), self.start.len());
+            self.record(sites);
+            let empty = self.empty.iter().filter(|&&e| e).count() as u64;
+            Ok(Cells {
+                volume: self.empty.iter().map(|&e| if e { 0.0 } else { 1.0 }).collect(),
+                centroid: (0..sites.len()).map(|i| if self.empty[i] { BOGUS } else { self.centre[i] }).collect(),
+                energy: self.energies(sites),
+                counters: Counters { empty_cells: empty, second_pass: 3, unresolved: 1, ..Default::default() },
+                ..Default::default()
+            })
+        }
+
+        fn power_cells_at(&self, _: &[[f64; 3]], _: &[f64]) -> Result<Cells> {
+            unreachable!("no transport here")
+        }
+
+        fn evaluate(&self, x: &[f64]) -> Result<(Evaluation, f64)> {
+            let sites = to_points(x);
+            assert_eq!(sites.len(), self.start.len());
+            self.record(&sites);
+            let sign = if self.lie { -1.0 } else { 1.0 };
+            let mut gradient = vec![0.0; x.len()];
+            let mut precondition = vec![0.0; x.len()];
+            for k in 0..x.len() {
+                if !self.empty[k / 3] {
+                    gradient[k] = sign * 2.0 * self.stiffness[k] * (x[k] - self.centre[k / 3][k % 3]);
+                    precondition[k] = 0.5;
+                }
+            }
+            let empty = self.empty.iter().filter(|&&e| e).count() as u64;
+            let eval = Evaluation {
+                energy: self.energy(&sites),
+                gradient,
+                precondition,
+                empty,
+                second_pass: 3,
+                unresolved: 1,
+            };
+            Ok((eval, 0.0))
+        }
+    }
+
+    /// Answers `lloyd` and `lbfgs` itself with a mark: which one ran, and
+    /// with how many iterations.
+    struct Marked;
+
+    impl SiteDiagram for Marked {
+        fn starting_sites(&self) -> &[[f64; 3]] {
+            &[[0.0; 3]]
+        }
+        fn cells_at(&self, _: &[[f64; 3]]) -> Result<Cells> {
+            unreachable!("the overrides answer")
+        }
+        fn power_cells_at(&self, _: &[[f64; 3]], _: &[f64]) -> Result<Cells> {
+            unreachable!("the overrides answer")
+        }
+        fn evaluate(&self, _: &[f64]) -> Result<(Evaluation, f64)> {
+            unreachable!("the overrides answer")
+        }
+        fn lloyd(&self, iterations: usize, progress: &mut dyn FnMut(usize, f64)) -> Result<CvtRun> {
+            progress(iterations, 1.0);
+            Ok(CvtRun { sites: vec![[1.0, iterations as f64, 0.0]], iterations: Vec::new() })
+        }
+        fn lbfgs(&self, iterations: usize, progress: &mut dyn FnMut(usize, f64)) -> Result<CvtRun> {
+            progress(iterations, 2.0);
+            Ok(CvtRun { sites: vec![[2.0, iterations as f64, 0.0]], iterations: Vec::new() })
+        }
+    }
+
+    #[test]
+    fn optimizers_have_their_command_line_names() {
+        assert_eq!(Optimizer::Lloyd.name(), "lloyd");
+        assert_eq!(Optimizer::Lbfgs.name(), "lbfgs");
+        assert_eq!(Optimizer::default(), Optimizer::Lloyd);
+    }
+
+    #[test]
+    fn run_dispatches_to_the_diagrams_own_method() {
+        for (optimizer, mark) in [(Optimizer::Lloyd, 1.0), (Optimizer::Lbfgs, 2.0)] {
+            let mut calls = Vec::new();
+            let run = optimizer.run(&Marked, 5, &mut |done, e| calls.push((done, e))).unwrap();
+            assert_eq!(run.sites, vec![[mark, 5.0, 0.0]], "{optimizer:?}");
+            assert_eq!(calls, vec![(5, mark)], "{optimizer:?}: progress");
+        }
+    }
+
+    #[test]
+    fn run_defaults_to_lloyd_by_diagrams_and_lbfgs_run() {
+        let start = vec![[0.5, 0.25, 0.0], [0.0, 0.5, 0.75]];
+        let centre = vec![[0.25, 0.25, 0.5], [0.5, 0.5, 0.5]];
+        let mut stiff = Quadratic::new(start.clone(), centre.clone());
+        // Anisotropic: the preconditioned step overshoots, so L-BFGS and
+        // Lloyd take different paths.
+        stiff.stiffness = vec![1.0, 4.0, 0.5, 2.0, 1.0, 3.0];
+        let by_name = Optimizer::Lloyd.run(&stiff, 2, &mut |_, _| {}).unwrap();
+        let direct = lloyd::by_diagrams(&stiff, 2, &mut |_, _| {}).unwrap();
+        assert_eq!(by_name.sites, direct.sites);
+        assert_eq!(by_name.iterations.len(), 2);
+        assert_eq!(by_name.sites, centre, "Lloyd: at the centroids");
+        let by_name = Optimizer::Lbfgs.run(&stiff, 3, &mut |_, _| {}).unwrap();
+        let direct = lbfgs::run(&stiff, 3, &mut |_, _| {}).unwrap();
+        assert_eq!(by_name.sites, direct.sites);
+        assert_eq!(
+            by_name.iterations.iter().map(|i| i.energy).collect::<Vec<_>>(),
+            direct.iterations.iter().map(|i| i.energy).collect::<Vec<_>>()
+        );
+        assert_ne!(by_name.sites, by_diagrams_sites(&stiff), "L-BFGS is not Lloyd here");
+    }
+
+    fn by_diagrams_sites(d: &Quadratic) -> Vec<[f64; 3]> {
+        lloyd::by_diagrams(d, 3, &mut |_, _| {}).unwrap().sites
+    }
+
+    #[test]
+    fn to_points_groups_by_three() {
+        assert_eq!(to_points(&[1.0, 2.0, 3.0, 4.0, 5.0, 6.0]), vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]);
+        assert!(to_points(&[]).is_empty());
+    }
+}

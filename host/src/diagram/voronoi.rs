@@ -621,3 +621,138 @@ fn finish(
     cells.timings = out.timings;
     cells
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geom::points;
+
+    fn refused(d: ClippedVoronoi) -> String {
+        match d.job() {
+            Err(Error::InvalidInput(m)) => m,
+            Err(e) => panic!("not an input error: {e}"),
+            Ok(_) => panic!("accepted"),
+        }
+    }
+
+    #[test]
+    fn an_empty_mesh_or_no_sites_are_refused() {
+        let sites = points::uniform(10, 1);
+        assert!(refused(ClippedVoronoi::new(&TetMesh::default(), &sites)).contains("no tets"));
+        let mesh = TetMesh::cube(1);
+        assert!(refused(ClippedVoronoi::new(&mesh, &[])).contains("no sites"));
+        let bad = [[0.5, 0.5, 0.5], [0.1, f64::NAN, 0.2]];
+        assert!(refused(ClippedVoronoi::new(&mesh, &bad)).contains("site 1"));
+    }
+
+    #[test]
+    fn a_density_needs_one_positive_value_per_vertex() {
+        let mesh = TetMesh::cube(1);
+        let sites = points::uniform(10, 2);
+        let n = mesh.vertices.len();
+        let short = vec![1.0; n - 1];
+        let m = refused(ClippedVoronoi::new(&mesh, &sites).density(Some(&short)));
+        assert!(m.contains(&format!("{} density values for {n} mesh vertices", n - 1)), "{m}");
+        for bad in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+            let mut rho = vec![1.0; n];
+            rho[3] = bad;
+            let m = refused(ClippedVoronoi::new(&mesh, &sites).density(Some(&rho)));
+            assert!(m.contains("the density at vertex 3"), "{bad}: {m}");
+        }
+        let rho: Vec<f64> = (0..n).map(|v| 1.0 + v as f64).collect();
+        let (job, _, _) = ClippedVoronoi::new(&mesh, &sites).density(Some(&rho)).job().unwrap();
+        let stored: Vec<f32> = job.verts.iter().map(|v| v.hi[3]).collect();
+        assert_eq!(stored, rho.iter().map(|&r| r as f32).collect::<Vec<_>>(), "the density rides in w");
+    }
+
+    #[test]
+    fn k_and_k_site_must_be_positive() {
+        let mesh = TetMesh::cube(1);
+        let sites = points::uniform(10, 3);
+        let d = ClippedVoronoi::new(&mesh, &sites);
+        assert!(refused(d.k_site(0)).contains("at least 1"));
+        assert!(refused(d.pairing(Pairing::Knn).k(Some(0))).contains("at least 1"));
+        assert!(refused(d.k(Some(0))).contains("at least 1"), "even where flood does not use k");
+    }
+
+    #[test]
+    fn flood_pairing_needs_tet_cell() {
+        let mesh = TetMesh::cube(1);
+        let sites = points::uniform(10, 4);
+        let d = ClippedVoronoi::new(&mesh, &sites).strategy(Strategy::CellTet);
+        assert!(refused(d.pairing(Pairing::Flood)).contains("tet-cell strategy only"));
+        let (job, _, _) = d.job().unwrap();
+        assert_eq!((job.strategy, job.pairing), (Strategy::CellTet, Pairing::Knn), "cell-tet's default: knn");
+        let (job, _, _) = ClippedVoronoi::new(&mesh, &sites).job().unwrap();
+        assert_eq!((job.strategy, job.pairing), (Strategy::TetCell, Pairing::Flood), "the default: flood");
+    }
+
+    #[test]
+    fn weights_must_fit_the_sites_and_the_frame() {
+        let mesh = TetMesh::cube(1);
+        let sites = points::uniform(4, 5);
+        let m = refused(ClippedVoronoi::new(&mesh, &sites).weights(&[0.0; 3]));
+        assert!(m.contains("3 weights for 4 sites"), "{m}");
+        let m = refused(ClippedVoronoi::new(&mesh, &sites).weights(&[0.0, f64::NAN, 0.0, 0.0]));
+        assert!(m.contains("site 1"), "{m}");
+        let m = refused(ClippedVoronoi::new(&mesh, &sites).weights(&[0.0, 1e31, 0.0, -1e31]));
+        assert!(m.contains("the weights span"), "{m}");
+        // A constant changes nothing: the job's weights start at 0.
+        let (job, _, _) = ClippedVoronoi::new(&mesh, &sites).weights(&[5.0, 5.25, 5.5, 5.0]).job().unwrap();
+        assert!(job.params.weight_range >= 0.5);
+        assert_eq!(job.sites.len(), 2 * 4, "each site's weight bound after the sites");
+    }
+
+    #[test]
+    fn k_defaults_to_eq_6_and_k_site_to_the_backends() {
+        let mesh = TetMesh::cube(3); // 162 tets
+        let sites = points::uniform(200, 6);
+        let d = ClippedVoronoi::new(&mesh, &sites);
+        assert_eq!(d.resolved_k_site(), 48, "CPU, flood");
+        assert_eq!(d.pairing(Pairing::Knn).resolved_k_site(), 90);
+        assert_eq!(d.strategy(Strategy::CellTet).resolved_k_site(), 90);
+        assert_eq!(d.k_site(7).resolved_k_site(), 7);
+        let (job, _, _) = d.pairing(Pairing::Knn).job().unwrap();
+        assert_eq!(job.params.k_tet as usize, paper_k(200, 162));
+        assert_eq!((job.params.k_site, job.site_knn.params.k), (90, 90));
+        let (job, _, _) = d.pairing(Pairing::Knn).k(Some(500)).job().unwrap();
+        assert_eq!(job.params.k_tet, 200, "k clamped to the sites");
+        let (job, _, _) = d.k(Some(5)).job().unwrap();
+        assert_eq!(job.params.k_tet, 1, "flood pairs a tet with its nearest site");
+        // Few sites: k_site clamped to the others.
+        let (job, _, _) = ClippedVoronoi::new(&mesh, &sites[..5]).job().unwrap();
+        assert_eq!(job.params.k_site, 4);
+    }
+
+    #[test]
+    fn the_job_is_normalised_in_morton_order_with_a_map_back() {
+        let mesh = TetMesh::grid([-1.0, 2.0, 0.0], [3.0, 4.0, 1.0], [4, 2, 1]);
+        let mut sites: Vec<[f64; 3]> =
+            points::uniform(40, 7).iter().map(|p| [4.0 * p[0] - 1.0, 2.0 * p[1] + 2.0, p[2]]).collect();
+        sites.push(sites[3]);
+        sites.push(sites[10]);
+        let (job, map, frame) = ClippedVoronoi::new(&mesh, &sites).job().unwrap();
+        assert_eq!(frame, Frame { origin: [-1.0, 2.0, 0.0], scale: 4.0 });
+        assert_eq!(job.params.n_sites, 40);
+        assert_eq!(map.len(), 42);
+        assert_eq!((map.get(40), map.get(41)), (None, None), "duplicates map to nothing");
+        for (i, m) in map.iter().enumerate().take(40) {
+            let u = m.expect("a distinct site has a place");
+            let local = frame.to_local(sites[i]);
+            let p = job.sites[u].to_f64();
+            assert!((0..3).all(|a| (p[a] - local[a]).abs() < 1e-15), "site {i}: {p:?} vs {local:?}");
+        }
+        // The tets: every mesh tet once, as `tet_order` says.
+        let mut order = job.tet_order.clone();
+        order.sort_unstable();
+        assert!(order.iter().copied().eq(0..mesh.tets.len() as u32));
+        for (t, &o) in job.tet_order.iter().enumerate() {
+            assert_eq!(job.tets[t], mesh.tets[o as usize]);
+        }
+        assert_eq!((job.params.n_tets as usize, job.held), (mesh.tets.len(), None));
+        // The Algorithm 1 box holds the mesh and sites, in the frame.
+        let p = job.params;
+        assert!(p.box_lo_x < 0.0 && p.box_lo_y < 0.0 && p.box_lo_z < 0.0);
+        assert!(p.box_hi_x > 1.0 && p.box_hi_y > 0.5 && p.box_hi_z > 0.25);
+    }
+}

@@ -511,3 +511,214 @@ impl CpuBackend {
         Ok(Neighbors { k, indices, dist2, timings })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geom::points;
+
+    fn cpu() -> CpuBackend {
+        CpuBackend::new(Some(2)).unwrap()
+    }
+
+    #[test]
+    fn zero_threads_are_refused() {
+        match CpuBackend::new(Some(0)) {
+            Err(Error::InvalidInput(m)) => assert!(m.contains("at least 1"), "{m}"),
+            Err(e) => panic!("not an input error: {e}"),
+            Ok(_) => panic!("zero threads accepted"),
+        }
+        assert_eq!(CpuBackend::new(Some(3)).unwrap().threads(), 3);
+        assert!(CpuBackend::new(None).unwrap().threads() >= 1);
+    }
+
+    /// The `k` nearest of `sites` to each query by f64 distances, ties by
+    /// index, skipping the query's own index for a site job.
+    fn brute_f64(sites: &[[f64; 3]], queries: &[[f64; 3]], k: usize, exclude_self: bool) -> Vec<u32> {
+        let mut out = Vec::new();
+        for (qi, q) in queries.iter().enumerate() {
+            let mut all: Vec<(f64, u32)> = (0..sites.len())
+                .filter(|&j| !(exclude_self && j == qi))
+                .map(|j| ((0..3).map(|a| (sites[j][a] - q[a]).powi(2)).sum(), j as u32))
+                .collect();
+            all.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            out.extend(all[..k].iter().map(|e| e.1));
+        }
+        out
+    }
+
+    /// The exact squared distance of quantized points.
+    fn d2(a: QuantPoint, b: QuantPoint) -> u64 {
+        (0..3).map(|i| (a[i] as i64 - b[i] as i64).pow(2) as u64).sum()
+    }
+
+    fn check_distances(job: &KnnJob, nn: &Neighbors) {
+        for (qi, q) in job.queries.iter().enumerate() {
+            for (s, &j) in nn.of(qi).iter().enumerate() {
+                assert_eq!(nn.dist2[qi * nn.k + s], d2(*q, job.sites[j as usize]), "query {qi}, entry {s}");
+            }
+        }
+    }
+
+    #[test]
+    fn neighbours_are_the_nearest_in_f64() {
+        let cpu = cpu();
+        let sites = points::uniform(300, 21);
+        // Queries spread wider than the sites: some lie outside their grid.
+        let queries: Vec<[f64; 3]> = points::uniform(200, 22).iter().map(|p| p.map(|c| 1.6 * c - 0.3)).collect();
+        for k in [1, 8] {
+            for method in [KnnMethod::Grid, KnnMethod::Brute] {
+                let job = KnnJob::sites(&sites, k, method).unwrap();
+                let nn = cpu.neighbors(&job).unwrap();
+                assert_eq!(nn.k, k);
+                assert_eq!(nn.indices, brute_f64(&sites, &sites, k, true), "sites, k = {k}, {method:?}");
+                check_distances(&job, &nn);
+                let job = KnnJob::points(&sites, &queries, k, method).unwrap();
+                let nn = cpu.neighbors(&job).unwrap();
+                assert_eq!(nn.indices, brute_f64(&sites, &queries, k, false), "points, k = {k}, {method:?}");
+                check_distances(&job, &nn);
+            }
+        }
+    }
+
+    #[test]
+    fn grid_and_brute_agree_on_ties_by_index() {
+        let cpu = cpu();
+        // A 4³ lattice: equal distances everywhere, and duplicates.
+        let sites = points::lattice(300, 4, 23);
+        for k in [1, 8, 40] {
+            let grid = cpu.neighbors(&KnnJob::sites(&sites, k, KnnMethod::Grid).unwrap()).unwrap();
+            let brute = cpu.neighbors(&KnnJob::sites(&sites, k, KnnMethod::Brute).unwrap()).unwrap();
+            assert_eq!(grid.indices, brute.indices, "k = {k}");
+            assert_eq!(grid.dist2, brute.dist2, "k = {k}");
+            // The lattice is exact in f64 and in the quantized frame.
+            assert_eq!(grid.indices, brute_f64(&sites, &sites, k, true), "k = {k}");
+            for i in 0..sites.len() {
+                let row = &grid.dist2[i * k..(i + 1) * k];
+                let ids = grid.of(i);
+                for s in 1..k {
+                    assert!((row[s - 1], ids[s - 1]) < (row[s], ids[s]), "site {i}: not by distance, then index");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn plain_and_packed_lists_are_the_neighbours() {
+        let cpu = cpu();
+        let sites = points::clustered(500, 3, 0.05, 24);
+        let job = KnnJob::sites(&sites, 12, KnnMethod::Grid).unwrap();
+        let nn = cpu.neighbors(&job).unwrap();
+        let plain = cpu.lists(&job).unwrap();
+        assert_eq!((plain.k, &plain.indices), (12, &nn.indices));
+        assert!(plain.dist2.is_empty());
+        let bits = lists::width(500);
+        assert_eq!(bits, 9);
+        let packed = cpu.packed_lists(&job, bits).unwrap();
+        assert_eq!(packed.words.len(), 500 * lists::stride(12, bits) + 1);
+        let view = packed.view(0);
+        for i in 0..500 {
+            let got: Vec<u32> = (0..12).map(|s| view.get(view.slot(i), s)).collect();
+            assert_eq!(got, nn.of(i), "site {i}");
+        }
+    }
+
+    #[test]
+    fn the_grid_sorts_every_site_into_its_cell() {
+        let sites = points::clustered(2000, 5, 0.03, 25);
+        let job = KnnJob::sites(&sites, 4, KnnMethod::Grid).unwrap();
+        let g = cpu().pool.install(|| build_grid(&job));
+        let p = job.params.grid;
+        assert_eq!((g.cell_start.len(), g.cell_count.len()), (p.n_cells as usize, p.n_cells as usize));
+        assert_eq!(g.cell_count.iter().sum::<u32>(), 2000);
+        let mut start = 0;
+        for c in 0..p.n_cells as usize {
+            assert_eq!(g.cell_start[c], start, "cell {c}: not the prefix sum");
+            start += g.cell_count[c];
+        }
+        let cell = |q: &QuantPoint| {
+            let [x, y, z] = [0, 1, 2].map(|a| q[a] / p.cell_size);
+            ((z * p.dim_y + y) * p.dim_x + x) as usize
+        };
+        for c in 0..p.n_cells as usize {
+            let (s, n) = (g.cell_start[c] as usize, g.cell_count[c] as usize);
+            for q in &g.sorted[s..s + n] {
+                assert_eq!(cell(q), c);
+                assert_eq!(*q, job.sites[q[3] as usize], "a site changed on the way");
+            }
+        }
+        let mut seen: Vec<u32> = g.sorted.iter().map(|q| q[3]).collect();
+        seen.sort_unstable();
+        assert!(seen.iter().copied().eq(0..2000), "every site once");
+    }
+
+    #[test]
+    fn par_indices_visits_each_index_once_and_merges_what_it_counts() {
+        let n = 1000;
+        let sums: Vec<AtomicI64> = (0..n).map(|_| AtomicI64::new(0)).collect();
+        let totals: Vec<AtomicI64> = (0..counter::COUNT).map(|_| AtomicI64::new(0)).collect();
+        let unfinished = Mutex::new(Vec::new());
+        let sinks = Mutex::new(Vec::<NoPieces>::new());
+        cpu().pool.install(|| {
+            par_indices(n, 7, &sums, &totals, &unfinished, &sinks, |i, s, c, u, _| {
+                use cvd_kernels::buffers::AtomicSums;
+                s.add(i, 1);
+                c.add(counter::PAIRS, i as i64);
+                if i % 100 == 3 {
+                    u.0.push([i as u32, 7]);
+                }
+            })
+        });
+        assert!(sums.iter().all(|s| s.load(Ordering::Relaxed) == 1), "an index run twice or never");
+        assert_eq!(totals[counter::PAIRS].load(Ordering::Relaxed), (n * (n - 1) / 2) as i64);
+        let mut u = unfinished.into_inner().unwrap();
+        u.sort_unstable();
+        assert_eq!(u, (0..10).map(|k| [100 * k + 3, 7]).collect::<Vec<_>>());
+    }
+
+    #[test]
+    fn held_lists_keep_only_what_the_box_certifies() {
+        let cpu = cpu();
+        let sites = points::uniform(600, 26);
+        let job = KnnJob::sites(&sites, 6, KnnMethod::Grid).unwrap();
+        let p = job.params.grid;
+        let g = cpu.pool.install(|| build_grid(&job));
+        // The lower corner's cells: its lists near the box's high sides are
+        // not certified.
+        let held = Held::around([0; 3], [1; 3], 0, [p.dim_x, p.dim_y, p.dim_z], p.cell_size);
+        assert!(!held.is_whole());
+        let nn = cpu.neighbors(&job).unwrap();
+        let (lists, certified) = cpu.held_lists(&job, 600, 32, &g, &held);
+        let view = lists.view(0);
+        let mut expected = 0;
+        for i in 0..600 {
+            let q = job.queries[i];
+            let list: Vec<u32> = (0..6).map(|s| view.get(i, s)).collect();
+            if held.certifies([q[0], q[1], q[2]], nn.dist2[6 * i + 5]) {
+                expected += 1;
+                assert_eq!(list, nn.of(i), "site {i}: certified, so its list");
+            } else {
+                assert!(view.unknown(i, i as u32), "site {i}: not certified, so unknown");
+                assert_eq!(list[1..], [NO_SITE; 5]);
+            }
+        }
+        assert_eq!(certified, expected);
+        assert!(0 < certified && certified < 600, "{certified}: both cases");
+        // The nearest site of points: itself, or out of the halo.
+        let queries = points::uniform(300, 27);
+        let points_job = KnnJob::points_like(&job, &queries, 1).unwrap();
+        let nearest = cpu.neighbors(&points_job).unwrap();
+        let (lists, certified) = cpu.held_lists(&points_job, 300, 32, &g, &held);
+        let mut expected = 0;
+        for (i, q) in points_job.queries.iter().enumerate() {
+            let ok = held.certifies([q[0], q[1], q[2]], nearest.dist2[i]);
+            expected += ok as u64;
+            assert_eq!(lists.words[i], if ok { nearest.indices[i] } else { OUT_OF_HALO }, "query {i}");
+        }
+        assert_eq!(certified, expected);
+        // The whole grid certifies every list.
+        let whole = Held::around([0; 3], [u32::MAX; 3], 0, [p.dim_x, p.dim_y, p.dim_z], p.cell_size);
+        let (lists, certified) = cpu.held_lists(&job, 600, 32, &g, &whole);
+        assert_eq!((certified, &lists.words[..600 * 6]), (600, &nn.indices[..]));
+    }
+}

@@ -238,3 +238,146 @@ pub(crate) fn pair_list(raw: &[u32]) -> Vec<[u32; 2]> {
     pairs.sort_unstable();
     pairs
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::diagram::voronoi::ClippedVoronoi;
+    use crate::job::sites::SiteMap;
+
+    #[test]
+    fn paper_k_follows_eq_6() {
+        // k = max(20, 10 ceil(8 log10(7 n / tets + 1))).
+        for (n, tets, k) in [
+            (20, 1000, 20),     // 8 log10(1.14) = 0.46
+            (1500, 10000, 30),  // 2.49
+            (1000, 5000, 40),   // 3.04
+            (1000, 1000, 80),   // 7.22
+            (35000, 31000, 80), // 7.60
+            (5000, 1000, 130),  // 12.45
+            (20, 0, 180),       // no tets: counted as one
+        ] {
+            assert_eq!(paper_k(n, tets), k, "{n} sites, {tets} tets");
+        }
+    }
+
+    #[test]
+    fn paper_k_takes_every_site_below_twenty() {
+        for n in 0..20 {
+            assert_eq!(paper_k(n, 1), n);
+            assert_eq!(paper_k(n, 1_000_000), n);
+        }
+        assert_eq!(paper_k(20, 1_000_000), 20, "at lambda: at least lambda");
+        // More sites per tet never asks for fewer.
+        let ks: Vec<usize> = (20..5000).step_by(7).map(|n| paper_k(n, 1000)).collect();
+        assert!(ks.windows(2).all(|w| w[0] <= w[1]), "{ks:?}");
+        assert!(ks.iter().all(|k| k % 10 == 0));
+    }
+
+    #[test]
+    fn default_k_site_is_short_only_for_cpu_flood() {
+        assert_eq!(default_k_site(BackendKind::Cpu, Pairing::Flood), DEFAULT_K_SITE_CPU_FLOOD);
+        assert_eq!(default_k_site(BackendKind::Cpu, Pairing::Knn), DEFAULT_K_SITE);
+        assert_eq!(default_k_site(BackendKind::Vulkan, Pairing::Flood), DEFAULT_K_SITE);
+        assert_eq!(default_k_site(BackendKind::Vulkan, Pairing::Knn), DEFAULT_K_SITE);
+        assert_eq!((DEFAULT_K_SITE, DEFAULT_K_SITE_CPU_FLOOD), (90, 48));
+    }
+
+    #[test]
+    fn names_and_defaults() {
+        assert_eq!((Strategy::TetCell.name(), Strategy::CellTet.name()), ("tet-cell", "cell-tet"));
+        assert_eq!((Pairing::Knn.name(), Pairing::Flood.name()), ("knn", "flood"));
+        assert_eq!((Strategy::default(), Pairing::default()), (Strategy::TetCell, Pairing::Flood));
+    }
+
+    #[test]
+    fn the_frame_maps_the_box_onto_the_unit_box_and_back() {
+        let mesh = TetMesh::grid([-2.0, 1.0, 3.0], [2.0, 2.0, 3.5], [2, 1, 1]);
+        let f = Frame::of(&mesh);
+        assert_eq!(f, Frame { origin: [-2.0, 1.0, 3.0], scale: 4.0 }, "origin lo, scale the longest side");
+        assert_eq!(f.to_local([-2.0, 1.0, 3.0]), [0.0; 3]);
+        assert_eq!(f.to_local([2.0, 2.0, 3.5]), [1.0, 0.25, 0.125]);
+        assert_eq!(f.to_world([1.0, 0.25, 0.125]), [2.0, 2.0, 3.5]);
+        // Any point, to within rounding of the scale.
+        let f = Frame { origin: [-1.7, 0.3, 12.9], scale: 0.37 };
+        for p in crate::geom::points::uniform(200, 3) {
+            let w = p.map(|c| c * 10.0 - 5.0);
+            let back = f.to_world(f.to_local(w));
+            for a in 0..3 {
+                assert!((back[a] - w[a]).abs() <= 4.0 * f64::EPSILON * (w[a].abs() + 13.0), "{w:?} -> {back:?}");
+            }
+            let local = f.to_local(w);
+            let again = f.to_local(f.to_world(local));
+            assert!((0..3).all(|a| (again[a] - local[a]).abs() <= 1e-13 * (1.0 + local[a].abs())));
+        }
+    }
+
+    #[test]
+    fn a_flat_mesh_has_scale_one() {
+        let point = TetMesh { vertices: vec![[3.0, 4.0, 5.0]; 4], tets: vec![[0, 1, 2, 3]] };
+        assert_eq!(Frame::of(&point), Frame { origin: [3.0, 4.0, 5.0], scale: 1.0 });
+        // Flat along some axes: the longest side still scales.
+        let flat =
+            TetMesh { vertices: vec![[0.0; 3], [0.5, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]], tets: vec![] };
+        assert_eq!(Frame::of(&flat).scale, 0.5);
+    }
+
+    #[test]
+    fn pair_lists_are_read_sorted_and_never_past_the_buffer() {
+        assert!(pair_list(&[]).is_empty());
+        assert!(pair_list(&[0, 7, 7]).is_empty(), "a count of 0 ignores what follows");
+        assert_eq!(pair_list(&[3, 5, 1, 2, 9, 2, 4]), vec![[2, 4], [2, 9], [5, 1]]);
+        // The count says more than the buffer holds (the device list
+        // overflowed): only the stored pairs, not a half pair.
+        assert_eq!(pair_list(&[10, 4, 0, 1, 1, 8]), vec![[1, 1], [4, 0]]);
+        assert!(pair_list(&[u32::MAX]).is_empty());
+        // Fewer than stored: only the first `count`.
+        assert_eq!(pair_list(&[1, 6, 6, 0, 0]), vec![[6, 6]]);
+    }
+
+    fn job(faces: bool, n: usize) -> (ClipJob, SiteMap) {
+        let mesh = TetMesh::cube(2);
+        let sites = crate::geom::points::uniform(n, 11);
+        let (job, map, _) = ClippedVoronoi::new(&mesh, &sites).faces(faces).job().unwrap();
+        (job, map)
+    }
+
+    #[test]
+    fn face_sums_follow_the_sites_lists_only_with_faces() {
+        let (plain, _) = job(false, 30);
+        assert_eq!(plain.face_sums_len(), 0);
+        let (with, _) = job(true, 30);
+        let k = with.params.k_site as usize;
+        assert_eq!(k, 29, "k_site clamped to the other sites");
+        assert_eq!(with.face_sums_len(), 30 * (29 + cvd_kernels::clip::FACE_SUMS_EXTRA));
+        assert_ne!(with.params.faces_base, 0);
+    }
+
+    #[test]
+    fn tet_queries_are_the_centroids_quantized_shifted_for_a_part() {
+        let (mut job, _) = job(false, 30);
+        let all = job.tet_knn_job();
+        assert_eq!(all.params.n_queries as usize, job.tets.len());
+        assert_eq!(all.queries.len(), job.tets.len());
+        assert_eq!(all.params.k, job.tet_knn.params.k);
+        for t in 0..job.tets.len() {
+            let v = job.tets[t].map(|i| job.verts[i as usize].to_f64());
+            let c = [0, 1, 2].map(|a| (v[0][a] + v[1][a] + v[2][a] + v[3][a]) / 4.0);
+            assert_eq!(all.queries[t], job.site_knn.quantizer.quantize(c, t as u32));
+        }
+        // A part whose box starts one cell in: shifted by a cell, at 0
+        // below it.
+        let g = job.site_knn.params.grid;
+        job.held = Some(Held::around([1, 1, 1], [1, 1, 1], 0, [g.dim_x, g.dim_y, g.dim_z], g.cell_size));
+        let cs = g.cell_size;
+        let (mut below, mut beyond) = (false, false);
+        for t in 0..job.tets.len() {
+            let q = all.queries[t];
+            let s = [0, 1, 2].map(|a| q[a].saturating_sub(cs));
+            assert_eq!(job.tet_query(t), [s[0], s[1], s[2], q[3]], "tet {t}");
+            below |= q[0] < cs;
+            beyond |= q[0] > cs;
+        }
+        assert!(below && beyond, "tets on both sides of the part's corner");
+    }
+}

@@ -72,3 +72,85 @@ impl Held {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const GRID: [u32; 3] = [10, 10, 10];
+
+    #[test]
+    fn around_widens_by_the_halo_and_clamps_to_the_grid() {
+        let h = Held::around([2, 3, 4], [3, 3, 5], 1, GRID, 7);
+        assert_eq!(h, Held { lo: [1, 2, 3], dim: [4, 3, 4], grid: GRID, cell_size: 7 });
+        assert_eq!(h.shift(), [7, 14, 21]);
+        // At the grid's sides: cut there, on both ends.
+        let h = Held::around([0, 1, 8], [1, 9, 9], 2, GRID, 7);
+        assert_eq!((h.lo, h.dim), ([0, 0, 6], [4, 10, 4]));
+        // Any halo, however large, is the whole grid at most.
+        let h = Held::around([4, 4, 4], [5, 5, 5], u32::MAX, GRID, 7);
+        assert_eq!((h.lo, h.dim), ([0; 3], GRID));
+        assert!(h.is_whole());
+        assert_eq!(h.shift(), [0; 3]);
+    }
+
+    #[test]
+    fn is_whole_only_for_the_whole_grid() {
+        assert!(Held::around([0; 3], [9; 3], 0, GRID, 1).is_whole());
+        assert!(!Held::around([0; 3], [9, 9, 8], 0, GRID, 1).is_whole());
+        assert!(!Held::around([1, 0, 0], [9; 3], 0, GRID, 1).is_whole());
+    }
+
+    #[test]
+    fn holds_exactly_the_cells_of_the_box() {
+        let h = Held::around([2, 3, 4], [3, 3, 5], 1, GRID, 7); // cells 1..5, 2..5, 3..7
+        assert!(h.holds([1, 2, 3]) && h.holds([4, 4, 6]) && h.holds([2, 3, 5]));
+        for outside in [[0, 3, 4], [5, 3, 4], [2, 1, 4], [2, 5, 4], [2, 3, 2], [2, 3, 7], [u32::MAX, 3, 4]] {
+            assert!(!h.holds(outside), "{outside:?}");
+        }
+        let count = (0..10).flat_map(|x| (0..10).flat_map(move |y| (0..10).map(move |z| [x, y, z])));
+        assert_eq!(count.filter(|&c| h.holds(c)).count(), 4 * 3 * 4);
+    }
+
+    #[test]
+    fn certifies_a_ball_strictly_inside_the_box() {
+        // Cells 2..5 on every axis, 100 units each: the part's quantized
+        // box is 0..300, with cells beyond it on every side.
+        let h = Held::around([2; 3], [4; 3], 0, GRID, 100);
+        let q = [150, 150, 150];
+        assert!(h.certifies(q, 149 * 149), "inside");
+        assert!(!h.certifies(q, 150 * 150), "touching a side");
+        assert!(!h.certifies(q, 151 * 151), "beyond a side");
+        assert!(!h.certifies(q, u64::MAX), "fewer neighbours than asked");
+        // Near one side only.
+        assert!(h.certifies([10, 150, 150], 99));
+        assert!(!h.certifies([10, 150, 150], 100));
+        assert!(h.certifies([150, 150, 290], 99));
+        assert!(!h.certifies([150, 150, 290], 100));
+        assert!(!h.certifies([0, 150, 150], 0), "on the low side");
+        // Past the high side (a query outside the held cells).
+        assert!(!h.certifies([150, 150, 400], 0));
+    }
+
+    #[test]
+    fn a_side_at_the_grids_edge_needs_no_margin() {
+        // Cells 0..3 along x (the grid's low end), 7..10 along y (its high
+        // end), 4..6 along z.
+        let h = Held::around([0, 7, 4], [2, 9, 5], 0, GRID, 100);
+        assert!(h.certifies([0, 150, 100], 99 * 99), "nothing below x = 0 or above y = 300");
+        assert!(h.certifies([1, 299, 100], 99 * 99));
+        assert!(!h.certifies([1, 299, 100], 100 * 100), "z still has cells beyond it");
+        assert!(!h.certifies([150, 150, 100], 150 * 150), "x has cells above");
+        // The whole grid certifies everything, even an unbounded ball.
+        let whole = Held::around([0; 3], [9; 3], 0, GRID, 100);
+        assert!(whole.certifies([0, 0, 0], u64::MAX));
+        assert!(whole.certifies([999, 999, 999], u64::MAX));
+    }
+
+    #[test]
+    fn grid_params_describe_the_box() {
+        let h = Held::around([2, 3, 4], [3, 3, 5], 1, GRID, 7);
+        let g = h.grid_params(123);
+        assert_eq!((g.dim_x, g.dim_y, g.dim_z, g.cell_size, g.n_sites, g.n_cells), (4, 3, 4, 7, 123, 48));
+    }
+}

@@ -205,3 +205,142 @@ fn grid_over<'a>(points: impl Iterator<Item = &'a QuantPoint>, n_sites: usize) -
         _pad: [0; 2],
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geom::points;
+
+    fn invalid<T: std::fmt::Debug>(r: Result<T>) -> String {
+        match r {
+            Err(Error::InvalidInput(m)) => m,
+            other => panic!("expected an input error, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn k_zero_is_refused() {
+        let sites = points::uniform(10, 1);
+        for m in [KnnMethod::Grid, KnnMethod::Brute] {
+            assert!(invalid(KnnJob::sites(&sites, 0, m)).contains("at least 1"));
+            assert!(invalid(KnnJob::points(&sites, &sites, 0, m)).contains("at least 1"));
+            assert!(invalid(KnnJob::sites_in_frame(&sites, &sites, 0, m)).contains("at least 1"));
+        }
+        let job = KnnJob::sites(&sites, 3, KnnMethod::Grid).unwrap();
+        assert!(invalid(KnnJob::points_like(&job, &sites, 0)).contains("at least 1"));
+    }
+
+    #[test]
+    fn non_finite_points_are_named() {
+        let mut sites = points::uniform(10, 1);
+        sites[4][1] = f64::NAN;
+        assert!(invalid(KnnJob::sites(&sites, 3, KnnMethod::Grid)).contains("site 4"));
+        let good = points::uniform(10, 1);
+        let queries = [[0.0, f64::INFINITY, 0.0]];
+        assert!(invalid(KnnJob::points(&good, &queries, 3, KnnMethod::Grid)).contains("query point 0"));
+        assert!(invalid(KnnJob::sites_in_frame(&good, &queries, 3, KnnMethod::Grid)).contains("frame point 0"));
+    }
+
+    #[test]
+    fn k_is_clamped_to_the_sites_there_are() {
+        let sites = points::uniform(5, 2);
+        let job = KnnJob::sites(&sites, 10, KnnMethod::Grid).unwrap();
+        assert_eq!((job.params.k, job.params.exclude_self, job.params.n_queries), (4, 1, 5), "a site is not its own");
+        let job = KnnJob::points(&sites, &sites[..3], 10, KnnMethod::Brute).unwrap();
+        assert_eq!((job.params.k, job.params.exclude_self, job.params.n_queries), (5, 0, 3));
+        assert_eq!(KnnJob::sites(&sites, 4, KnnMethod::Grid).unwrap().params.k, 4);
+        // One site has no other: k = 0, and the run answers nothing.
+        let one = KnnJob::sites(&sites[..1], 3, KnnMethod::Grid).unwrap();
+        assert_eq!(one.params.k, 0);
+        let cpu = crate::exec::CpuBackend::new(Some(1)).unwrap();
+        let nn = one.run(&cpu).unwrap();
+        assert_eq!(nn.k, 0);
+        assert!(nn.indices.is_empty() && nn.dist2.is_empty());
+    }
+
+    #[test]
+    fn lists_that_do_not_fit_one_buffer_are_refused() {
+        // 70 000 x 69 999 entries > u32::MAX.
+        let sites = points::uniform(70_000, 3);
+        let m = invalid(KnnJob::sites(&sites, 100_000, KnnMethod::Brute));
+        assert!(m.contains("do not fit one buffer"), "{m}");
+    }
+
+    /// Each point's grid cell, as the kernels find it.
+    fn cell_of(g: &GridParams, p: &QuantPoint) -> [u32; 3] {
+        [0, 1, 2].map(|a| p[a] / g.cell_size)
+    }
+
+    fn covers(g: &GridParams, pts: &[QuantPoint]) -> bool {
+        let dims = [g.dim_x, g.dim_y, g.dim_z];
+        pts.iter().all(|p| (0..3).all(|a| cell_of(g, p)[a] < dims[a]))
+    }
+
+    #[test]
+    fn the_grid_has_about_five_sites_a_cell_and_covers_them() {
+        for (n, seed) in [(1, 1), (7, 2), (500, 3), (5000, 4), (40_000, 5)] {
+            let job = KnnJob::sites(&points::uniform(n, seed), 8, KnnMethod::Grid).unwrap();
+            let g = job.params.grid;
+            assert_eq!(g.n_cells, g.dim_x * g.dim_y * g.dim_z);
+            assert_eq!(g.n_sites as usize, n);
+            assert!(covers(&g, &job.sites), "{n} sites: {g:?}");
+            let per_cell = n as f64 / g.n_cells as f64;
+            if n >= 500 {
+                assert!(
+                    (SITES_PER_CELL * 0.7..=SITES_PER_CELL * 2.0).contains(&per_cell),
+                    "{n} sites: {per_cell} a cell"
+                );
+            } else {
+                assert!(g.n_cells <= 2, "{n} sites: {g:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn flat_and_thin_point_sets_widen_the_cells() {
+        let n = 3000;
+        let u = points::uniform(n, 6);
+        let plane: Vec<[f64; 3]> = u.iter().map(|p| [p[0], p[1], 0.25]).collect();
+        let line: Vec<[f64; 3]> = u.iter().map(|p| [p[0], 0.5, 0.5]).collect();
+        for (what, pts) in [("plane", plane), ("line", line)] {
+            let job = KnnJob::sites(&pts, 8, KnnMethod::Grid).unwrap();
+            let g = job.params.grid;
+            assert!(g.n_cells as usize <= 2 * n + 64, "{what}: {g:?}");
+            assert!(g.n_cells as usize >= n / 40, "{what}: too coarse, {g:?}");
+            assert!(covers(&g, &job.sites), "{what}: {g:?}");
+            assert_eq!(g.dim_z, 1, "{what}: flat along z");
+        }
+    }
+
+    #[test]
+    fn a_site_job_in_a_frame_covers_the_frame_too() {
+        let sites = points::uniform(400, 7);
+        let frame = [[-1.0, -1.0, -1.0], [2.0, 2.0, 2.0]];
+        let job = KnnJob::sites_in_frame(&sites, &frame, 8, KnnMethod::Grid).unwrap();
+        assert_eq!(job.quantizer.origin(), [-1.0; 3]);
+        let g = job.params.grid;
+        let corner = job.quantizer.quantize_all(&frame);
+        assert!(covers(&g, &corner) && covers(&g, &job.sites), "{g:?}");
+        assert_eq!(g.n_sites, 400);
+        // Cells sized for the sites over the whole frame: 27 times the
+        // sites' cube, so about 80 cells over the sites' cube.
+        let plain = KnnJob::sites(&sites, 8, KnnMethod::Grid).unwrap();
+        assert!(
+            g.cell_size as f64 / job.quantizer.scale() > plain.params.grid.cell_size as f64 / plain.quantizer.scale()
+        );
+        // Point jobs like it share its sites, frame and grid.
+        let queries = points::uniform(9, 8);
+        let like = KnnJob::points_like(&job, &queries, 500).unwrap();
+        assert!(std::sync::Arc::ptr_eq(&like.sites, &job.sites));
+        assert_eq!((like.params.grid, like.quantizer, like.method), (g, job.quantizer, job.method));
+        assert_eq!((like.params.k, like.params.exclude_self, like.params.n_queries), (400, 0, 9));
+        assert_eq!(&like.queries[..], &job.quantizer.quantize_all(&queries)[..]);
+    }
+
+    #[test]
+    fn neighbours_of_a_query_are_its_slice() {
+        let nn = Neighbors { k: 2, indices: vec![5, 6, 7, 8, 9, 10], ..Default::default() };
+        assert_eq!((nn.of(0), nn.of(2)), (&[5, 6][..], &[9, 10][..]));
+        assert_eq!((KnnMethod::Grid.name(), KnnMethod::Brute.name()), ("grid", "brute"));
+    }
+}

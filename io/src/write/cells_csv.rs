@@ -93,3 +93,124 @@ pub fn read_cells_csv(path: &Path) -> Result<Vec<CellRow>> {
     }
     Ok(rows)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use cvd::passes::faces::Adjacency;
+    use std::path::PathBuf;
+
+    fn temp_path(name: &str) -> PathBuf {
+        std::env::temp_dir().join(format!("cvd-io-write-{}-{name}", std::process::id()))
+    }
+
+    /// Values that print and parse badly if the writer is careless: signed
+    /// zero, subnormals, extremes, and fractions with no short decimal.
+    const AWKWARD: [f64; 10] =
+        [0.0, -0.0, 5e-324, f64::MIN_POSITIVE, f64::MAX, -1e-300, 1.0 / 3.0, 0.1 + 0.2, -2.5e17, 123456.789e-10];
+
+    fn awkward_cells(n: usize) -> Cells {
+        let v = |i: usize| AWKWARD[i % AWKWARD.len()];
+        Cells {
+            volume: (0..n).map(|i| v(i).abs()).collect(),
+            centroid: (0..n).map(|i| [v(i + 1), v(i + 2), v(i + 7)]).collect(),
+            energy: (0..n).map(|i| v(i + 5)).collect(),
+            ..Default::default()
+        }
+    }
+
+    fn same_bits(a: f64, b: f64) -> bool {
+        a.to_bits() == b.to_bits()
+    }
+
+    #[test]
+    fn every_value_reads_back_bit_for_bit() {
+        let cells = awkward_cells(23);
+        let path = temp_path("cells-bits.csv");
+        write_cells_csv(&path, &cells).unwrap();
+        let rows = read_cells_csv(&path).unwrap();
+        assert_eq!(rows.len(), 23);
+        for (i, r) in rows.iter().enumerate() {
+            assert_eq!(r.site, i);
+            assert!(same_bits(r.volume, cells.volume[i]), "row {i}: volume {} vs {}", r.volume, cells.volume[i]);
+            assert!(same_bits(r.energy, cells.energy[i]), "row {i}: energy {} vs {}", r.energy, cells.energy[i]);
+            for a in 0..3 {
+                assert!(
+                    same_bits(r.centroid[a], cells.centroid[i][a]),
+                    "row {i}: {:?} vs {:?}",
+                    r.centroid,
+                    cells.centroid[i]
+                );
+            }
+            assert_eq!((r.area, r.neighbors), (None, None));
+        }
+        std::fs::remove_file(&path).unwrap();
+    }
+
+    #[test]
+    fn faces_add_the_surface_area_and_the_neighbour_count() {
+        let mut cells = awkward_cells(3);
+        // Cell 0 shares faces with 1 and 2, cell 1 with 0, cell 2 none but
+        // the boundary.
+        cells.adjacency = Some(Adjacency {
+            offsets: vec![0, 2, 3, 3],
+            neighbors: vec![1, 2, 0],
+            areas: vec![1.0 / 3.0, 0.1, 1.0 / 3.0],
+            normals: vec![[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]],
+            boundary: vec![0.2, 0.0, 5e-324],
+            boundary_vector: vec![[0.0; 3]; 3],
+            shifts: Vec::new(),
+        });
+        let path = temp_path("cells-faces.csv");
+        write_cells_csv(&path, &cells).unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert!(text.starts_with(&format!("{HEADER_FACES}\n")));
+        let rows = read_cells_csv(&path).unwrap();
+        let a = cells.adjacency().unwrap();
+        for (i, n) in [(0, 2), (1, 1), (2, 0)] {
+            assert!(same_bits(rows[i].area.unwrap(), a.surface_area(i)), "row {i}");
+            assert_eq!(rows[i].neighbors, Some(n), "row {i}");
+        }
+        assert!(same_bits(rows[0].area.unwrap(), 1.0 / 3.0 + 0.1 + 0.2));
+        std::fs::remove_file(&path).unwrap();
+    }
+
+    #[test]
+    fn windows_line_ends_and_blank_lines_are_read() {
+        let path = temp_path("cells-crlf.csv");
+        std::fs::write(&path, format!("{HEADER}\r\n0,1e0,0.5,-0,2,3e-1\r\n\r\n1,0e0,1,2,3,0e0\r\n\n")).unwrap();
+        let rows = read_cells_csv(&path).unwrap();
+        assert_eq!(rows.len(), 2);
+        assert_eq!((rows[0].volume, rows[0].centroid, rows[0].energy), (1.0, [0.5, -0.0, 2.0], 0.3));
+        assert!(rows[0].centroid[1].is_sign_negative());
+        assert_eq!((rows[1].site, rows[1].volume), (1, 0.0));
+        std::fs::remove_file(&path).unwrap();
+    }
+
+    #[test]
+    fn an_empty_or_missing_file_is_an_error_naming_it() {
+        let path = temp_path("cells-empty.csv");
+        std::fs::write(&path, "").unwrap();
+        match read_cells_csv(&path) {
+            Err(Error::Parse { line: 1, message, .. }) => assert!(message.contains("empty file"), "{message}"),
+            other => panic!("{other:?}"),
+        }
+        std::fs::write(&path, format!("{HEADER}\n")).unwrap();
+        assert!(read_cells_csv(&path).unwrap().is_empty(), "a header alone: no rows");
+        std::fs::write(&path, format!("{HEADER}\n-1,1,2,3,4,5\n")).unwrap();
+        match read_cells_csv(&path) {
+            Err(Error::Parse { line: 2, message, .. }) => assert!(message.contains("site index"), "{message}"),
+            other => panic!("{other:?}"),
+        }
+        std::fs::remove_file(&path).unwrap();
+        match read_cells_csv(&path) {
+            Err(Error::Io { path: p, .. }) => assert!(p.ends_with("cells-empty.csv"), "{p}"),
+            other => panic!("{other:?}"),
+        }
+        let nowhere = temp_path("no-such-folder").join("cells.csv");
+        match write_cells_csv(&nowhere, &awkward_cells(1)) {
+            Err(Error::Write { path: p, .. }) => assert!(p.ends_with("cells.csv"), "{p}"),
+            other => panic!("{other:?}"),
+        }
+    }
+}

@@ -49,3 +49,85 @@ pub fn write_neighbors_csv(path: &Path, adjacency: &Adjacency) -> Result<()> {
         Ok(())
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::PathBuf;
+
+    fn temp_path(name: &str) -> PathBuf {
+        std::env::temp_dir().join(format!("cvd-io-write-{}-{name}", std::process::id()))
+    }
+
+    fn written(adjacency: &Adjacency, name: &str) -> String {
+        let path = temp_path(name);
+        write_neighbors_csv(&path, adjacency).unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        std::fs::remove_file(&path).unwrap();
+        text
+    }
+
+    #[test]
+    fn rows_by_site_with_the_boundary_last_and_made_unit() {
+        let adjacency = Adjacency {
+            offsets: vec![0, 2, 3, 4],
+            neighbors: vec![1, 2, 0, 0],
+            areas: vec![0.5, 0.25, 0.5, 0.25],
+            normals: vec![[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+            // Cell 1 has no boundary (no row); cell 2's area vector is zero
+            // (a closed boundary part): a zero normal, not NaN.
+            boundary: vec![0.75, 0.0, 0.125],
+            boundary_vector: vec![[0.75, 0.0, 1.0], [0.0; 3], [0.0; 3]],
+            shifts: Vec::new(),
+        };
+        let expected = "site,neighbor,area,nx,ny,nz\n\
+                        0,1,5e-1,1,0,0\n\
+                        0,2,2.5e-1,0,-1,0\n\
+                        0,-1,7.5e-1,0.6,0,0.8\n\
+                        1,0,5e-1,-1,0,0\n\
+                        2,0,2.5e-1,0,1,0\n\
+                        2,-1,1.25e-1,0,0,0\n";
+        assert_eq!(written(&adjacency, "neighbors.csv"), expected);
+    }
+
+    #[test]
+    fn a_periodic_box_adds_the_image_shifts() {
+        // One site, its own neighbour through two opposite faces.
+        let adjacency = Adjacency {
+            offsets: vec![0, 2],
+            neighbors: vec![0, 0],
+            areas: vec![1.0, 1.0],
+            normals: vec![[-1.0, 0.0, 0.0], [1.0, 0.0, 0.0]],
+            boundary: vec![0.0],
+            boundary_vector: vec![[0.0; 3]],
+            shifts: vec![[-1, 0, 0], [1, 0, 0]],
+        };
+        let expected = "site,neighbor,area,nx,ny,nz,shift_x,shift_y,shift_z\n\
+                        0,0,1e0,-1,0,0,-1,0,0\n\
+                        0,0,1e0,1,0,0,1,0,0\n";
+        assert_eq!(written(&adjacency, "neighbors-periodic.csv"), expected);
+    }
+
+    #[test]
+    fn numbers_read_back_exactly() {
+        let third = 1.0 / 3.0;
+        let n = [0.1, -(1.0f64 - 0.01 - 0.0001f64).sqrt(), 0.01];
+        let adjacency = Adjacency {
+            offsets: vec![0, 1, 1],
+            neighbors: vec![1],
+            areas: vec![third],
+            normals: vec![n],
+            boundary: vec![0.0, 0.0],
+            boundary_vector: vec![[0.0; 3]; 2],
+            shifts: Vec::new(),
+        };
+        let text = written(&adjacency, "neighbors-exact.csv");
+        let row: Vec<&str> = text.lines().nth(1).unwrap().split(',').collect();
+        assert_eq!(row.len(), 6);
+        assert_eq!(row[2].parse::<f64>().unwrap().to_bits(), third.to_bits());
+        for a in 0..3 {
+            assert_eq!(row[3 + a].parse::<f64>().unwrap().to_bits(), n[a].to_bits(), "{row:?}");
+        }
+        assert_eq!(text.lines().count(), 2, "no row for a cell without faces or boundary");
+    }
+}

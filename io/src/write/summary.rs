@@ -389,3 +389,155 @@ impl fmt::Display for Summary {
         Ok(())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use cvd::cvt::transport::{NewtonStep, TransportRun};
+
+    fn summary() -> Summary {
+        let cpu = cvd::CpuBackend::new(Some(1)).unwrap();
+        let cells = Cells {
+            volume: vec![0.25, 0.75],
+            energy: vec![1.0 / 3.0, 0.125],
+            total_volume: 1.0,
+            mesh_volume: 1.0 + 1e-9,
+            e_vol: 1e-9 / (1.0 + 1e-9),
+            k: 1,
+            k_site: 48,
+            timings: Timings { phases: vec![("knn".into(), 0.5), ("clip".into(), 0.25), ("faces".into(), 0.125)] },
+            ..Default::default()
+        };
+        Summary::new("cube", &TetMesh::cube(1), 2, cvd::Strategy::CellTet, &cpu, &cells)
+    }
+
+    fn json(s: &Summary, name: &str) -> (String, serde_json::Value) {
+        let path = std::env::temp_dir().join(format!("cvd-io-write-{}-{name}", std::process::id()));
+        s.write_json(&path).unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        std::fs::remove_file(&path).unwrap();
+        let value = serde_json::from_str(&text).unwrap();
+        (text, value)
+    }
+
+    const OPTIONAL: [&str; 6] = ["pieces", "lids", "cvt", "transport", "periodic", "parts"];
+
+    #[test]
+    fn the_fields_readers_use_are_there_and_exact() {
+        let (text, j) = json(&summary(), "summary.json");
+        assert!(text.ends_with("}\n"));
+        assert_eq!((j["model"].as_str(), j["tets"].as_u64(), j["sites"].as_u64()), (Some("cube"), Some(6), Some(2)));
+        assert_eq!((j["backend"].as_str(), j["device"].as_str()), (Some("cpu"), Some("1 threads")));
+        assert_eq!((j["strategy"].as_str(), j["pairing"].as_str()), (Some("cell-tet"), Some("flood")));
+        assert_eq!((j["k"].as_u64(), j["k_site"].as_u64()), (Some(1), Some(48)));
+        // Floats read back bit for bit.
+        assert_eq!(j["energy"].as_f64().map(f64::to_bits), Some((1.0f64 / 3.0 + 0.125).to_bits()));
+        assert_eq!(j["mesh_volume"].as_f64(), Some(1.0 + 1e-9));
+        assert_eq!(j["volume_sum"].as_f64(), Some(1.0));
+        assert_eq!(j["e_vol"].as_f64(), Some(1e-9 / (1.0 + 1e-9)));
+        let counters = j["counters"].as_object().unwrap();
+        for key in ["pairs", "second_pass", "unresolved", "duplicate_sites", "empty_cells", "faces_redone"] {
+            assert_eq!(counters[key].as_u64(), Some(0), "counters.{key}");
+        }
+        let t = &j["times"];
+        assert_eq!(
+            (t["knn_s"].as_f64(), t["clip_s"].as_f64(), t["total_s"].as_f64()),
+            (Some(0.5), Some(0.25), Some(0.875))
+        );
+        assert_eq!(t["kernel_compile_s"].as_f64(), Some(0.0));
+        // The phases: an object, in the backend's order.
+        assert_eq!(t["phases"]["faces"].as_f64(), Some(0.125), "a phase neither k-NN nor clipping");
+        let (knn, clip, faces) =
+            (text.find("\"knn\"").unwrap(), text.find("\"clip\"").unwrap(), text.find("\"faces\"").unwrap());
+        assert!(knn < clip && clip < faces, "phases out of order:\n{text}");
+        for key in OPTIONAL {
+            assert!(j.get(key).is_none(), "{key} written though not set: {text}");
+        }
+    }
+
+    #[test]
+    fn records_appear_once_set() {
+        let mut s = summary();
+        s.pieces = Some(12);
+        s.lids = Some(0);
+        let iterations = [
+            Iteration { energy: 3.0, seconds: 0.5, empty_cells: 1, second_pass: 2, unresolved: 0, newton_steps: 0 },
+            Iteration { energy: 2.0, seconds: 1.5, empty_cells: 0, second_pass: 1, unresolved: 4, newton_steps: 0 },
+        ];
+        s.cvt = Some(CvtRecord::of("lbfgs", &iterations));
+        s.periodic = Some(PeriodicRecord { lo: [0.0; 3], hi: [1.0, 2.0, 3.0], wrapped: 4, images: 50, halo: 0.5 });
+        s.parts = Some(Default::default());
+        let run = TransportRun {
+            steps: vec![
+                NewtonStep { max_error: 0.5, step: 1.0, diagrams: 2, cg_iterations: 7, seconds: 0.25 },
+                NewtonStep { max_error: 0.25, step: 0.5, diagrams: 3, cg_iterations: 9, seconds: 0.5 },
+                NewtonStep { max_error: 1e-7, step: 0.0, diagrams: 0, cg_iterations: 0, seconds: 0.0 },
+            ],
+            converged: true,
+            ..Default::default()
+        };
+        s.transport = Some(TransportRecord::of("uniform", 1e-6, &run));
+        let (text, j) = json(&s, "summary-records.json");
+        for key in OPTIONAL {
+            assert!(j.get(key).is_some(), "{key} missing: {text}");
+        }
+        assert_eq!((j["pieces"].as_u64(), j["lids"].as_u64()), (Some(12), Some(0)));
+        let c = &j["cvt"];
+        assert_eq!((c["optimizer"].as_str(), c["iterations"].as_u64()), (Some("lbfgs"), Some(2)));
+        assert_eq!((c["total_s"].as_f64(), c["per_iteration_s"].as_f64()), (Some(2.0), Some(1.0)));
+        assert_eq!(c["energy"], serde_json::json!([3.0, 2.0]));
+        assert_eq!(c["empty_cells"], serde_json::json!([1, 0]));
+        assert_eq!(c["second_pass"], serde_json::json!([2, 1]));
+        assert_eq!(c["unresolved"], serde_json::json!([0, 4]));
+        assert_eq!(c["seconds"], serde_json::json!([0.5, 1.5]));
+        assert!(c.get("newton_steps").is_none(), "no transport inside: no newton_steps");
+        let p = &j["periodic"];
+        assert_eq!((p["wrapped"].as_u64(), p["images"].as_u64(), p["halo"].as_f64()), (Some(4), Some(50), Some(0.5)));
+        assert_eq!(p["hi"], serde_json::json!([1.0, 2.0, 3.0]));
+        let t = &j["transport"];
+        assert_eq!(
+            (t["targets"].as_str(), t["converged"].as_bool(), t["tolerance"].as_f64()),
+            (Some("uniform"), Some(true), Some(1e-6))
+        );
+        assert_eq!(
+            (t["steps"].as_u64(), t["diagrams"].as_u64(), t["max_error"].as_f64()),
+            (Some(2), Some(5), Some(1e-7))
+        );
+        assert_eq!(t["step_max_error"], serde_json::json!([0.5, 0.25, 1e-7]), "one more than the steps: the final");
+        assert_eq!(t["step_length"], serde_json::json!([1.0, 0.5]));
+        assert_eq!(t["cg_iterations"], serde_json::json!([7, 9]));
+        assert_eq!((t["seconds"].clone(), t["total_s"].as_f64()), (serde_json::json!([0.25, 0.5]), Some(0.75)));
+    }
+
+    #[test]
+    fn cvt_records_without_iterations_or_with_transport() {
+        let none = CvtRecord::of("lloyd", &[]);
+        assert_eq!((none.iterations, none.total_s, none.per_iteration_s), (0, 0.0, 0.0), "no NaN in the JSON");
+        let it = Iteration { energy: 1.0, newton_steps: 3, ..Default::default() };
+        let with = CvtRecord::of("lloyd-transport", &[it, Iteration { newton_steps: 0, ..it }]);
+        assert_eq!(with.newton_steps, vec![3, 0], "every iteration's, once any has some");
+    }
+
+    #[test]
+    fn the_table_shows_optional_rows_only_when_they_say_something() {
+        let mut s = summary();
+        let table = s.to_string();
+        for absent in ["faces", "lids", "pieces", "transport", "periodic"] {
+            assert!(!table.contains(&format!("  {absent}")), "{absent}:\n{table}");
+        }
+        s.lids = Some(0);
+        assert!(!s.to_string().contains("lids"), "no lids row for zero lids");
+        s.lids = Some(2);
+        s.counters.faces_redone = 5;
+        let run = TransportRun {
+            steps: vec![NewtonStep { max_error: 0.5, ..Default::default() }],
+            converged: false,
+            ..Default::default()
+        };
+        s.transport = Some(TransportRecord::of("capacities", 1e-6, &run));
+        let table = s.to_string();
+        assert!(table.contains("2 holes in the cells' polyhedra closed by lids"), "{table}");
+        assert!(table.contains("5 sites' faces redone"), "{table}");
+        assert!(table.contains("NOT converged"), "{table}");
+    }
+}
