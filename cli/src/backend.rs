@@ -1,7 +1,7 @@
 //! The backend of a run: one process's, or this rank's of a job in parts.
 
 use crate::args::RunArgs;
-use cvd::backends::distributed::{Alone, Distributed};
+use cvd::backends::distributed::{Distributed, OneProcess};
 use cvd::backends::{self, BackendChoice};
 use cvd::exec::CpuBackend;
 use cvd::Backend;
@@ -70,7 +70,7 @@ pub fn open(args: &RunArgs) -> cvd::Result<(RunBackend, String)> {
     if args.transports() {
         return Err(cvd::Error::InvalidInput("optimal transport does not run in parts yet".into()));
     }
-    let comm = comm.unwrap_or_else(|| Box::new(Alone));
+    let comm = comm.unwrap_or_else(|| Box::new(OneProcess));
     let why = format!("{} part(s) per rank, {}", args.parts.unwrap_or(1), comm.describe());
     let cpu = CpuBackend::new(args.backend.threads)?;
     let mut d = Distributed::new(cpu, comm, args.parts.unwrap_or(1))?;

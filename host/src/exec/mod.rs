@@ -6,7 +6,7 @@
 use crate::error::{Error, Result};
 use crate::geom::timing::{timed, Timings};
 use crate::job::clip::{ClipJob, ClipOutput, Pairing, Strategy};
-use crate::job::held::Held;
+use crate::job::held::HeldCells;
 use crate::job::knn::{KnnJob, KnnMethod, Neighbors, PackedLists};
 use cvd_kernels::abi::{
     counter, ClipParams, KnnParams, QuantPoint, RefineParams, ACCUM_PER_SITE, NO_SITE, OUT_OF_HALO,
@@ -395,7 +395,7 @@ impl CpuBackend {
     /// slots, `n` of them: a site job's (its queries tagged with their
     /// site, the unlisted sites marked unknown), or a point job's with
     /// `k` = 1 (the tets' nearest sites, in plain entries). A list the held
-    /// cells do not certify ([`Held::certifies`]) is marked unknown; a
+    /// cells do not certify ([`HeldCells::certifies`]) is marked unknown; a
     /// nearest site, [`OUT_OF_HALO`]. Returns the lists and how many were
     /// certified.
     pub(crate) fn held_lists(
@@ -404,7 +404,7 @@ impl CpuBackend {
         n: usize,
         bits: u32,
         grid: &CpuGrid,
-        held: &Held,
+        held: &HeldCells,
     ) -> (PackedLists, u64) {
         let k = job.params.k;
         let sites = job.params.exclude_self != 0;
@@ -685,7 +685,7 @@ mod tests {
         let g = cpu.pool.install(|| build_grid(&job));
         // The lower corner's cells: its lists near the box's high sides are
         // not certified.
-        let held = Held::around([0; 3], [1; 3], 0, [p.dim_x, p.dim_y, p.dim_z], p.cell_size);
+        let held = HeldCells::around([0; 3], [1; 3], 0, [p.dim_x, p.dim_y, p.dim_z], p.cell_size);
         assert!(!held.is_whole());
         let nn = cpu.neighbors(&job).unwrap();
         let (lists, certified) = cpu.held_lists(&job, 600, 32, &g, &held);
@@ -717,7 +717,7 @@ mod tests {
         }
         assert_eq!(certified, expected);
         // The whole grid certifies every list.
-        let whole = Held::around([0; 3], [u32::MAX; 3], 0, [p.dim_x, p.dim_y, p.dim_z], p.cell_size);
+        let whole = HeldCells::around([0; 3], [u32::MAX; 3], 0, [p.dim_x, p.dim_y, p.dim_z], p.cell_size);
         let (lists, certified) = cpu.held_lists(&job, 600, 32, &g, &whole);
         assert_eq!((certified, &lists.words[..600 * 6]), (600, &nn.indices[..]));
     }

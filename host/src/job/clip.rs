@@ -5,7 +5,7 @@
 
 use crate::geom::mesh::TetMesh;
 use crate::geom::timing::Timings;
-use crate::job::held::Held;
+use crate::job::held::HeldCells;
 use crate::job::knn::{KnnJob, PackedLists};
 use crate::job::BackendKind;
 use cvd_kernels::abi::{ClipParams, KnnParams, QuantPoint, RefineParams, SplitPoint};
@@ -132,7 +132,7 @@ pub struct ClipJob {
     /// For a part of a job (`backends::distributed`): the grid cells whose
     /// sites it holds (its quantized points are shifted by their corner);
     /// `None`: every site.
-    pub held: Option<Held>,
+    pub held: Option<HeldCells>,
 }
 
 impl ClipJob {
@@ -368,7 +368,7 @@ mod tests {
         // A part whose box starts one cell in: shifted by a cell, at 0
         // below it.
         let g = job.site_knn.params.grid;
-        job.held = Some(Held::around([1, 1, 1], [1, 1, 1], 0, [g.dim_x, g.dim_y, g.dim_z], g.cell_size));
+        job.held = Some(HeldCells::around([1, 1, 1], [1, 1, 1], 0, [g.dim_x, g.dim_y, g.dim_z], g.cell_size));
         let cs = g.cell_size;
         let (mut below, mut beyond) = (false, false);
         for t in 0..job.tets.len() {

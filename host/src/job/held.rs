@@ -1,11 +1,11 @@
 //! The part of a job's site grid a part of a distributed job holds
-//! ([`Held`]): a box of grid cells.
+//! ([`HeldCells`]): a box of grid cells.
 
 use cvd_kernels::abi::GridParams;
 
 /// The grid cells whose sites a part holds: a box of the whole job's grid.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Held {
+pub struct HeldCells {
     /// The box's first cell, in the whole grid's cell coordinates.
     pub lo: [u32; 3],
     /// Cells of the box per axis.
@@ -16,7 +16,7 @@ pub struct Held {
     pub cell_size: u32,
 }
 
-impl Held {
+impl HeldCells {
     /// The cells `lo..=hi` widened by `halo` cells on every side, inside a
     /// grid of `grid` cells of `cell_size` units.
     pub fn around(lo: [u32; 3], hi: [u32; 3], halo: u32, grid: [u32; 3], cell_size: u32) -> Self {
@@ -81,14 +81,14 @@ mod tests {
 
     #[test]
     fn around_widens_by_the_halo_and_clamps_to_the_grid() {
-        let h = Held::around([2, 3, 4], [3, 3, 5], 1, GRID, 7);
-        assert_eq!(h, Held { lo: [1, 2, 3], dim: [4, 3, 4], grid: GRID, cell_size: 7 });
+        let h = HeldCells::around([2, 3, 4], [3, 3, 5], 1, GRID, 7);
+        assert_eq!(h, HeldCells { lo: [1, 2, 3], dim: [4, 3, 4], grid: GRID, cell_size: 7 });
         assert_eq!(h.shift(), [7, 14, 21]);
         // At the grid's sides: cut there, on both ends.
-        let h = Held::around([0, 1, 8], [1, 9, 9], 2, GRID, 7);
+        let h = HeldCells::around([0, 1, 8], [1, 9, 9], 2, GRID, 7);
         assert_eq!((h.lo, h.dim), ([0, 0, 6], [4, 10, 4]));
         // Any halo, however large, is the whole grid at most.
-        let h = Held::around([4, 4, 4], [5, 5, 5], u32::MAX, GRID, 7);
+        let h = HeldCells::around([4, 4, 4], [5, 5, 5], u32::MAX, GRID, 7);
         assert_eq!((h.lo, h.dim), ([0; 3], GRID));
         assert!(h.is_whole());
         assert_eq!(h.shift(), [0; 3]);
@@ -96,14 +96,14 @@ mod tests {
 
     #[test]
     fn is_whole_only_for_the_whole_grid() {
-        assert!(Held::around([0; 3], [9; 3], 0, GRID, 1).is_whole());
-        assert!(!Held::around([0; 3], [9, 9, 8], 0, GRID, 1).is_whole());
-        assert!(!Held::around([1, 0, 0], [9; 3], 0, GRID, 1).is_whole());
+        assert!(HeldCells::around([0; 3], [9; 3], 0, GRID, 1).is_whole());
+        assert!(!HeldCells::around([0; 3], [9, 9, 8], 0, GRID, 1).is_whole());
+        assert!(!HeldCells::around([1, 0, 0], [9; 3], 0, GRID, 1).is_whole());
     }
 
     #[test]
     fn holds_exactly_the_cells_of_the_box() {
-        let h = Held::around([2, 3, 4], [3, 3, 5], 1, GRID, 7); // cells 1..5, 2..5, 3..7
+        let h = HeldCells::around([2, 3, 4], [3, 3, 5], 1, GRID, 7); // cells 1..5, 2..5, 3..7
         assert!(h.holds([1, 2, 3]) && h.holds([4, 4, 6]) && h.holds([2, 3, 5]));
         for outside in [[0, 3, 4], [5, 3, 4], [2, 1, 4], [2, 5, 4], [2, 3, 2], [2, 3, 7], [u32::MAX, 3, 4]] {
             assert!(!h.holds(outside), "{outside:?}");
@@ -116,7 +116,7 @@ mod tests {
     fn certifies_a_ball_strictly_inside_the_box() {
         // Cells 2..5 on every axis, 100 units each: the part's quantized
         // box is 0..300, with cells beyond it on every side.
-        let h = Held::around([2; 3], [4; 3], 0, GRID, 100);
+        let h = HeldCells::around([2; 3], [4; 3], 0, GRID, 100);
         let q = [150, 150, 150];
         assert!(h.certifies(q, 149 * 149), "inside");
         assert!(!h.certifies(q, 150 * 150), "touching a side");
@@ -136,20 +136,20 @@ mod tests {
     fn a_side_at_the_grids_edge_needs_no_margin() {
         // Cells 0..3 along x (the grid's low end), 7..10 along y (its high
         // end), 4..6 along z.
-        let h = Held::around([0, 7, 4], [2, 9, 5], 0, GRID, 100);
+        let h = HeldCells::around([0, 7, 4], [2, 9, 5], 0, GRID, 100);
         assert!(h.certifies([0, 150, 100], 99 * 99), "nothing below x = 0 or above y = 300");
         assert!(h.certifies([1, 299, 100], 99 * 99));
         assert!(!h.certifies([1, 299, 100], 100 * 100), "z still has cells beyond it");
         assert!(!h.certifies([150, 150, 100], 150 * 150), "x has cells above");
         // The whole grid certifies everything, even an unbounded ball.
-        let whole = Held::around([0; 3], [9; 3], 0, GRID, 100);
+        let whole = HeldCells::around([0; 3], [9; 3], 0, GRID, 100);
         assert!(whole.certifies([0, 0, 0], u64::MAX));
         assert!(whole.certifies([999, 999, 999], u64::MAX));
     }
 
     #[test]
     fn grid_params_describe_the_box() {
-        let h = Held::around([2, 3, 4], [3, 3, 5], 1, GRID, 7);
+        let h = HeldCells::around([2, 3, 4], [3, 3, 5], 1, GRID, 7);
         let g = h.grid_params(123);
         assert_eq!((g.dim_x, g.dim_y, g.dim_z, g.cell_size, g.n_sites, g.n_cells), (4, 3, 4, 7, 123, 48));
     }

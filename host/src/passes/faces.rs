@@ -195,8 +195,8 @@ pub(crate) fn complete(
     weight: impl Fn(usize) -> f64,
 ) {
     let wanted: std::collections::HashSet<u32> = which.iter().copied().collect();
-    type Redone = (HashMap<u32, f64>, f64, [f64; 3]);
-    let mut redone: HashMap<u32, Redone> = which.iter().map(|&u| (u, Default::default())).collect();
+    type SiteFaceSums = (HashMap<u32, f64>, f64, [f64; 3]);
+    let mut redone: HashMap<u32, SiteFaceSums> = which.iter().map(|&u| (u, Default::default())).collect();
     for f in all.iter().flat_map(|c| &c.0) {
         if !wanted.contains(&f.site) {
             continue;

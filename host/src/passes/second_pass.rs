@@ -33,7 +33,7 @@ const QUEUE: usize = 1024;
 
 /// What the second pass did.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct Redone {
+pub struct SecondPassCounts {
     /// Unfinished entries (whole tets or pairs) finished here.
     pub finished: u64,
     /// Pieces that could not be finished even here (more faces than a
@@ -47,10 +47,10 @@ pub struct Redone {
 
 /// Finishes `out.unfinished`, adding the pieces to `out.sums` and handing
 /// them to the tasks' sinks, which end up in `sinks`.
-pub(crate) fn run<S: TaskSink>(job: &ClipJob, out: &mut ClipOutput, sinks: &Mutex<Vec<S>>) -> Result<Redone> {
+pub(crate) fn run<S: TaskSink>(job: &ClipJob, out: &mut ClipOutput, sinks: &Mutex<Vec<S>>) -> Result<SecondPassCounts> {
     let knn = job.pairing == crate::job::clip::Pairing::Knn;
     if out.unfinished.is_empty() && !knn {
-        return Ok(Redone::default());
+        return Ok(SecondPassCounts::default());
     }
     // The kernels' grid walk, over the kernels' grid; the host grid answers
     // nearest-site and radius queries.
@@ -80,7 +80,7 @@ pub(crate) fn run<S: TaskSink>(job: &ClipJob, out: &mut ClipOutput, sinks: &Mute
             _ => pairs.push(e),
         }
     }
-    let mut redone = Redone::default();
+    let mut redone = SecondPassCounts::default();
 
     // Whole tets: flood again, with a longer queue.
     let failed = Mutex::new(Vec::new());

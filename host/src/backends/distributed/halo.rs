@@ -7,7 +7,7 @@
 //! every distance is the same integer), and its grid is the whole grid's
 //! cells inside the box. Then:
 //! * a site's neighbour list is the whole job's when the ball through its
-//!   k-th neighbour lies inside the box ([`Held::certifies`]); other
+//!   k-th neighbour lies inside the box ([`HeldCells::certifies`]); other
 //!   sites get a list marked unknown (`cvd_kernels::lists`), and so does
 //!   every site beyond the listed cells (their lists are not computed);
 //! * a tet's nearest site, likewise, or [`OUT_OF_HALO`];
@@ -24,7 +24,7 @@
 use crate::error::{Error, Result};
 use crate::exec::{build_grid, CpuGrid};
 use crate::job::clip::ClipJob;
-use crate::job::held::Held;
+use crate::job::held::HeldCells;
 use crate::job::knn::KnnJob;
 use cvd_kernels::abi::{ClipParams, KnnParams, QuantPoint, RefineParams};
 use cvd_kernels::grid::cell_coords;
@@ -44,7 +44,7 @@ impl SitesByCell {
     }
 
     /// The sites of the held cells, in increasing order.
-    fn of(&self, job: &ClipJob, held: &Held) -> Vec<u32> {
+    fn of(&self, job: &ClipJob, held: &HeldCells) -> Vec<u32> {
         let g = &job.site_knn.params.grid;
         let grid = &self.0;
         let mut found = Vec::new();
@@ -84,22 +84,22 @@ pub(crate) fn cells_of(job: &ClipJob, tets: &[u32]) -> ([u32; 3], [u32; 3]) {
 /// The held cells whose sites get neighbour lists: those within a halo of
 /// the cells a part's tets overlap (not of their bounding box: a run of
 /// tets in Morton order may bend around a corner).
-pub(crate) struct Listed {
-    held: Held,
+pub(crate) struct ListedCells {
+    held: HeldCells,
     /// Per held cell (x fastest).
     mask: Vec<bool>,
 }
 
-impl Listed {
+impl ListedCells {
     /// Every held cell.
     #[cfg(test)]
-    pub(crate) fn all(held: Held) -> Self {
+    pub(crate) fn all(held: HeldCells) -> Self {
         Self { held, mask: vec![true; held.dim.iter().product::<u32>() as usize] }
     }
 
     /// The held cells within `halo` cells (along each axis) of the cells
     /// the bounding boxes of `tets` overlap.
-    pub(crate) fn around(job: &ClipJob, tets: &[u32], held: Held, halo: u32) -> Self {
+    pub(crate) fn around(job: &ClipJob, tets: &[u32], held: HeldCells, halo: u32) -> Self {
         let d = held.dim.map(|d| d as usize);
         let index = |c: [usize; 3]| (c[2] * d[1] + c[1]) * d[0] + c[0];
         let mut mask = vec![false; d[0] * d[1] * d[2]];
@@ -154,8 +154,8 @@ pub(crate) fn part_job(
     job: &ClipJob,
     by_cell: &SitesByCell,
     tets: &[u32],
-    held: Held,
-    listed: &Listed,
+    held: HeldCells,
+    listed: &ListedCells,
 ) -> Result<(ClipJob, Vec<u32>)> {
     if job.params.faces_base != 0 {
         return Err(Error::InvalidInput("a job in parts does not sum faces (yet): ask for cells only".into()));
@@ -266,7 +266,7 @@ mod tests {
     fn a_ball_is_certified_inside_the_open_sides_only() {
         // Cells 2..6 of 10 along x, 0..4 of 4 along y and z: only x has
         // cells beyond, on both sides.
-        let h = Held { lo: [2, 0, 0], dim: [4, 4, 4], grid: [10, 4, 4], cell_size: 10 };
+        let h = HeldCells { lo: [2, 0, 0], dim: [4, 4, 4], grid: [10, 4, 4], cell_size: 10 };
         assert!(!h.is_whole());
         assert_eq!(h.shift(), [20, 0, 0]);
         // x = 5 of 0..40: 5 from the low side, 35 from the high one.
@@ -277,13 +277,13 @@ mod tests {
         // y and z have nothing beyond: any ball there.
         assert!(h.certifies([20, 0, 39], 399));
         assert!(!h.certifies([20, 0, 0], u64::MAX));
-        let whole = Held { lo: [0; 3], dim: [10, 4, 4], grid: [10, 4, 4], cell_size: 10 };
+        let whole = HeldCells { lo: [0; 3], dim: [10, 4, 4], grid: [10, 4, 4], cell_size: 10 };
         assert!(whole.is_whole() && whole.certifies([0, 0, 0], u64::MAX));
     }
 
     #[test]
     fn a_box_around_cells_stays_in_the_grid() {
-        let h = Held::around([1, 5, 0], [3, 9, 0], 2, [10, 10, 1], 7);
+        let h = HeldCells::around([1, 5, 0], [3, 9, 0], 2, [10, 10, 1], 7);
         assert_eq!((h.lo, h.dim), ([0, 3, 0], [6, 7, 1]));
         assert!(h.holds([5, 9, 0]) && !h.holds([6, 9, 0]) && !h.holds([0, 2, 0]));
     }
@@ -314,9 +314,9 @@ mod lists_tests {
             let n = job.tets.len();
             let tets: Vec<u32> = (n * part / 4..n * (part + 1) / 4).map(|t| t as u32).collect();
             let (lo, hi) = cells_of(&job, &tets);
-            let held = Held::around(lo, hi, 2, grid, g.cell_size);
+            let held = HeldCells::around(lo, hi, 2, grid, g.cell_size);
             assert!(!held.is_whole());
-            let (p, held_sites) = part_job(&job, &by_cell, &tets, held, &Listed::all(held)).unwrap();
+            let (p, held_sites) = part_job(&job, &by_cell, &tets, held, &ListedCells::all(held)).unwrap();
             let k = p.site_knn.params.k as usize;
             let built = build_grid(&p.site_knn);
             let (lists, n) = cpu.held_lists(&p.site_knn, held_sites.len(), 32, &built, &held);
@@ -379,9 +379,9 @@ mod walk_tests {
         let (job, _, _) = ClippedVoronoi::new(&mesh, &sites).job().unwrap();
         let g = &job.site_knn.params.grid;
         let grid = [g.dim_x, g.dim_y, g.dim_z];
-        let held = Held::around([3; 3], [6, 7, 5], 1, grid, g.cell_size);
+        let held = HeldCells::around([3; 3], [6, 7, 5], 1, grid, g.cell_size);
         assert!(!held.is_whole());
-        let (part, held_sites) = part_job(&job, &SitesByCell::new(&job), &[], held, &Listed::all(held)).unwrap();
+        let (part, held_sites) = part_job(&job, &SitesByCell::new(&job), &[], held, &ListedCells::all(held)).unwrap();
         let (all, mine) = (build_grid(&job.site_knn), build_grid(&part.site_knn));
         let whole = GridWalk::new(&job.refine, &[], &all.cell_start, &all.cell_count, &all.sorted);
         let walk = GridWalk::new(&part.refine, &[], &mine.cell_start, &mine.cell_count, &mine.sorted);

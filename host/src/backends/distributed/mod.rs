@@ -16,7 +16,7 @@
 //! [`Distributed`] is a [`Backend`]: it computes the parts of its rank on
 //! the CPU and adds the sums of all ranks through a [`Reduce`] — an MPI
 //! all-reduce (`cvd::backends::distributed::mpi`, the `mpi` feature), or nothing in
-//! one process ([`Alone`]), where one rank may compute several parts one
+//! one process ([`OneProcess`]), where one rank may compute several parts one
 //! after another (what P ranks compute, in one process, and in a
 //! P-th of the memory for the lists and grids). So the diagram, Lloyd's
 //! iterations and everything built on [`Backend::clip`] run distributed.
@@ -30,12 +30,12 @@ use crate::error::{Error, Result};
 use crate::exec::CpuBackend;
 use crate::geom::timing::{timed, Timings};
 use crate::job::clip::{ClipJob, ClipOutput, Pairing, Strategy};
-use crate::job::held::Held;
+use crate::job::held::HeldCells;
 use crate::job::knn::{KnnJob, Neighbors};
 use crate::job::BackendKind;
 use cvd_kernels::abi::{counter, ACCUM_PER_SITE, OUT_OF_HALO};
 use cvd_kernels::clip::NoPieces;
-use halo::{cells_of, part_job, Listed, SitesByCell};
+use halo::{cells_of, part_job, ListedCells, SitesByCell};
 use std::sync::Mutex;
 
 /// Adds numbers across the ranks of a distributed run.
@@ -53,9 +53,9 @@ pub trait Reduce: Send + Sync {
 
 /// One process: nothing to add.
 #[derive(Clone, Copy, Debug, Default)]
-pub struct Alone;
+pub struct OneProcess;
 
-impl Reduce for Alone {
+impl Reduce for OneProcess {
     fn rank(&self) -> usize {
         0
     }
@@ -367,9 +367,9 @@ impl Distributed {
             for group in groups {
                 round.tets += group.len() as u64;
                 let (lo, hi) = cells_of(job, &group);
-                let held = Held::around(lo, hi, halo, grid, g.cell_size);
+                let held = HeldCells::around(lo, hi, halo, grid, g.cell_size);
                 let (part, t) = timed(|| {
-                    let listed = Listed::around(job, &group, held, list_halo);
+                    let listed = ListedCells::around(job, &group, held, list_halo);
                     part_job(job, by_cell, &group, held, &listed)
                 });
                 let (part, sites) = part?;
@@ -537,7 +537,7 @@ mod tests {
     use crate::{geom::points, ClippedVoronoi, TetMesh};
 
     fn in_parts(parts: usize) -> Distributed {
-        Distributed::new(CpuBackend::new(Some(2)).unwrap(), Box::new(Alone), parts).unwrap()
+        Distributed::new(CpuBackend::new(Some(2)).unwrap(), Box::new(OneProcess), parts).unwrap()
     }
 
     fn same_bits(a: &crate::Cells, b: &crate::Cells, what: &str) {
