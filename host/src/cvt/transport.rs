@@ -82,8 +82,6 @@ pub struct Transport<'a, D> {
     start: Option<&'a [f64]>,
     tolerance: f64,
     max_steps: usize,
-    /// Starting weights that empty a cell: start from zero instead.
-    restart: bool,
 }
 
 /// Halvings of a Newton step before the solve says it cannot go on.
@@ -101,7 +99,7 @@ impl<'a, D: SiteDiagram> Transport<'a, D> {
     /// mass, the domain's mass over the sites, or its share by
     /// [`Self::capacities`].
     pub fn new(diagram: D) -> Self {
-        Self { diagram, capacities: None, start: None, tolerance: 1e-6, max_steps: 50, restart: false }
+        Self { diagram, capacities: None, start: None, tolerance: 1e-6, max_steps: 50 }
     }
 
     /// A capacity per site (positive; normalised so that they sum to the
@@ -131,10 +129,9 @@ impl<'a, D: SiteDiagram> Transport<'a, D> {
         self
     }
 
-    /// The targets per site from the capacities (or uniform) and the mesh's
-    /// mass.
-    fn targets(&self, mass: f64) -> Result<Vec<f64>> {
-        let n = self.diagram.starting_sites().len();
+    /// The targets of `n` sites from the capacities (or uniform) and the
+    /// domain's mass.
+    fn targets(&self, n: usize, mass: f64) -> Result<Vec<f64>> {
         let Some(c) = self.capacities else { return Ok(vec![mass / n as f64; n]) };
         if c.len() != n {
             return Err(Error::InvalidInput(format!("{} capacities for {n} sites", c.len())));
@@ -189,7 +186,7 @@ impl<'a, D: SiteDiagram> Transport<'a, D> {
     /// the last diagram's); `progress` returning false stops the solve
     /// after that step (not converged).
     pub fn solve(&self, progress: &mut dyn FnMut(&NewtonStep) -> bool) -> Result<TransportRun> {
-        self.solve_at(self.diagram.starting_sites(), self.start, self.restart, progress)
+        self.solve_at(self.diagram.starting_sites(), self.start, false, progress)
     }
 
     /// [`Self::solve`] at `sites`, from weights `start` (zero if none; with
@@ -228,7 +225,7 @@ impl<'a, D: SiteDiagram> Transport<'a, D> {
                 equal_sites(sites)
             )));
         }
-        let targets = self.targets(cells.mesh_volume)?;
+        let targets = self.targets(n, cells.mesh_volume)?;
         if let Some(i) = cells.volume.iter().position(|&m| m.is_nan() || m <= 0.0) {
             return Err(Error::InvalidInput(format!(
                 "site {i}'s cell {:?} is empty with the starting weights: optimal transport starts from cells \
