@@ -283,6 +283,11 @@ mod tests {
         same::<KnnMethod>(|m| m.name());
         same::<Optimizer>(|o| o.name());
         same::<BackendChoice>(|b| b.name());
+        assert_eq!(BackendChoice::value_variants(), BackendChoice::ALL);
+        for b in BackendChoice::ALL {
+            assert_eq!(BackendChoice::from_name(b.name()), Some(b));
+        }
+        assert_eq!(BackendChoice::from_name("gpu"), None);
     }
 
     #[test]

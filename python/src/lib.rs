@@ -184,13 +184,8 @@ fn sample<'py>(py: Python<'py>, mesh: &Mesh, n: usize, seed: u64) -> Bound<'py, 
 
 /// The backend options for a name.
 fn backend(name: &str) -> PyResult<cvd::BackendOptions> {
-    let choice = match name {
-        "auto" => cvd::BackendChoice::Auto,
-        "cpu" => cvd::BackendChoice::Cpu,
-        "vulkan" => cvd::BackendChoice::Vulkan,
-        other => {
-            return Err(PyValueError::new_err(format!("backend must be 'auto', 'cpu' or 'vulkan', not {other:?}")))
-        }
+    let Some(choice) = cvd::BackendChoice::from_name(name) else {
+        return Err(PyValueError::new_err(format!("backend must be 'auto', 'cpu' or 'vulkan', not {name:?}")));
     };
     Ok(cvd::BackendOptions { choice, ..Default::default() })
 }

@@ -119,6 +119,14 @@ impl BackendChoice {
             BackendChoice::Vulkan => "vulkan",
         }
     }
+
+    /// Every choice, in the order above.
+    pub const ALL: [BackendChoice; 3] = [BackendChoice::Auto, BackendChoice::Cpu, BackendChoice::Vulkan];
+
+    /// The choice of this [`name`](Self::name), if any.
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|c| c.name() == name)
+    }
 }
 
 /// Options for choosing and configuring a backend.
