@@ -70,6 +70,13 @@ impl FromStr for Section {
 const METHODS: [(Strategy, Pairing); 3] =
     [(Strategy::TetCell, Pairing::Flood), (Strategy::TetCell, Pairing::Knn), (Strategy::CellTet, Pairing::Knn)];
 
+/// The ways measured on `backend`: whole cells (on the CPU backend, which
+/// runs them), then the paper's three.
+fn methods(backend: &dyn Backend) -> Vec<(Strategy, Pairing)> {
+    let whole = (backend.kind() == cvd::BackendKind::Cpu).then_some((Strategy::Whole, Pairing::Flood));
+    whole.into_iter().chain(METHODS).collect()
+}
+
 /// Sites uniform inside the mesh, the same for every backend and method.
 const SEED: u64 = 2020;
 
@@ -245,7 +252,7 @@ impl<'a> Suite<'a> {
         for m in models.iter().filter(|m| cfg.wants(&m.name)) {
             let sites = points::in_mesh(&m.mesh, m.sites, SEED);
             for b in self.each_backend() {
-                for method in METHODS {
+                for method in methods(b.0) {
                     let row = self.measure(Case("table1", &m.name, &m.mesh, &sites), b, method, None)?.0;
                     self.keep(row);
                 }
@@ -265,7 +272,7 @@ impl<'a> Suite<'a> {
             for &n in counts {
                 let sites = points::in_mesh(&m.mesh, n, SEED);
                 for b in self.each_backend() {
-                    for method in METHODS {
+                    for method in methods(b.0) {
                         let row = self.measure(Case("fig7", &m.name, &m.mesh, &sites), b, method, None)?.0;
                         rows.push(self.keep(row));
                     }
@@ -295,7 +302,7 @@ impl<'a> Suite<'a> {
                 let m = Model::builtin(name, Some(r.round().max(1.0) as u32))?;
                 let sites = points::in_mesh(&m.mesh, n, SEED);
                 for b in self.each_backend() {
-                    for method in METHODS {
+                    for method in methods(b.0) {
                         let row = self.measure(Case("fig8", name, &m.mesh, &sites), b, method, None)?.0;
                         rows.push(self.keep(row));
                     }
@@ -348,7 +355,7 @@ impl<'a> Suite<'a> {
         for &n in counts {
             let mut rows = Vec::new();
             for b in self.each_backend() {
-                for method in METHODS {
+                for method in methods(b.0) {
                     let mut sites = points::in_mesh(&m.mesh, n, SEED);
                     for it in 0..self.config.iterations {
                         let k = (method.1 == Pairing::Knn).then_some(50);

@@ -92,9 +92,10 @@ impl Row {
         }
     }
 
-    /// `tet-cell flood`, `cell-tet knn`, ...
+    /// `whole`, `tet-cell flood`, `cell-tet knn`, ...
     pub fn method(&self) -> String {
         let s = match self.strategy {
+            Strategy::Whole => return "whole".into(),
             Strategy::TetCell => "tet-cell",
             Strategy::CellTet => "cell-tet",
         };

@@ -72,9 +72,12 @@ pub struct RunArgs {
     /// Random seed of the sites.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Tet-cell or cell-tet.
-    #[arg(long, value_enum, default_value_t = Strategy::TetCell)]
-    pub strategy: Strategy,
+    /// Whole cells (each cell built once; only those the boundary may cut
+    /// go through the tets), or the paper's tet-cell or cell-tet. Default:
+    /// whole on the CPU backend; tet-cell under a density, on Vulkan and in
+    /// parts.
+    #[arg(long, value_enum)]
+    pub strategy: Option<Strategy>,
     /// Pairing of tets and sites: flood (exact; default for tet-cell) or knn
     /// (paper Eq. 6; default for cell-tet).
     #[arg(long, value_enum)]

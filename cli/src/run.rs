@@ -51,7 +51,7 @@ pub fn run(args: &RunArgs) -> cvd::Result<()> {
     if writes {
         create_dir(&dir)?;
     }
-    let strategy = args.strategy.name();
+    let strategy = args.strategy.unwrap_or_else(|| backend.default_strategy(inputs.density.is_some())).name();
     match &inputs.domain {
         Domain::Mesh(mesh) => {
             // Cells only in parts (said, not dropped silently).
@@ -83,7 +83,8 @@ pub fn run(args: &RunArgs) -> cvd::Result<()> {
             &box_mesh
         }
     };
-    let mut summary = Summary::new(&inputs.name, mesh, diagram.sites.len(), args.strategy, backend, &diagram.cells);
+    let mut summary =
+        Summary::new(&inputs.name, mesh, diagram.sites.len(), diagram.cells.strategy, backend, &diagram.cells);
     summary.cvt = optimised.cvt;
     summary.transport = optimised.transport;
     summary.parts = run_backend.parts().map(|d| d.report());

@@ -2,7 +2,7 @@
 //! backends (the `backends` module) implement it, and open one.
 
 use crate::error::Result;
-use crate::job::clip::{ClipJob, ClipOutput};
+use crate::job::clip::{ClipJob, ClipOutput, Strategy};
 use crate::job::knn::{KnnJob, Neighbors};
 use crate::job::lloyd::{lloyd_params, LloydOutput};
 use crate::job::BackendKind;
@@ -20,6 +20,11 @@ pub trait Backend: Send + Sync {
     /// A human-readable name: backend and device.
     fn name(&self) -> String {
         format!("{} ({})", self.kind(), self.device())
+    }
+    /// The strategy a computation runs here when none is asked for
+    /// ([`Strategy::auto`]; `density`: under a density).
+    fn default_strategy(&self, density: bool) -> Strategy {
+        Strategy::auto(self.kind(), density)
     }
     /// Runs a k-NN job.
     fn knn(&self, job: &KnnJob) -> Result<Neighbors>;

@@ -165,6 +165,8 @@ pub fn manifest() -> Value {
                 "FILTERED": counter::FILTERED,
                 "WALKS": counter::WALKS,
                 "HALO": counter::HALO,
+                "WHOLE": counter::WHOLE,
+                "CUT": counter::CUT,
                 "COUNT": counter::COUNT,
             },
             "lloyd_stat": {

@@ -36,6 +36,12 @@ pub const INCOMPLETE_TET: u32 = u32::MAX - 1;
 /// certify that site.
 pub const OUT_OF_HALO: u32 = u32::MAX - 2;
 
+/// In the tet slot of an unfinished entry `(WHOLE_CELL, site)`: the
+/// whole-cell strategy could not build that site's cell (a full polyhedron
+/// or a breakdown); the host finishes the site from its tets' pieces. As
+/// the tet of a piece handed to a sink: the site's whole cell, in no tet.
+pub const WHOLE_CELL: u32 = u32::MAX - 3;
+
 /// Threads per workgroup of every kernel.
 pub const WORKGROUP_SIZE: u32 = 64;
 
@@ -193,8 +199,13 @@ pub mod counter {
     /// Tets whose flood needed a site outside the held cells (a part of a
     /// distributed job; see [`super::OUT_OF_HALO`]), left for a wider halo.
     pub const HALO: usize = 8;
+    /// Whole-cell strategy: cells inside the domain, integrated whole.
+    pub const WHOLE: usize = 9;
+    /// Whole-cell strategy: cells the boundary may cut, clipped by the tets
+    /// their ball meets.
+    pub const CUT: usize = 10;
     /// Number of counters.
-    pub const COUNT: usize = 9;
+    pub const COUNT: usize = 11;
 }
 
 /// Push constants of the clipping kernels. Coordinates are normalised on
@@ -312,6 +323,39 @@ pub struct RefineParams {
     pub held_dim_y: u32,
     /// See `held_lo_x`.
     pub held_dim_z: u32,
+    /// To a multiple of 16 bytes.
+    pub _pad: [u32; 2],
+}
+
+/// The domain as the whole-cell strategy reads it (`crate::whole`): a
+/// uniform grid of voxels over the mesh listing the tets whose bounding box
+/// meets each voxel, and a bounding-volume hierarchy over the boundary's
+/// triangles. Read from a one-record storage buffer.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct DomainParams {
+    /// Lower corner of voxel (0, 0, 0) in the clipping frame.
+    pub lo_x: f32,
+    /// See `lo_x`.
+    pub lo_y: f32,
+    /// See `lo_x`.
+    pub lo_z: f32,
+    /// Side of a voxel.
+    pub voxel_len: f32,
+    /// Voxels along x.
+    pub dim_x: u32,
+    /// Voxels along y.
+    pub dim_y: u32,
+    /// Voxels along z.
+    pub dim_z: u32,
+    /// Nodes of the boundary's hierarchy (0: no boundary triangles).
+    pub n_nodes: u32,
+    /// A distance below which the boundary counts as touching a cell's
+    /// ball whatever the rounding (absolute, in the frame).
+    pub margin: f32,
+    /// 1: a cell inside the domain is integrated whole; 0: every cell goes
+    /// through its tets (a density varies inside them).
+    pub whole: u32,
     /// To a multiple of 16 bytes.
     pub _pad: [u32; 2],
 }

@@ -66,7 +66,7 @@ pub(crate) fn xyz(v: [f32; 4]) -> Vec3 {
 
 /// Whether this dispatch answers for site `j` (`own_lo..own_hi`).
 #[inline]
-fn owns(p: &ClipParams, j: usize) -> bool {
+pub(crate) fn owns(p: &ClipParams, j: usize) -> bool {
     j >= p.own_lo as usize && j < p.own_hi as usize
 }
 
@@ -119,6 +119,9 @@ pub trait PieceSink {
     /// Forgets the pieces of tet `tet` given so far: its flood failed and
     /// the tet is redone whole (by the second pass, through a sink too).
     fn discard_tet(&mut self, tet: u32);
+    /// Forgets the pieces of site `site` given so far: its whole cell
+    /// failed, and the host finishes the site another way.
+    fn discard_site(&mut self, site: u32);
 }
 
 /// A sink that keeps nothing (the GPU's, and the CPU's when no pieces are
@@ -131,6 +134,8 @@ impl PieceSink for NoPieces {
     fn piece<const P: usize, const V: usize>(&mut self, _tet: u32, _site: u32, _poly: &Polyhedron<P, V>) {}
     #[inline]
     fn discard_tet(&mut self, _tet: u32) {}
+    #[inline]
+    fn discard_site(&mut self, _site: u32) {}
 }
 
 /// `x * scale` rounded to the nearest integer (unbiased: the sums of many
@@ -466,7 +471,7 @@ fn scale_all<const P: usize>(a: &mut [f32; P], k: f32) {
 }
 
 #[inline]
-fn count<C: AtomicSums>(counters: &mut C, pieces: i64, nonempty: i64, c: &Clipped) {
+pub(crate) fn count<C: AtomicSums>(counters: &mut C, pieces: i64, nonempty: i64, c: &Clipped) {
     counters.add(counter::PAIRS, pieces);
     counters.add(counter::NONEMPTY, nonempty);
     counters.add(counter::CLIPS, c.clips);

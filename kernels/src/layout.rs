@@ -5,7 +5,9 @@
 //!
 //! Host-only: not compiled for SPIR-V.
 
-use crate::abi::{ClipParams, GridBuildParams, GridParams, KnnParams, LloydParams, RefineParams, SplitPoint};
+use crate::abi::{
+    ClipParams, DomainParams, GridBuildParams, GridParams, KnnParams, LloydParams, RefineParams, SplitPoint,
+};
 use core::mem::{align_of, offset_of, size_of};
 
 /// What a type is made of.
@@ -148,6 +150,19 @@ structure!(ClipParams {
     list_bits: u32,
     _pad: u32
 });
+structure!(DomainParams {
+    lo_x: f32,
+    lo_y: f32,
+    lo_z: f32,
+    voxel_len: f32,
+    dim_x: u32,
+    dim_y: u32,
+    dim_z: u32,
+    n_nodes: u32,
+    margin: f32,
+    whole: u32,
+    _pad: [u32; 2]
+});
 structure!(RefineParams {
     clip: ClipParams,
     grid: GridParams,
@@ -235,6 +250,7 @@ mod tests {
             KnnParams::describe(),
             ClipParams::describe(),
             RefineParams::describe(),
+            DomainParams::describe(),
             LloydParams::describe(),
             SplitPoint::describe(),
         ] {

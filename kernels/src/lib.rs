@@ -38,3 +38,4 @@ pub mod polyhedron;
 pub mod refine;
 pub mod scan;
 pub mod walk;
+pub mod whole;

@@ -93,6 +93,28 @@ pub fn normalized(plane: Vec4) -> Vec4 {
     plane * f32::from_bits((254 - e) << 23)
 }
 
+/// The planes of the tetrahedron `v` (any orientation), normalised, as
+/// `(n, d)` with the inside `n·x <= d`: plane `i` is the face opposite
+/// vertex `i`, facing away from it.
+#[inline]
+pub fn tet_planes(v: [Vec3; 4]) -> [Vec4; 4] {
+    let v = [Point::from(v[0]), Point::from(v[1]), Point::from(v[2]), Point::from(v[3])];
+    let mut planes = [Vec4::ZERO; 4];
+    let mut i = 0;
+    while i < 4 {
+        let a = v[(i + 1) % 4];
+        let b = v[(i + 2) % 4];
+        let c = v[(i + 3) % 4];
+        let mut n = (b - a).cross(c - a);
+        if n.dot(v[i] - a) > 0.0 {
+            n = -n;
+        }
+        planes[i] = normalized(Vec3::from(n).extend(n.dot(a)));
+        i += 1;
+    }
+    planes
+}
+
 /// Capacities: a Voronoi cell of a site (Algorithm 1) may have ~40 faces
 /// and ~80 vertices; a piece of a cell inside a tet has far fewer. A clip
 /// needs room for the new vertices before it drops the removed ones.
@@ -201,6 +223,27 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
     /// the 8-bit plane numbers of a vertex triple hold.
     const PLANES_FIT: () = assert!(P <= 64, "a polyhedron has at most 64 planes");
 
+    /// Makes this polyhedron a copy of `from`, copying only the planes
+    /// and vertices in use.
+    #[inline]
+    pub fn copy_from(&mut self, from: &Self) {
+        let mut q = 0;
+        while q < (from.n_planes as usize).min(P) {
+            self.planes[q] = from.planes[q];
+            self.ids[q] = from.ids[q];
+            q += 1;
+        }
+        let mut v = 0;
+        while v < (from.n_verts as usize).min(V) {
+            self.verts[v] = from.verts[v];
+            self.tris[v] = from.tris[v];
+            v += 1;
+        }
+        self.n_planes = from.n_planes;
+        self.n_verts = from.n_verts;
+        self.start_radius2 = from.start_radius2;
+    }
+
     /// An empty polyhedron (no vertices).
     pub fn empty() -> Self {
         Self {
@@ -250,20 +293,13 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
 
     /// Makes this polyhedron the tetrahedron `v`, reusing its storage.
     pub fn set_tetrahedron(&mut self, v: [Vec3; 4]) {
+        let planes = tet_planes(v);
         let v = [Point::from(v[0]), Point::from(v[1]), Point::from(v[2]), Point::from(v[3])];
         let p = self;
         p.n_verts = 0;
-        // Plane i is the face opposite vertex i, facing away from it.
         let mut i = 0;
         while i < 4 {
-            let a = v[(i + 1) % 4];
-            let b = v[(i + 2) % 4];
-            let c = v[(i + 3) % 4];
-            let mut n = (b - a).cross(c - a);
-            if n.dot(v[i] - a) > 0.0 {
-                n = -n;
-            }
-            p.planes[i] = normalized(Vec3::from(n).extend(n.dot(a)));
+            p.planes[i] = planes[i];
             p.ids[i] = TET_FACE + i as u32;
             i += 1;
         }

@@ -5,7 +5,7 @@
 //! alike. Only a polyhedron or a flood queue that is still too small leaves
 //! an entry unfinished, for the host.
 
-use crate::abi::{RefineParams, SplitPoint, INCOMPLETE_TET, NO_SITE, OUT_OF_HALO};
+use crate::abi::{RefineParams, SplitPoint, INCOMPLETE_TET, NO_SITE, OUT_OF_HALO, WHOLE_CELL};
 use crate::buffers::{AtomicSums, PairList};
 use crate::cell::tet_vertices;
 use crate::clip::{finish_pair, flood, FaceInputs, Paired, PieceSink};
@@ -44,6 +44,11 @@ pub fn refine_entry<A: AtomicSums, C: AtomicSums, L: PairList, S: PieceSink>(
     }
     let t = list[1 + 2 * e] as usize;
     let j = list[2 + 2 * e];
+    if t == WHOLE_CELL as usize {
+        // A whole cell that could not be built: the host finishes its site.
+        still.push(WHOLE_CELL, j);
+        return;
+    }
     // The tet's slots in `tet_sites`: its paired sites, nearest first.
     let (k, slot) = (p.clip.k_tet as usize, (t - p.clip.tet_base as usize) * p.clip.k_tet as usize);
     if j == NO_SITE {

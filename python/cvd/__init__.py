@@ -68,8 +68,8 @@ def clipped_voronoi(
     sites,
     *,
     backend="auto",
-    strategy="tet-cell",
-    pairing="flood",
+    strategy="auto",
+    pairing="auto",
     density=None,
     faces=False,
     polyhedra=False,
@@ -78,7 +78,9 @@ def clipped_voronoi(
     """The Voronoi cells of `sites` ((n, 3)) clipped to `mesh`.
 
     backend: "auto" (a GPU if there is one, else the CPU), "cpu" or "vulkan".
-    strategy: "tet-cell" or "cell-tet"; pairing: "flood" or "knn".
+    strategy: "auto" (whole cells on the CPU, tet-cell under a density or
+    on Vulkan), "whole", "tet-cell" or "cell-tet"; pairing: "auto",
+    "flood" or "knn" (tet-cell and cell-tet).
     density: one value per mesh vertex (linear in each tet), or None.
     faces: also the adjacency (`cells.adjacency`: CSR arrays of the faces
     the cells share, their areas and normals, each cell's boundary area).

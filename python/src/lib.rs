@@ -309,7 +309,7 @@ fn to_python(py: Python<'_>, cells: cvd::Cells) -> PyResult<Cells> {
 
 /// The clipped Voronoi diagram of `sites` (`(n, 3)` float64) in `mesh`.
 #[pyfunction]
-#[pyo3(signature = (mesh, sites, backend="auto", strategy="tet-cell", pairing="flood", density=None, faces=false, polyhedra=false, weights=None))]
+#[pyo3(signature = (mesh, sites, backend="auto", strategy="auto", pairing="auto", density=None, faces=false, polyhedra=false, weights=None))]
 #[allow(clippy::too_many_arguments)]
 fn clipped_voronoi(
     py: Python<'_>,
@@ -325,16 +325,17 @@ fn clipped_voronoi(
 ) -> PyResult<Cells> {
     let sites = rows3(&sites, "sites")?;
     let strategy = match strategy {
-        "tet-cell" => cvd::Strategy::TetCell,
-        "cell-tet" => cvd::Strategy::CellTet,
-        other => {
-            return Err(PyValueError::new_err(format!("strategy must be 'tet-cell' or 'cell-tet', not {other:?}")))
-        }
+        "auto" => None,
+        name => Some(cvd::Strategy::from_name(name).ok_or_else(|| {
+            let names: Vec<&str> = cvd::Strategy::ALL.iter().map(|s| s.name()).collect();
+            PyValueError::new_err(format!("strategy must be 'auto', '{}', not {name:?}", names.join("', '")))
+        })?),
     };
     let pairing = match pairing {
-        "flood" => cvd::Pairing::Flood,
-        "knn" => cvd::Pairing::Knn,
-        other => return Err(PyValueError::new_err(format!("pairing must be 'flood' or 'knn', not {other:?}"))),
+        "auto" => None,
+        "flood" => Some(cvd::Pairing::Flood),
+        "knn" => Some(cvd::Pairing::Knn),
+        other => return Err(PyValueError::new_err(format!("pairing must be 'auto', 'flood' or 'knn', not {other:?}"))),
     };
     let density: Option<Vec<f64>> = density.map(|d| d.as_array().to_vec());
     let weights: Option<Vec<f64>> = weights.map(|w| w.as_array().to_vec());
@@ -343,9 +344,11 @@ fn clipped_voronoi(
         .detach(|| -> cvd::Result<cvd::Cells> {
             let mut cv = cvd::ClippedVoronoi::new(&mesh.inner, &sites)
                 .strategy(strategy)
-                .pairing(pairing)
                 .density(density.as_deref())
                 .faces(faces);
+            if let Some(p) = pairing {
+                cv = cv.pairing(p);
+            }
             if let Some(w) = &weights {
                 cv = cv.weights(w);
             }

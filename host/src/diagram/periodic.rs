@@ -141,7 +141,7 @@ pub struct PeriodicVoronoi<'a> {
     weights: Option<&'a [f64]>,
     backend: Option<&'a dyn Backend>,
     faces: bool,
-    strategy: Strategy,
+    strategy: Option<Strategy>,
     k_site: Option<usize>,
     tets: Option<usize>,
 }
@@ -171,16 +171,7 @@ impl<'a> PeriodicVoronoi<'a> {
     /// The cells of `sites` in the periodic box `domain` (sites outside it
     /// are wrapped into it).
     pub fn new(domain: PeriodicBox, sites: &'a [[f64; 3]]) -> Self {
-        Self {
-            domain,
-            sites,
-            weights: None,
-            backend: None,
-            faces: false,
-            strategy: Strategy::TetCell,
-            k_site: None,
-            tets: None,
-        }
+        Self { domain, sites, weights: None, backend: None, faces: false, strategy: None, k_site: None, tets: None }
     }
 
     /// The box.
@@ -212,9 +203,10 @@ impl<'a> PeriodicVoronoi<'a> {
         self
     }
 
-    /// Tet-cell or cell-tet.
-    pub fn strategy(mut self, strategy: Strategy) -> Self {
-        self.strategy = strategy;
+    /// Whole cells, tet-cell or cell-tet (default: as
+    /// [`ClippedVoronoi::strategy`]).
+    pub fn strategy(mut self, strategy: impl Into<Option<Strategy>>) -> Self {
+        self.strategy = strategy.into();
         self
     }
 

@@ -4,6 +4,7 @@
 use crate::backend::Backend;
 use crate::error::{Error, Result};
 use crate::exec::TaskSink;
+use crate::geom::domain::DomainIndex;
 use crate::geom::mesh::TetMesh;
 use crate::geom::points;
 use crate::geom::timing::Timings;
@@ -60,6 +61,12 @@ pub struct Counters {
     /// part's halo, done again with a wider one (their first tries are in
     /// the other counters too).
     pub out_of_halo: u64,
+    /// The whole-cell strategy: cells inside the domain, integrated whole
+    /// (no tet).
+    pub whole_cells: u64,
+    /// The whole-cell strategy: cells the boundary may cut, clipped by the
+    /// tets they meet.
+    pub cut_cells: u64,
 }
 
 /// Per-site results and totals.
@@ -125,7 +132,7 @@ impl Cells {
 pub struct ClippedVoronoi<'a> {
     pub(crate) mesh: &'a TetMesh,
     pub(crate) sites: &'a [[f64; 3]],
-    pub(crate) strategy: Strategy,
+    pub(crate) strategy: Option<Strategy>,
     pub(crate) pairing: Option<Pairing>,
     pub(crate) k: Option<usize>,
     pub(crate) k_site: Option<usize>,
@@ -144,7 +151,7 @@ impl<'a> ClippedVoronoi<'a> {
         Self {
             mesh,
             sites,
-            strategy: Strategy::default(),
+            strategy: None,
             pairing: None,
             k: None,
             k_site: None,
@@ -164,10 +171,19 @@ impl<'a> ClippedVoronoi<'a> {
         self
     }
 
-    /// Tet-cell or cell-tet.
-    pub fn strategy(mut self, strategy: Strategy) -> Self {
-        self.strategy = strategy;
+    /// Whole cells, tet-cell or cell-tet (default: [`Strategy::auto`] for
+    /// the backend and density).
+    pub fn strategy(mut self, strategy: impl Into<Option<Strategy>>) -> Self {
+        self.strategy = strategy.into();
         self
+    }
+
+    /// The strategy this computation runs.
+    pub fn resolved_strategy(&self) -> Strategy {
+        let density = self.density.is_some();
+        self.strategy.unwrap_or_else(|| {
+            self.backend.map_or(Strategy::auto(BackendKind::Cpu, density), |b| b.default_strategy(density))
+        })
     }
 
     /// k-nearest or flood pairing (default: flood for tet-cell, knn for
@@ -178,8 +194,9 @@ impl<'a> ClippedVoronoi<'a> {
     }
 
     fn resolved_pairing(&self) -> Pairing {
-        self.pairing.unwrap_or(match self.strategy {
-            Strategy::TetCell => Pairing::Flood,
+        self.pairing.unwrap_or(match self.resolved_strategy() {
+            // Whole cells pair no tets: flood's single list, unused.
+            Strategy::TetCell | Strategy::Whole => Pairing::Flood,
             Strategy::CellTet => Pairing::Knn,
         })
     }
@@ -238,8 +255,14 @@ impl<'a> ClippedVoronoi<'a> {
         }
         crate::job::sites::check_sites(self.sites, self.weights)?;
         let pairing = self.resolved_pairing();
-        if pairing == Pairing::Flood && self.strategy != Strategy::TetCell {
+        let strategy = self.resolved_strategy();
+        if pairing == Pairing::Flood && strategy == Strategy::CellTet {
             return Err(Error::InvalidInput("flood pairing works with the tet-cell strategy only".into()));
+        }
+        if pairing == Pairing::Knn && strategy == Strategy::Whole {
+            return Err(Error::InvalidInput(
+                "the whole-cell strategy pairs no tets: knn pairing does not apply".into(),
+            ));
         }
         if let Some(rho) = self.density {
             if rho.len() != mesh.vertices.len() {
@@ -382,22 +405,26 @@ impl<'a> ClippedVoronoi<'a> {
             held_dim_z: site_knn.params.grid.dim_z,
             _pad: [0; 2],
         };
+        let verts: Vec<SplitPoint> = local_mesh
+            .vertices
+            .iter()
+            .enumerate()
+            .map(|(v, &p)| SplitPoint::new(p, self.density.map_or(1.0, |rho| rho[v] as f32)))
+            .collect();
+        let domain = (strategy == Strategy::Whole)
+            .then(|| std::sync::Arc::new(DomainIndex::new(&local_mesh, &verts, self.density.is_none())));
         let job = ClipJob {
             refine,
             site_knn,
             tet_knn,
             sites: split,
             // The density rides in each vertex record's w.
-            verts: local_mesh
-                .vertices
-                .iter()
-                .enumerate()
-                .map(|(v, &p)| SplitPoint::new(p, self.density.map_or(1.0, |rho| rho[v] as f32)))
-                .collect(),
+            verts,
             tets: local_mesh.tets,
             tet_order,
             params,
-            strategy: self.strategy,
+            strategy,
+            domain,
             pairing,
             tet_faces,
             held: None,
@@ -611,6 +638,8 @@ fn finish(
         broken: c(counter::BROKEN),
         walks: c(counter::WALKS),
         out_of_halo: c(counter::HALO),
+        whole_cells: c(counter::WHOLE),
+        cut_cells: c(counter::CUT),
         duplicate_sites: map.iter().filter(|m| m.is_none()).count() as u64,
         empty_cells: map.iter().zip(&cells.volume).filter(|(m, &v)| m.is_some() && v <= 0.0).count() as u64,
         second_pass: 0,
@@ -671,8 +700,9 @@ mod tests {
         let sites = points::uniform(10, 3);
         let d = ClippedVoronoi::new(&mesh, &sites);
         assert!(refused(d.k_site(0)).contains("at least 1"));
-        assert!(refused(d.pairing(Pairing::Knn).k(Some(0))).contains("at least 1"));
+        assert!(refused(d.strategy(Strategy::TetCell).pairing(Pairing::Knn).k(Some(0))).contains("at least 1"));
         assert!(refused(d.k(Some(0))).contains("at least 1"), "even where flood does not use k");
+        assert!(refused(d.pairing(Pairing::Knn)).contains("pairs no tets"), "whole cells, the default");
     }
 
     #[test]
@@ -683,8 +713,14 @@ mod tests {
         assert!(refused(d.pairing(Pairing::Flood)).contains("tet-cell strategy only"));
         let (job, _, _) = d.job().unwrap();
         assert_eq!((job.strategy, job.pairing), (Strategy::CellTet, Pairing::Knn), "cell-tet's default: knn");
+        let (job, _, _) = ClippedVoronoi::new(&mesh, &sites).strategy(Strategy::TetCell).job().unwrap();
+        assert_eq!((job.strategy, job.pairing), (Strategy::TetCell, Pairing::Flood), "tet-cell's default: flood");
         let (job, _, _) = ClippedVoronoi::new(&mesh, &sites).job().unwrap();
-        assert_eq!((job.strategy, job.pairing), (Strategy::TetCell, Pairing::Flood), "the default: flood");
+        assert_eq!((job.strategy, job.pairing), (Strategy::Whole, Pairing::Flood), "the default: whole cells");
+        assert!(job.domain.is_some() && job.tet_knn.params.k == 1, "the domain's index, no tet lists");
+        let rho = vec![1.0; mesh.vertices.len()];
+        let (job, _, _) = ClippedVoronoi::new(&mesh, &sites).density(Some(&rho)).job().unwrap();
+        assert_eq!(job.strategy, Strategy::TetCell, "under a density: tet-cell");
     }
 
     #[test]
@@ -707,8 +743,9 @@ mod tests {
     fn k_defaults_to_eq_6_and_k_site_to_the_backends() {
         let mesh = TetMesh::cube(3); // 162 tets
         let sites = points::uniform(200, 6);
-        let d = ClippedVoronoi::new(&mesh, &sites);
+        let d = ClippedVoronoi::new(&mesh, &sites).strategy(Strategy::TetCell);
         assert_eq!(d.resolved_k_site(), 48, "CPU, flood");
+        assert_eq!(ClippedVoronoi::new(&mesh, &sites).resolved_k_site(), 48, "CPU, whole cells");
         assert_eq!(d.pairing(Pairing::Knn).resolved_k_site(), 90);
         assert_eq!(d.strategy(Strategy::CellTet).resolved_k_site(), 90);
         assert_eq!(d.k_site(7).resolved_k_site(), 7);

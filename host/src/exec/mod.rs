@@ -13,8 +13,9 @@ use cvd_kernels::abi::{
 };
 use cvd_kernels::buffers::{DeviceSums, OutBuf, PairList, Window};
 use cvd_kernels::clip::{self, FaceInputs, NoPieces, PieceSink, CELL_RECORDS};
+use cvd_kernels::polyhedron::{CELL_PLANES, CELL_VERTS};
 use cvd_kernels::walk::GridWalk;
-use cvd_kernels::{grid, knn, lists, refine, scan};
+use cvd_kernels::{grid, knn, lists, refine, scan, whole};
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicI64, AtomicU32, AtomicU64, Ordering};
 use std::sync::Mutex;
@@ -55,7 +56,10 @@ impl CpuBackend {
         // The sites' lists packed in as few bits as their indices need; the
         // kernels run with parameters that say so.
         let bits = lists::width(job.params.n_sites);
+        // Whole cells pair no tets: no tet lists.
+        let whole = job.strategy == Strategy::Whole;
         let (site_nn, tet_nn, certified) = match &job.held {
+            None if whole => (self.packed_lists_on(&job.site_knn, bits, Some(&g))?, PackedLists::default(), 0),
             None => (
                 self.packed_lists_on(&job.site_knn, bits, Some(&g))?,
                 self.packed_lists_on(&job.tet_knn_job(), 32, Some(&g))?,
@@ -95,6 +99,30 @@ impl CpuBackend {
                             sinks,
                             |t, s, c, u, k| {
                                 clip::flood_tet(t, &refine, w, sites, verts, tets, &tet_nn.indices, faces, s, c, u, k)
+                            },
+                        )
+                    });
+                    timings.push("clip", t);
+                }
+                Strategy::Whole => {
+                    let domain = job
+                        .domain
+                        .as_deref()
+                        .ok_or_else(|| Error::Internal("a whole-cell job without its domain index".into()))?;
+                    let (_, t) = timed(|| {
+                        let w = GridWalk::new(&refine, &site_nn.words, &g.cell_start, &g.cell_count, &g.sorted);
+                        let d = domain.view();
+                        par_indices(
+                            p.n_sites as usize,
+                            CHUNK / 16,
+                            &sums,
+                            &totals,
+                            &unfinished,
+                            sinks,
+                            |i, s, c, u, k| {
+                                whole::whole_cell::<CELL_PLANES, CELL_VERTS, _, _, _, _>(
+                                    i, &refine, w, sites, verts, tets, d, faces, s, c, u, k,
+                                )
                             },
                         )
                     });

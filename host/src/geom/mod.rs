@@ -6,6 +6,7 @@
 //! per-phase times ([`timing`]). It knows no job, backend or diagram.
 
 pub mod density;
+pub mod domain;
 pub mod mesh;
 pub mod points;
 pub mod quantize;

@@ -3,6 +3,7 @@
 //! ([`ClipOutput`]), the strategy and pairing it runs with, and the frame
 //! it is normalised in ([`Frame`]).
 
+use crate::geom::domain::DomainIndex;
 use crate::geom::mesh::TetMesh;
 use crate::geom::timing::Timings;
 use crate::job::held::HeldCells;
@@ -10,24 +11,51 @@ use crate::job::knn::{KnnJob, PackedLists};
 use crate::job::BackendKind;
 use cvd_kernels::abi::{ClipParams, KnnParams, QuantPoint, RefineParams, SplitPoint};
 
-/// How tets and cells are intersected (paper section 6).
+/// How tets and cells are intersected: the paper's two strategies
+/// (section 6), and whole cells.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub enum Strategy {
-    /// Start from the tet, clip by bisectors (Algorithm 4).
+    /// Each site's cell built once; a cell whose ball lies inside the
+    /// domain is integrated whole, and only the cells the boundary may cut
+    /// are clipped by the tets they meet (`cvd_kernels::whole`).
     #[default]
+    Whole,
+    /// Start from the tet, clip by bisectors (Algorithm 4).
     TetCell,
     /// Build each Voronoi cell, clip it by the tet's faces (Algorithms 1-2).
     CellTet,
 }
 
 impl Strategy {
-    /// Its name on the command line and in files: `tet-cell`, `cell-tet`.
+    /// Its name on the command line and in files: `whole`, `tet-cell`,
+    /// `cell-tet`.
     pub fn name(self) -> &'static str {
         match self {
+            Strategy::Whole => "whole",
             Strategy::TetCell => "tet-cell",
             Strategy::CellTet => "cell-tet",
+        }
+    }
+
+    /// Every strategy, in the order of [`Self::name`]'s list.
+    pub const ALL: [Strategy; 3] = [Strategy::Whole, Strategy::TetCell, Strategy::CellTet];
+
+    /// The strategy named `name`, if any.
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|s| s.name() == name)
+    }
+
+    /// The strategy a computation runs when none is asked for: whole cells
+    /// on the CPU backend; tet-cell under a density (linear in each tet, it
+    /// needs every cell's pieces, which tet-cell's flood builds faster) and
+    /// on Vulkan (whose plan has no whole-cell pass yet).
+    pub fn auto(kind: BackendKind, density: bool) -> Self {
+        if density || kind != BackendKind::Cpu {
+            Strategy::TetCell
+        } else {
+            Strategy::Whole
         }
     }
 }
@@ -129,6 +157,9 @@ pub struct ClipJob {
     /// read them (`passes::faces::boundary_bits`; one word of zeros when
     /// no faces are summed).
     pub tet_faces: Vec<u32>,
+    /// The whole-cell strategy's voxel grid over the tets and hierarchy
+    /// over the boundary (`None` for the other strategies).
+    pub domain: Option<std::sync::Arc<DomainIndex>>,
     /// For a part of a job (`backends::distributed`): the grid cells whose
     /// sites it holds (its quantized points are shifted by their corner);
     /// `None`: every site.
@@ -286,8 +317,16 @@ mod tests {
     #[test]
     fn names_and_defaults() {
         assert_eq!((Strategy::TetCell.name(), Strategy::CellTet.name()), ("tet-cell", "cell-tet"));
+        assert_eq!(Strategy::Whole.name(), "whole");
+        for s in Strategy::ALL {
+            assert_eq!(Strategy::from_name(s.name()), Some(s));
+        }
+        assert_eq!(Strategy::from_name("pieces"), None);
         assert_eq!((Pairing::Knn.name(), Pairing::Flood.name()), ("knn", "flood"));
-        assert_eq!((Strategy::default(), Pairing::default()), (Strategy::TetCell, Pairing::Flood));
+        assert_eq!((Strategy::default(), Pairing::default()), (Strategy::Whole, Pairing::Flood));
+        assert_eq!(Strategy::auto(BackendKind::Cpu, false), Strategy::Whole);
+        assert_eq!(Strategy::auto(BackendKind::Cpu, true), Strategy::TetCell, "a density keeps the pieces");
+        assert_eq!(Strategy::auto(BackendKind::Vulkan, false), Strategy::TetCell);
     }
 
     #[test]

@@ -137,6 +137,12 @@ impl PieceSink for FaceCollector {
             self.0.pop();
         }
     }
+
+    fn discard_site(&mut self, site: u32) {
+        while self.0.last().is_some_and(|f| f.site == site) {
+            self.0.pop();
+        }
+    }
 }
 
 impl TaskSink for FaceCollector {
@@ -319,6 +325,10 @@ impl PieceSink for SitePieces {
     }
 
     fn discard_tet(&mut self, _tet: u32) {}
+
+    fn discard_site(&mut self, site: u32) {
+        self.faces.discard_site(site);
+    }
 }
 
 /// The faces of the sites `which` (job indices) from their own pieces only:

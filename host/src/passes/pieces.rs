@@ -10,17 +10,20 @@
 
 use crate::exec::TaskSink;
 use crate::job::clip::{ClipJob, Frame};
+use cvd_kernels::abi::WHOLE_CELL;
 use cvd_kernels::clip::PieceSink;
 use cvd_kernels::polyhedron::{made_by_site, Polyhedron, NO_ID, TET_FACE};
 use rayon::prelude::*;
 use std::sync::Mutex;
 
-/// Site `site`'s clipped cell inside tet `tet`: a convex polyhedron.
+/// Site `site`'s clipped cell inside tet `tet`: a convex polyhedron. Under
+/// the whole-cell strategy, a cell inside the domain is one piece of no
+/// tet ([`Piece::WHOLE`]).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Piece {
     /// The site's index in the input (the lowest one, for duplicated sites).
     pub site: u32,
-    /// The tet's index in the mesh.
+    /// The tet's index in the mesh, or [`Piece::WHOLE`].
     pub tet: u32,
     /// Vertex positions, every one on a face.
     pub vertices: Vec<[f64; 3]>,
@@ -209,6 +212,12 @@ impl Part {
 #[derive(Default)]
 pub(crate) struct PieceCollector(Part);
 
+impl Piece {
+    /// The `tet` of a whole cell: the site's cell lies inside the domain
+    /// and was integrated whole, in no tet.
+    pub const WHOLE: u32 = WHOLE_CELL;
+}
+
 impl PieceSink for PieceCollector {
     fn piece<const P: usize, const V: usize>(&mut self, tet: u32, site: u32, poly: &Polyhedron<P, V>) {
         // As in the sums: a piece of no volume is no piece.
@@ -231,6 +240,13 @@ impl PieceSink for PieceCollector {
     fn discard_tet(&mut self, tet: u32) {
         // A tet's pieces are given one after another by one task.
         while self.0.tets.last() == Some(&tet) {
+            self.0.pop();
+        }
+    }
+
+    fn discard_site(&mut self, site: u32) {
+        // A whole cell's pieces too.
+        while self.0.sites.last() == Some(&site) {
             self.0.pop();
         }
     }
@@ -363,7 +379,9 @@ pub(crate) fn to_world(
             *s = owner[*s as usize];
         }
         for t in &mut part.tets {
-            *t = job.tet_order[*t as usize];
+            if *t != WHOLE_CELL {
+                *t = job.tet_order[*t as usize];
+            }
         }
     });
     let mut order: Vec<(u32, u32)> = parts

@@ -10,6 +10,8 @@
 //! * A tet whose flood still fails is paired with every site that may own
 //!   part of it (a radius bound, filtered), and each pair is done as below.
 //! * A `(tet, site)` pair is clipped on its own (`refine::refine_pair`).
+//! * A site whose whole cell could not be built (`WHOLE_CELL`) gets its
+//!   piece of every tet, each pair as above.
 //! * Knn pairing: a tet with a piece bordering a site not paired with it
 //!   (or, as a safety net, whose pieces do not add up to it) gets the
 //!   pieces of the sites that may own part of it but were not among its k
@@ -20,7 +22,7 @@ use crate::exec::{build_grid, par_indices, CpuBackend, LocalPairs, TaskSink};
 use crate::geom::site_grid::SiteGrid;
 use crate::job::clip::{ClipJob, ClipOutput};
 use crate::job::knn::KnnJob;
-use cvd_kernels::abi::{counter, KnnParams, INCOMPLETE_TET, NO_SITE, OUT_OF_HALO};
+use cvd_kernels::abi::{counter, KnnParams, INCOMPLETE_TET, NO_SITE, OUT_OF_HALO, WHOLE_CELL};
 use cvd_kernels::clip::{FaceInputs, Paired};
 use cvd_kernels::refine;
 use cvd_kernels::walk::{power_nearest, GridWalk};
@@ -67,7 +69,12 @@ pub(crate) fn run<S: TaskSink>(job: &ClipJob, out: &mut ClipOutput, sinks: &Mute
     let mut tets = Vec::new();
     let mut pairs = Vec::new();
     let mut incomplete = Vec::new();
+    let mut whole_sites = Vec::new();
     for &e in &out.unfinished {
+        if e[0] == WHOLE_CELL {
+            whole_sites.push(e[1]);
+            continue;
+        }
         match e[1] {
             NO_SITE => tets.push(e),
             // A part of a distributed job does such a tet again with a
@@ -114,9 +121,17 @@ pub(crate) fn run<S: TaskSink>(job: &ClipJob, out: &mut ClipOutput, sinks: &Mute
     // pairs of a failed tet are all the sites that may own part of it.
     let cpu = OnceCell::new();
     let paired = if knn { tet_lists(job, &cpu, pairs.iter().map(|e| e[0]))? } else { Vec::new() };
-    let entries: Vec<[u32; 2]> = pairs.iter().chain(&failed).copied().collect();
+    let entries: Vec<[u32; 2]> =
+        pairs.iter().chain(&failed).copied().chain(whole_sites.iter().map(|&j| [WHOLE_CELL, j])).collect();
     let mut work: Vec<Work> = pairs.iter().enumerate().map(|(e, &p)| (p, e, knn.then_some(e))).collect();
     work.extend(candidate_pairs(job, &grid, &walk, &failed).into_iter().map(|(p, e)| (p, pairs.len() + e, None)));
+    // A whole cell that could not be built: its site's piece of every tet
+    // (rare enough — a cell with more faces than a `Cell` holds — that no
+    // bound on where its cell lies is kept).
+    let first_whole = pairs.len() + failed.len();
+    for (e, &j) in whole_sites.iter().enumerate() {
+        work.extend((0..job.tets.len() as u32).map(|t| ([t, j], first_whole + e, None)));
+    }
     let ok: Vec<AtomicBool> = entries.iter().map(|_| AtomicBool::new(true)).collect();
     let unresolved = AtomicU64::new(0);
     let found_incomplete = Mutex::new(Vec::new());

@@ -282,7 +282,14 @@ impl fmt::Display for Summary {
             ("backend", format!("{} on {}", self.backend, self.device)),
             (
                 "strategy",
-                format!("{}, {} pairing, k = {}, k_site = {}", self.strategy, self.pairing, self.k, self.k_site),
+                if self.strategy == "whole" {
+                    format!(
+                        "whole: {} cells whole, {} the boundary may cut (clipped by their tets), k_site = {}",
+                        c.whole_cells, c.cut_cells, self.k_site
+                    )
+                } else {
+                    format!("{}, {} pairing, k = {}, k_site = {}", self.strategy, self.pairing, self.k, self.k_site)
+                },
             ),
             (
                 "time",

@@ -251,6 +251,7 @@ pub(crate) fn part_job(
         params,
         refine,
         strategy: job.strategy,
+        domain: job.domain.clone(),
         pairing: job.pairing,
         tet_faces: vec![0],
         held: Some(held),

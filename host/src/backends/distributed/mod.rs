@@ -478,6 +478,11 @@ impl Backend for Distributed {
         )
     }
 
+    /// Parts run tet-cell's floods (whole cells in parts are not built yet).
+    fn default_strategy(&self, _density: bool) -> Strategy {
+        Strategy::TetCell
+    }
+
     fn name(&self) -> String {
         format!("distributed {} parts ({})", self.comm.size() * self.per_rank, self.device())
     }
@@ -567,7 +572,9 @@ mod tests {
         for (name, sites, k_site) in
             [("uniform", &uniform, None), ("clustered", &clustered, None), ("walks", &uniform, Some(3))]
         {
-            let whole = ClippedVoronoi::new(&mesh, sites).k_site(k_site).backend(&cpu).compute().unwrap();
+            // Parts run tet-cell: one job of tet-cell is their reference.
+            let tet_cell = ClippedVoronoi::new(&mesh, sites).strategy(Strategy::TetCell);
+            let whole = tet_cell.k_site(k_site).backend(&cpu).compute().unwrap();
             let (mut retried, mut every_site) = (0, 0);
             for parts in 1..=4 {
                 for halo in [[LIST_HALO, WALK_HALO], [1, 0]] {
@@ -604,11 +611,12 @@ mod tests {
         let sites = points::in_mesh(&mesh, 6000, 11);
         let weights: Vec<f64> = (0..sites.len()).map(|i| 1e-4 * ((i * 7919) % 13) as f64).collect();
         let cpu = CpuBackend::new(Some(2)).unwrap();
-        let whole = ClippedVoronoi::new(&mesh, &sites).weights(&weights).backend(&cpu).compute().unwrap();
+        let tet_cell = ClippedVoronoi::new(&mesh, &sites).strategy(Strategy::TetCell);
+        let whole = tet_cell.weights(&weights).backend(&cpu).compute().unwrap();
         let d = in_parts(3).with_halo(1, 1);
         let cells = ClippedVoronoi::new(&mesh, &sites).weights(&weights).backend(&d).compute().unwrap();
         same_bits(&whole, &cells, "power cells in 3 parts");
-        let one = ClippedVoronoi::new(&mesh, &sites).backend(&cpu).lloyd(5, &mut |_, _| {}).unwrap();
+        let one = tet_cell.backend(&cpu).lloyd(5, &mut |_, _| {}).unwrap();
         let parts = ClippedVoronoi::new(&mesh, &sites).backend(&d).lloyd(5, &mut |_, _| {}).unwrap();
         for (a, b) in one.sites.iter().zip(&parts.sites) {
             assert_eq!(a.map(f64::to_bits), b.map(f64::to_bits), "Lloyd in 3 parts moves the sites alike");

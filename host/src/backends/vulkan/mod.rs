@@ -128,6 +128,12 @@ impl Backend for VulkanBackend {
             // k-NN keeps no distances).
             return Err(Error::InvalidInput("the parts of a distributed job run on the CPU backend".into()));
         }
+        if job.strategy == Strategy::Whole {
+            return Err(Error::InvalidInput(
+                "the whole-cell strategy runs on the CPU backend (on Vulkan: --strategy tet-cell, the default there)"
+                    .into(),
+            ));
+        }
         let plan = Plan::clip(&self.ctx, job)?;
         let p = &job.params;
         let (sk, tk) = (&job.site_knn, &job.tet_knn_job());
@@ -250,6 +256,7 @@ impl Backend for VulkanBackend {
             (Strategy::TetCell, Pairing::Flood, _) => ("clip_flood", site_nbrs, true),
             (Strategy::TetCell, Pairing::Knn, _) => ("clip_tet_cell", site_nbrs, false),
             (Strategy::CellTet, _, cells) => ("clip_cell_tet", cells.unwrap_or(site_nbrs), false),
+            (Strategy::Whole, _, _) => unreachable!("refused above"),
         };
         // Whether the last part's lists are still to be read.
         let mut pending = false;

@@ -125,6 +125,43 @@ impl TriangleTree {
         Self { order, nodes }
     }
 
+    /// The hierarchy as the kernels read it (`cvd_kernels::whole::Domain`):
+    /// two records per node, `[lo, a]` and `[hi, b]`, the box padded
+    /// outwards by `pad` (plus f32 rounding); a leaf has `a = LEAF | first`
+    /// and `b` triangles, an inner node its children `a` and `b`; and the
+    /// triangles in the leaves' order.
+    pub fn kernel_records(&self, surface: &TriSurface, pad: f64) -> (Vec<[f32; 4]>, Vec<[u32; 4]>) {
+        use cvd_kernels::whole::LEAF as KERNEL_LEAF;
+        let down = |x: f64| {
+            let y = (x - pad) as f32;
+            if y as f64 > x - pad {
+                y.next_down()
+            } else {
+                y
+            }
+        };
+        let up = |x: f64| {
+            let y = (x + pad) as f32;
+            if (y as f64) < x + pad {
+                y.next_up()
+            } else {
+                y
+            }
+        };
+        let mut records = Vec::with_capacity(2 * self.nodes.len());
+        for node in &self.nodes {
+            let (a, b) =
+                if node.count > 0 { (KERNEL_LEAF | node.start, node.count) } else { (node.start, node.start + 1) };
+            records.push([down(node.lo[0]), down(node.lo[1]), down(node.lo[2]), f32::from_bits(a)]);
+            records.push([up(node.hi[0]), up(node.hi[1]), up(node.hi[2]), f32::from_bits(b)]);
+        }
+        let tris = self.order.iter().map(|&t| {
+            let [a, b, c] = surface.triangles[t as usize];
+            [a, b, c, 0]
+        });
+        (records, tris.collect())
+    }
+
     fn leaf(&self, node: &Node) -> &[u32] {
         &self.order[node.start as usize..(node.start + node.count) as usize]
     }
