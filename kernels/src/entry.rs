@@ -6,11 +6,14 @@
 //! the parameters; push constants hold the `*Params` struct.
 
 use crate::abi::{
-    thread_index, ClipParams, GridBuildParams, KnnParams, LloydParams, QuantPoint, RefineParams, SplitPoint,
+    thread_index, ClipParams, DomainParams, GridBuildParams, KnnParams, LloydParams, QuantPoint, RefineParams,
+    SplitPoint,
 };
 use crate::buffers::{DeviceCounters, DeviceList, DeviceSums};
 use crate::clip::{FaceInputs, NoPieces};
+use crate::polyhedron::{CELL_PLANES, CELL_VERTS};
 use crate::walk::GridWalk;
+use crate::whole::{self, Domain};
 use crate::{clip, grid, knn, lloyd, refine, scan};
 use spirv_std::glam::UVec3;
 use spirv_std::spirv;
@@ -242,6 +245,50 @@ pub fn clip_flood(
         verts,
         tets,
         tet_sites,
+        FaceInputs { site_nbrs, tet_faces },
+        &mut DeviceSums(sums),
+        &mut DeviceSums(counters),
+        &mut DeviceList(unfinished),
+        &mut NoPieces,
+    );
+}
+
+/// Whole cells: one thread per site; its cell integrated whole where the
+/// boundary does not meet it, else clipped by the tets it meets.
+#[spirv(compute(threads(64)))]
+pub fn clip_whole(
+    #[spirv(global_invocation_id)] id: UVec3,
+    #[spirv(num_workgroups)] groups: UVec3,
+    #[spirv(push_constant)] p: &RefineParams,
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 0)] sites: &[SplitPoint],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 1)] verts: &[SplitPoint],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 2)] tets: &[[u32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 3)] site_nbrs: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 4)] cell_start: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 5)] cell_count: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 6)] sorted: &[QuantPoint],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 7)] sums: &mut [i64],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 8)] counters: &mut [i64],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 9)] unfinished: &mut [u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 10)] tet_faces: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 11)] domain: &[DomainParams],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 12)] voxel_start: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 13)] voxel_tets: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 14)] tet_voxel: &[u32],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 15)] nodes: &[[f32; 4]],
+    #[spirv(storage_buffer, descriptor_set = 0, binding = 16)] tris: &[[u32; 4]],
+) {
+    let i = thread_index(id.x, id.y, groups.x);
+    let w = GridWalk::new(p, site_nbrs, cell_start, cell_count, sorted);
+    let d = Domain { params: domain[0], voxel_start, voxel_tets, tet_voxel, nodes, tris };
+    whole::whole_cell::<CELL_PLANES, CELL_VERTS, _, _, _, _>(
+        i,
+        p,
+        w,
+        sites,
+        verts,
+        tets,
+        d,
         FaceInputs { site_nbrs, tet_faces },
         &mut DeviceSums(sums),
         &mut DeviceSums(counters),

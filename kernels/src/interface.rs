@@ -6,7 +6,9 @@
 //!
 //! Host-only: not compiled for SPIR-V.
 
-use crate::abi::{ClipParams, GridBuildParams, KnnParams, LloydParams, RefineParams, SplitPoint, WORKGROUP_SIZE};
+use crate::abi::{
+    ClipParams, DomainParams, GridBuildParams, KnnParams, LloydParams, RefineParams, SplitPoint, WORKGROUP_SIZE,
+};
 use crate::layout::{Layout, TypeLayout};
 
 /// The version of the kernels' binary interface: entry points, bindings,
@@ -249,6 +251,30 @@ pub const ENTRY_POINTS: &[EntryPoint] = &[
             b::<i64>("counters", W, "8 counters (atomic)"),
             b::<u32>("unfinished", W, "1 + 2 * n_tets: count, then (tet, site or NO_SITE) entries"),
             b::<u32>("tet_faces", R, TET_FACES),
+        ],
+    ),
+    ep!(
+        RefineParams,
+        "clip_whole",
+        "Whole cells: one thread per site; its cell, built by its list and a grid walk, integrated whole where no boundary triangle meets it, else clipped by every tet its box meets.",
+        &[
+            b::<Split>("sites", R, "n_sites normalised sites (hi + lo)"),
+            b::<Split>("verts", R, "mesh vertices, normalised (hi + lo), the density in hi[3]"),
+            b::<Quant>("tets", R, "n_tets: four vertex indices per tet"),
+            b::<u32>("site_nbrs", R, SITE_NBRS),
+            b::<u32>("cell_start", R, CELL_START),
+            b::<u32>("cell_count", R, CELL_COUNT),
+            b::<Quant>("sorted", R, SORTED),
+            b::<i64>("sums", W, "n_sites * 5 (+ n_tets, unused): fixed-point sums per site, then the face sums (atomic)"),
+            b::<i64>("counters", W, "counters (atomic)"),
+            b::<u32>("unfinished", W, "1 + 2 * n_sites: count, then (WHOLE_CELL, site) entries for the host"),
+            b::<u32>("tet_faces", R, TET_FACES),
+            b::<DomainParams>("domain", R, "one record: the voxel grid over the tets and the boundary hierarchy's size"),
+            b::<u32>("voxel_start", R, "voxels + 1: where each voxel's tets start in voxel_tets"),
+            b::<u32>("voxel_tets", R, "the tets whose padded bounding box meets each voxel"),
+            b::<u32>("tet_voxel", R, "n_tets: each tet's first voxel (linear index)"),
+            b::<Vec4>("nodes", R, "2 per node of the boundary's hierarchy: [lo, a], [hi, b] (LEAF | first triangle and count, or children)"),
+            b::<Quant>("tris", R, "the boundary's triangles, as vertex indices, in the hierarchy's order"),
         ],
     ),
     ep!(

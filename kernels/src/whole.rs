@@ -29,12 +29,13 @@
 //! back, its pieces discarded from the sink, and the site is listed as
 //! `(WHOLE_CELL, i)` for the host, which finishes it from its tets.
 
-use crate::abi::{counter, DomainParams, RefineParams, SplitPoint, WHOLE_CELL};
+use crate::abi::{counter, DomainParams, RefineParams, SplitPoint, NO_SITE, WHOLE_CELL};
 use crate::buffers::{AtomicSums, PairList};
 use crate::cell::{tet_vertices, Clipped};
 use crate::clip::{
     accumulate, add_faces, count, face_sums, face_sums_of, owns, piece_moments, xyz, FaceInputs, PieceSink,
 };
+use crate::lists::NO_LIST;
 use crate::polyhedron::{between, tet_planes, Clip, Moments, Point, Polyhedron, TET_FACE};
 use crate::walk::{clip_to_cell, GridWalk};
 use spirv_std::glam::{Vec3, Vec4};
@@ -263,6 +264,22 @@ pub fn site_in_mesh(site: &SplitPoint, verts: &[SplitPoint], tets: &[[u32; 4]], 
     false
 }
 
+/// Twice the distance from site `i` to the last site of its list (0: no
+/// list).
+#[inline]
+fn listed_reach(i: usize, sites: &[SplitPoint], w: &GridWalk) -> f32 {
+    let k = w.lists.k();
+    let slot = w.lists.slot(i);
+    if k == 0 || slot == NO_LIST {
+        return 0.0;
+    }
+    let last = w.lists.get(slot, k - 1);
+    if last == NO_SITE {
+        return 0.0;
+    }
+    2.0 * between(&sites[last as usize], &sites[i]).length()
+}
+
 /// Thread `i` of the whole-cell strategy: site `i`'s cell, integrated
 /// whole if its ball lies inside the domain, else clipped by the tets it
 /// may meet (see the module's documentation). `P`, `V`: the cell's
@@ -290,8 +307,21 @@ pub fn whole_cell<const P: usize, const V: usize, A: AtomicSums, C: AtomicSums, 
     let xi = xyz(si.hi) + xyz(si.lo);
     let lo = Vec3::new(c.box_lo_x, c.box_lo_y, c.box_lo_z) - xi;
     let hi = Vec3::new(c.box_hi_x, c.box_hi_y, c.box_hi_z) - xi;
-    let mut poly = Polyhedron::<P, V>::cuboid(lo, hi);
-    let built = clip_to_cell(&mut poly, i, sites, w);
+    // First from a box of the cell's own size (twice the distance to the
+    // last listed neighbour): its vertices then come from corners near the
+    // cell, not from the domain's far corners. If a side of that box is
+    // still a face, the cell reaches beyond it: again from the domain's box.
+    let reach = listed_reach(i, sites, &w);
+    let mut poly = if reach > 0.0 {
+        Polyhedron::<P, V>::cuboid(lo.max(Vec3::splat(-reach)), hi.min(Vec3::splat(reach)))
+    } else {
+        Polyhedron::<P, V>::cuboid(lo, hi)
+    };
+    let mut built = clip_to_cell(&mut poly, i, sites, w);
+    if reach > 0.0 && built.finished() && poly.face_mask() & 0x3f != 0 {
+        poly.set_cuboid(lo, hi);
+        built = clip_to_cell(&mut poly, i, sites, w);
+    }
     if !built.finished() {
         unfinished.push(WHOLE_CELL, i as u32);
         count(counters, 0, 0, &built);
@@ -373,6 +403,11 @@ fn cut_cell<const P: usize, const V: usize, A: AtomicSums, S: PieceSink>(
     let mut total = Moments::default();
     let (mut pairs, mut nonempty) = (0i64, 0i64);
     let mut piece = Polyhedron::<P, V>::empty();
+    // A cell that still has a side of the domain's box (its site near the
+    // domain's hull, or outside) may be far larger than its pieces: each
+    // piece is then its tet clipped by the cell's faces, whose vertices
+    // come from the tet's corners, not from the box's.
+    let from_tet = poly.face_mask() & 0x3f != 0;
     let with_faces = face_sums_of(c) != face_sums::NONE;
     let mut z = qlo[2];
     while z <= qhi[2] {
@@ -405,7 +440,11 @@ fn cut_cell<const P: usize, const V: usize, A: AtomicSums, S: PieceSink>(
                         continue;
                     }
                     pairs += 1;
-                    let ok = clipped_by_tet(poly, tet_planes(tv), &mut piece);
+                    let ok = if from_tet {
+                        tet_by_cell(poly, tv, &mut piece)
+                    } else {
+                        clipped_by_tet(poly, tet_planes(tv), &mut piece)
+                    };
                     if !ok {
                         return (pairs, nonempty, t as u32);
                     }
@@ -460,6 +499,29 @@ fn cut_cell_until<const P: usize, const V: usize, A: AtomicSums>(
     cut_cell(i, poly, centre, half, c, sites, verts, tets, d, faces, -1, sums, &mut none);
 }
 
+/// The tet `tv` (relative to the site) clipped by the planes of `cell`'s
+/// faces, into `piece`, and whether the clips finished.
+#[inline]
+fn tet_by_cell<const P: usize, const V: usize>(
+    cell: &Polyhedron<P, V>,
+    tv: [Vec3; 4],
+    piece: &mut Polyhedron<P, V>,
+) -> bool {
+    piece.set_tetrahedron(tv);
+    let faces = cell.face_mask();
+    let mut q = 0;
+    while q < (cell.n_planes as usize).min(P) && !piece.is_empty() {
+        if (faces >> q) & 1 != 0 {
+            match piece.clip_as(cell.planes[q], cell.ids[q]) {
+                Clip::Overflow | Clip::Broken => return false,
+                _ => {}
+            }
+        }
+        q += 1;
+    }
+    true
+}
+
 /// `poly` clipped by the tet whose planes are `planes`, into `piece`, and
 /// whether the clips finished. A plane that keeps every vertex is skipped;
 /// one that keeps none empties the piece before any copy.
@@ -469,7 +531,8 @@ fn clipped_by_tet<const P: usize, const V: usize>(
     planes: [Vec4; 4],
     piece: &mut Polyhedron<P, V>,
 ) -> bool {
-    let mut cuts = [false; 4];
+    // Bit f: plane f cuts (a bool array is no SPIR-V memset).
+    let mut cuts = 0u32;
     let mut f = 0;
     while f < 4 {
         let pl = planes[f];
@@ -477,22 +540,30 @@ fn clipped_by_tet<const P: usize, const V: usize>(
         let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
         let mut v = 0;
         while v < poly.n_verts as usize {
-            let s = n.dot(poly.verts[v]) - pl.w;
+            let s = n.dot(poly.verts[v]);
             lo = lo.min(s);
             hi = hi.max(s);
             v += 1;
         }
-        if lo > 0.0 {
+        // As `Polyhedron::clip_as` rounds: a tet face on a face of the cell
+        // (sites on a lattice in a lattice's mesh) neither cuts it nor
+        // leaves a sliver.
+        let rounding = 1e-6 * (lo.abs().max(hi.abs()) + pl.w.abs());
+        let (lo, hi) = (lo - pl.w, hi - pl.w);
+        if lo >= -rounding {
             piece.n_verts = 0;
             return true;
         }
-        cuts[f] = hi > 0.0;
+        let hi = if hi <= rounding { 0.0 } else { hi };
+        if hi > 0.0 {
+            cuts |= 1 << f;
+        }
         f += 1;
     }
     piece.copy_from(poly);
     let mut f = 0;
     while f < 4 {
-        if cuts[f] {
+        if (cuts >> f) & 1 != 0 {
             match piece.clip_as(planes[f], TET_FACE + f as u32) {
                 Clip::Overflow | Clip::Broken => return false,
                 Clip::Empty => return true,

@@ -297,9 +297,12 @@ fn lattice_sites_tied_at_every_mesh_vertex() {
     let sites: Vec<[f64; 3]> = (0..64).map(|i| [c(i % 4), c(i / 4 % 4), c(i / 16)]).collect();
     let (vol, centroid) = clipped_cells(&mesh, &sites);
     for backend in backends() {
-        for pairing in [Pairing::Flood, Pairing::Knn] {
-            let cells = ClippedVoronoi::new(&mesh, &sites).pairing(pairing).backend(backend).compute().unwrap();
-            let what = format!("{} {pairing:?} lattice sites", backend.name());
+        for (strategy, pairing) in
+            [(Strategy::Whole, Pairing::Flood), (Strategy::TetCell, Pairing::Flood), (Strategy::TetCell, Pairing::Knn)]
+        {
+            let cv = ClippedVoronoi::new(&mesh, &sites).strategy(strategy).pairing(pairing);
+            let cells = cv.backend(backend).compute().unwrap();
+            let what = format!("{} {strategy:?} {pairing:?} lattice sites", backend.name());
             assert_eq!(cells.counters.unresolved, 0, "{what}");
             assert!(cells.e_vol < 1e-6, "{what}: E_vol {}", cells.e_vol);
             assert_cells_match(&what, &cells, &vol, &centroid, 1e-4);
@@ -311,14 +314,19 @@ fn lattice_sites_tied_at_every_mesh_vertex() {
 #[test]
 fn many_sites_per_tet() {
     // 600 sites in 6 tets: about 100 cells meet each tet, more than any
-    // flood queue of the kernels holds, so the host finishes those tets.
+    // flood queue of the kernels holds, so the host finishes those tets
+    // (tet-cell; whole cells are each built on their own).
     let mesh = TetMesh::cube(1);
     let sites = sites_in_box(600, 5);
     let (vol, centroid) = clipped_cells(&mesh, &sites);
     for backend in backends() {
-        let cells = ClippedVoronoi::new(&mesh, &sites).backend(backend).compute().unwrap();
+        let cv = ClippedVoronoi::new(&mesh, &sites).strategy(Strategy::TetCell);
+        let cells = cv.backend(backend).compute().unwrap();
         let what = format!("{} 600 sites in 6 tets", backend.name());
         assert!(cells.counters.second_pass > 0, "{what}: nothing went to the second pass");
+        let whole = ClippedVoronoi::new(&mesh, &sites).strategy(Strategy::Whole).backend(backend).compute().unwrap();
+        assert_eq!(whole.counters.unresolved, 0, "{what}, whole cells");
+        assert_cells_match(&format!("{what}, whole cells"), &whole, &vol, &centroid, 1e-4);
         assert_eq!(cells.counters.unresolved, 0, "{what}");
         assert!(cells.e_vol < 1e-6, "{what}: E_vol {}", cells.e_vol);
         assert_cells_match(&what, &cells, &vol, &centroid, 1e-4);

@@ -90,3 +90,23 @@ fn whole_and_cut_cells_match_the_reference_on_a_model() {
     }
     assert!((whole.total_volume - mesh.volume()).abs() < 1e-7 * mesh.volume());
 }
+
+/// The same kernel body on Vulkan (lavapipe here): the same cells whole
+/// and cut, and the same volumes to f32 rounding.
+#[test]
+fn vulkan_runs_the_same_whole_cells() {
+    let Some(vulkan) = cvd_tests::vulkan() else { return };
+    let mesh = cvd::mesher::models::builtin("torus", None).unwrap();
+    let sites = points::in_mesh(&mesh, 2000, 3);
+    let cv = ClippedVoronoi::new(&mesh, &sites).strategy(Strategy::Whole).k_site(90usize);
+    let cpu = cv.compute().unwrap();
+    let gpu = cv.backend(vulkan).compute().unwrap();
+    let (c, g) = (&cpu.counters, &gpu.counters);
+    assert_eq!((c.whole_cells, c.cut_cells), (g.whole_cells, g.cut_cells));
+    assert!(c.whole_cells > 0 && c.cut_cells > 0, "{c:?}");
+    assert_eq!((g.unresolved, g.overflows, g.broken), (0, 0, 0));
+    let worst = (0..sites.len()).map(|i| (cpu.volume[i] - gpu.volume[i]).abs() / cpu.volume[i]).fold(0.0, f64::max);
+    println!("CPU and Vulkan whole cells: volumes within {worst:.2e}");
+    assert!(worst < 1e-5, "{worst:.2e}");
+    cvd_tests::assert_no_validation_errors();
+}

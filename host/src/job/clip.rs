@@ -47,10 +47,12 @@ impl Strategy {
         Self::ALL.into_iter().find(|s| s.name() == name)
     }
 
-    /// The strategy a computation runs when none is asked for: whole cells
-    /// on the CPU backend; tet-cell under a density (linear in each tet, it
-    /// needs every cell's pieces, which tet-cell's flood builds faster) and
-    /// on Vulkan (whose plan has no whole-cell pass yet).
+    /// The strategy a computation runs when none is asked for: whole cells;
+    /// tet-cell under a density (linear in each tet, it needs every cell's
+    /// pieces, which tet-cell's flood builds faster) and on Vulkan (where a
+    /// thread per cell holds a whole cell, and a cut cell's thread loops
+    /// over its tets while the others of its warp wait: not measured on a
+    /// GPU here, so the paper's flood stays its default).
     pub fn auto(kind: BackendKind, density: bool) -> Self {
         if density || kind != BackendKind::Cpu {
             Strategy::TetCell

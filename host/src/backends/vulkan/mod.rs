@@ -128,12 +128,6 @@ impl Backend for VulkanBackend {
             // k-NN keeps no distances).
             return Err(Error::InvalidInput("the parts of a distributed job run on the CPU backend".into()));
         }
-        if job.strategy == Strategy::Whole {
-            return Err(Error::InvalidInput(
-                "the whole-cell strategy runs on the CPU backend (on Vulkan: --strategy tet-cell, the default there)"
-                    .into(),
-            ));
-        }
         let plan = Plan::clip(&self.ctx, job)?;
         let p = &job.params;
         let (sk, tk) = (&job.site_knn, &job.tet_knn_job());
@@ -222,6 +216,60 @@ impl Backend for VulkanBackend {
             j.mark("site knn");
             Ok(())
         };
+        if job.strategy == Strategy::Whole {
+            let domain = job
+                .domain
+                .as_deref()
+                .ok_or_else(|| Error::Internal("a whole-cell job without its domain index".into()))?;
+            // Whole cells keep every list (the plan has one window): one
+            // thread per site, then the sums back.
+            site_lists(&mut j, 0, n)?;
+            // No buffer is empty: an unread record where there is none.
+            let d = [
+                j.upload(std::slice::from_ref(&domain.params))?,
+                j.upload(&domain.voxel_start)?,
+                j.upload(&or_one(&domain.voxel_tets))?,
+                j.upload(&or_one(&domain.tet_voxel))?,
+                j.upload(&or_one(&domain.nodes))?,
+                j.upload(&or_one(&domain.tris))?,
+            ];
+            let list_len = 1 + 2 * n;
+            let unfinished = j.zeroed(list_len * 4)?;
+            let rp = RefineParams { clip: ClipParams { capacity: n as u32, ..*p }, ..job.refine };
+            let args = [
+                sites, verts, tets, site_nbrs, g.start, g.count, g.sorted, sums, counters, unfinished, tet_faces, d[0],
+                d[1], d[2], d[3], d[4], d[5],
+            ];
+            j.dispatch("clip_whole", &args, &rp, n)?;
+            j.mark("clip");
+            let sums_back = j.download(sums, n_sums * 8)?;
+            let lists_back = if job.face_sums_len() > 0 { Some(j.download(site_nbrs, n * ks * 4)?) } else { None };
+            let counters_back = j.download(counters, counter::COUNT as u64 * 8)?;
+            let list_back = j.download(unfinished, list_len * 4)?;
+            j.mark("download");
+            let done = j.run()?;
+            let mut sums: Vec<i64> = done.read(sums_back, n_sums as usize);
+            let mut tet_volumes = sums.split_off(n as usize * ACCUM_PER_SITE);
+            let faces = tet_volumes.split_off(nt as usize);
+            return Ok(ClipOutput {
+                sums,
+                tet_volumes,
+                faces,
+                site_lists: lists_back.map_or_else(Default::default, |b| crate::job::knn::PackedLists {
+                    words: done.read(b, (n * ks) as usize),
+                    k: ks as u32,
+                    bits: 32,
+                    timings: Default::default(),
+                }),
+                counters: done.read(counters_back, counter::COUNT),
+                refined: 0,
+                unresolved: 0,
+                certified: 0,
+                chunks: 1,
+                unfinished: crate::job::clip::pair_list(&done.read::<u32>(list_back, list_len as usize)),
+                timings: done.timings.clone(),
+            });
+        }
         let cells = if job.strategy == Strategy::CellTet {
             // Cell-tet keeps every list (the plan has one window).
             site_lists(&mut j, 0, n)?;
@@ -256,7 +304,7 @@ impl Backend for VulkanBackend {
             (Strategy::TetCell, Pairing::Flood, _) => ("clip_flood", site_nbrs, true),
             (Strategy::TetCell, Pairing::Knn, _) => ("clip_tet_cell", site_nbrs, false),
             (Strategy::CellTet, _, cells) => ("clip_cell_tet", cells.unwrap_or(site_nbrs), false),
-            (Strategy::Whole, _, _) => unreachable!("refused above"),
+            (Strategy::Whole, _, _) => unreachable!("whole cells returned above"),
         };
         // Whether the last part's lists are still to be read.
         let mut pending = false;
@@ -359,6 +407,16 @@ impl Backend for VulkanBackend {
             unfinished: left,
             timings,
         })
+    }
+}
+
+/// `data`, or one zeroed record where it is empty (a binding needs a
+/// buffer; the kernels do not read it then).
+fn or_one<T: bytemuck::Pod>(data: &[T]) -> std::borrow::Cow<'_, [T]> {
+    if data.is_empty() {
+        std::borrow::Cow::Owned(vec![T::zeroed()])
+    } else {
+        std::borrow::Cow::Borrowed(data)
     }
 }
 

@@ -69,6 +69,9 @@ fn resident_bytes(job: &ClipJob) -> Vec<(&'static str, u64)> {
     if job.strategy == Strategy::CellTet {
         parts.push(("Voronoi cells", 16 * CELL_RECORDS as u64 * n));
     }
+    if let Some(d) = job.domain.as_deref() {
+        parts.push(("domain index", d.bytes() as u64 + 16 * n));
+    }
     parts
 }
 
@@ -109,13 +112,15 @@ impl Plan {
         let lists = 4 * n * ks;
         let mut kept: u64 = resident.iter().map(|r| r.1).sum();
         let whole = lists <= max_binding && kept + lists + least <= budget;
-        if whole || job.strategy == Strategy::CellTet {
+        // Cell-tet and whole cells keep every list.
+        let every_list = matches!(job.strategy, Strategy::CellTet | Strategy::Whole);
+        if whole || every_list {
             if lists > max_binding {
                 return too_big(format!("the neighbour lists need {:.0} MiB in one buffer", lists as f64 / MIB));
             }
             kept += lists;
         }
-        let windows = !whole && job.strategy != Strategy::CellTet;
+        let windows = !whole && !every_list;
         if kept + least + windows as u64 * 4 * group * ks > budget {
             return too_big(format!("the job keeps {:.0} MiB resident", kept as f64 / MIB));
         }
