@@ -327,7 +327,7 @@ pub struct RefineParams {
     pub _pad: [u32; 2],
 }
 
-/// The domain as the whole-cell strategy reads it (`crate::whole`): a
+/// The domain as the whole-cell strategy reads it (`whole.rs`): a
 /// uniform grid of voxels over the mesh listing the tets whose bounding box
 /// meets each voxel, and a bounding-volume hierarchy over the boundary's
 /// triangles. Read from a one-record storage buffer.

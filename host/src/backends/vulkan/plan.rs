@@ -178,7 +178,7 @@ mod tests {
         let mesh = TetMesh::cube(6);
         let sites = points::in_mesh(&mesh, n, 3);
         // Vulkan's default list length.
-        ClippedVoronoi::new(&mesh, &sites).k_site(DEFAULT_K_SITE).job().unwrap().0
+        ClippedVoronoi::new(&mesh, &sites).strategy(Strategy::TetCell).k_site(DEFAULT_K_SITE).job().unwrap().0
     }
 
     fn cell_tet_job(n: usize) -> ClipJob {
@@ -217,6 +217,14 @@ mod tests {
         // Cell-tet binds every cell (and every list) at once.
         let e = Plan::new(&cell_tet_job(2000), 1 << 30, 1_000_000, "test").unwrap_err().to_string();
         assert!(e.contains("Voronoi cells") && e.contains("maxStorageBufferRange"), "{e}");
+        // Whole cells bind every list and the domain's index at once.
+        let mesh = TetMesh::cube(6);
+        let sites = points::in_mesh(&mesh, 2000, 3);
+        let whole =
+            ClippedVoronoi::new(&mesh, &sites).strategy(Strategy::Whole).k_site(DEFAULT_K_SITE).job().unwrap().0;
+        assert!(resident_bytes(&whole).iter().any(|r| r.0 == "domain index"));
+        let e = Plan::new(&whole, 1 << 30, 100_000, "test").unwrap_err().to_string();
+        assert!(e.contains("neighbour lists") && e.contains("maxStorageBufferRange"), "{e}");
     }
 
     /// Lists larger than a binding (tet-cell): windows that fit one, whose
