@@ -56,7 +56,7 @@ pub fn run(args: &RunArgs) -> cvd::Result<()> {
     let strategy = match args.strategy {
         Some(s) => s,
         None if polyhedra => cvd::Strategy::TetCell,
-        None => backend.default_strategy(inputs.density.is_some()),
+        None => backend.default_strategy(inputs.density.is_some() || args.weights.is_some()),
     }
     .name();
     match &inputs.domain {
@@ -130,7 +130,7 @@ fn optimise(args: &RunArgs, inputs: &Inputs, backend: &dyn Backend) -> cvd::Resu
     let sites = &inputs.sites;
     match &inputs.domain {
         Domain::Mesh(mesh) => {
-            let cv = ClippedVoronoi::new(mesh, sites).k_site(args.k_site).backend(backend);
+            let cv = ClippedVoronoi::new(mesh, sites).strategy(args.strategy).k_site(args.k_site).backend(backend);
             let cv = cv.density(inputs.density.as_deref());
             optimise_on(args, inputs, &cv, cv)
         }

@@ -463,7 +463,8 @@ fn a_npy_sites_file_gives_the_cells_of_the_same_xyz() {
 #[test]
 fn parts_give_the_cells_of_one_run_and_bad_counts_are_refused() {
     let dir = temp_dir("parts");
-    let args = ["--sites", "3000", "--resolution", "8", "--no-geometry", "--no-neighbors"];
+    // Parts run tet-cell: so does the run they are compared with.
+    let args = ["--sites", "3000", "--resolution", "8", "--no-geometry", "--no-neighbors", "--strategy", "tet-cell"];
     let one = cvd_run(&dir, &[&args[..], &["--out", "one"]].concat());
     assert!(one.status.success(), "{}", text(&one.stderr));
     let parts = cvd_run(&dir, &[&args[..], &["--out", "parts", "--parts", "3", "--halo", "1,0"]].concat());

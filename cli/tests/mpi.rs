@@ -77,7 +77,8 @@ fn mpirun_gives_the_cells_of_one_process() {
     let dir = temp_dir("cells");
     // Clustered-like unevenness is the library tests' business; here the
     // processes, the files and the reduction.
-    let sites = ["--sites", "40000"];
+    // Parts run tet-cell: so does the one process they are compared with.
+    let sites = ["--sites", "40000", "--strategy", "tet-cell"];
     let one = dir.join("one");
     ok(&cvd(&one, &sites), "one process");
     for ranks in 1..=4 {
@@ -102,9 +103,9 @@ fn lloyd_over_mpi_moves_the_sites_of_one_process() {
         return;
     }
     let dir = temp_dir("lloyd");
-    let args = ["--sites", "8000", "--iterations", "4", "--parts", "2"];
+    let args = ["--strategy", "tet-cell", "--sites", "8000", "--iterations", "4", "--parts", "2"];
     let one = dir.join("one");
-    ok(&cvd(&one, &args[..4]), "one process");
+    ok(&cvd(&one, &args[..6]), "one process");
     let out = dir.join("three");
     ok(&mpirun(3, &out, &args), "3 ranks x 2 parts");
     for file in ["sites.xyz", "cells.csv"] {

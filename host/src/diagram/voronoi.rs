@@ -180,7 +180,8 @@ impl<'a> ClippedVoronoi<'a> {
 
     /// The strategy this computation runs.
     pub fn resolved_strategy(&self) -> Strategy {
-        let density = self.density.is_some();
+        // Densities and power cells take tet-cell's pieces (Strategy::auto).
+        let density = self.density.is_some() || self.weights.is_some();
         self.strategy.unwrap_or_else(|| {
             self.backend.map_or(Strategy::auto(BackendKind::Cpu, density), |b| b.default_strategy(density))
         })
