@@ -255,12 +255,7 @@ impl Backend for VulkanBackend {
                 sums,
                 tet_volumes,
                 faces,
-                site_lists: lists_back.map_or_else(Default::default, |b| crate::job::knn::PackedLists {
-                    words: done.read(b, (n * ks) as usize),
-                    k: ks as u32,
-                    bits: 32,
-                    timings: Default::default(),
-                }),
+                site_lists: read_lists(&done, lists_back, n, ks),
                 counters: done.read(counters_back, counter::COUNT),
                 refined: 0,
                 unresolved: 0,
@@ -393,12 +388,7 @@ impl Backend for VulkanBackend {
             sums,
             tet_volumes,
             faces,
-            site_lists: lists_back.map_or_else(Default::default, |b| crate::job::knn::PackedLists {
-                words: done.read(b, (n * ks) as usize),
-                k: ks as u32,
-                bits: 32,
-                timings: Default::default(),
-            }),
+            site_lists: read_lists(&done, lists_back, n, ks),
             counters: done.read(counters_back, counter::COUNT),
             refined,
             unresolved: 0,
@@ -408,6 +398,16 @@ impl Backend for VulkanBackend {
             timings,
         })
     }
+}
+
+/// The site lists read back with the sums (`None`: not kept).
+fn read_lists(done: &job::Finished, back: Option<job::Readback>, n: u64, ks: u64) -> crate::job::knn::PackedLists {
+    back.map_or_else(Default::default, |b| crate::job::knn::PackedLists {
+        words: done.read(b, (n * ks) as usize),
+        k: ks as u32,
+        bits: 32,
+        timings: Default::default(),
+    })
 }
 
 /// `data`, or one zeroed record where it is empty (a binding needs a
