@@ -353,11 +353,25 @@ pub struct DomainParams {
     /// A distance below which the boundary counts as touching a cell's
     /// ball whatever the rounding (absolute, in the frame).
     pub margin: f32,
-    /// 1: a cell inside the domain is integrated whole; 0: every cell goes
-    /// through its tets (a density varies inside them).
+    /// Which cells are integrated whole ([`domain_whole`]).
     pub whole: u32,
     /// To a multiple of 16 bytes.
     pub _pad: [u32; 2],
+}
+
+/// Which cells the whole-cell strategy integrates whole
+/// ([`DomainParams::whole`]).
+pub mod domain_whole {
+    /// None: every cell goes through its tets (a density varies inside
+    /// them).
+    pub const NONE: u32 = 0;
+    /// Those inside the domain (certified); the others go through the tets
+    /// their box meets.
+    pub const INSIDE: u32 = 1;
+    /// Every cell: nothing bounds the cells but their neighbours (a
+    /// periodic box, whose sites' images are the neighbours across its
+    /// sides); the mesh only frames the job.
+    pub const ALL: u32 = 2;
 }
 
 /// Per-iteration statistics of a Lloyd run (`i64` each), by index within

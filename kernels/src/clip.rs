@@ -149,12 +149,32 @@ fn fixed(x: f32, scale: f32) -> i64 {
 /// Adds a piece's integrals to site `j`'s sums, in fixed point.
 #[inline]
 pub fn accumulate<A: AtomicSums>(j: usize, m: &Moments, scale: f32, sums: &mut A) {
+    let mut total = [0i64; ACCUM_PER_SITE];
+    add_fixed(&mut total, m, scale);
+    accumulate_fixed(j, &total, sums);
+}
+
+/// Adds a piece's integrals to `total`, in fixed point, each rounded as
+/// [`accumulate`] rounds it: a thread summing many pieces of one site (a
+/// cell cut by its tets) sums them exactly, not in f32.
+#[inline]
+pub fn add_fixed(total: &mut [i64; ACCUM_PER_SITE], m: &Moments, scale: f32) {
+    total[0] += fixed(m.volume, scale);
+    total[1] += fixed(m.first.x, scale);
+    total[2] += fixed(m.first.y, scale);
+    total[3] += fixed(m.first.z, scale);
+    total[4] += fixed(m.second, scale);
+}
+
+/// Adds `total` (fixed point, [`add_fixed`]) to site `j`'s sums.
+#[inline]
+pub fn accumulate_fixed<A: AtomicSums>(j: usize, total: &[i64; ACCUM_PER_SITE], sums: &mut A) {
     let base = j * ACCUM_PER_SITE;
-    sums.add(base, fixed(m.volume, scale));
-    sums.add(base + 1, fixed(m.first.x, scale));
-    sums.add(base + 2, fixed(m.first.y, scale));
-    sums.add(base + 3, fixed(m.first.z, scale));
-    sums.add(base + 4, fixed(m.second, scale));
+    let mut k = 0;
+    while k < ACCUM_PER_SITE {
+        sums.add(base + k, total[k]);
+        k += 1;
+    }
 }
 
 /// Spill slots per site for faces made by sites outside its list (a grid

@@ -367,6 +367,22 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
         mask
     }
 
+    /// Whether a side of the box this polyhedron started as
+    /// ([`Self::set_cuboid`]: the planes of id [`NO_ID`]) is still a face,
+    /// wherever a recycling of planes moved it.
+    #[inline]
+    pub fn has_box_face(&self) -> bool {
+        let faces = self.face_mask();
+        let mut p = 0;
+        while p < (self.n_planes as usize).min(P) {
+            if (faces >> p) & 1 != 0 && self.ids[p] == NO_ID {
+                return true;
+            }
+            p += 1;
+        }
+        false
+    }
+
     /// Whether a plane in use was made by site `id`.
     #[inline]
     pub fn has_plane_of(&self, id: u32) -> bool {
@@ -675,8 +691,8 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
             }
             p += 1;
         }
-        // Planes 0-5 are the box's (see `set_cuboid`): none may be a face.
-        q.face_mask() & 0x3f == 0
+        // No side of the box may be a face.
+        !q.has_box_face()
     }
 
     /// The area of each face, by plane number (the planes no vertex uses

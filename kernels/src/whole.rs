@@ -8,7 +8,8 @@
 //! site; if the site lies inside the domain and every boundary triangle
 //! within `r` of it (found through a hierarchy over them) lies beyond one
 //! of the cell's face planes, the boundary does not meet the cell, and the
-//! cell, holding an inside point, lies inside the domain: it is integrated
+//! cell, holding an inside point (its site: a power cell away from its
+//! site is taken as cut), lies inside the domain: it is integrated
 //! whole — volume, moments, faces with
 //! their neighbours — and handed to the sink as the piece of tet
 //! [`WHOLE_CELL`]. The test is certified (distances to the triangles from
@@ -24,19 +25,24 @@
 //! tets needs the pieces: with one, every cell goes through its tets
 //! ([`DomainParams::whole`]).
 //!
+//! In a periodic box nothing cuts a cell: its neighbours across the box's
+//! sides are the sites' images, and every cell is whole
+//! ([`domain_whole::ALL`]).
+//!
 //! A cell that could not be built (a full polyhedron, a breakdown), or a
 //! piece of a cut cell that failed, adds nothing: its faces are taken
 //! back, its pieces discarded from the sink, and the site is listed as
 //! `(WHOLE_CELL, i)` for the host, which finishes it from its tets.
 
-use crate::abi::{counter, DomainParams, RefineParams, SplitPoint, NO_SITE, WHOLE_CELL};
+use crate::abi::{counter, domain_whole, DomainParams, RefineParams, SplitPoint, ACCUM_PER_SITE, NO_SITE, WHOLE_CELL};
 use crate::buffers::{AtomicSums, PairList};
 use crate::cell::{tet_vertices, Clipped};
 use crate::clip::{
-    accumulate, add_faces, count, face_sums, face_sums_of, owns, piece_moments, xyz, FaceInputs, PieceSink,
+    accumulate, accumulate_fixed, add_faces, add_fixed, count, face_sums, face_sums_of, owns, piece_moments, xyz,
+    FaceInputs, PieceSink,
 };
 use crate::lists::NO_LIST;
-use crate::polyhedron::{between, tet_planes, Clip, Moments, Point, Polyhedron, TET_FACE};
+use crate::polyhedron::{between, tet_planes, Clip, Point, Polyhedron, TET_FACE};
 use crate::walk::{clip_to_cell, GridWalk};
 use spirv_std::glam::{Vec3, Vec4};
 #[cfg(target_arch = "spirv")]
@@ -237,6 +243,23 @@ fn separated<const P: usize, const V: usize>(cell: &Polyhedron<P, V>, tri: [Poin
     false
 }
 
+/// Whether `cell` (relative to its site) holds the site strictly inside:
+/// always for a Voronoi cell; a power cell may lie away from its site, and
+/// is then taken as cut (the site inside the domain says nothing of it).
+#[inline]
+fn holds_its_site<const P: usize, const V: usize>(cell: &Polyhedron<P, V>) -> bool {
+    let faces = cell.face_mask();
+    let mut q = 0;
+    while q < (cell.n_planes as usize).min(P) {
+        // Inside plane (n, h) where n·x <= h: the origin when 0 < h.
+        if (faces >> q) & 1 != 0 && cell.planes[q].w <= 0.0 {
+            return false;
+        }
+        q += 1;
+    }
+    true
+}
+
 /// Whether `site` lies in one of the tets of its voxel (on a face counts:
 /// the boundary's distance decides there).
 #[inline]
@@ -318,7 +341,7 @@ pub fn whole_cell<const P: usize, const V: usize, A: AtomicSums, C: AtomicSums, 
         Polyhedron::<P, V>::cuboid(lo, hi)
     };
     let mut built = clip_to_cell(&mut poly, i, sites, w);
-    if reach > 0.0 && built.finished() && poly.face_mask() & 0x3f != 0 {
+    if reach > 0.0 && built.finished() && poly.has_box_face() {
         poly.set_cuboid(lo, hi);
         built = clip_to_cell(&mut poly, i, sites, w);
     }
@@ -333,7 +356,9 @@ pub fn whole_cell<const P: usize, const V: usize, A: AtomicSums, C: AtomicSums, 
     let reach = r2.sqrt() * (1.0 + 1e-5) + d.params.margin;
     let with_faces = face_sums_of(c) != face_sums::NONE;
     if poly.is_empty()
-        || (d.params.whole != 0
+        || d.params.whole == domain_whole::ALL
+        || (d.params.whole == domain_whole::INSIDE
+            && holds_its_site(&poly)
             && !boundary_near(&si, reach * reach, &poly, reach - r2.sqrt(), verts, &d)
             && site_in_mesh(&si, verts, tets, &d))
     {
@@ -400,14 +425,17 @@ fn cut_cell<const P: usize, const V: usize, A: AtomicSums, S: PieceSink>(
     let blo = Vec3::from(centre - half) - pad;
     let bhi = Vec3::from(centre + half) + pad;
     let (qlo, qhi) = d.range(xi + blo, xi + bhi);
-    let mut total = Moments::default();
+    // Summed in fixed point, each piece rounded alone: a cell cut into
+    // thousands of pieces (a few sites in a large domain) sums them
+    // exactly, as the other strategies' atomics do.
+    let mut total = [0i64; ACCUM_PER_SITE];
     let (mut pairs, mut nonempty) = (0i64, 0i64);
     let mut piece = Polyhedron::<P, V>::empty();
     // A cell that still has a side of the domain's box (its site near the
     // domain's hull, or outside) may be far larger than its pieces: each
     // piece is then its tet clipped by the cell's faces, whose vertices
     // come from the tet's corners, not from the box's.
-    let from_tet = poly.face_mask() & 0x3f != 0;
+    let from_tet = poly.has_box_face();
     let with_faces = face_sums_of(c) != face_sums::NONE;
     let mut z = qlo[2];
     while z <= qhi[2] {
@@ -456,9 +484,7 @@ fn cut_cell<const P: usize, const V: usize, A: AtomicSums, S: PieceSink>(
                     if m.volume != 0.0 {
                         nonempty += 1;
                     }
-                    total.volume += m.volume;
-                    total.first += m.first;
-                    total.second += m.second;
+                    add_fixed(&mut total, &m, c.fixed_scale);
                     if with_faces {
                         add_faces(i, t, &piece, &areas, c, faces, sign, sums);
                     }
@@ -473,7 +499,7 @@ fn cut_cell<const P: usize, const V: usize, A: AtomicSums, S: PieceSink>(
         z += 1;
     }
     if sign > 0 {
-        accumulate(i, &total, c.fixed_scale, sums);
+        accumulate_fixed(i, &total, sums);
     }
     (pairs, nonempty, NONE_FAILED)
 }

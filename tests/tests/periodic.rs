@@ -72,11 +72,17 @@ fn cells_equal_voro_plus_plus_periodic_cells() {
         for (name, sites) in [("random", &random), ("clustered", &clustered), ("lattice", &lattice)] {
             let w = vec![0.0; sites.len()];
             // Cell-tet builds each cell in f32 about its site before cutting
-            // it by the tets: about twice tet-cell's rounding.
-            for (strategy, tol) in [(Strategy::TetCell, 1e-6), (Strategy::CellTet, 3e-6)] {
+            // it by the tets: about twice tet-cell's rounding. Whole cells
+            // are the periodic cells themselves, uncut.
+            for (strategy, tol) in [(Strategy::Whole, 1e-6), (Strategy::TetCell, 1e-6), (Strategy::CellTet, 3e-6)] {
                 let out = PeriodicVoronoi::new(domain, sites).backend(backend).strategy(strategy).compute().unwrap();
                 let what = format!("{name}, {}, {strategy:?}", backend.kind());
                 check_against_voro(&domain, sites, &w, &out, tol, &what);
+                if strategy == Strategy::Whole {
+                    // No cell is cut, and the images get none.
+                    let c = &out.cells.counters;
+                    assert_eq!((c.whole_cells, c.cut_cells), (sites.len() as u64, 0), "{what}");
+                }
                 // The folded sums repeat bit for bit.
                 let again = PeriodicVoronoi::new(domain, sites).backend(backend).strategy(strategy).compute().unwrap();
                 assert!(again.cells.volume == out.cells.volume && again.cells.centroid == out.cells.centroid, "{what}");

@@ -78,14 +78,17 @@ fn a_constant_added_to_every_weight_changes_nothing() {
     assert!((total - 3.0).abs() < 1e-12, "the cells fill the mesh: {total}");
 }
 
-/// Every way the kernels run: each backend, tet-cell with flood and with
-/// knn pairing, cell-tet.
+/// Every way the kernels run: each backend, whole cells, tet-cell with
+/// flood and with knn pairing, cell-tet.
 fn runs() -> Vec<(&'static dyn Backend, Strategy, Pairing)> {
     let mut runs = Vec::new();
     for b in cvd_tests::backends() {
-        for (s, p) in
-            [(Strategy::TetCell, Pairing::Flood), (Strategy::TetCell, Pairing::Knn), (Strategy::CellTet, Pairing::Knn)]
-        {
+        for (s, p) in [
+            (Strategy::Whole, Pairing::Flood),
+            (Strategy::TetCell, Pairing::Flood),
+            (Strategy::TetCell, Pairing::Knn),
+            (Strategy::CellTet, Pairing::Knn),
+        ] {
             runs.push((b, s, p));
         }
     }

@@ -17,6 +17,17 @@
 //! images; if the `H` it gives is wider, the images are taken again out
 //! to it.
 //!
+//! Under whole cells (the default on the CPU backend) nothing is cut: each
+//! site's cell is built whole among the sites and images around it — the
+//! periodic cell itself, reaching across the box's sides as it may — and
+//! the images get no cell of their own; the box, as 6 tets, only frames
+//! the job. The halo is then `2H`: a point `y` of site `i`'s cell has
+//! `|y - x_i|² - w_i <= |y - x_s|² - w_s` for its nearest site `s`, so
+//! `|y - x_i| <= H`: the cell lies within `H` of the box, and the sites
+//! that may cut it within `H` of its points. The other strategies clip every cell, images' included, to
+//! the box cut into about one tet per site, and fold the images' pieces
+//! into their sites as follows.
+//!
 //! An image's pieces belong to its site: volumes and energies (which are
 //! moments about the image) add up, first moments about the image add up
 //! to the site's, and a face shared with an image of site `j` is a face
@@ -248,7 +259,13 @@ impl<'a> PeriodicVoronoi<'a> {
         let first = (2.0 * spacing * 2.0 * spacing + range).sqrt();
         let mut images = images_within(&domain, &sites, first);
         let reach = coverage(&domain, &sites, &images, spacing);
-        let halo = (reach * reach + range).sqrt() * (1.0 + 1e-9);
+        let mut halo = (reach * reach + range).sqrt() * (1.0 + 1e-9);
+        let whole = ClippedVoronoi::strategy_for(self.strategy, self.backend, false) == Strategy::Whole;
+        if whole {
+            // A whole cell reaches up to `H` outside the box, and the sites
+            // that may cut it lie within `H` of its points.
+            halo *= 2.0;
+        }
         if halo > first {
             images = images_within(&domain, &sites, halo);
         }
@@ -256,10 +273,14 @@ impl<'a> PeriodicVoronoi<'a> {
         all.extend(images.iter().map(|m| domain.shifted(sites[m.site as usize], m.shift)));
         let weights: Option<Vec<f64>> =
             self.weights.map(|w| w.iter().copied().chain(images.iter().map(|m| w[m.site as usize])).collect());
-        let mesh = domain.mesh(self.tets.unwrap_or(n));
+        // Whole cells need the box only as the job's frame: its 6 tets.
+        let mesh = domain.mesh(self.tets.unwrap_or(if whole { 6 } else { n }));
         let images_s = clock.elapsed().as_secs_f64();
-        let mut diagram =
-            ClippedVoronoi::new(&mesh, &all).faces(self.faces).strategy(self.strategy).k_site(self.k_site);
+        let mut diagram = ClippedVoronoi::new(&mesh, &all)
+            .faces(self.faces)
+            .strategy(self.strategy)
+            .k_site(self.k_site)
+            .images_after(n);
         if let Some(w) = &weights {
             diagram = diagram.weights(w);
         }

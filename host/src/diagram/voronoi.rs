@@ -14,7 +14,7 @@ use crate::job::sites::SiteMap;
 use crate::job::BackendKind;
 use crate::passes::pieces::{PieceCollector, Pieces};
 use crate::passes::polyhedra::{merge_pieces, CellPolyhedron};
-use cvd_kernels::abi::{counter, ClipParams, RefineParams, SplitPoint, ACCUM_PER_SITE};
+use cvd_kernels::abi::{counter, domain_whole, ClipParams, RefineParams, SplitPoint, ACCUM_PER_SITE};
 use cvd_kernels::clip::NoPieces;
 use cvd_kernels::lists::NO_LIST;
 use std::sync::Mutex;
@@ -143,6 +143,9 @@ pub struct ClippedVoronoi<'a> {
     /// With a density, the faces' masses `∫ρ dA` instead of their areas
     /// (optimal transport's Hessian; see `ClipParams::face_masses`).
     pub(crate) face_masses: bool,
+    /// A periodic box's job ([`Self::images_after`]): the sites from this
+    /// index on are images of the first ones.
+    pub(crate) images_from: Option<usize>,
 }
 
 impl<'a> ClippedVoronoi<'a> {
@@ -160,7 +163,19 @@ impl<'a> ClippedVoronoi<'a> {
             weights: None,
             faces: false,
             face_masses: false,
+            images_from: None,
         }
+    }
+
+    /// A periodic box's cells (see `crate::diagram::periodic`): the sites
+    /// from index `n` on are images of the first `n`, moved across the
+    /// box's sides. Under whole cells only the first `n` get cells, each
+    /// whole among its neighbours and their images, and the mesh (the box)
+    /// cuts none; the images' cells stay empty. The other strategies clip
+    /// every site's cell, images included, to the box.
+    pub(crate) fn images_after(mut self, n: usize) -> Self {
+        self.images_from = Some(n);
+        self
     }
 
     /// Also sums each cell's faces: the sites it shares a face with, each
@@ -178,12 +193,25 @@ impl<'a> ClippedVoronoi<'a> {
         self
     }
 
+    /// The sites that get cells: the first ones, of a periodic box's
+    /// images under whole cells ([`Self::images_after`]); else all.
+    fn answered(&self) -> usize {
+        match self.images_from {
+            Some(n) if self.resolved_strategy() == Strategy::Whole => n,
+            _ => self.sites.len(),
+        }
+    }
+
     /// The strategy this computation runs.
     pub fn resolved_strategy(&self) -> Strategy {
-        // Densities and power cells take tet-cell's pieces (Strategy::auto).
-        let density = self.density.is_some() || self.weights.is_some();
-        self.strategy.unwrap_or_else(|| {
-            self.backend.map_or(Strategy::auto(BackendKind::Cpu, density), |b| b.default_strategy(density))
+        Self::strategy_for(self.strategy, self.backend, self.density.is_some())
+    }
+
+    /// The strategy `asked` for, else the backend's default (densities
+    /// take tet-cell's pieces: [`Strategy::auto`]).
+    pub(crate) fn strategy_for(asked: Option<Strategy>, backend: Option<&dyn Backend>, density: bool) -> Strategy {
+        asked.unwrap_or_else(|| {
+            backend.map_or(Strategy::auto(BackendKind::Cpu, density), |b| b.default_strategy(density))
         })
     }
 
@@ -288,7 +316,9 @@ impl<'a> ClippedVoronoi<'a> {
         // the kernels in Morton order, for locality; the map sends each
         // input site to its place in that order.
         let weight = |i: usize| self.weights.map_or(0.0, |w| w[i]);
-        let (inputs, map) = crate::job::sites::unique_in_morton_order(self.sites, self.weights);
+        let (inputs, map) = crate::job::sites::unique_in_morton_order(self.sites, self.weights, self.answered());
+        // Periodic whole cells: the sites answered for come first.
+        let own = inputs.iter().filter(|&&i| (i as usize) < self.answered()).count();
 
         let frame = Frame::of(mesh);
         let sites: Vec<[f64; 3]> = inputs.iter().map(|&i| frame.to_local(self.sites[i as usize])).collect();
@@ -368,7 +398,7 @@ impl<'a> ClippedVoronoi<'a> {
             nbr_base: 0,
             nbr_end: n as u32,
             own_lo: 0,
-            own_hi: n as u32,
+            own_hi: own as u32,
             box_lo_x: (lo[0] - margin) as f32,
             box_lo_y: (lo[1] - margin) as f32,
             box_lo_z: (lo[2] - margin) as f32,
@@ -412,8 +442,13 @@ impl<'a> ClippedVoronoi<'a> {
             .enumerate()
             .map(|(v, &p)| SplitPoint::new(p, self.density.map_or(1.0, |rho| rho[v] as f32)))
             .collect();
-        let domain = (strategy == Strategy::Whole)
-            .then(|| std::sync::Arc::new(DomainIndex::new(&local_mesh, &verts, self.density.is_none())));
+        let whole = match (self.density, self.images_from) {
+            (Some(_), _) => domain_whole::NONE,
+            (None, Some(_)) => domain_whole::ALL,
+            (None, None) => domain_whole::INSIDE,
+        };
+        let domain =
+            (strategy == Strategy::Whole).then(|| std::sync::Arc::new(DomainIndex::new(&local_mesh, &verts, whole)));
         let job = ClipJob {
             refine,
             site_knn,

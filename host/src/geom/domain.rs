@@ -10,7 +10,7 @@
 
 use crate::geom::mesh::TetMesh;
 use crate::geom::surface::bvh::TriangleTree;
-use cvd_kernels::abi::{DomainParams, SplitPoint};
+use cvd_kernels::abi::{domain_whole, DomainParams, SplitPoint};
 use cvd_kernels::whole::{voxel_of, Domain};
 use rayon::prelude::*;
 
@@ -38,9 +38,11 @@ const VOXELS_PER_TET: f64 = 2.0;
 
 impl DomainIndex {
     /// The index of `mesh` (in the clipping frame; its vertices as the
-    /// kernels read them, `verts`). `whole`: cells inside the domain may be
-    /// integrated whole (no density varying inside the tets).
-    pub fn new(mesh: &TetMesh, verts: &[SplitPoint], whole: bool) -> Self {
+    /// kernels read them, `verts`). `whole`: which cells may be
+    /// integrated whole ([`domain_whole`]: none under a density varying
+    /// inside the tets; those inside the domain; all, in a periodic box,
+    /// where the boundary's hierarchy is not built).
+    pub fn new(mesh: &TetMesh, verts: &[SplitPoint], whole: u32) -> Self {
         let n_tets = mesh.tets.len().max(1);
         let (lo, hi) = mesh.bounding_box();
         let extent = [0, 1, 2].map(|a| (hi[a] - lo[a]).max(0.0));
@@ -64,7 +66,7 @@ impl DomainIndex {
             dim_z: dims[2],
             n_nodes: 0,
             margin: pad,
-            whole: whole as u32,
+            whole,
             _pad: [0; 2],
         };
         // Each tet's voxel range, from its padded f32 box.
@@ -109,11 +111,10 @@ impl DomainIndex {
             });
         }
         let tet_voxel = ranges.iter().map(|(lo, _)| index(*lo) as u32).collect();
-        let boundary = mesh.boundary();
-        let (nodes, tris) = if boundary.triangles.is_empty() {
-            (Vec::new(), Vec::new())
-        } else {
-            TriangleTree::new(&boundary).kernel_records(&boundary, pad as f64)
+        let boundary = (whole == domain_whole::INSIDE).then(|| mesh.boundary());
+        let (nodes, tris) = match boundary {
+            Some(b) if !b.triangles.is_empty() => TriangleTree::new(&b).kernel_records(&b, pad as f64),
+            _ => (Vec::new(), Vec::new()),
         };
         params.n_nodes = (nodes.len() / 2) as u32;
         Self { params, voxel_start, voxel_tets, tet_voxel, nodes, tris }
@@ -152,7 +153,7 @@ mod tests {
     fn every_tet_is_listed_in_every_voxel_its_box_meets_and_first_in_its_lowest() {
         let mesh = TetMesh::cube(6);
         let verts = split(&mesh);
-        let d = DomainIndex::new(&mesh, &verts, true);
+        let d = DomainIndex::new(&mesh, &verts, domain_whole::INSIDE);
         let p = d.params;
         assert_eq!(d.voxel_start.len() as u32, p.dim_x * p.dim_y * p.dim_z + 1);
         let dims = [p.dim_x, p.dim_y, p.dim_z];
@@ -184,7 +185,7 @@ mod tests {
         // its distance to the nearest side.
         let mesh = TetMesh::cube(3);
         let verts = split(&mesh);
-        let d = DomainIndex::new(&mesh, &verts, true);
+        let d = DomainIndex::new(&mesh, &verts, domain_whole::INSIDE);
         assert_eq!(d.tris.len(), 6 * 2 * 9);
         let view = d.view();
         for (x, nearest) in [([0.5, 0.5, 0.5], 0.5), ([0.1, 0.5, 0.6], 0.1), ([0.3, 0.95, 0.2], 0.05)] {

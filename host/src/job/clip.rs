@@ -47,14 +47,13 @@ impl Strategy {
         Self::ALL.into_iter().find(|s| s.name() == name)
     }
 
-    /// The strategy a computation runs when none is asked for: whole cells;
-    /// tet-cell under a density (`pieces`: linear in each tet, it needs
-    /// every cell's pieces, which tet-cell's flood builds faster), for power
-    /// cells (`pieces` too: whole power cells are off by up to 6e-5 of a
-    /// cell on a two-site input, not yet understood) and on Vulkan (where a
-    /// thread per cell holds a whole cell, and a cut cell's thread loops
-    /// over its tets while the others of its warp wait: not measured on a
-    /// GPU here, so the paper's flood stays its default).
+    /// The strategy a computation runs when none is asked for: whole cells
+    /// (power cells too); tet-cell under a density (`pieces`: linear in
+    /// each tet, it needs every cell's pieces, which tet-cell's flood
+    /// builds faster) and on Vulkan (where a thread per cell holds a whole
+    /// cell, and a cut cell's thread loops over its tets while the others
+    /// of its warp wait: not measured on a GPU here, so the paper's flood
+    /// stays its default).
     pub fn auto(kind: BackendKind, pieces: bool) -> Self {
         if pieces || kind != BackendKind::Cpu {
             Strategy::TetCell

@@ -89,9 +89,11 @@ impl IndexTable {
 
 /// The sites the kernels take: one per distinct position — of duplicates
 /// the largest weight, the lowest index on a tie (without weights: the
-/// lowest index) — in Morton order. Returns the input index of each, in
-/// that order, and each input site's place ([`SiteMap`]).
-pub(crate) fn unique_in_morton_order(sites: &[[f64; 3]], weights: Option<&[f64]>) -> (Vec<u32>, SiteMap) {
+/// lowest index) — in Morton order; those of input index below `first`
+/// before the others (a periodic box's sites before their images), each
+/// group in Morton order. Returns the input index of each, in that order,
+/// and each input site's place ([`SiteMap`]).
+pub(crate) fn unique_in_morton_order(sites: &[[f64; 3]], weights: Option<&[f64]>, first: usize) -> (Vec<u32>, SiteMap) {
     let weight = |i: usize| weights.map_or(0.0, |w| w[i]);
     let key = |i: usize| sites[i].map(|c| if c == 0.0 { 0 } else { c.to_bits() });
     let mut table = IndexTable::with_capacity(sites.len());
@@ -106,7 +108,11 @@ pub(crate) fn unique_in_morton_order(sites: &[[f64; 3]], weights: Option<&[f64]>
     let owners: Vec<u32> = (0..sites.len() as u32).filter(|&i| table.slots[table.find(i as usize, key)] == i).collect();
     drop(table);
     let order = crate::geom::points::morton_order_by(owners.len(), |u| sites[owners[u] as usize]);
-    let inputs: Vec<u32> = order.iter().map(|&u| owners[u as usize]).collect();
+    let mut inputs: Vec<u32> = order.iter().map(|&u| owners[u as usize]).collect();
+    if first < sites.len() {
+        // Stable: each group keeps its Morton order.
+        inputs.sort_by_key(|&i| i as usize >= first);
+    }
     let mut map = vec![NONE; sites.len()];
     for (place, &i) in inputs.iter().enumerate() {
         map[i as usize] = place as u32;
@@ -147,7 +153,7 @@ mod tests {
     #[test]
     fn duplicates_keep_the_heaviest_then_the_first() {
         let sites = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [-0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.5, 0.5, 0.5]];
-        let (inputs, map) = unique_in_morton_order(&sites, None);
+        let (inputs, map) = unique_in_morton_order(&sites, None, sites.len());
         assert_eq!(inputs.len(), 3);
         assert_eq!(map.iter().filter(|m| m.is_none()).count(), 2);
         // -0.0 and 0.0 are one position; the lower index owns it.
@@ -159,7 +165,7 @@ mod tests {
             }
         }
         let weights = [0.0, 1.0, 2.0, 1.0, 0.0];
-        let (_, map) = unique_in_morton_order(&sites, Some(&weights));
+        let (_, map) = unique_in_morton_order(&sites, Some(&weights), sites.len());
         assert!(map.get(2).is_some() && map.get(0).is_none(), "the heavier twin owns the cell");
         assert!(map.get(1).is_some() && map.get(3).is_none(), "equal weights: the first");
     }
@@ -169,11 +175,24 @@ mod tests {
         let sites = crate::geom::points::uniform(20_000, 7);
         let mut with_twins = sites.clone();
         with_twins.extend_from_slice(&sites[..500]);
-        let (inputs, map) = unique_in_morton_order(&with_twins, None);
+        let (inputs, map) = unique_in_morton_order(&with_twins, None, with_twins.len());
         assert_eq!(inputs.len(), sites.len());
         assert_eq!(map.len(), with_twins.len());
         assert!((sites.len()..with_twins.len()).all(|i| map.get(i).is_none()));
         let order = crate::geom::points::morton_order(&sites);
         assert_eq!(inputs, order, "the owners in the Morton order of the distinct sites");
+    }
+
+    #[test]
+    fn the_first_sites_come_first_each_group_in_morton_order() {
+        let sites = crate::geom::points::uniform(3_000, 8);
+        let first = 1_000;
+        let (inputs, map) = unique_in_morton_order(&sites, None, first);
+        let all = crate::geom::points::morton_order(&sites);
+        let (head, tail): (Vec<u32>, Vec<u32>) = all.iter().partition(|&&i| (i as usize) < first);
+        assert_eq!(inputs, [head, tail].concat());
+        for (place, &i) in inputs.iter().enumerate() {
+            assert_eq!(map.get(i as usize), Some(place));
+        }
     }
 }
