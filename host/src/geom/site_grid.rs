@@ -70,17 +70,28 @@ impl<'a> SiteGrid<'a> {
         (0..3).map(|a| (s[a] - p[a]).powi(2)).sum()
     }
 
-    /// Appends every site within `radius` of `p` (and maybe a few more just
-    /// outside) to `out`.
+    /// Appends every site within `radius` of `p` to `out`.
     pub fn within(&self, p: [f64; 3], radius: f64, out: &mut Vec<u32>) {
+        let r2 = radius * radius;
+        self.each_near(p, radius, |i, d2| {
+            if d2 <= r2 {
+                out.push(i);
+            }
+        });
+    }
+
+    /// Each site of the grid cells the box `p ± radius` meets, with its
+    /// squared distance to `p`.
+    fn each_near(&self, p: [f64; 3], radius: f64, mut f: impl FnMut(u32, f64)) {
         let lo = self.coords(p.map(|c| c - radius));
         let hi = self.coords(p.map(|c| c + radius));
-        let r2 = radius * radius;
         for z in lo[2]..=hi[2] {
             for y in lo[1]..=hi[1] {
                 let row = self.index([0, y, z]);
                 let (a, b) = (self.start[row + lo[0]] as usize, self.start[row + hi[0] + 1] as usize);
-                out.extend(self.ids[a..b].iter().copied().filter(|&i| self.dist2(i, p) <= r2));
+                for &i in &self.ids[a..b] {
+                    f(i, self.dist2(i, p));
+                }
             }
         }
     }
@@ -88,14 +99,17 @@ impl<'a> SiteGrid<'a> {
     /// The site nearest `p` (lowest index on ties) and its distance.
     pub fn nearest(&self, p: [f64; 3]) -> (u32, f64) {
         let mut radius = self.cell;
-        let mut found = Vec::new();
         loop {
-            found.clear();
-            self.within(p, radius, &mut found);
-            if let Some(&best) =
-                found.iter().min_by(|&&a, &&b| self.dist2(a, p).total_cmp(&self.dist2(b, p)).then(a.cmp(&b)))
-            {
-                return (best, self.dist2(best, p).sqrt());
+            // The nearest within `radius`, if any: then the nearest of all.
+            let r2 = radius * radius;
+            let mut best: Option<(f64, u32)> = None;
+            self.each_near(p, radius, |i, d2| {
+                if d2 <= r2 && best.is_none_or(|b| (d2, i) < b) {
+                    best = Some((d2, i));
+                }
+            });
+            if let Some((d2, i)) = best {
+                return (i, d2.sqrt());
             }
             radius *= 2.0;
         }

@@ -337,7 +337,8 @@ impl PieceSink for SitePieces {
 /// clipped by the kernels' bodies on the CPU. Certified by the volume: the
 /// pieces found must add up to the site's volume in the sums (`out`); when
 /// one does not (a cell the domain cuts in two), or under a density, `None`
-/// — the caller then takes every piece again.
+/// — the caller then takes every piece again. Under whole cells, each
+/// site's cell is built again instead ([`redo_whole_sites`]).
 pub(crate) fn redo_sites(
     job: &crate::job::clip::ClipJob,
     out: &crate::job::clip::ClipOutput,
@@ -346,6 +347,9 @@ pub(crate) fn redo_sites(
     use cvd_kernels::abi::ACCUM_PER_SITE;
     use cvd_kernels::clip::{FaceInputs, Paired};
     use cvd_kernels::walk::GridWalk;
+    if job.strategy == crate::job::clip::Strategy::Whole {
+        return redo_whole_sites(job, which);
+    }
     if job.verts.iter().any(|v| v.hi[3] != 1.0) {
         return None;
     }
@@ -409,6 +413,51 @@ pub(crate) fn redo_sites(
                 }
             }
             ((pieces.volume - volume).abs() <= 1e-5 * volume).then_some(pieces.faces)
+        })
+        .collect()
+}
+
+/// The faces of the sites `which` (job indices) under whole cells: each
+/// site's cell built again by the same body (from the domain's box, by a
+/// walk of the site grid: no list), its faces collected from its whole
+/// cell or its pieces. `None` where a cell could not be built.
+fn redo_whole_sites(job: &crate::job::clip::ClipJob, which: &[u32]) -> Option<Vec<FaceCollector>> {
+    use cvd_kernels::abi::{counter, ClipParams, RefineParams, ACCUM_PER_SITE};
+    use cvd_kernels::clip::FaceInputs;
+    use cvd_kernels::polyhedron::{CELL_PLANES, CELL_VERTS};
+    use cvd_kernels::walk::GridWalk;
+    use std::sync::atomic::AtomicI64;
+    let domain = job.domain.as_deref()?;
+    let g = crate::exec::build_grid(&job.site_knn);
+    let walk = GridWalk::new(&job.refine, &[], &g.cell_start, &g.cell_count, &g.sorted);
+    let faces = FaceInputs { site_nbrs: &[], tet_faces: &job.tet_faces };
+    // No face sums: the sink takes the faces.
+    let refine = RefineParams { clip: ClipParams { faces_base: 0, ..job.refine.clip }, ..job.refine };
+    // The cells' own sums go nowhere: only their faces count here.
+    let n_sums = job.params.n_sites as usize * ACCUM_PER_SITE + job.tets.len();
+    let scratch: Vec<AtomicI64> = (0..n_sums).map(|_| AtomicI64::new(0)).collect();
+    let counted: Vec<AtomicI64> = (0..counter::COUNT).map(|_| AtomicI64::new(0)).collect();
+    which
+        .par_iter()
+        .map(|&u| {
+            let (mut sums, mut counters) = (&scratch[..], &counted[..]);
+            let mut still = crate::exec::LocalPairs::default();
+            let mut out = FaceCollector::default();
+            cvd_kernels::whole::whole_cell::<CELL_PLANES, CELL_VERTS, _, _, _, _>(
+                u as usize,
+                &refine,
+                walk,
+                &job.sites,
+                &job.verts,
+                &job.tets,
+                domain.view(),
+                faces,
+                &mut sums,
+                &mut counters,
+                &mut still,
+                &mut out,
+            );
+            still.0.is_empty().then_some(out)
         })
         .collect()
 }
