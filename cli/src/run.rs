@@ -51,14 +51,7 @@ pub fn run(args: &RunArgs) -> cvd::Result<()> {
     if writes {
         create_dir(&dir)?;
     }
-    // Polyhedra come from tet-cell's pieces (ClippedVoronoi::compute_with_polyhedra).
-    let polyhedra = matches!(inputs.domain, Domain::Mesh(_)) && !args.no_geometry && !run_backend.in_parts();
-    let strategy = match args.strategy {
-        Some(s) => s,
-        None if polyhedra => cvd::Strategy::TetCell,
-        None => backend.default_strategy(inputs.density.is_some() || args.weights.is_some()),
-    }
-    .name();
+    let strategy = args.strategy.unwrap_or_else(|| backend.default_strategy(inputs.density.is_some())).name();
     match &inputs.domain {
         Domain::Mesh(mesh) => {
             // Cells only in parts (said, not dropped silently).

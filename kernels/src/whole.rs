@@ -223,8 +223,11 @@ pub fn boundary_near<const P: usize, const V: usize>(
     false
 }
 
-/// Whether one of `cell`'s faces has the three points `tri` beyond its
-/// plane by more than `gap`.
+/// Whether a plane separates `cell` from the triangle `tri` by more than
+/// `gap`: one of the cell's faces, with the three points beyond it, or the
+/// triangle's own, with every vertex of the cell on one side of it (a
+/// cell beside a flat stretch of the boundary, inside the ball of its
+/// farthest vertex but short of the boundary where it faces it).
 #[inline]
 fn separated<const P: usize, const V: usize>(cell: &Polyhedron<P, V>, tri: [Point; 3], gap: f32) -> bool {
     let faces = cell.face_mask();
@@ -240,7 +243,29 @@ fn separated<const P: usize, const V: usize>(cell: &Polyhedron<P, V>, tri: [Poin
         }
         q += 1;
     }
-    false
+    let n = (tri[1] - tri[0]).cross(tri[2] - tri[0]);
+    let len = n.length();
+    let longest = (tri[1] - tri[0]).length().max((tri[2] - tri[1]).length()).max((tri[0] - tri[2]).length());
+    // (A NaN fails every test below: not separated.)
+    if len <= 0.0 {
+        return false;
+    }
+    let n = n / len;
+    let d = n.dot(tri[0]);
+    // The normal's direction is off by about the points' rounding over the
+    // triangle's smallest height, which the distance to the cell's far
+    // vertices magnifies (at most twice the farthest point's reach).
+    let reach = tri[0].length().max(tri[1].length()).max(tri[2].length());
+    let slack = gap + 1e-6 * reach * reach * longest / len;
+    let (mut below, mut above) = (true, true);
+    let mut v = 0;
+    while v < (cell.n_verts as usize).min(V) {
+        let s = n.dot(cell.verts[v]) - d;
+        below &= s < -slack;
+        above &= s > slack;
+        v += 1;
+    }
+    below || above
 }
 
 /// Whether `cell` (relative to its site) holds the site strictly inside:

@@ -499,18 +499,10 @@ impl<'a> ClippedVoronoi<'a> {
 
     /// Computes the clipped cells on the CPU backend `cpu`, as
     /// [`Self::compute_with_pieces`], with each cell as one closed
-    /// polyhedron ([`Cells::polyhedra`]): its pieces merged. The merge
-    /// takes tet-cell's pieces: where no strategy is asked for, the cells
-    /// and their polyhedra come from one tet-cell run (whole cells' merge,
-    /// where a cell's corner shared by more than three bisectors leaves
-    /// faces of rounding size, is not done yet).
+    /// polyhedron ([`Cells::polyhedra`]): its pieces merged (a whole cell
+    /// is one piece).
     pub fn compute_with_polyhedra(&self, cpu: &crate::exec::CpuBackend) -> Result<(Cells, Pieces)> {
-        let this = if self.strategy.is_none() && self.resolved_strategy() == Strategy::Whole {
-            self.strategy(Strategy::TetCell)
-        } else {
-            *self
-        };
-        let (mut cells, pieces) = this.compute_with_pieces(cpu)?;
+        let (mut cells, pieces) = self.compute_with_pieces(cpu)?;
         let (polyhedra, t) = crate::geom::timing::timed(|| merge_pieces(&pieces));
         cells.polyhedra = Some(polyhedra);
         cells.timings.push("polyhedra", t);

@@ -269,10 +269,14 @@ fn face_loops<const P: usize, const V: usize>(poly: &Polyhedron<P, V>, out: &mut
     // A vertex's number within its piece is a byte.
     const { assert!(V < 255) };
     let n = (poly.n_verts as usize).min(V);
+    let mut place = [[0.0f32; 3]; V];
+    for (i, p) in place.iter_mut().enumerate().take(n) {
+        *p = vertex_on_its_planes(poly, i);
+    }
     // The first vertex at each position.
     let mut same = [0usize; V];
     for (i, s) in same.iter_mut().enumerate().take(n) {
-        *s = (0..i).find(|&k| poly.verts[k] == poly.verts[i]).unwrap_or(i);
+        *s = (0..i).find(|&k| place[k] == place[i]).unwrap_or(i);
     }
     // Output index of each kept vertex, given on first use.
     let mut number = [u8::MAX; V];
@@ -326,14 +330,50 @@ fn face_loops<const P: usize, const V: usize>(poly: &Polyhedron<P, V>, out: &mut
             if number[v] == u8::MAX {
                 number[v] = kept;
                 kept += 1;
-                let p = poly.verts[v];
-                out.vertices.push([p.x, p.y, p.z]);
+                out.vertices.push(place[v]);
             }
             out.corners.push(number[v]);
         }
         out.loop_ends.push(out.corners.len() as u32);
         // The job's id for now; `to_world` makes it the input's.
         out.makers.push(poly.ids[plane as usize] as i32);
+    }
+}
+
+/// Vertex `i` of `poly` where its three planes meet, solved in f64 and
+/// rounded once, if they are three sites' bisectors: a clip leaves a
+/// vertex where it cut an edge, after the roundings of every clip before
+/// (the kernels' integrals move each vertex onto its planes too). A vertex
+/// on a plane of a tet or of the starting box stays as given (a tet's
+/// planes are rounded from its corners, and the clips place a vertex on a
+/// tet's edge between its corners), and so does one whose planes are
+/// nearly dependent (where the solve would be worse) or whose solve lands
+/// away from it.
+fn vertex_on_its_planes<const P: usize, const V: usize>(poly: &Polyhedron<P, V>, i: usize) -> [f32; 3] {
+    let v = poly.verts[i];
+    let given = [v.x, v.y, v.z];
+    let planes = poly.vertex_planes(i).map(|q| poly.planes[q as usize]);
+    if !poly.vertex_planes(i).iter().all(|&q| made_by_site(poly.ids[q as usize])) {
+        return given;
+    }
+    let n = planes.map(|p| [p.x as f64, p.y as f64, p.z as f64]);
+    let w = planes.map(|p| p.w as f64);
+    let cross =
+        |a: [f64; 3], b: [f64; 3]| [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+    let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    let (bc, ca, ab) = (cross(n[1], n[2]), cross(n[2], n[0]), cross(n[0], n[1]));
+    let det = dot(n[0], bc);
+    let norms: f64 = n.iter().map(|m| dot(*m, *m).sqrt()).product();
+    if !det.is_finite() || det.abs() <= 1e-3 * norms {
+        return given;
+    }
+    let x = [0, 1, 2].map(|a| (w[0] * bc[a] + w[1] * ca[a] + w[2] * ab[a]) / det);
+    let size = given.iter().map(|c| c.abs() as f64).fold(0.0, f64::max);
+    let moved = (0..3).map(|a| (x[a] - given[a] as f64).abs()).fold(0.0, f64::max);
+    if moved <= 1e-5 * size.max(1e-30) {
+        x.map(|c| c as f32)
+    } else {
+        given
     }
 }
 
