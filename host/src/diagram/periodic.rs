@@ -24,9 +24,9 @@
 //! the job. The halo is then `2H`: a point `y` of site `i`'s cell has
 //! `|y - x_i|² - w_i <= |y - x_s|² - w_s` for its nearest site `s`, so
 //! `|y - x_i| <= H`: the cell lies within `H` of the box, and the sites
-//! that may cut it within `H` of its points. The other strategies clip every cell, images' included, to
-//! the box cut into about one tet per site, and fold the images' pieces
-//! into their sites as follows.
+//! that may cut it within `H` of its points. The other strategies clip
+//! every cell, images' included, to the box cut into about one tet per
+//! site, and fold the images' pieces into their sites as follows.
 //!
 //! An image's pieces belong to its site: volumes and energies (which are
 //! moments about the image) add up, first moments about the image add up

@@ -316,9 +316,10 @@ impl<'a> ClippedVoronoi<'a> {
         // the kernels in Morton order, for locality; the map sends each
         // input site to its place in that order.
         let weight = |i: usize| self.weights.map_or(0.0, |w| w[i]);
-        let (inputs, map) = crate::job::sites::unique_in_morton_order(self.sites, self.weights, self.answered());
         // Periodic whole cells: the sites answered for come first.
-        let own = inputs.iter().filter(|&&i| (i as usize) < self.answered()).count();
+        let answered = self.answered();
+        let (inputs, map) = crate::job::sites::unique_in_morton_order(self.sites, self.weights, answered);
+        let own = inputs.iter().filter(|&&i| (i as usize) < answered).count();
 
         let frame = Frame::of(mesh);
         let sites: Vec<[f64; 3]> = inputs.iter().map(|&i| frame.to_local(self.sites[i as usize])).collect();

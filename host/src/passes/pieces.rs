@@ -350,20 +350,19 @@ fn face_loops<const P: usize, const V: usize>(poly: &Polyhedron<P, V>, out: &mut
 /// nearly dependent (where the solve would be worse) or whose solve lands
 /// away from it.
 fn vertex_on_its_planes<const P: usize, const V: usize>(poly: &Polyhedron<P, V>, i: usize) -> [f32; 3] {
+    use crate::geom::vec3::{cross, dot, norm};
     let v = poly.verts[i];
     let given = [v.x, v.y, v.z];
-    let planes = poly.vertex_planes(i).map(|q| poly.planes[q as usize]);
-    if !poly.vertex_planes(i).iter().all(|&q| made_by_site(poly.ids[q as usize])) {
+    let on = poly.vertex_planes(i);
+    if !on.iter().all(|&q| made_by_site(poly.ids[q as usize])) {
         return given;
     }
+    let planes = on.map(|q| poly.planes[q as usize]);
     let n = planes.map(|p| [p.x as f64, p.y as f64, p.z as f64]);
     let w = planes.map(|p| p.w as f64);
-    let cross =
-        |a: [f64; 3], b: [f64; 3]| [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
-    let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
     let (bc, ca, ab) = (cross(n[1], n[2]), cross(n[2], n[0]), cross(n[0], n[1]));
     let det = dot(n[0], bc);
-    let norms: f64 = n.iter().map(|m| dot(*m, *m).sqrt()).product();
+    let norms: f64 = n.iter().map(|&m| norm(m)).product();
     if !det.is_finite() || det.abs() <= 1e-3 * norms {
         return given;
     }
