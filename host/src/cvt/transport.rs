@@ -445,3 +445,75 @@ impl Laplacian {
         (x, iterations)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A Laplacian from undirected weighted edges.
+    fn laplacian(n: usize, edges: &[(u32, u32, f64)]) -> Laplacian {
+        let mut rows: Vec<Vec<(u32, f64)>> = vec![Vec::new(); n];
+        for &(i, j, w) in edges {
+            rows[i as usize].push((j, w));
+            rows[j as usize].push((i, w));
+        }
+        let mut offsets = vec![0];
+        let (mut columns, mut values) = (Vec::new(), Vec::new());
+        for row in &rows {
+            columns.extend(row.iter().map(|e| e.0));
+            values.extend(row.iter().map(|e| e.1));
+            offsets.push(columns.len());
+        }
+        let diagonal = rows.iter().map(|r| r.iter().map(|e| e.1).sum()).collect();
+        Laplacian { offsets, columns, values, diagonal }
+    }
+
+    #[test]
+    fn groups_count_the_parts_that_share_no_face() {
+        let path = laplacian(4, &[(0, 1, 1.0), (1, 2, 2.0), (2, 3, 0.5)]);
+        assert_eq!(path.groups(), 1);
+        let apart = laplacian(5, &[(0, 1, 1.0), (2, 3, 1.0)]);
+        assert_eq!(apart.groups(), 3, "{{0,1}}, {{2,3}} and {{4}}");
+        // A face of zero area joins nothing.
+        let zero = laplacian(3, &[(0, 1, 1.0), (1, 2, 0.0)]);
+        assert_eq!(zero.groups(), 2);
+    }
+
+    #[test]
+    fn the_conjugate_gradients_solve_a_weighted_path_exactly() {
+        // A path 0-1-2-3 with weights 1, 2, 4: L x = b for x = (3, 1, 0, -4)
+        // shifted to mean zero.
+        let l = laplacian(4, &[(0, 1, 1.0), (1, 2, 2.0), (2, 3, 4.0)]);
+        let x: [f64; 4] = [3.0, 1.0, 0.0, -4.0];
+        let mut b = [0.0; 4];
+        l.apply(&x, &mut b);
+        assert!(b.iter().sum::<f64>().abs() < 1e-12, "L's range sums to zero");
+        let (solved, iterations) = l.solve(&b, 1e-12);
+        let mean = x.iter().sum::<f64>() / 4.0;
+        for (s, x) in solved.iter().zip(x) {
+            assert!((s - (x - mean)).abs() < 1e-9, "{solved:?} against {x} - {mean}");
+        }
+        assert!(iterations <= 4, "CG ends in n steps in exact arithmetic, here {iterations}");
+    }
+
+    #[test]
+    fn the_right_hand_side_is_taken_on_the_laplacians_range() {
+        // b with a constant part: the solve drops it (the masses' sum is
+        // fixed by the domain, so Newton's system only sees differences).
+        let l = laplacian(3, &[(0, 1, 1.0), (1, 2, 1.0)]);
+        let (a, _) = l.solve(&[1.0, 0.0, -1.0], 1e-12);
+        let (b, _) = l.solve(&[6.0, 5.0, 4.0], 1e-12);
+        for (a, b) in a.iter().zip(&b) {
+            assert!((a - b).abs() < 1e-9);
+        }
+        assert!(a.iter().sum::<f64>().abs() < 1e-12);
+    }
+
+    #[test]
+    fn the_error_is_the_worst_relative_one_and_equal_sites_are_named() {
+        assert_eq!(worst(&[1.0, 2.0, 4.0], &[1.0, 1.0, 5.0]), 0.5);
+        assert_eq!(worst(&[1.0], &[1.0]), 0.0);
+        let sites = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [-0.0, 0.0, 0.0]];
+        assert_eq!(equal_sites(&sites), "sites 0 and 2 are equal ([-0.0, 0.0, 0.0])");
+    }
+}
