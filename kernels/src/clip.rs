@@ -114,8 +114,10 @@ fn may_meet(tv: &[Vec3; 4], j: usize, list: usize, p: &ClipParams, sites: &[Spli
 /// computed by the very code that measured it. The GPU entry points pass
 /// [`NoPieces`], which compiles to nothing.
 pub trait PieceSink {
-    /// Site `site`'s non-empty piece of tet `tet`, relative to the site.
-    fn piece<const P: usize, const V: usize>(&mut self, tet: u32, site: u32, poly: &Polyhedron<P, V>);
+    /// Site `site`'s non-empty piece of tet `tet`, relative to the site,
+    /// with the volume its moments gave the sums (0: the sums took it as no
+    /// piece).
+    fn piece<const P: usize, const V: usize>(&mut self, tet: u32, site: u32, poly: &Polyhedron<P, V>, volume: f32);
     /// Forgets the pieces of tet `tet` given so far: its flood failed and
     /// the tet is redone whole (by the second pass, through a sink too).
     fn discard_tet(&mut self, tet: u32);
@@ -131,7 +133,8 @@ pub struct NoPieces;
 
 impl PieceSink for NoPieces {
     #[inline]
-    fn piece<const P: usize, const V: usize>(&mut self, _tet: u32, _site: u32, _poly: &Polyhedron<P, V>) {}
+    fn piece<const P: usize, const V: usize>(&mut self, _tet: u32, _site: u32, _poly: &Polyhedron<P, V>, _volume: f32) {
+    }
     #[inline]
     fn discard_tet(&mut self, _tet: u32) {}
     #[inline]
@@ -393,7 +396,7 @@ pub fn finish_pair<const P: usize, const V: usize, A: AtomicSums, L: PairList, S
     accumulate(j, &m, p.fixed_scale, sums);
     add_faces(j, t, poly, &areas, p, faces, 1, sums);
     add_tet_volume(t, p.n_sites, volume, p.fixed_scale, sums);
-    sink.piece(t as u32, j as u32, poly);
+    sink.piece(t as u32, j as u32, poly, m.volume);
     if borders_unpaired(poly, j, tv, sites, paired) {
         unfinished.push(t as u32, INCOMPLETE_TET);
     }
@@ -871,7 +874,7 @@ pub fn flood<const P: usize, const V: usize, const Q: usize, F, A, C, L, S>(
             found[head] = m;
             total += volume;
             // Given now, while the piece exists; taken back if the flood fails.
-            sink.piece(t as u32, j as u32, &poly);
+            sink.piece(t as u32, j as u32, &poly, m.volume);
             add_faces(j, t, &poly, &areas, p, faces, 1, sums);
             // Planes a clip made but a later one cut away are no faces.
             let faces = poly.face_mask();

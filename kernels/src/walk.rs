@@ -240,12 +240,15 @@ struct CellClip<'a> {
     sites: &'a [SplitPoint],
     /// Sites nearer than this (squared) are in the list, clipped already.
     inner: f32,
+    /// Sites farther than this (squared) cannot cut what is wanted of the
+    /// piece ([`walk_to_cell`]).
+    cap2: f32,
 }
 
 impl<const P: usize, const V: usize> RingVisitor<Polyhedron<P, V>> for CellClip<'_> {
     #[inline]
     fn reach2(&self) -> f32 {
-        self.run.reach2
+        self.run.reach2.min(self.cap2)
     }
 
     #[inline]
@@ -261,7 +264,7 @@ impl<const P: usize, const V: usize> RingVisitor<Polyhedron<P, V>> for CellClip<
         // In the list, beyond the security radius, or clear of the
         // bounding box: the bisector cannot cut. A face already (from the
         // list): its vertices lie on it, where rounding must not cut again.
-        if d2 < self.inner || d2 > self.run.reach2 || self.run.clears(n, h) || poly.has_plane_of(s) {
+        if d2 < self.inner || d2 > self.run.reach2.min(self.cap2) || self.run.clears(n, h) || poly.has_plane_of(s) {
             return false;
         }
         self.run.clip(poly, n, h, s)
@@ -278,12 +281,43 @@ pub fn clip_to_cell<const P: usize, const V: usize>(
     sites: &[SplitPoint],
     w: GridWalk,
 ) -> Clipped {
-    let k = w.lists.k();
-    let slot = w.lists.slot(i);
-    let listed = clip_by_bisectors(poly, i, w.n_sites, w.weight_range, sites, &w.lists, slot);
+    let listed = clip_by_list(poly, i, sites, &w);
+    walk_to_cell(poly, i, sites, w, listed, f32::INFINITY)
+}
+
+/// Clips `poly` (relative to site `i`) by the bisectors of site `i`'s
+/// neighbour list, nearest first ([`clip_by_bisectors`]).
+#[inline]
+pub fn clip_by_list<const P: usize, const V: usize>(
+    poly: &mut Polyhedron<P, V>,
+    i: usize,
+    sites: &[SplitPoint],
+    w: &GridWalk,
+) -> Clipped {
+    clip_by_bisectors(poly, i, w.n_sites, w.weight_range, sites, &w.lists, w.lists.slot(i))
+}
+
+/// Finishes what [`clip_by_list`] left (`listed`): when the list did not
+/// reach the security radius, clips `poly` by the sites met walking the
+/// grid ring by ring, out to the security radius or to `sqrt(cap2)`,
+/// whichever is nearer. With a finite cap the piece is exact only where
+/// no site beyond the cap can cut it: within `sqrt(cap2) / 2` of the site
+/// for Voronoi cells (what a cell the domain cuts needs of itself: the
+/// part its tets can hold).
+#[inline]
+pub fn walk_to_cell<const P: usize, const V: usize>(
+    poly: &mut Polyhedron<P, V>,
+    i: usize,
+    sites: &[SplitPoint],
+    w: GridWalk,
+    listed: Clipped,
+    cap2: f32,
+) -> Clipped {
     if !listed.security_missed || listed.overflow || listed.broken || listed.out_of_halo {
         return listed;
     }
+    let k = w.lists.k();
+    let slot = w.lists.slot(i);
     let si = sites[i];
     // Sites clearly nearer than the list's last lie in the list (its
     // distances are exact on the quantized sites, which sit within
@@ -304,7 +338,7 @@ pub fn clip_to_cell<const P: usize, const V: usize>(
     run.out.walks = 1;
     // A ring walk meets every site: no security radius to miss.
     run.out.security_missed = false;
-    let mut clip = CellClip { run, i: i as u32, sites, inner };
+    let mut clip = CellClip { run, i: i as u32, sites, inner, cap2 };
     if walk_rings(&w, point(si.hi), &mut clip, poly) == walk_end::OUT_OF_HALO {
         clip.run.out.security_missed = true;
         clip.run.out.out_of_halo = true;

@@ -36,6 +36,7 @@
 
 use crate::abi::{counter, domain_whole, DomainParams, RefineParams, SplitPoint, ACCUM_PER_SITE, NO_SITE, WHOLE_CELL};
 use crate::buffers::{AtomicSums, PairList};
+use crate::cell::Slack;
 use crate::cell::{tet_vertices, Clipped};
 use crate::clip::{
     accumulate, accumulate_fixed, add_faces, add_fixed, count, face_sums, face_sums_of, owns, piece_moments, xyz,
@@ -43,7 +44,7 @@ use crate::clip::{
 };
 use crate::lists::NO_LIST;
 use crate::polyhedron::{between, tet_planes, Clip, Point, Polyhedron, TET_FACE};
-use crate::walk::{clip_to_cell, GridWalk};
+use crate::walk::{clip_by_list, clip_to_cell, walk_to_cell, GridWalk};
 use spirv_std::glam::{Vec3, Vec4};
 #[cfg(target_arch = "spirv")]
 use spirv_std::num_traits::Float;
@@ -312,6 +313,105 @@ pub fn site_in_mesh(site: &SplitPoint, verts: &[SplitPoint], tets: &[[u32; 4]], 
     false
 }
 
+/// [`site_in_mesh`] not asked yet ([`in_mesh_once`]).
+const MAYBE: u32 = 2;
+
+/// [`site_in_mesh`], asked once per site: `known` holds the answer (0 or
+/// 1) once asked, [`MAYBE`] before.
+#[inline]
+fn in_mesh_once(site: &SplitPoint, verts: &[SplitPoint], tets: &[[u32; 4]], d: &Domain, known: &mut u32) -> bool {
+    if *known == MAYBE {
+        *known = site_in_mesh(site, verts, tets, d) as u32;
+    }
+    *known == 1
+}
+
+/// Whether the domain's boundary may cut the cell within `poly` (relative
+/// to its site; the test [`whole_cell`] makes of the finished cell, on a
+/// polyhedron holding it).
+#[inline]
+fn may_be_cut<const P: usize, const V: usize>(
+    si: &SplitPoint,
+    poly: &Polyhedron<P, V>,
+    verts: &[SplitPoint],
+    tets: &[[u32; 4]],
+    d: &Domain,
+    in_mesh: &mut u32,
+) -> bool {
+    if d.params.whole != domain_whole::INSIDE || poly.has_box_face() || !holds_its_site(poly) {
+        return true;
+    }
+    let (r2, _, _) = poly.bounds();
+    let reach = r2.sqrt() * (1.0 + 1e-5) + d.params.margin;
+    boundary_near(si, reach * reach, poly, reach - r2.sqrt(), verts, d) || !in_mesh_once(si, verts, tets, d, in_mesh)
+}
+
+/// The squared distance from the site (the frame's origin) beyond which
+/// no point of the domain within `poly`'s bounding box lies: the farthest
+/// corner, over the tets the voxels of that box list, of the tet's box
+/// clipped to it, with a margin for rounding. Every piece of the cell
+/// within `poly` lies inside it. A voxel whose own box (clipped) cannot
+/// reach farther than the farthest found is skipped whole.
+#[inline]
+fn domain_reach2<const P: usize, const V: usize>(
+    si: &SplitPoint,
+    poly: &Polyhedron<P, V>,
+    verts: &[SplitPoint],
+    tets: &[[u32; 4]],
+    d: &Domain,
+) -> f32 {
+    let (_, centre, half) = poly.bounds();
+    let xi = xyz(si.hi) + xyz(si.lo);
+    let m = d.params.margin;
+    let pad = Vec3::from(half) * 1e-5 + Vec3::splat(m);
+    let blo = Vec3::from(centre - half) - pad;
+    let bhi = Vec3::from(centre + half) + pad;
+    let (qlo, qhi) = d.range(xi + blo, xi + bhi);
+    let corner = Vec3::new(d.params.lo_x, d.params.lo_y, d.params.lo_z) - xi;
+    let len = d.params.voxel_len;
+    let mut best = 0.0f32;
+    let mut z = qlo[2];
+    while z <= qhi[2] {
+        let mut y = qlo[1];
+        while y <= qhi[1] {
+            let mut x = qlo[0];
+            while x <= qhi[0] {
+                let v = d.index([x, y, z]);
+                let (start, end) = (d.voxel_start[v] as usize, d.voxel_start[v + 1] as usize);
+                // The voxel's box, padded for the rounding of its index.
+                let vlo = corner + Vec3::new(x as f32, y as f32, z as f32) * len - Vec3::splat(m);
+                let vhi = vlo + Vec3::splat(len + 2.0 * m);
+                if start < end && farthest2(vlo.max(blo), vhi.min(bhi)) > best {
+                    let mut e = start;
+                    while e < end {
+                        let tv = tet_vertices(d.voxel_tets[e] as usize, verts, tets, si);
+                        let tlo = tv[0].min(tv[1]).min(tv[2].min(tv[3])) - Vec3::splat(m);
+                        let thi = tv[0].max(tv[1]).max(tv[2].max(tv[3])) + Vec3::splat(m);
+                        best = best.max(farthest2(tlo.max(blo), thi.min(bhi)));
+                        e += 1;
+                    }
+                }
+                x += 1;
+            }
+            y += 1;
+        }
+        z += 1;
+    }
+    let r = best.sqrt() * (1.0 + 1e-5) + m;
+    r * r
+}
+
+/// The squared distance from the origin to the farthest corner of the box
+/// `[lo, hi]` (0 for an empty box).
+#[inline]
+fn farthest2(lo: Vec3, hi: Vec3) -> f32 {
+    if lo.x > hi.x || lo.y > hi.y || lo.z > hi.z {
+        return 0.0;
+    }
+    let far = (lo * lo).max(hi * hi);
+    far.x + far.y + far.z
+}
+
 /// Twice the distance from site `i` to the last site of its list (0: no
 /// list).
 #[inline]
@@ -365,8 +465,30 @@ pub fn whole_cell<const P: usize, const V: usize, A: AtomicSums, C: AtomicSums, 
     } else {
         Polyhedron::<P, V>::cuboid(lo, hi)
     };
-    let mut built = clip_to_cell(&mut poly, i, sites, w);
-    if reach > 0.0 && built.finished() && poly.has_box_face() {
+    // Where the list leaves the cell unsettled and the domain's boundary
+    // may cut it, only the part of the cell the domain's tets can hold is
+    // wanted: the walk goes out to twice that part's reach, not to twice
+    // the whole cell's (which, for a site near the boundary, reaches out
+    // of the domain to its box). Such a cell is then cut by its tets.
+    let mut in_mesh = MAYBE;
+    let mut bounded = false;
+    let mut built = clip_by_list(&mut poly, i, sites, &w);
+    if built.security_missed && d.params.whole != domain_whole::ALL {
+        if may_be_cut(&si, &poly, verts, tets, &d, &mut in_mesh) {
+            if reach > 0.0 && poly.has_box_face() {
+                poly.set_cuboid(lo, hi);
+                built = clip_by_list(&mut poly, i, sites, &w);
+            }
+            if built.security_missed {
+                let cap2 =
+                    Slack::of(c.weight_range, sites, i, c.n_sites).reach2(domain_reach2(&si, &poly, verts, tets, &d));
+                built = walk_to_cell(&mut poly, i, sites, w, built, cap2);
+                bounded = true;
+            }
+        }
+    }
+    built = walk_to_cell(&mut poly, i, sites, w, built, f32::INFINITY);
+    if !bounded && reach > 0.0 && built.finished() && poly.has_box_face() {
         poly.set_cuboid(lo, hi);
         built = clip_to_cell(&mut poly, i, sites, w);
     }
@@ -382,10 +504,11 @@ pub fn whole_cell<const P: usize, const V: usize, A: AtomicSums, C: AtomicSums, 
     let with_faces = face_sums_of(c) != face_sums::NONE;
     if poly.is_empty()
         || d.params.whole == domain_whole::ALL
-        || (d.params.whole == domain_whole::INSIDE
+        || (!bounded
+            && d.params.whole == domain_whole::INSIDE
             && holds_its_site(&poly)
             && !boundary_near(&si, reach * reach, &poly, reach - r2.sqrt(), verts, &d)
-            && site_in_mesh(&si, verts, tets, &d))
+            && in_mesh_once(&si, verts, tets, &d, &mut in_mesh))
     {
         if !poly.is_empty() {
             let mut areas = [0.0f32; P];
@@ -393,7 +516,7 @@ pub fn whole_cell<const P: usize, const V: usize, A: AtomicSums, C: AtomicSums, 
             accumulate(i, &m, c.fixed_scale, sums);
             // No tet face in a whole cell: tet 0's boundary bits are not read.
             add_faces(i, 0, &poly, &areas, c, faces, 1, sums);
-            sink.piece(WHOLE_CELL, i as u32, &poly);
+            sink.piece(WHOLE_CELL, i as u32, &poly, m.volume);
         }
         counters.add(counter::WHOLE, 1);
         count(counters, 1, !poly.is_empty() as i64, &built);
@@ -514,7 +637,7 @@ fn cut_cell<const P: usize, const V: usize, A: AtomicSums, S: PieceSink>(
                         add_faces(i, t, &piece, &areas, c, faces, sign, sums);
                     }
                     if sign > 0 {
-                        sink.piece(t as u32, i as u32, &piece);
+                        sink.piece(t as u32, i as u32, &piece, m.volume);
                     }
                 }
                 x += 1;

@@ -121,7 +121,7 @@ pub(crate) struct PieceFace {
 pub(crate) struct FaceCollector(pub(crate) Vec<PieceFace>);
 
 impl PieceSink for FaceCollector {
-    fn piece<const P: usize, const V: usize>(&mut self, tet: u32, site: u32, poly: &Polyhedron<P, V>) {
+    fn piece<const P: usize, const V: usize>(&mut self, tet: u32, site: u32, poly: &Polyhedron<P, V>, _volume: f32) {
         let areas = poly.face_areas();
         for (q, &area) in areas.iter().enumerate().take(poly.n_planes as usize) {
             let maker = poly.ids[q];
@@ -319,9 +319,9 @@ struct SitePieces {
 }
 
 impl PieceSink for SitePieces {
-    fn piece<const P: usize, const V: usize>(&mut self, tet: u32, site: u32, poly: &Polyhedron<P, V>) {
-        self.volume += poly.moments().volume as f64;
-        self.faces.piece(tet, site, poly);
+    fn piece<const P: usize, const V: usize>(&mut self, tet: u32, site: u32, poly: &Polyhedron<P, V>, volume: f32) {
+        self.volume += volume as f64;
+        self.faces.piece(tet, site, poly, volume);
     }
 
     fn discard_tet(&mut self, _tet: u32) {}

@@ -107,6 +107,12 @@ impl Pieces {
         self.parts[part as usize].sites[p as usize]
     }
 
+    /// The tet of piece `k` ([`Piece::WHOLE`] for a whole cell).
+    pub(crate) fn tet(&self, k: usize) -> u32 {
+        let (part, p) = self.order[k];
+        self.parts[part as usize].tets[p as usize]
+    }
+
     /// Piece `k`, in world coordinates.
     pub fn get(&self, k: usize) -> Piece {
         let (part, p) = self.order[k];
@@ -219,9 +225,9 @@ impl Piece {
 }
 
 impl PieceSink for PieceCollector {
-    fn piece<const P: usize, const V: usize>(&mut self, tet: u32, site: u32, poly: &Polyhedron<P, V>) {
+    fn piece<const P: usize, const V: usize>(&mut self, tet: u32, site: u32, poly: &Polyhedron<P, V>, volume: f32) {
         // As in the sums: a piece of no volume is no piece.
-        if poly.moments().volume == 0.0 {
+        if volume == 0.0 {
             return;
         }
         face_loops(poly, &mut self.0);

@@ -20,7 +20,7 @@
 //! polygon.
 
 use crate::geom::vec3::{add, bounding_box, cross, dot, norm, sub};
-use crate::passes::pieces::{Pieces, IN_MESH, ON_BOUNDARY};
+use crate::passes::pieces::{Piece, Pieces, IN_MESH, ON_BOUNDARY};
 use rayon::prelude::*;
 use std::collections::HashMap;
 
@@ -125,6 +125,11 @@ enum Wall {
 
 /// The pieces `range` (all of one site) merged into one polyhedron.
 fn merge_cell(pieces: &Pieces, range: std::ops::Range<usize>) -> CellPolyhedron {
+    if range.len() == 1 && pieces.tet(range.start) == Piece::WHOLE {
+        if let Some(cell) = whole_cell(pieces, range.start) {
+            return cell;
+        }
+    }
     let site = pieces.site(range.start);
     let mut points: Vec<[f64; 3]> = Vec::new();
     // The faces not between two tets, with their makers.
@@ -185,6 +190,41 @@ fn merge_cell(pieces: &Pieces, range: std::ops::Range<usize>) -> CellPolyhedron 
         });
     }
     cell
+}
+
+/// A whole cell (piece `k`, in no tet) as it is: nothing to merge, every
+/// face on one neighbour's bisector, closed by construction. The points
+/// numbered in order of first use, as merged cells' are. `None` where the
+/// weld would make two of its points one, or a point lies on fewer than
+/// three faces (a degenerate cell, as a lattice's, where more than three
+/// bisectors meet at a point): that cell is merged as cut cells are.
+fn whole_cell(pieces: &Pieces, k: usize) -> Option<CellPolyhedron> {
+    let mut points = Vec::new();
+    let mut cell = CellPolyhedron { site: pieces.site(k), ..CellPolyhedron::default() };
+    pieces.unpack_into(k, &mut points, |ring, maker| {
+        cell.face_vertices.extend(ring);
+        cell.face_ends.push(cell.face_vertices.len() as u32);
+        cell.face_neighbors.push(maker);
+    });
+    let (weld, _) = weld(&points);
+    if weld.iter().enumerate().any(|(i, &w)| w as usize != i) {
+        return None;
+    }
+    let mut number = vec![u32::MAX; points.len()];
+    let mut uses = vec![0u8; points.len()];
+    for v in &mut cell.face_vertices {
+        let p = *v as usize;
+        uses[p] = uses[p].saturating_add(1);
+        if number[p] == u32::MAX {
+            number[p] = cell.vertices.len() as u32;
+            cell.vertices.push(points[p]);
+        }
+        *v = number[p];
+    }
+    if uses.iter().any(|&u| u != 0 && u < 3) {
+        return None;
+    }
+    Some(cell)
 }
 
 /// Each wall's polygons (sorted by wall) joined into its faces (see
