@@ -473,18 +473,19 @@ pub fn whole_cell<const P: usize, const V: usize, A: AtomicSums, C: AtomicSums, 
     let mut in_mesh = MAYBE;
     let mut bounded = false;
     let mut built = clip_by_list(&mut poly, i, sites, &w);
-    if built.security_missed && d.params.whole != domain_whole::ALL {
-        if may_be_cut(&si, &poly, verts, tets, &d, &mut in_mesh) {
-            if reach > 0.0 && poly.has_box_face() {
-                poly.set_cuboid(lo, hi);
-                built = clip_by_list(&mut poly, i, sites, &w);
-            }
-            if built.security_missed {
-                let cap2 =
-                    Slack::of(c.weight_range, sites, i, c.n_sites).reach2(domain_reach2(&si, &poly, verts, tets, &d));
-                built = walk_to_cell(&mut poly, i, sites, w, built, cap2);
-                bounded = true;
-            }
+    if built.security_missed
+        && d.params.whole != domain_whole::ALL
+        && may_be_cut(&si, &poly, verts, tets, &d, &mut in_mesh)
+    {
+        if reach > 0.0 && poly.has_box_face() {
+            poly.set_cuboid(lo, hi);
+            built = clip_by_list(&mut poly, i, sites, &w);
+        }
+        if built.security_missed {
+            let cap2 =
+                Slack::of(c.weight_range, sites, i, c.n_sites).reach2(domain_reach2(&si, &poly, verts, tets, &d));
+            built = walk_to_cell(&mut poly, i, sites, w, built, cap2);
+            bounded = true;
         }
     }
     built = walk_to_cell(&mut poly, i, sites, w, built, f32::INFINITY);
