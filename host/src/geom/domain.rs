@@ -69,25 +69,22 @@ impl DomainIndex {
             whole,
             _pad: [0; 2],
         };
-        // Each tet's voxel range, from its padded f32 box.
-        let ranges: Vec<([u32; 3], [u32; 3])> = mesh
-            .tets
-            .par_iter()
-            .map(|tet| {
-                let p = tet.map(|v| verts[v as usize].hi);
-                let range = |a: usize| {
-                    let lo = p.iter().map(|q| q[a]).fold(f32::INFINITY, f32::min) - pad;
-                    let hi = p.iter().map(|q| q[a]).fold(f32::NEG_INFINITY, f32::max) + pad;
-                    (voxel_of(&params, lo, a), voxel_of(&params, hi, a))
-                };
-                let (x, y, z) = (range(0), range(1), range(2));
-                ([x.0, y.0, z.0], [x.1, y.1, z.1])
-            })
-            .collect();
+        // Each tet's voxel range, from its padded f32 box (computed again
+        // in each pass rather than held: 24 bytes a tet).
+        let range_of = |t: usize| {
+            let p = mesh.tets[t].map(|v| verts[v as usize].hi);
+            let range = |a: usize| {
+                let lo = p.iter().map(|q| q[a]).fold(f32::INFINITY, f32::min) - pad;
+                let hi = p.iter().map(|q| q[a]).fold(f32::NEG_INFINITY, f32::max) + pad;
+                (voxel_of(&params, lo, a), voxel_of(&params, hi, a))
+            };
+            let (x, y, z) = (range(0), range(1), range(2));
+            ([x.0, y.0, z.0], [x.1, y.1, z.1])
+        };
         let n_voxels = dims.iter().map(|&d| d as usize).product::<usize>();
         let index = |v: [u32; 3]| (v[2] as usize * dims[1] as usize + v[1] as usize) * dims[0] as usize + v[0] as usize;
         let mut count = vec![0u32; n_voxels + 1];
-        let each = |(lo, hi): &([u32; 3], [u32; 3]), f: &mut dyn FnMut(usize)| {
+        let each = |(lo, hi): ([u32; 3], [u32; 3]), f: &mut dyn FnMut(usize)| {
             for z in lo[2]..=hi[2] {
                 for y in lo[1]..=hi[1] {
                     for x in lo[0]..=hi[0] {
@@ -96,21 +93,22 @@ impl DomainIndex {
                 }
             }
         };
-        for r in &ranges {
-            each(r, &mut |v| count[v + 1] += 1);
+        let tet_voxel: Vec<u32> = (0..mesh.tets.len()).into_par_iter().map(|t| index(range_of(t).0) as u32).collect();
+        for t in 0..mesh.tets.len() {
+            each(range_of(t), &mut |v| count[v + 1] += 1);
         }
         for v in 0..n_voxels {
             count[v + 1] += count[v];
         }
         let voxel_start = count.clone();
         let mut voxel_tets = vec![0u32; count[n_voxels] as usize];
-        for (t, r) in ranges.iter().enumerate() {
-            each(r, &mut |v| {
+        for t in 0..mesh.tets.len() {
+            each(range_of(t), &mut |v| {
                 voxel_tets[count[v] as usize] = t as u32;
                 count[v] += 1;
             });
         }
-        let tet_voxel = ranges.iter().map(|(lo, _)| index(*lo) as u32).collect();
+        drop(count);
         let boundary = (whole == domain_whole::INSIDE).then(|| mesh.boundary());
         let (nodes, tris) = match boundary {
             Some(b) if !b.triangles.is_empty() => TriangleTree::new(&b).kernel_records(&b, pad as f64),

@@ -84,23 +84,10 @@ impl Adjacency {
 /// (bit `f` for the face opposite vertex `f`), 8 tets per word, as the
 /// kernels read them.
 pub(crate) fn boundary_bits(mesh: &TetMesh) -> Vec<u32> {
-    let mut seen: HashMap<[u32; 3], u32> = HashMap::with_capacity(2 * mesh.tets.len());
-    for t in &mesh.tets {
-        for f in 0..4 {
-            let mut key = [t[(f + 1) % 4], t[(f + 2) % 4], t[(f + 3) % 4]];
-            key.sort_unstable();
-            *seen.entry(key).or_insert(0) += 1;
-        }
-    }
     let mut bits = vec![0u32; mesh.tets.len().div_ceil(8).max(1)];
-    for (i, t) in mesh.tets.iter().enumerate() {
-        for f in 0..4 {
-            let mut key = [t[(f + 1) % 4], t[(f + 2) % 4], t[(f + 3) % 4]];
-            key.sort_unstable();
-            if seen[&key] == 1 {
-                bits[i / 8] |= 1 << (4 * (i % 8) + f);
-            }
-        }
+    for (t, f) in mesh.unshared_faces() {
+        let t = t as usize;
+        bits[t / 8] |= 1 << (4 * (t % 8) + f as usize);
     }
     bits
 }
