@@ -10,7 +10,7 @@ use crate::progress::{with_iterations, with_spinner};
 use cvd::cvt::transport::Transport;
 use cvd::cvt::SiteDiagram;
 use cvd::exec::CpuBackend;
-use cvd::{Backend, Cells, ClippedVoronoi, PeriodicVoronoi, Pieces};
+use cvd::{Backend, Cells, ClippedVoronoi, JobShape, PeriodicVoronoi, Pieces};
 use cvd_io::{CvtRecord, PeriodicRecord, Summary, TransportRecord};
 
 /// What the optimiser gives the final diagram.
@@ -51,7 +51,12 @@ pub fn run(args: &RunArgs) -> cvd::Result<()> {
     if writes {
         create_dir(&dir)?;
     }
-    let strategy = args.strategy.unwrap_or_else(|| backend.default_strategy(inputs.density.is_some())).name();
+    let tets = match &inputs.domain {
+        Domain::Mesh(mesh) => mesh.tets.len(),
+        Domain::Box(_) => 6,
+    };
+    let shape = JobShape { density: inputs.density.is_some(), sites: inputs.sites.len(), tets };
+    let strategy = args.strategy.unwrap_or_else(|| backend.default_strategy(shape)).name();
     match &inputs.domain {
         Domain::Mesh(mesh) => {
             // Cells only in parts (said, not dropped silently).

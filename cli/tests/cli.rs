@@ -71,7 +71,7 @@ fn run_writes_every_output() {
     let summary = std::fs::read_to_string(folder.join("summary.json")).unwrap();
     assert_eq!(std::fs::read_to_string(&json).unwrap(), summary, "--json writes the same summary");
     let stdout = text(&out.stdout);
-    for part in ["E_vol", "k-NN", "cpu on 2 threads", "whole", "pieces", "wrote"] {
+    for part in ["E_vol", "k-NN", "cpu on 2 threads", "strategy", "pieces", "wrote"] {
         assert!(stdout.contains(part), "the table lacks {part}:\n{stdout}");
     }
 }

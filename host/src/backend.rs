@@ -2,7 +2,7 @@
 //! backends (the `backends` module) implement it, and open one.
 
 use crate::error::Result;
-use crate::job::clip::{ClipJob, ClipOutput, Strategy};
+use crate::job::clip::{ClipJob, ClipOutput, JobShape, Strategy};
 use crate::job::knn::{KnnJob, Neighbors};
 use crate::job::lloyd::{lloyd_params, LloydOutput};
 use crate::job::BackendKind;
@@ -22,9 +22,9 @@ pub trait Backend: Send + Sync {
         format!("{} ({})", self.kind(), self.device())
     }
     /// The strategy a computation runs here when none is asked for
-    /// ([`Strategy::auto`]; `density`: under a density).
-    fn default_strategy(&self, density: bool) -> Strategy {
-        Strategy::auto(self.kind(), density)
+    /// ([`Strategy::auto`]).
+    fn default_strategy(&self, shape: JobShape) -> Strategy {
+        Strategy::auto(self.kind(), shape)
     }
     /// Runs a k-NN job.
     fn knn(&self, job: &KnnJob) -> Result<Neighbors>;

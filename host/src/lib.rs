@@ -44,7 +44,7 @@ pub use diagram::voronoi::{Cells, ClippedVoronoi, Counters};
 pub use error::{Error, Result};
 pub use exec::CpuBackend;
 pub use geom::mesh::TetMesh;
-pub use job::clip::{Pairing, Strategy};
+pub use job::clip::{JobShape, Pairing, Strategy};
 pub use job::knn::{KnnJob, KnnMethod, Neighbors};
 pub use job::BackendKind;
 pub use passes::pieces::{Piece, Pieces};

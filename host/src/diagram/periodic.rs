@@ -44,7 +44,7 @@ use crate::diagram::voronoi::{Cells, ClippedVoronoi};
 use crate::error::{Error, Result};
 use crate::geom::mesh::TetMesh;
 use crate::geom::site_grid::SiteGrid;
-use crate::job::clip::Strategy;
+use crate::job::clip::{JobShape, Strategy};
 use crate::passes::faces::Adjacency;
 use cvd_kernels::abi::SplitPoint;
 use rayon::prelude::*;
@@ -260,7 +260,8 @@ impl<'a> PeriodicVoronoi<'a> {
         let mut images = images_within(&domain, &sites, first);
         let reach = coverage(&domain, &sites, &images, spacing);
         let mut halo = (reach * reach + range).sqrt() * (1.0 + 1e-9);
-        let whole = ClippedVoronoi::strategy_for(self.strategy, self.backend, false) == Strategy::Whole;
+        let shape = JobShape { density: false, sites: sites.len(), tets: 6 };
+        let whole = ClippedVoronoi::strategy_for(self.strategy, self.backend, shape) == Strategy::Whole;
         if whole {
             // A whole cell reaches up to `H` outside the box, and the sites
             // that may cut it lie within `H` of its points.

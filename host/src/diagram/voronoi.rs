@@ -8,7 +8,7 @@ use crate::geom::domain::DomainIndex;
 use crate::geom::mesh::TetMesh;
 use crate::geom::points;
 use crate::geom::timing::Timings;
-use crate::job::clip::{default_k_site, paper_k, ClipJob, ClipOutput, Frame, Pairing, Strategy};
+use crate::job::clip::{default_k_site, paper_k, ClipJob, ClipOutput, Frame, JobShape, Pairing, Strategy};
 use crate::job::knn::{KnnJob, KnnMethod};
 use crate::job::sites::SiteMap;
 use crate::job::BackendKind;
@@ -204,15 +204,14 @@ impl<'a> ClippedVoronoi<'a> {
 
     /// The strategy this computation runs.
     pub fn resolved_strategy(&self) -> Strategy {
-        Self::strategy_for(self.strategy, self.backend, self.density.is_some())
+        let shape = JobShape { density: self.density.is_some(), sites: self.sites.len(), tets: self.mesh.tets.len() };
+        Self::strategy_for(self.strategy, self.backend, shape)
     }
 
-    /// The strategy `asked` for, else the backend's default (densities
-    /// take tet-cell's pieces: [`Strategy::auto`]).
-    pub(crate) fn strategy_for(asked: Option<Strategy>, backend: Option<&dyn Backend>, density: bool) -> Strategy {
-        asked.unwrap_or_else(|| {
-            backend.map_or(Strategy::auto(BackendKind::Cpu, density), |b| b.default_strategy(density))
-        })
+    /// The strategy `asked` for, else the backend's default for a job of
+    /// that shape ([`Strategy::auto`]).
+    pub(crate) fn strategy_for(asked: Option<Strategy>, backend: Option<&dyn Backend>, shape: JobShape) -> Strategy {
+        asked.unwrap_or_else(|| backend.map_or(Strategy::auto(BackendKind::Cpu, shape), |b| b.default_strategy(shape)))
     }
 
     /// k-nearest or flood pairing (default: flood for tet-cell, knn for

@@ -47,20 +47,36 @@ impl Strategy {
         Self::ALL.into_iter().find(|s| s.name() == name)
     }
 
-    /// The strategy a computation runs when none is asked for: whole cells
-    /// (power cells too); tet-cell under a density (`pieces`: linear in
-    /// each tet, it needs every cell's pieces, which tet-cell's flood
-    /// builds faster) and on Vulkan (where a thread per cell holds a whole
+    /// The strategy a computation of that shape runs when none is asked
+    /// for: whole cells (power cells too) where the sites are at least as
+    /// many as the tets; tet-cell where the tets are more (most cells are
+    /// then cut, each by several tets, and tet-cell's flood builds those
+    /// pieces faster: the paper's Joint with its 3 000 sites and 31 000
+    /// tets, 120 Lloyd iterations, 9.0 s against 15.4 s; docs/BENCHMARKS.md,
+    /// "Whole cells"), under a density (linear in each tet, it needs every
+    /// cell's pieces) and on Vulkan (where a thread per cell holds a whole
     /// cell, and a cut cell's thread loops over its tets while the others
     /// of its warp wait: not measured on a GPU here, so the paper's flood
     /// stays its default).
-    pub fn auto(kind: BackendKind, pieces: bool) -> Self {
-        if pieces || kind != BackendKind::Cpu {
+    pub fn auto(kind: BackendKind, shape: JobShape) -> Self {
+        if shape.density || kind != BackendKind::Cpu || shape.tets > shape.sites {
             Strategy::TetCell
         } else {
             Strategy::Whole
         }
     }
+}
+
+/// What the strategy a computation runs by default depends on
+/// ([`Strategy::auto`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct JobShape {
+    /// Under a density (linear in each tet): every cell needs its pieces.
+    pub density: bool,
+    /// The sites (a periodic box's images included).
+    pub sites: usize,
+    /// The domain's tets (a periodic box: 6).
+    pub tets: usize,
 }
 
 /// How tets are paired with the sites whose cells may meet them. Default:
@@ -327,9 +343,20 @@ mod tests {
         assert_eq!(Strategy::from_name("pieces"), None);
         assert_eq!((Pairing::Knn.name(), Pairing::Flood.name()), ("knn", "flood"));
         assert_eq!((Strategy::default(), Pairing::default()), (Strategy::Whole, Pairing::Flood));
-        assert_eq!(Strategy::auto(BackendKind::Cpu, false), Strategy::Whole);
-        assert_eq!(Strategy::auto(BackendKind::Cpu, true), Strategy::TetCell, "a density keeps the pieces");
-        assert_eq!(Strategy::auto(BackendKind::Vulkan, false), Strategy::TetCell);
+        let shape = |density, sites, tets| JobShape { density, sites, tets };
+        assert_eq!(Strategy::auto(BackendKind::Cpu, shape(false, 35_000, 30_000)), Strategy::Whole);
+        assert_eq!(Strategy::auto(BackendKind::Cpu, shape(false, 6, 6)), Strategy::Whole);
+        assert_eq!(
+            Strategy::auto(BackendKind::Cpu, shape(false, 3_000, 31_000)),
+            Strategy::TetCell,
+            "more tets than sites: most cells cut"
+        );
+        assert_eq!(
+            Strategy::auto(BackendKind::Cpu, shape(true, 35_000, 30_000)),
+            Strategy::TetCell,
+            "a density keeps the pieces"
+        );
+        assert_eq!(Strategy::auto(BackendKind::Vulkan, shape(false, 35_000, 30_000)), Strategy::TetCell);
     }
 
     #[test]

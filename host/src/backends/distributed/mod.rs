@@ -29,7 +29,7 @@ use crate::backend::Backend;
 use crate::error::{Error, Result};
 use crate::exec::CpuBackend;
 use crate::geom::timing::{timed, Timings};
-use crate::job::clip::{ClipJob, ClipOutput, Pairing, Strategy};
+use crate::job::clip::{ClipJob, ClipOutput, JobShape, Pairing, Strategy};
 use crate::job::held::HeldCells;
 use crate::job::knn::{KnnJob, Neighbors};
 use crate::job::BackendKind;
@@ -479,7 +479,7 @@ impl Backend for Distributed {
     }
 
     /// Parts run tet-cell's floods (whole cells in parts are not built yet).
-    fn default_strategy(&self, _density: bool) -> Strategy {
+    fn default_strategy(&self, _shape: JobShape) -> Strategy {
         Strategy::TetCell
     }
 
