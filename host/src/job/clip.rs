@@ -48,24 +48,31 @@ impl Strategy {
     }
 
     /// The strategy a computation of that shape runs when none is asked
-    /// for: whole cells (power cells too) where the sites are at least as
-    /// many as the tets; tet-cell where the tets are more (most cells are
-    /// then cut, each by several tets, and tet-cell's flood builds those
-    /// pieces faster: the paper's Joint with its 3 000 sites and 31 000
-    /// tets, 120 Lloyd iterations, 9.0 s against 15.4 s; docs/BENCHMARKS.md,
-    /// "Whole cells"), under a density (linear in each tet, it needs every
+    /// for: whole cells (power cells too), but tet-cell where the tets
+    /// outnumber the sites more than [`TETS_PER_SITE_FOR_WHOLE`] times
+    /// (most cells are then cut, each by many tets, and tet-cell's flood
+    /// builds those pieces faster: the paper's Joint with its 3 000 sites
+    /// and 31 000 tets, 120 Lloyd iterations, 9.0 s against 15.4 s;
+    /// docs/BENCHMARKS.md, "Which strategy by default"), under a density (linear in each tet, it needs every
     /// cell's pieces) and on Vulkan (where a thread per cell holds a whole
     /// cell, and a cut cell's thread loops over its tets while the others
     /// of its warp wait: not measured on a GPU here, so the paper's flood
     /// stays its default).
     pub fn auto(kind: BackendKind, shape: JobShape) -> Self {
-        if shape.density || kind != BackendKind::Cpu || shape.tets > shape.sites {
+        if shape.density || kind != BackendKind::Cpu || shape.tets > TETS_PER_SITE_FOR_WHOLE * shape.sites {
             Strategy::TetCell
         } else {
             Strategy::Whole
         }
     }
 }
+
+/// The most tets per site at which whole cells are the default on the CPU
+/// ([`Strategy::auto`]): measured, whole cells win up to about 2 (fandisk,
+/// 1.7 tets a site: 194 against 250 ms) and lose from about 4 (the joint
+/// with 8 000 sites, 4.1: 176 against 163 ms; with 3 000, 10.9: 120
+/// against 85 ms).
+pub const TETS_PER_SITE_FOR_WHOLE: usize = 3;
 
 /// What the strategy a computation runs by default depends on
 /// ([`Strategy::auto`]).
@@ -349,8 +356,10 @@ mod tests {
         assert_eq!(
             Strategy::auto(BackendKind::Cpu, shape(false, 3_000, 31_000)),
             Strategy::TetCell,
-            "more tets than sites: most cells cut"
+            "many tets a site: most cells cut"
         );
+        assert_eq!(Strategy::auto(BackendKind::Cpu, shape(false, 15_000, 26_000)), Strategy::Whole);
+        assert_eq!(Strategy::auto(BackendKind::Cpu, shape(false, 10_000, 30_001)), Strategy::TetCell);
         assert_eq!(
             Strategy::auto(BackendKind::Cpu, shape(true, 35_000, 30_000)),
             Strategy::TetCell,
