@@ -53,7 +53,7 @@ pub fn run(args: &RunArgs) -> cvd::Result<()> {
     }
     let tets = match &inputs.domain {
         Domain::Mesh(mesh) => mesh.tets.len(),
-        Domain::Box(_) => 6,
+        Domain::Box(_) => cvd::diagram::periodic::WHOLE_FRAME_TETS,
     };
     let shape = JobShape { density: inputs.density.is_some(), sites: inputs.sites.len(), tets };
     let strategy = args.strategy.unwrap_or_else(|| backend.default_strategy(shape)).name();

@@ -327,8 +327,13 @@ fn in_mesh_once(site: &SplitPoint, verts: &[SplitPoint], tets: &[[u32; 4]], d: &
 }
 
 /// Whether the domain's boundary may cut the cell within `poly` (relative
-/// to its site; the test [`whole_cell`] makes of the finished cell, on a
-/// polyhedron holding it).
+/// to its site): asked of the finished cell (false: it is integrated
+/// whole), and of a polyhedron holding it before the walk (true: the walk
+/// need only reach what the tets hold). A side of the domain's box as a
+/// face, a cell away from its site, a boundary triangle near and not
+/// separated, or the site outside the tets: true. Rounding: the vertices
+/// are within 1e-6 of the cell's size of where they belong, the triangles
+/// and the site within `margin`.
 #[inline]
 fn may_be_cut<const P: usize, const V: usize>(
     si: &SplitPoint,
@@ -498,18 +503,11 @@ pub fn whole_cell<const P: usize, const V: usize, A: AtomicSums, C: AtomicSums, 
         count(counters, 0, 0, &built);
         return;
     }
-    let (r2, centre, half) = poly.bounds();
-    // Rounding: the vertices are within 1e-6 of the cell's size of where
-    // they belong, the triangles and the site within `margin`.
-    let reach = r2.sqrt() * (1.0 + 1e-5) + d.params.margin;
+    let (_, centre, half) = poly.bounds();
     let with_faces = face_sums_of(c) != face_sums::NONE;
     if poly.is_empty()
         || d.params.whole == domain_whole::ALL
-        || (!bounded
-            && d.params.whole == domain_whole::INSIDE
-            && holds_its_site(&poly)
-            && !boundary_near(&si, reach * reach, &poly, reach - r2.sqrt(), verts, &d)
-            && in_mesh_once(&si, verts, tets, &d, &mut in_mesh))
+        || (!bounded && !may_be_cut(&si, &poly, verts, tets, &d, &mut in_mesh))
     {
         if !poly.is_empty() {
             let mut areas = [0.0f32; P];

@@ -51,6 +51,10 @@ use rayon::prelude::*;
 use std::collections::HashMap;
 use std::time::Instant;
 
+/// The tets of a periodic job under whole cells: the box, as 6 tets, only
+/// frames the job (its [`JobShape`] for the default strategy too).
+pub const WHOLE_FRAME_TETS: usize = 6;
+
 /// An axis-aligned box whose opposite faces are glued: the unit cell of a
 /// space that repeats along x, y and z.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -260,7 +264,7 @@ impl<'a> PeriodicVoronoi<'a> {
         let mut images = images_within(&domain, &sites, first);
         let reach = coverage(&domain, &sites, &images, spacing);
         let mut halo = (reach * reach + range).sqrt() * (1.0 + 1e-9);
-        let shape = JobShape { density: false, sites: sites.len(), tets: 6 };
+        let shape = JobShape { density: false, sites: sites.len(), tets: WHOLE_FRAME_TETS };
         let whole = ClippedVoronoi::strategy_for(self.strategy, self.backend, shape) == Strategy::Whole;
         if whole {
             // A whole cell reaches up to `H` outside the box, and the sites
