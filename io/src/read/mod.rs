@@ -70,10 +70,10 @@ pub fn read_values(path: &Path) -> Result<Vec<f64>> {
 pub fn write_sites_xyz(path: &Path, sites: &[[f64; 3]]) -> Result<()> {
     write_file(path, |w| {
         writeln!(w, "{}", sites.len())?;
-        for [x, y, z] in sites {
-            writeln!(w, "{x} {y} {z}")?;
-        }
-        Ok(())
+        write_rows(w, sites.len(), |i, t| {
+            let [x, y, z] = sites[i];
+            writeln!(t, "{x} {y} {z}")
+        })
     })
 }
 
@@ -166,6 +166,39 @@ pub(crate) fn write_file(path: &Path, body: impl FnOnce(&mut dyn Write) -> std::
     let mut w = std::io::BufWriter::new(std::fs::File::create(path).map_err(io)?);
     body(&mut w).map_err(io)?;
     w.flush().map_err(io)
+}
+
+/// Writes rows `0..n` through `w` in order, each row's text made by
+/// `row(i, buffer)`, formatted on every core: rows in blocks, a few
+/// blocks per core at a time, each into its own buffer (so the memory
+/// held is a few blocks' text, not the file's).
+pub(crate) fn write_rows(
+    w: &mut dyn Write,
+    n: usize,
+    row: impl Fn(usize, &mut Vec<u8>) -> std::io::Result<()> + Sync,
+) -> std::io::Result<()> {
+    use rayon::prelude::*;
+    const BLOCK: usize = 4096;
+    let batch = BLOCK * 4 * rayon::current_num_threads();
+    for start in (0..n).step_by(batch) {
+        let end = (start + batch).min(n);
+        let blocks: Vec<std::io::Result<Vec<u8>>> = (start..end)
+            .step_by(BLOCK)
+            .collect::<Vec<_>>()
+            .into_par_iter()
+            .map(|b| {
+                let mut text = Vec::with_capacity(BLOCK * 64);
+                for i in b..(b + BLOCK).min(end) {
+                    row(i, &mut text)?;
+                }
+                Ok(text)
+            })
+            .collect();
+        for text in blocks {
+            w.write_all(&text?)?;
+        }
+    }
+    Ok(())
 }
 
 /// Tets as read, 0-based, with the line each came from so that the checks

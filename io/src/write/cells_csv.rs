@@ -5,9 +5,10 @@
 //! volume 0 and the site as its centroid). Numbers are written so that
 //! they read back exactly.
 
-use crate::read::write_file;
+use crate::read::{write_file, write_rows};
 use cvd::diagram::voronoi::Cells;
 use cvd::error::{Error, Result};
+use std::io::Write;
 use std::path::Path;
 
 /// The header line.
@@ -37,14 +38,14 @@ pub fn write_cells_csv(path: &Path, cells: &Cells) -> Result<()> {
     write_file(path, |w| {
         let faces = cells.adjacency();
         writeln!(w, "{}", if faces.is_some() { HEADER_FACES } else { HEADER })?;
-        for (i, ((v, c), e)) in cells.volume.iter().zip(&cells.centroid).zip(&cells.energy).enumerate() {
-            write!(w, "{i},{v:e},{},{},{},{e:e}", c[0], c[1], c[2])?;
+        write_rows(w, cells.volume.len(), |i, t| {
+            let (v, c, e) = (cells.volume[i], cells.centroid[i], cells.energy[i]);
+            write!(t, "{i},{v:e},{},{},{},{e:e}", c[0], c[1], c[2])?;
             match faces {
-                Some(a) => writeln!(w, ",{:e},{}", a.surface_area(i), a.offsets[i + 1] - a.offsets[i])?,
-                None => writeln!(w)?,
+                Some(a) => writeln!(t, ",{:e},{}", a.surface_area(i), a.offsets[i + 1] - a.offsets[i]),
+                None => writeln!(t),
             }
-        }
-        Ok(())
+        })
     })
 }
 

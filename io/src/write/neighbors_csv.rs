@@ -9,9 +9,10 @@
 //! face is shared with (its site plus that many box lengths; see
 //! [`Adjacency::shifts`]), and there is no boundary.
 
-use crate::read::write_file;
+use crate::read::{write_file, write_rows};
 use cvd::error::Result;
 use cvd::passes::faces::Adjacency;
+use std::io::Write;
 use std::path::Path;
 
 /// The header line.
@@ -29,24 +30,24 @@ pub fn write_neighbors_csv(path: &Path, adjacency: &Adjacency) -> Result<()> {
         } else {
             writeln!(w, "{HEADER}")?;
         }
-        for i in 0..adjacency.len() {
+        write_rows(w, adjacency.len(), |i, t| {
             for (e, (j, area, n)) in (adjacency.offsets[i]..).zip(adjacency.of(i)) {
-                write!(w, "{i},{j},{area:e},{},{},{}", n[0], n[1], n[2])?;
+                write!(t, "{i},{j},{area:e},{},{},{}", n[0], n[1], n[2])?;
                 if periodic {
                     let s = adjacency.shift(e);
-                    write!(w, ",{},{},{}", s[0], s[1], s[2])?;
+                    write!(t, ",{},{},{}", s[0], s[1], s[2])?;
                 }
-                writeln!(w)?;
+                writeln!(t)?;
             }
             let (b, v) = (adjacency.boundary[i], adjacency.boundary_vector[i]);
             if b > 0.0 {
                 // The boundary part's mean outward normal, made unit.
                 let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
                 let n = if len > 0.0 { v.map(|c| c / len) } else { [0.0; 3] };
-                writeln!(w, "{i},-1,{b:e},{},{},{}", n[0], n[1], n[2])?;
+                writeln!(t, "{i},-1,{b:e},{},{},{}", n[0], n[1], n[2])?;
             }
-        }
-        Ok(())
+            Ok(())
+        })
     })
 }
 
