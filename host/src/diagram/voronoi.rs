@@ -379,9 +379,14 @@ impl<'a> ClippedVoronoi<'a> {
         // Faces: after the sites' sums and the tets' volumes; a slot holds
         // at most a cell's surface (inside the unit box: 6) plus the
         // mesh's boundary area.
+        // The mesh's boundary, found once for the faces' bits, its area and
+        // the domain's index.
+        let (unshared, surface) = (std::cell::OnceCell::new(), std::cell::OnceCell::new());
+        let unshared = || unshared.get_or_init(|| local_mesh.unshared_faces());
+        let surface = || surface.get_or_init(|| local_mesh.boundary_of(unshared()));
         let (tet_faces, faces_base, area_bits) = if self.faces {
-            let bits = crate::passes::faces::boundary_bits(&local_mesh);
-            let boundary: f64 = local_mesh.boundary().area();
+            let bits = crate::passes::faces::boundary_bits_of(local_mesh.tets.len(), unshared());
+            let boundary: f64 = surface().area();
             // Masses: areas times at most the largest density.
             let rho = if self.face_masses { rho_max } else { 1.0 };
             (bits, (n * ACCUM_PER_SITE + local_mesh.tets.len()) as u32, 61.0 - ((8.0 + boundary) * rho).log2().ceil())
@@ -447,8 +452,10 @@ impl<'a> ClippedVoronoi<'a> {
             (None, Some(_)) => domain_whole::ALL,
             (None, None) => domain_whole::INSIDE,
         };
-        let domain =
-            (strategy == Strategy::Whole).then(|| std::sync::Arc::new(DomainIndex::new(&local_mesh, &verts, whole)));
+        let domain = (strategy == Strategy::Whole).then(|| {
+            let boundary = (whole == domain_whole::INSIDE).then(surface);
+            std::sync::Arc::new(DomainIndex::new(&local_mesh, &verts, whole, boundary))
+        });
         let job = ClipJob {
             refine,
             site_knn,
@@ -540,7 +547,10 @@ impl<'a> ClippedVoronoi<'a> {
         }
         let (refined, out_unresolved) = (out.refined, out.unresolved);
         let (adjacency, faces_redone) = if job.face_sums_len() > 0 {
-            let (adjacency, t) = crate::geom::timing::timed(|| self.adjacency(job, map, frame, &out));
+            // The face sums and lists go to the adjacency and are dropped
+            // as soon as read.
+            let (sums, lists) = (std::mem::take(&mut out.faces), std::mem::take(&mut out.site_lists));
+            let (adjacency, t) = crate::geom::timing::timed(|| self.adjacency(job, map, frame, &out, sums, lists));
             out.timings.push("faces", t);
             let (adjacency, redone) = adjacency?;
             (Some(adjacency), redone)
@@ -568,20 +578,22 @@ impl ClippedVoronoi<'_> {
         map: &SiteMap,
         frame: &Frame,
         out: &ClipOutput,
+        sums: Vec<i64>,
+        lists: crate::job::knn::PackedLists,
     ) -> Result<(crate::passes::faces::Adjacency, usize)> {
         let k = job.params.k_site as usize;
         let n = job.params.n_sites;
         let mut cpu = None;
-        let again;
-        let lists = if out.site_lists.k as usize == k && out.site_lists.view(0).slot(n as usize - 1) != NO_LIST {
-            &out.site_lists
+        let lists = if lists.k as usize == k && lists.view(0).slot(n as usize - 1) != NO_LIST {
+            lists
         } else {
+            drop(lists);
             let c = cpu.insert(crate::exec::CpuBackend::new(None)?);
-            again = c.packed_lists(&job.site_knn, cvd_kernels::lists::width(n))?;
-            &again
+            c.packed_lists(&job.site_knn, cvd_kernels::lists::width(n))?
         };
         let (mut faces, incomplete) =
-            crate::passes::faces::from_sums(&out.faces, &lists.view(0), k, job.params.area_scale as f64);
+            crate::passes::faces::from_sums(sums, &lists.view(0), k, job.params.area_scale as f64);
+        drop(lists);
         if !incomplete.is_empty() {
             // Those sites' own pieces, else every piece again.
             let all = match crate::passes::faces::redo_sites(job, out, &incomplete) {

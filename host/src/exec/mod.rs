@@ -194,9 +194,9 @@ impl CpuBackend {
                 });
                 timings.push("second pass", t);
             }
-            let mut sums: Vec<i64> = sums.into_iter().map(AtomicI64::into_inner).collect();
-            let mut tet_volumes = sums.split_off(p.n_sites as usize * ACCUM_PER_SITE);
-            let faces = tet_volumes.split_off(p.n_tets as usize);
+            let all: Vec<i64> = sums.into_iter().map(AtomicI64::into_inner).collect();
+            let (sums, tet_volumes, faces) =
+                crate::job::clip::split_sums(all, p.n_sites as usize * ACCUM_PER_SITE, p.n_tets as usize);
             let site_lists = if faces.is_empty() { PackedLists::default() } else { site_nn };
             Ok(ClipOutput {
                 sums,

@@ -10,6 +10,7 @@
 
 use crate::geom::mesh::TetMesh;
 use crate::geom::surface::bvh::TriangleTree;
+use crate::geom::surface::TriSurface;
 use cvd_kernels::abi::{domain_whole, DomainParams, SplitPoint};
 use cvd_kernels::whole::{voxel_of, Domain};
 use rayon::prelude::*;
@@ -41,8 +42,10 @@ impl DomainIndex {
     /// kernels read them, `verts`). `whole`: which cells may be
     /// integrated whole ([`domain_whole`]: none under a density varying
     /// inside the tets; those inside the domain; all, in a periodic box,
-    /// where the boundary's hierarchy is not built).
-    pub fn new(mesh: &TetMesh, verts: &[SplitPoint], whole: u32) -> Self {
+    /// where the boundary's hierarchy is not built). `boundary`: the
+    /// mesh's boundary when the caller has it ([`TetMesh::boundary`]),
+    /// else found here when needed.
+    pub fn new(mesh: &TetMesh, verts: &[SplitPoint], whole: u32, boundary: Option<&TriSurface>) -> Self {
         let n_tets = mesh.tets.len().max(1);
         let (lo, hi) = mesh.bounding_box();
         let extent = [0, 1, 2].map(|a| (hi[a] - lo[a]).max(0.0));
@@ -109,9 +112,17 @@ impl DomainIndex {
             });
         }
         drop(count);
-        let boundary = (whole == domain_whole::INSIDE).then(|| mesh.boundary());
+        let found;
+        let boundary = match boundary {
+            _ if whole != domain_whole::INSIDE => None,
+            Some(b) => Some(b),
+            None => {
+                found = mesh.boundary();
+                Some(&found)
+            }
+        };
         let (nodes, tris) = match boundary {
-            Some(b) if !b.triangles.is_empty() => TriangleTree::new(&b).kernel_records(&b, pad as f64),
+            Some(b) if !b.triangles.is_empty() => TriangleTree::new(b).kernel_records(b, pad as f64),
             _ => (Vec::new(), Vec::new()),
         };
         params.n_nodes = (nodes.len() / 2) as u32;
@@ -151,7 +162,7 @@ mod tests {
     fn every_tet_is_listed_in_every_voxel_its_box_meets_and_first_in_its_lowest() {
         let mesh = TetMesh::cube(6);
         let verts = split(&mesh);
-        let d = DomainIndex::new(&mesh, &verts, domain_whole::INSIDE);
+        let d = DomainIndex::new(&mesh, &verts, domain_whole::INSIDE, None);
         let p = d.params;
         assert_eq!(d.voxel_start.len() as u32, p.dim_x * p.dim_y * p.dim_z + 1);
         let dims = [p.dim_x, p.dim_y, p.dim_z];
@@ -183,7 +194,7 @@ mod tests {
         // its distance to the nearest side.
         let mesh = TetMesh::cube(3);
         let verts = split(&mesh);
-        let d = DomainIndex::new(&mesh, &verts, domain_whole::INSIDE);
+        let d = DomainIndex::new(&mesh, &verts, domain_whole::INSIDE, None);
         assert_eq!(d.tris.len(), 6 * 2 * 9);
         let view = d.view();
         for (x, nearest) in [([0.5, 0.5, 0.5], 0.5), ([0.1, 0.5, 0.6], 0.1), ([0.3, 0.95, 0.2], 0.05)] {

@@ -78,10 +78,14 @@ impl TetMesh {
     /// The mesh's boundary: the tet faces no other tet shares, facing out
     /// of their tet, on the mesh's vertices (unused ones included).
     pub fn boundary(&self) -> crate::geom::surface::TriSurface {
-        let mut triangles: Vec<[u32; 3]> = self
-            .unshared_faces()
-            .into_iter()
-            .map(|(t, f)| {
+        self.boundary_of(&self.unshared_faces())
+    }
+
+    /// [`Self::boundary`] from the mesh's [`Self::unshared_faces`].
+    pub fn boundary_of(&self, unshared: &[(u32, u8)]) -> crate::geom::surface::TriSurface {
+        let mut triangles: Vec<[u32; 3]> = unshared
+            .iter()
+            .map(|&(t, f)| {
                 let [a, b, c, d] = self.tets[t as usize];
                 // Counter-clockwise seen from outside a positive tet.
                 let mut face = [[b, c, d], [a, d, c], [a, b, d], [a, c, b]][f as usize];

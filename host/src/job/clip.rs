@@ -262,6 +262,18 @@ pub struct ClipOutput {
     pub timings: Timings,
 }
 
+/// The kernels' one sums buffer cut into its parts: the sites' sums
+/// (`n_site_sums`), the tets' volumes (`n_tets`) and the face sums (the
+/// rest), without slack: the face sums keep the buffer itself (its head
+/// moved out), the small parts are copied, so no part holds the whole
+/// buffer's capacity.
+pub fn split_sums(mut all: Vec<i64>, n_site_sums: usize, n_tets: usize) -> (Vec<i64>, Vec<i64>, Vec<i64>) {
+    let (sums, tet_volumes) = (all[..n_site_sums].to_vec(), all[n_site_sums..n_site_sums + n_tets].to_vec());
+    all.drain(..n_site_sums + n_tets);
+    all.shrink_to_fit();
+    (sums, tet_volumes, all)
+}
+
 /// The normalising map: `local = (world - origin) / scale`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Frame {

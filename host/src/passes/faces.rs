@@ -84,8 +84,14 @@ impl Adjacency {
 /// (bit `f` for the face opposite vertex `f`), 8 tets per word, as the
 /// kernels read them.
 pub(crate) fn boundary_bits(mesh: &TetMesh) -> Vec<u32> {
-    let mut bits = vec![0u32; mesh.tets.len().div_ceil(8).max(1)];
-    for (t, f) in mesh.unshared_faces() {
+    boundary_bits_of(mesh.tets.len(), &mesh.unshared_faces())
+}
+
+/// [`boundary_bits`] of `n_tets` tets from their unshared faces
+/// ([`TetMesh::unshared_faces`]).
+pub(crate) fn boundary_bits_of(n_tets: usize, unshared: &[(u32, u8)]) -> Vec<u32> {
+    let mut bits = vec![0u32; n_tets.div_ceil(8).max(1)];
+    for &(t, f) in unshared {
         let t = t as usize;
         bits[t / 8] |= 1 << (4 * (t % 8) + f as usize);
     }
@@ -140,61 +146,117 @@ impl TaskSink for FaceCollector {
     }
 }
 
-/// One site's faces in the job's frame: `(neighbour, area)`, the boundary
-/// area and the boundary's area vector.
-pub(crate) type SiteFaces = (Vec<(u32, f64)>, f64, [f64; 3]);
+/// Each unique site's faces in the job's frame, as rows (CSR): the
+/// neighbours it shares a face with (job indices, increasing) and the
+/// faces' areas, its boundary area and the boundary's area vector. The few
+/// rows [`complete`] redoes are held apart.
+#[derive(Default)]
+pub(crate) struct FaceRows {
+    offsets: Vec<usize>,
+    neighbors: Vec<u32>,
+    areas: Vec<f64>,
+    boundary: Vec<f64>,
+    vector: Vec<[f64; 3]>,
+    redone: HashMap<u32, (Vec<u32>, Vec<f64>)>,
+}
 
-/// Each unique site's faces from the kernels' sums (`sums`, `k + 2` per
-/// site after `faces_base`, in units of `1 / area_scale`) and its list
-/// `lists[u * k..]`; the sites with faces outside their list are returned
-/// apart, to be completed.
-pub(crate) fn from_sums(sums: &[i64], lists: &Lists, k: usize, area_scale: f64) -> (Vec<SiteFaces>, Vec<u32>) {
-    let per = k + cvd_kernels::clip::FACE_SUMS_EXTRA;
-    let site = |(u, s): (usize, &[i64])| {
-        let mut faces: Vec<(u32, f64)> =
-            (0..k).filter(|&q| s[q] != 0).map(|q| (lists.get(u, q), s[q] as f64 / area_scale)).collect();
-        // Spilled: (maker + 1, area) pairs.
-        for spill in 0..cvd_kernels::clip::FACE_SPILLS {
-            let (key, area) = (s[k + 5 + 2 * spill], s[k + 6 + 2 * spill]);
-            if key != 0 && area != 0 {
-                faces.push(((key - 1) as u32, area as f64 / area_scale));
+impl FaceRows {
+    /// Site `u`'s neighbours and areas.
+    fn row(&self, u: usize) -> (&[u32], &[f64]) {
+        if !self.redone.is_empty() {
+            if let Some((n, a)) = self.redone.get(&(u as u32)) {
+                return (n, a);
             }
         }
-        // A maker in the list may have spilled too (its pieces the host's
-        // pass finished had no list to look it up in): one face per maker.
-        faces.sort_unstable_by_key(|e| e.0);
-        faces.dedup_by(|later, kept| {
+        let r = self.offsets[u]..self.offsets[u + 1];
+        (&self.neighbors[r.clone()], &self.areas[r])
+    }
+
+    /// The area site `u` gives its face with `v`, if it has one.
+    fn area(&self, u: usize, v: u32) -> Option<f64> {
+        let (n, a) = self.row(u);
+        n.binary_search(&v).ok().map(|at| a[at])
+    }
+
+    fn len(&self) -> usize {
+        self.boundary.len()
+    }
+}
+
+/// Each unique site's faces from the kernels' sums (`sums`, `k +`
+/// [`FACE_SUMS_EXTRA`](cvd_kernels::clip::FACE_SUMS_EXTRA) per site, in
+/// units of `1 / area_scale`) and its list `lists[u * k..]`, the sums
+/// dropped as soon as read; the sites with faces outside their list are
+/// returned apart, to be completed.
+pub(crate) fn from_sums(sums: Vec<i64>, lists: &Lists, k: usize, area_scale: f64) -> (FaceRows, Vec<u32>) {
+    use cvd_kernels::clip::{FACE_SPILLS, FACE_SUMS_EXTRA};
+    let per = k + FACE_SUMS_EXTRA;
+    // Site `u`'s faces into `row`: its list's slots, then the spilled
+    // (maker + 1, area) pairs; one entry per maker (a maker in the list
+    // may have spilled too, its pieces finished by the host's pass with no
+    // list to look it up in), by maker.
+    let row_of = |u: usize, s: &[i64], row: &mut Vec<(u32, i64)>| {
+        row.clear();
+        row.extend((0..k).filter(|&q| s[q] != 0).map(|q| (lists.get(u, q), s[q])));
+        for spill in 0..FACE_SPILLS {
+            let (key, area) = (s[k + 5 + 2 * spill], s[k + 6 + 2 * spill]);
+            if key != 0 && area != 0 {
+                row.push(((key - 1) as u32, area));
+            }
+        }
+        row.sort_unstable_by_key(|e| e.0);
+        row.dedup_by(|later, kept| {
             let same = later.0 == kept.0;
             if same {
                 kept.1 += later.1;
             }
             same
         });
-        (faces, s[k] as f64 / area_scale, [2, 3, 4].map(|c| s[k + c] as f64 / area_scale))
     };
-    let out: Vec<SiteFaces> = sums.par_chunks_exact(per).enumerate().map(site).collect();
+    let lens: Vec<usize> = sums
+        .par_chunks_exact(per)
+        .enumerate()
+        .map_init(Vec::new, |row, (u, s)| {
+            row_of(u, s, row);
+            row.len()
+        })
+        .collect();
+    let mut offsets = Vec::with_capacity(lens.len() + 1);
+    offsets.push(0);
+    for len in &lens {
+        offsets.push(offsets[offsets.len() - 1] + len);
+    }
+    let total = offsets[lens.len()];
+    let (mut neighbors, mut areas) = (vec![0u32; total], vec![0.0f64; total]);
+    let rows = split_rows(&mut neighbors, lens.iter().copied())
+        .into_par_iter()
+        .zip(split_rows(&mut areas, lens.iter().copied()));
+    rows.zip(sums.par_chunks_exact(per)).enumerate().for_each_init(Vec::new, |row, (u, ((ns, as_), s))| {
+        row_of(u, s, row);
+        for (e, &(v, a)) in row.iter().enumerate() {
+            (ns[e], as_[e]) = (v, a as f64 / area_scale);
+        }
+    });
+    let boundary = sums.par_chunks_exact(per).map(|s| s[k] as f64 / area_scale).collect();
+    let vector = sums.par_chunks_exact(per).map(|s| [2, 3, 4].map(|c| s[k + c] as f64 / area_scale)).collect();
     let incomplete = sums.chunks_exact(per).enumerate().filter(|(_, s)| s[k + 1] != 0).map(|(u, _)| u as u32).collect();
-    (out, incomplete)
+    (FaceRows { offsets, neighbors, areas, boundary, vector, redone: HashMap::new() }, incomplete)
 }
 
 /// The faces of the sites `which` from every piece's faces (`all`, from a
 /// [`FaceCollector`]) and the tets' boundary bits, replacing theirs in
 /// `faces`; each face's area times `weight(tet)` (1, or a density).
 pub(crate) fn complete(
-    faces: &mut [SiteFaces],
+    faces: &mut FaceRows,
     which: &[u32],
     all: &[FaceCollector],
     bits: &[u32],
     weight: impl Fn(usize) -> f64,
 ) {
-    let wanted: std::collections::HashSet<u32> = which.iter().copied().collect();
     type SiteFaceSums = (HashMap<u32, f64>, f64, [f64; 3]);
     let mut redone: HashMap<u32, SiteFaceSums> = which.iter().map(|&u| (u, Default::default())).collect();
     for f in all.iter().flat_map(|c| &c.0) {
-        if !wanted.contains(&f.site) {
-            continue;
-        }
-        let entry = redone.get_mut(&f.site).expect("a wanted site");
+        let Some(entry) = redone.get_mut(&f.site) else { continue };
         let t = f.tet as usize;
         let area = f.area as f64 * weight(t);
         if made_by_site(f.maker) {
@@ -211,7 +273,9 @@ pub(crate) fn complete(
     for (u, (nbrs, boundary, vector)) in redone {
         let mut list: Vec<(u32, f64)> = nbrs.into_iter().collect();
         list.sort_unstable_by_key(|e| e.0);
-        faces[u as usize] = (list, boundary, vector);
+        faces.redone.insert(u, list.into_iter().unzip());
+        faces.boundary[u as usize] = boundary;
+        faces.vector[u as usize] = vector;
     }
 }
 
@@ -219,71 +283,79 @@ pub(crate) fn complete(
 /// indices, job frame): shared faces averaged over their two sides,
 /// lengths scaled to the world (`scale`), normals along the sites'
 /// difference in the world (`sites`, input order; `map`: input to unique).
-pub(crate) fn assemble(
-    mut faces: Vec<SiteFaces>,
-    map: &crate::job::sites::SiteMap,
-    sites: &[[f64; 3]],
-    scale: f64,
-) -> Adjacency {
-    // The input index of each unique site (duplicates map to nothing).
-    let mut owner = vec![u32::MAX; faces.len()];
+/// The rows are built in the job's order, where a site's neighbours lie
+/// near it in memory, each written to its input row.
+pub(crate) fn assemble(faces: FaceRows, map: &crate::job::sites::SiteMap, sites: &[[f64; 3]], scale: f64) -> Adjacency {
+    let n = faces.len();
+    // The input index of each unique site (duplicates map to nothing), and
+    // its position in the world, in the job's order.
+    let mut owner = vec![u32::MAX; n];
     for (i, m) in map.iter().enumerate() {
         if let Some(u) = m {
             owner[u] = i as u32;
         }
     }
-    faces.par_iter_mut().for_each(|(row, _, _)| row.sort_unstable_by_key(|e| e.0));
+    let at: Vec<[f64; 3]> = owner.par_iter().map(|&i| sites[i as usize]).collect();
     let faces = &faces;
-    let side = |v: u32, u: u32| {
-        let row = &faces[v as usize].0;
-        row.binary_search_by_key(&u, |e| e.0).ok().map(|at| row[at].1)
-    };
     // Faces seen from one side only (the other side's rounded to nothing):
     // half the area, on both rows.
-    let mut one_sided: Vec<(u32, u32, f64)> = (0..faces.len())
+    let mut one_sided: Vec<(u32, u32, f64)> = (0..n)
         .into_par_iter()
         .flat_map_iter(|u| {
-            faces[u].0.iter().filter(move |&&(v, _)| side(v, u as u32).is_none()).map(move |&(v, a)| (v, u as u32, a))
+            let (vs, areas) = faces.row(u);
+            vs.iter()
+                .zip(areas)
+                .filter(move |&(&v, _)| faces.area(v as usize, u as u32).is_none())
+                .map(move |(&v, &a)| (v, u as u32, a))
         })
         .collect();
     one_sided.sort_unstable_by_key(|e| (e.0, e.1));
-    let l2 = scale * scale;
-    // Each input site's row length (duplicates: empty), then the rows
-    // filled in place on every core.
     let extra = |u: usize| {
         let lo = one_sided.partition_point(|e| e.0 < u as u32);
         &one_sided[lo..lo + one_sided[lo..].iter().take_while(|e| e.0 == u as u32).count()]
     };
+    // Each input site's row length (duplicates: empty).
+    let len: Vec<u32> = (0..n).into_par_iter().map(|u| (faces.row(u).0.len() + extra(u).len()) as u32).collect();
     let mut offsets = Vec::with_capacity(map.len() + 1);
     offsets.push(0);
     for m in map.iter() {
-        let len = m.map_or(0, |u| faces[u].0.len() + extra(u).len());
-        offsets.push(offsets[offsets.len() - 1] + len);
+        offsets.push(offsets[offsets.len() - 1] + m.map_or(0, |u| len[u] as usize));
     }
+    drop(len);
     let total = offsets[map.len()];
     let (mut neighbors, mut areas, mut normals) = (vec![0u32; total], vec![0.0f64; total], vec![[0.0f64; 3]; total]);
     let lens = || offsets.windows(2).map(|w| w[1] - w[0]);
-    let rows = split_rows(&mut neighbors, lens()).into_par_iter().zip(split_rows(&mut areas, lens()));
-    rows.zip(split_rows(&mut normals, lens())).enumerate().for_each_init(Vec::new, |row, (i, ((js, as_), ns))| {
-        let Some(u) = map.get(i) else { return };
-        let p = sites[i];
-        let normal = |v: u32, area: f64| {
-            let j = owner[v as usize];
-            let q = sites[j as usize];
+    let mut rows: Vec<_> = split_rows(&mut neighbors, lens())
+        .into_iter()
+        .zip(split_rows(&mut areas, lens()))
+        .zip(split_rows(&mut normals, lens()))
+        .map(Some)
+        .collect();
+    // The input rows in the job's order.
+    let by_job: Vec<_> = owner.iter().map(|&i| rows[i as usize].take().expect("one row per unique site")).collect();
+    drop(rows);
+    let l2 = scale * scale;
+    by_job.into_par_iter().enumerate().for_each_init(Vec::new, |row, (u, ((js, as_), ns))| {
+        let p = at[u];
+        let face = |v: u32, area: f64| {
+            let q = at[v as usize];
             let d = [q[0] - p[0], q[1] - p[1], q[2] - p[2]];
             let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-            (j, area * l2, d.map(|c| c / len))
+            (owner[v as usize], area * l2, d.map(|c| c / len))
         };
+        let (vs, areas) = faces.row(u);
         row.clear();
-        row.extend(faces[u].0.iter().map(|&(v, a)| normal(v, 0.5 * (a + side(v, u as u32).unwrap_or(0.0)))));
-        row.extend(extra(u).iter().map(|&(_, v, a)| normal(v, 0.5 * a)));
+        row.extend(
+            vs.iter().zip(areas).map(|(&v, &a)| face(v, 0.5 * (a + faces.area(v as usize, u as u32).unwrap_or(0.0)))),
+        );
+        row.extend(extra(u).iter().map(|&(_, v, a)| face(v, 0.5 * a)));
         row.sort_unstable_by_key(|e: &(u32, f64, [f64; 3])| e.0);
         for (k, &(j, a, n)) in row.iter().enumerate() {
             (js[k], as_[k], ns[k]) = (j, a, n);
         }
     });
-    let boundary = map.iter().map(|m| m.map_or(0.0, |u| faces[u].1 * l2)).collect();
-    let boundary_vector = map.iter().map(|m| m.map_or([0.0; 3], |u| faces[u].2.map(|c| c * l2))).collect();
+    let boundary = map.iter().map(|m| m.map_or(0.0, |u| faces.boundary[u] * l2)).collect();
+    let boundary_vector = map.iter().map(|m| m.map_or([0.0; 3], |u| faces.vector[u].map(|c| c * l2))).collect();
     Adjacency { offsets, neighbors, areas, normals, boundary, boundary_vector, shifts: Vec::new() }
 }
 

@@ -202,11 +202,8 @@ pub(crate) fn run<S: TaskSink>(job: &ClipJob, out: &mut ClipOutput, sinks: &Mute
         }
     }
     redone.unresolved = unresolved.into_inner();
-    let mut all: Vec<i64> = sums.into_iter().map(AtomicI64::into_inner).collect();
-    let mut volumes = all.split_off(n_site_sums);
-    out.faces = volumes.split_off(out.tet_volumes.len());
-    out.tet_volumes = volumes;
-    out.sums = all;
+    let all: Vec<i64> = sums.into_iter().map(AtomicI64::into_inner).collect();
+    (out.sums, out.tet_volumes, out.faces) = crate::job::clip::split_sums(all, n_site_sums, out.tet_volumes.len());
     Ok(redone)
 }
 

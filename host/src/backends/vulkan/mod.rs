@@ -13,7 +13,7 @@ use crate::backend::Backend;
 use crate::error::{Error, Result};
 use crate::geom::timing::timed;
 use crate::geom::timing::Timings;
-use crate::job::clip::{ClipJob, ClipOutput, Pairing, Strategy};
+use crate::job::clip::{split_sums, ClipJob, ClipOutput, Pairing, Strategy};
 use crate::job::knn::{KnnJob, KnnMethod, Neighbors};
 use crate::job::lloyd::LloydOutput;
 use crate::job::BackendKind;
@@ -248,9 +248,8 @@ impl Backend for VulkanBackend {
             let list_back = j.download(unfinished, list_len * 4)?;
             j.mark("download");
             let done = j.run()?;
-            let mut sums: Vec<i64> = done.read(sums_back, n_sums as usize);
-            let mut tet_volumes = sums.split_off(n as usize * ACCUM_PER_SITE);
-            let faces = tet_volumes.split_off(nt as usize);
+            let all: Vec<i64> = done.read(sums_back, n_sums as usize);
+            let (sums, tet_volumes, faces) = split_sums(all, n as usize * ACCUM_PER_SITE, nt as usize);
             return Ok(ClipOutput {
                 sums,
                 tet_volumes,
@@ -377,9 +376,8 @@ impl Backend for VulkanBackend {
             collect(done.read::<u32>(first_back, 1)[0], &done.read(still_back, list_len as usize));
         }
         timings.phases.extend(done.timings.phases.iter().cloned());
-        let mut sums: Vec<i64> = done.read(sums_back, n_sums as usize);
-        let mut tet_volumes = sums.split_off(n as usize * ACCUM_PER_SITE);
-        let faces = tet_volumes.split_off(nt as usize);
+        let all: Vec<i64> = done.read(sums_back, n_sums as usize);
+        let (mut sums, mut tet_volumes, faces) = split_sums(all, n as usize * ACCUM_PER_SITE, nt as usize);
         if let Some(s) = slabs {
             s.restore(&mut sums, &mut tet_volumes, &mut left);
         }
