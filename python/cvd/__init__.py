@@ -17,9 +17,10 @@ RuntimeError.
 import numpy as _np
 
 from . import _cvd
-from ._cvd import Cells, Mesh, builtin, devices, mesh_surface, read_mesh
+from ._cvd import KERNELS, Cells, Mesh, builtin, devices, mesh_surface, read_mesh
 
 __all__ = [
+    "KERNELS",
     "Cells",
     "Mesh",
     "builtin",

@@ -230,6 +230,18 @@ impl Cells {
     fn __repr__(&self, py: Python<'_>) -> String {
         format!("Cells({} sites, E_vol {:e})", self.volume.bind(py).len(), self.e_vol)
     }
+
+    /// The cells' polyhedra as a `pyvista.UnstructuredGrid` with their cell
+    /// data (needs `polyhedra=True` and pyvista).
+    fn to_pyvista<'py>(slf: &Bound<'py, Self>) -> PyResult<Bound<'py, PyAny>> {
+        slf.py().import("cvd._convert")?.call_method1("to_pyvista", (slf,))
+    }
+
+    /// The adjacency as a `scipy.sparse.csr_array` of shared face areas
+    /// (needs `faces=True` and scipy).
+    fn adjacency_matrix<'py>(slf: &Bound<'py, Self>) -> PyResult<Bound<'py, PyAny>> {
+        slf.py().import("cvd._convert")?.call_method1("adjacency_matrix", (slf,))
+    }
 }
 
 fn to_python(py: Python<'_>, cells: cvd::Cells) -> PyResult<Cells> {
@@ -554,5 +566,7 @@ fn _cvd(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(transport, m)?)?;
     m.add_function(wrap_pyfunction!(periodic_voronoi, m)?)?;
     m.add_function(wrap_pyfunction!(devices, m)?)?;
+    // Whether this build has the SPIR-V kernels (the Vulkan backend).
+    m.add("KERNELS", cvd::backends::vulkan::HAS_KERNELS)?;
     Ok(())
 }

@@ -19,7 +19,10 @@ commands:
   test [ARGS]         the whole test suite, optimised, on the CPU and lavapipe, and on MPI ranks
                       where MPI is installed (cargo test ARGS; without ARGS also the Python
                       package's, python/tests)
-  test-python         the Python package alone: built into target/python-venv, pytest
+  test-python         the Python package alone: its wheel installed into a fresh virtual environment
+                      without Rust, pytest there; then `pip install ./python` without the kernels
+  wheel [--kernels|--no-kernels]  the Python package as an abi3 wheel, into target/wheels/with-kernels
+                      or target/wheels/cpu-only (default: with the kernels where spirv-tools are installed)
   bench paper [ARGS]  the paper's evaluation: Table 1, Figs. 7, 8, 12, 13 and scale runs, CPU and
                       Vulkan; tables, JSON and charts in bench-results/paper (--sections LIST,
                       --quick, --cpu-only, --only MODEL, --repeat R, --scale-max N, --models-dir DIR, ...)
@@ -167,6 +170,19 @@ fn run(args: &[String]) -> Result<(), Failure> {
             setup::ensure(Needs::Test)?;
             status(cargo(&["build", "--release", "--package", "cvd-cli"], &[]))?;
             Ok(python::test(&setup::root())?)
+        }
+        "wheel" => {
+            let kernels = match rest.first().map(String::as_str) {
+                Some("--kernels") => true,
+                Some("--no-kernels") => false,
+                None => setup::has_spirv_tools(),
+                Some(other) => return Err(format!("wheel takes --kernels or --no-kernels, not '{other}'").into()),
+            };
+            setup::ensure(if kernels { Needs::Build } else { Needs::Toolchain })?;
+            match python::wheel(&setup::root(), kernels) {
+                Ok(_) => Ok(()),
+                Err(python::Problem::Failed(why) | python::Problem::Unavailable(why)) => Err(why.into()),
+            }
         }
         "build" => {
             setup::ensure(Needs::Build)?;

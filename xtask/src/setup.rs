@@ -49,6 +49,13 @@ pub fn has_mpi() -> bool {
     runs("mpicc").is_ok_and(|s| s.success()) && runs("mpirun").is_ok_and(|s| s.success())
 }
 
+/// Whether spirv-tools (spirv-val and spirv-opt) are installed: what the
+/// SPIR-V kernels' build needs.
+pub fn has_spirv_tools() -> bool {
+    let runs = |tool: &str| Command::new(tool).arg("--version").stdout(Stdio::null()).stderr(Stdio::null()).status();
+    runs("spirv-val").is_ok_and(|s| s.success()) && runs("spirv-opt").is_ok_and(|s| s.success())
+}
+
 /// Checks (and where it can, installs) what `needs` asks for.
 pub fn ensure(needs: Needs) -> Result<(), String> {
     ensure_components()?;

@@ -32,7 +32,8 @@ pub const HAS_KERNELS: bool = !KERNELS_SPV.is_empty();
 
 /// Why a build without the kernels cannot run on Vulkan.
 const NO_KERNELS: &str = "this build of cvd has no SPIR-V kernels: it was built without the `vulkan` \
-                          feature (cargo build --features vulkan; cargo xtask run --backend vulkan)";
+                          feature (cargo build --features vulkan; cargo xtask run --backend vulkan; \
+                          Python: CVD_KERNELS=1 python -m pip install ./python)";
 
 /// Runs the kernels on a Vulkan device.
 pub struct VulkanBackend {
