@@ -8,8 +8,8 @@ spirv-tools (spirv-val and spirv-opt) are on the PATH; never when told not
 to (`CVD_KERNELS=0`, `-C kernels=no`). Without them the package is complete
 on the CPU backend and builds minutes faster.
 
-The other PEP 517 hooks are maturin's own (imported when called, so that
-this module's decision can be tested without maturin).
+Every hook is maturin's own behind these checks (maturin imported when
+called, so that the decision can be tested without it).
 """
 
 import os
@@ -43,9 +43,12 @@ def _asked(config_settings):
     return None
 
 
-def _configure(config_settings):
-    """Checks the tools and sets maturin's arguments; says in one line what
-    it builds and how to get the other build."""
+def _check(config_settings):
+    """Stops, naming the one command to run, where the build cannot work:
+    before any hook compiles or downloads anything (maturin would fetch a
+    stable Rust that this workspace's pinned nightly does not use).
+    Returns whether the kernels are asked for (`None`: not said) and the
+    spirv-tools missing."""
     asked = _asked(config_settings)
     if shutil.which("cargo") is None:
         _stop(
@@ -61,6 +64,14 @@ def _configure(config_settings):
             "cannot be found: run `sudo xtask/install-deps build` from the repository (or install "
             "spirv-tools), or build without them (CVD_KERNELS=0: the CPU backend)"
         )
+    return asked, tools
+
+
+def _configure(config_settings):
+    """Checks the tools and sets maturin's arguments; says in one line what
+    it builds and how to get the other build."""
+    asked, tools = _check(config_settings)
+    kernels = asked if asked is not None else not tools
     settings = dict(config_settings or {})
     settings.pop("kernels", None)
     if kernels:
@@ -95,19 +106,41 @@ def build_editable(wheel_directory, config_settings=None, metadata_directory=Non
     return maturin.build_editable(wheel_directory, _configure(config_settings), metadata_directory)
 
 
-def _maturin(hook):
-    def call(*args, **kwargs):
-        import maturin
+def get_requires_for_build_wheel(config_settings=None):
+    _check(config_settings)
+    import maturin
 
-        return getattr(maturin, hook)(*args, **kwargs)
-
-    call.__name__ = hook
-    return call
+    return maturin.get_requires_for_build_wheel(config_settings)
 
 
-build_sdist = _maturin("build_sdist")
-get_requires_for_build_wheel = _maturin("get_requires_for_build_wheel")
-get_requires_for_build_editable = _maturin("get_requires_for_build_editable")
-get_requires_for_build_sdist = _maturin("get_requires_for_build_sdist")
-prepare_metadata_for_build_wheel = _maturin("prepare_metadata_for_build_wheel")
-prepare_metadata_for_build_editable = _maturin("prepare_metadata_for_build_editable")
+def get_requires_for_build_editable(config_settings=None):
+    _check(config_settings)
+    import maturin
+
+    return maturin.get_requires_for_build_editable(config_settings)
+
+
+def prepare_metadata_for_build_wheel(metadata_directory, config_settings=None):
+    _check(config_settings)
+    import maturin
+
+    return maturin.prepare_metadata_for_build_wheel(metadata_directory, config_settings)
+
+
+def prepare_metadata_for_build_editable(metadata_directory, config_settings=None):
+    _check(config_settings)
+    import maturin
+
+    return maturin.prepare_metadata_for_build_editable(metadata_directory, config_settings)
+
+
+def get_requires_for_build_sdist(config_settings=None):
+    import maturin
+
+    return maturin.get_requires_for_build_sdist(config_settings)
+
+
+def build_sdist(sdist_directory, config_settings=None):
+    import maturin
+
+    return maturin.build_sdist(sdist_directory, config_settings)
