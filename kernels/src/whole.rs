@@ -494,7 +494,9 @@ pub fn whole_cell<const P: usize, const V: usize, A: AtomicSums, C: AtomicSums, 
         }
     }
     built = walk_to_cell(&mut poly, i, sites, w, built, f32::INFINITY);
-    if !bounded && reach > 0.0 && built.finished() && poly.has_box_face() {
+    // A power cell may lie away from its site, out of the box of the cell's
+    // own size: empty there says nothing, so again from the domain's box.
+    if !bounded && reach > 0.0 && built.finished() && (poly.has_box_face() || poly.is_empty()) {
         poly.set_cuboid(lo, hi);
         built = clip_to_cell(&mut poly, i, sites, w);
     }
