@@ -34,13 +34,13 @@ fn main() -> ExitCode {
     }
     let cli = Cli::parse();
     let result = match &cli.command {
-        Command::Devices { json } => commands::devices(*json),
+        Command::Devices { json } => commands::devices(*json).map(|()| 0),
         Command::Run(args) => run::run(args),
-        Command::Knn(args) => commands::knn(args),
-        Command::Spirv { out } => commands::spirv(out),
+        Command::Knn(args) => commands::knn(args).map(|()| 0),
+        Command::Spirv { out } => commands::spirv(out).map(|()| 0),
     };
     match result {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(status) => ExitCode::from(status),
         Err(e) => {
             eprintln!("cvd: {e}");
             // Like clap's own errors: 2 for what the user gave, 1 for the rest.

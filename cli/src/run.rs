@@ -37,7 +37,12 @@ struct Diagram {
     periodic: Option<PeriodicRecord>,
 }
 
-pub fn run(args: &RunArgs) -> cvd::Result<()> {
+/// Exit status of a run whose optimal transport did not reach its
+/// tolerance (its outputs written all the same).
+pub const NOT_CONVERGED: u8 = 3;
+
+/// Runs `cvd run`; the exit status: 0, or [`NOT_CONVERGED`].
+pub fn run(args: &RunArgs) -> cvd::Result<u8> {
     let inputs = Inputs::read(args)?;
     let dir = inputs.out_dir(args);
     let (run_backend, why) = backend::open(args)?;
@@ -77,8 +82,12 @@ pub fn run(args: &RunArgs) -> cvd::Result<()> {
     if compiled > 0.0 {
         println!("kernels: the driver compiled them in {compiled:.2} s on first use (not in the times below)");
     }
+    let status = match &optimised.transport {
+        Some(t) if !t.converged => NOT_CONVERGED,
+        _ => 0,
+    };
     if !writes {
-        return Ok(());
+        return Ok(status);
     }
     let box_mesh;
     let mesh = match &inputs.domain {
@@ -120,7 +129,11 @@ pub fn run(args: &RunArgs) -> cvd::Result<()> {
         println!("the cells' geometry (cells.vtu, walls.ply, the pictures) is not drawn for periodic boxes");
     }
     println!("wrote {}: {}", dir.display(), written.join(", "));
-    outputs::write_copies(&results)
+    outputs::write_copies(&results)?;
+    if status == NOT_CONVERGED {
+        eprintln!("cvd: optimal transport did not reach its tolerance (exit status {NOT_CONVERGED})");
+    }
+    Ok(status)
 }
 
 /// The CVT iterations or optimal transport the arguments ask for, if any.
@@ -208,13 +221,7 @@ fn transport<D: SiteDiagram>(args: &RunArgs, diagram: D, start: Option<&[f64]>) 
     if !run.converged {
         eprintln!(
             "transport: the masses came within {:.2e} of their targets, not {:.0e}: {}",
-            record.max_error,
-            args.tolerance,
-            if record.steps == args.newton_steps {
-                "out of Newton steps (--newton-steps)"
-            } else {
-                "no step along Newton's direction improved them (the diagram's precision, about 1e-6 of a cell)"
-            }
+            record.max_error, args.tolerance, run.stopped
         );
     }
     Ok(Optimised { sites, cvt, weights: Some(run.weights), transport: Some(record) })

@@ -157,7 +157,8 @@ def transport(
     Returns the weights, an (n,) array (mean 0); with return_record=True,
     (weights, record), record a dict with `max_error` (per diagram the
     steps started from, the last the final error), `step`, `cg_iterations`
-    and `seconds` (per Newton step), and `converged`. A solve that does not
+    and `seconds` (per Newton step), `converged`, and `stopped` (what
+    stopped the solve). A solve that does not
     reach the tolerance warns (RuntimeWarning). Ctrl-C stops it between
     steps.
     """
@@ -177,7 +178,8 @@ def transport(
         import warnings
 
         warnings.warn(
-            f"transport: the masses came within {record['max_error'][-1]:.2e} of their targets, not {tolerance:.0e}",
+            f"transport: the masses came within {record['max_error'][-1]:.2e} of their targets, not {tolerance:.0e}: "
+            f"{record['stopped']}",
             RuntimeWarning,
             stacklevel=2,
         )

@@ -529,6 +529,7 @@ fn transport<'py>(
         .set_item("cg_iterations", taken.iter().map(|s| s.cg_iterations as i64).collect::<Vec<_>>().into_pyarray(py))?;
     record.set_item("seconds", taken.iter().map(|s| s.seconds).collect::<Vec<_>>().into_pyarray(py))?;
     record.set_item("converged", run.converged)?;
+    record.set_item("stopped", &run.stopped)?;
     Ok((run.weights.into_pyarray(py), record))
 }
 

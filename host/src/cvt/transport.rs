@@ -63,6 +63,12 @@ pub struct TransportRun {
     pub steps: Vec<NewtonStep>,
     /// Whether `max_error` reached the tolerance.
     pub converged: bool,
+    /// What stopped the solve, said for a person: the tolerance reached,
+    /// the steps used up, stopped by the caller, or why no step along
+    /// Newton's direction was accepted (the cell that would fall below the
+    /// mass floor, or the error's norm that did not drop enough, at the
+    /// shortest step tried).
+    pub stopped: String,
 }
 
 impl TransportRun {
@@ -251,6 +257,11 @@ impl<'a, D: SiteDiagram> Transport<'a, D> {
             if max_error <= self.tolerance || run.steps.len() == self.max_steps {
                 record.seconds = seconds;
                 run.converged = max_error <= self.tolerance;
+                run.stopped = if run.converged {
+                    format!("every cell within {:.0e} of its target", self.tolerance)
+                } else {
+                    format!("out of Newton steps ({})", self.max_steps)
+                };
                 run.steps.push(record);
                 progress(&record);
                 break;
@@ -265,10 +276,18 @@ impl<'a, D: SiteDiagram> Transport<'a, D> {
             let (delta, iterations) = laplacian.solve(&residual, &goal);
             record.cg_iterations = iterations;
             seconds += clock.elapsed().as_secs_f64();
-            let norm = |r: &[f64]| r.iter().map(|x| x * x).sum::<f64>().sqrt();
+            // The error's norm, relative per cell as the tolerance is: with
+            // targets spanning decades, an absolute norm is the big cells'
+            // alone, and the small cells' errors never count. (Kitagawa,
+            // Mérigot and Thibert's decrease test holds in any fixed norm:
+            // along Newton's direction the residual is (1 - α) times itself
+            // to first order.)
+            let targets = &run.targets;
+            let norm = |r: &[f64]| r.iter().zip(targets).map(|(x, t)| (x / t).powi(2)).sum::<f64>().sqrt();
             let before = norm(&residual);
             let mut alpha = first;
             let mut accepted = None;
+            let mut rejected = String::new();
             let halvings = if max_error < NEAR.0 { NEAR.1 } else { MAX_HALVINGS };
             for _ in 0..=halvings {
                 let clock = Instant::now();
@@ -285,13 +304,26 @@ impl<'a, D: SiteDiagram> Transport<'a, D> {
                     accepted = Some((trial, next));
                     break;
                 }
+                rejected = if lightest < floor {
+                    let i = next.volume.iter().enumerate().min_by(|a, b| a.1.total_cmp(b.1)).map_or(0, |(i, _)| i);
+                    format!(
+                        "at step {alpha:e}, site {i}'s cell would fall to mass {lightest:.3e}, below the floor \
+                         {floor:.3e} (half the smallest of the targets and the starting masses)"
+                    )
+                } else {
+                    format!(
+                        "at step {alpha:e}, the error's norm went from {before:.3e} to {after:.3e}, not below \
+                         (1 - step/2) times it (the masses' own rounding is about 1e-6 of a cell)"
+                    )
+                };
                 alpha *= 0.5;
             }
             record.seconds = seconds;
             seconds = 0.0;
             let Some((trial, next)) = accepted else {
-                // The masses are no better along the step at any length: the
-                // diagram's own precision (about 1e-6 of a cell) is reached.
+                // No length along the step was accepted: said with the
+                // shortest one's reason.
+                run.stopped = format!("no step along Newton's direction was accepted; {rejected}");
                 record.step = 0.0;
                 run.steps.push(record);
                 progress(&record);
@@ -304,6 +336,7 @@ impl<'a, D: SiteDiagram> Transport<'a, D> {
             cells = next;
             if !progress(&record) {
                 // Stopped: the diagram reached is the last one's.
+                run.stopped = "stopped before converging (interrupted)".into();
                 run.steps.push(NewtonStep { max_error: worst(&run.targets, &cells.volume), ..Default::default() });
                 break;
             }
