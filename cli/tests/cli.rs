@@ -357,6 +357,12 @@ fn transport_writes_weights_that_give_equal_cells() {
     assert!(volumes("cvt/cells.csv").iter().all(|v| (v * 200.0 - 1.0).abs() <= 1e-6));
     let out = run(&["--transport", "--iterations", "2", "--optimizer", "lbfgs", "--out", "x"]);
     assert_eq!(out.status.code(), Some(2), "{}", text(&out.stderr));
+    // Not converged: exit 3, the outputs written, and what stopped it said.
+    let out = run(&["--transport", "--newton-steps", "1", "--out", "short"]);
+    assert_eq!(out.status.code(), Some(3), "{}", text(&out.stderr));
+    let err = text(&out.stderr);
+    assert!(err.contains("out of Newton steps (1)") && err.contains("exit status 3"), "{err}");
+    assert!(dir.join("short/weights.txt").is_file() && dir.join("short/cells.csv").is_file());
 }
 
 /// A closed box as an OFF file; `open` leaves one triangle out.

@@ -42,6 +42,72 @@ fn equal_volumes_in_a_box_checked_by_voro_plus_plus() {
     }
 }
 
+/// Starts far from the targets, on every backend: sites whose spacing
+/// varies 100x across the box, three tight clusters in a crowd, and
+/// log-normal capacities (sigma 1: targets spanning 10³; sigma 2: 10⁶).
+/// Each converges (sigma 2 to the f32 diagram's precision for cells of
+/// 10⁻⁹ of the box: see BENCHMARKS), and voro++'s radical cells with the
+/// weights found hold the targets.
+#[test]
+fn far_starts_converge() {
+    let mesh = TetMesh::cube(6);
+    let n = 1500;
+    let unit = points::uniform(n, 61);
+    // Graded: density ∝ 10^(-6x), so the spacing varies 100x along x.
+    let lambda = 6.0 * 10f64.ln();
+    let graded: Vec<[f64; 3]> =
+        unit.iter().map(|p| [-(1.0 - p[0] * (1.0 - (-lambda).exp())).ln() / lambda, p[1], p[2]]).collect();
+    // Three clusters of 150 sites, 1% of the box across, in a crowd.
+    let noise = points::uniform(n, 62);
+    let clustered: Vec<[f64; 3]> = (0..n)
+        .map(|i| {
+            let c = [[0.3, 0.3, 0.3], [0.7, 0.6, 0.4], [0.5, 0.5, 0.8]];
+            if i < 450 {
+                let (c, q) = (c[i / 150], noise[i]);
+                [0, 1, 2].map(|a| c[a] + 0.01 * (q[a] - 0.5))
+            } else {
+                unit[i]
+            }
+        })
+        .collect();
+    // Log-normal capacities, exp(sigma z) with z standard normal.
+    let z: Vec<f64> = points::uniform(n, 63)
+        .iter()
+        .map(|p| (-2.0 * (1.0 - p[0]).ln()).sqrt() * (std::f64::consts::TAU * p[1]).cos())
+        .collect();
+    let lognormal = |sigma: f64| z.iter().map(|z| (sigma * z).exp()).collect::<Vec<f64>>();
+    let (ln1, ln2) = (lognormal(1.0), lognormal(2.0));
+    let cases: [(&str, &[[f64; 3]], Option<&[f64]>, f64); 4] = [
+        ("graded 100x", &graded, None, 1e-5),
+        ("three clusters", &clustered, None, 1e-5),
+        ("log-normal sigma 1", &unit, Some(&ln1), 1e-5),
+        ("log-normal sigma 2", &unit, Some(&ln2), 1e-3),
+    ];
+    for backend in cvd_tests::backends() {
+        for (name, sites, capacities, tolerance) in cases {
+            let what = format!("{} {name}", backend.name());
+            let mut ot = Transport::new(ClippedVoronoi::new(&mesh, sites).backend(backend)).tolerance(tolerance);
+            if let Some(c) = capacities {
+                ot = ot.capacities(c);
+            }
+            let run = ot.solve(&mut |_| true).unwrap_or_else(|e| panic!("{what}: {e}"));
+            let errors: Vec<f64> = run.steps.iter().map(|s| s.max_error).collect();
+            let diagrams: u32 = run.steps.iter().map(|s| s.diagrams).sum();
+            println!(
+                "{what}: {} Newton steps, {diagrams} diagrams, errors {:?}",
+                run.steps.len() - 1,
+                errors.iter().map(|e| format!("{e:.1e}")).collect::<Vec<_>>()
+            );
+            assert!(run.converged, "{what}: {:e} ({})", run.max_error(), run.stopped);
+            assert!(errors[errors.len() - 1] < 1e-3 * errors[0].max(1.0), "{what}: {errors:?}");
+            let (exact, _) = power_cells([0.0; 3], [1.0; 3], sites, &run.weights);
+            let off = worst(&exact, &run.targets);
+            println!("{what}: voro++'s cells with these weights: worst {off:.2e}");
+            assert!(off <= 2.0 * tolerance, "{what}: voro++ volumes {off:e} off the targets");
+        }
+    }
+}
+
 /// Capacities from 1 to 4 on a non-convex mesh, on every backend: the f64
 /// reference clipper's power cells with the weights found hold them.
 #[test]

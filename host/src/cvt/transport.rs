@@ -91,7 +91,7 @@ pub struct Transport<'a, D> {
 }
 
 /// Halvings of a Newton step before the solve says it cannot go on.
-const MAX_HALVINGS: u32 = 12;
+const MAX_HALVINGS: u32 = 30;
 
 /// Halvings once every cell is within this of its target: closer, the
 /// masses' own rounding (about 1e-6 of a cell in f32 kernels) is what a
@@ -269,10 +269,12 @@ impl<'a, D: SiteDiagram> Transport<'a, D> {
             let laplacian = Laplacian::of(&cells, &frame.0, frame.1)?;
             // Forcing term: a solve as accurate as the step can use.
             // Forcing term, per cell as the error is: the linear model's
-            // residual at most a tenth of the current error in every cell
-            // (a norm over all cells lets the big cells' residuals hide the
-            // small ones', whose step may then go the wrong way).
-            let goal: Vec<f64> = run.targets.iter().map(|t| 0.1 * max_error.min(1.0) * t).collect();
+            // residual at most a tenth of the current error times the
+            // smaller of the cell's target and mass, in every cell (a norm
+            // over all cells lets the big cells' residuals hide the small
+            // ones', whose step may then empty them).
+            let goal: Vec<f64> =
+                run.targets.iter().zip(&cells.volume).map(|(t, m)| 0.1 * max_error.min(1.0) * t.min(*m)).collect();
             let (delta, iterations) = laplacian.solve(&residual, &goal);
             record.cg_iterations = iterations;
             seconds += clock.elapsed().as_secs_f64();
