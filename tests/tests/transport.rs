@@ -77,7 +77,9 @@ fn far_starts_converge() {
         .collect();
     let lognormal = |sigma: f64| z.iter().map(|z| (sigma * z).exp()).collect::<Vec<f64>>();
     let (ln1, ln2) = (lognormal(1.0), lognormal(2.0));
-    let cases: [(&str, &[[f64; 3]], Option<&[f64]>, f64); 4] = [
+    // (name, sites, capacities, tolerance)
+    type Case<'a> = (&'a str, &'a [[f64; 3]], Option<&'a [f64]>, f64);
+    let cases: [Case; 4] = [
         ("graded 100x", &graded, None, 1e-5),
         ("three clusters", &clustered, None, 1e-5),
         ("log-normal sigma 1", &unit, Some(&ln1), 1e-5),
