@@ -117,6 +117,13 @@ pub struct RunArgs {
     /// implies --transport.
     #[arg(long, value_name = "PATH")]
     pub capacities: Option<PathBuf>,
+    /// Optimal transport to volumes drawn from a law, one per site, as
+    /// polycrystal generators do: `lognormal:MU,SIGMA` (ln of a volume
+    /// normal with mean MU and deviation SIGMA), drawn with --seed and
+    /// scaled to the mesh's volume; implies --transport. The grains'
+    /// polyhedra are in cells.vtu (cell data `site`: the grain).
+    #[arg(long, value_name = "LAW", conflicts_with = "capacities")]
+    pub volumes: Option<cvd::cvt::transport::VolumeLaw>,
     /// Optimal transport stops when every cell's mass is within this of
     /// its target, relative to it.
     #[arg(long, default_value_t = 1e-6)]
@@ -257,7 +264,7 @@ pub struct KnnArgs {
 impl RunArgs {
     /// Whether the arguments ask for optimal transport.
     pub fn transports(&self) -> bool {
-        self.transport || self.capacities.is_some()
+        self.transport || self.capacities.is_some() || self.volumes.is_some()
     }
 
     /// Whether the domain is a periodic box.

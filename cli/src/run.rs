@@ -7,7 +7,7 @@ use crate::backend::{self, RunBackend};
 use crate::inputs::{per_site, Domain, Inputs};
 use crate::outputs::{self, Results};
 use crate::progress::{with_iterations, with_spinner};
-use cvd::cvt::transport::Transport;
+use cvd::cvt::transport::{Transport, VolumeLaw};
 use cvd::cvt::SiteDiagram;
 use cvd::exec::CpuBackend;
 use cvd::{Backend, Cells, ClippedVoronoi, JobShape, PeriodicVoronoi, Pieces};
@@ -192,7 +192,11 @@ fn transport<D: SiteDiagram>(args: &RunArgs, diagram: D, start: Option<&[f64]>) 
         ));
     }
     let sites = diagram.starting_sites().to_vec();
-    let capacities = args.capacities.as_deref().map(|p| per_site(p, "capacities", sites.len())).transpose()?;
+    let capacities = match (&args.capacities, args.volumes) {
+        (Some(p), _) => Some(per_site(p, "capacities", sites.len())?),
+        (None, Some(law)) => Some(law.draw(sites.len(), args.seed)),
+        (None, None) => None,
+    };
     let mut ot = Transport::new(diagram).tolerance(args.tolerance).max_steps(args.newton_steps);
     if let Some(c) = &capacities {
         ot = ot.capacities(c);
@@ -200,7 +204,11 @@ fn transport<D: SiteDiagram>(args: &RunArgs, diagram: D, start: Option<&[f64]>) 
     if let Some(w) = start {
         ot = ot.start(w);
     }
-    let targets = if capacities.is_some() { "capacities" } else { "uniform" };
+    let targets = match (&args.capacities, args.volumes) {
+        (Some(_), _) => "capacities".to_string(),
+        (None, Some(VolumeLaw::LogNormal { mu, sigma })) => format!("lognormal:{mu},{sigma}"),
+        (None, None) => "uniform".to_string(),
+    };
     let (sites, cvt, run) = if args.iterations > 0 {
         let what = "capacity-constrained CVT";
         let (cvt, run) = with_iterations(what, args.iterations, |show| ot.cvt(args.iterations, show))?;
@@ -217,7 +225,7 @@ fn transport<D: SiteDiagram>(args: &RunArgs, diagram: D, start: Option<&[f64]>) 
         })?;
         (sites, None, run)
     };
-    let record = TransportRecord::of(targets, args.tolerance, &run);
+    let record = TransportRecord::of(&targets, args.tolerance, &run);
     if !run.converged {
         eprintln!(
             "transport: the masses came within {:.2e} of their targets, not {:.0e}: {}",

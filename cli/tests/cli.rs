@@ -357,6 +357,26 @@ fn transport_writes_weights_that_give_equal_cells() {
     assert!(volumes("cvt/cells.csv").iter().all(|v| (v * 200.0 - 1.0).abs() <= 1e-6));
     let out = run(&["--transport", "--iterations", "2", "--optimizer", "lbfgs", "--out", "x"]);
     assert_eq!(out.status.code(), Some(2), "{}", text(&out.stderr));
+    // Volumes from a law: log-normal, seeded (the same cells again), the
+    // cells' log-volumes spread as drawn; a bad law refused by name.
+    let out = run(&["--volumes", "lognormal:0,1", "--tolerance", "1e-5", "--out", "ln"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let v = volumes("ln/cells.csv");
+    let logs: Vec<f64> = v.iter().map(|x| x.ln()).collect();
+    let mean = logs.iter().sum::<f64>() / 200.0;
+    let sd = (logs.iter().map(|l| (l - mean).powi(2)).sum::<f64>() / 200.0).sqrt();
+    assert!((sd - 1.0).abs() < 0.2, "log-volumes' deviation {sd}");
+    let drawn = cvd::cvt::transport::VolumeLaw::LogNormal { mu: 0.0, sigma: 1.0 }.draw(200, 1);
+    let total: f64 = drawn.iter().sum();
+    for (v, d) in v.iter().zip(&drawn) {
+        assert!((v / (d / total) - 1.0).abs() <= 1e-5, "{v} against {}", d / total);
+    }
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("ln/summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["transport"]["targets"], "lognormal:0,1");
+    let out = run(&["--volumes", "lognormal:1", "--out", "bad"]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(text(&out.stderr).contains("expected lognormal:MU,SIGMA"), "{}", text(&out.stderr));
     // Not converged: exit 3, the outputs written, and what stopped it said.
     let out = run(&["--transport", "--newton-steps", "1", "--out", "short"]);
     assert_eq!(out.status.code(), Some(3), "{}", text(&out.stderr));

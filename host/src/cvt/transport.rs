@@ -350,6 +350,56 @@ impl<'a, D: SiteDiagram> Transport<'a, D> {
     }
 }
 
+/// A law to draw the cells' target volumes from, as grain generators
+/// for materials do (Laguerre tessellations of polycrystals): one volume
+/// per site, then scaled to the domain's mass like any capacities.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum VolumeLaw {
+    /// `ln V` normal with mean `mu` and deviation `sigma`.
+    LogNormal {
+        /// Mean of `ln V`.
+        mu: f64,
+        /// Deviation of `ln V` (at least 0).
+        sigma: f64,
+    },
+}
+
+impl VolumeLaw {
+    /// `n` volumes drawn with `seed` (the same seed, the same volumes).
+    pub fn draw(&self, n: usize, seed: u64) -> Vec<f64> {
+        let Self::LogNormal { mu, sigma } = *self;
+        // Box-Muller on uniform pairs in (0, 1].
+        crate::geom::points::uniform(n, seed)
+            .iter()
+            .map(|p| {
+                let z = (-2.0 * (1.0 - p[0]).ln()).sqrt() * (std::f64::consts::TAU * p[1]).cos();
+                (mu + sigma * z).exp()
+            })
+            .collect()
+    }
+}
+
+impl std::str::FromStr for VolumeLaw {
+    type Err = String;
+
+    /// `lognormal:MU,SIGMA`.
+    fn from_str(text: &str) -> std::result::Result<Self, String> {
+        let expected = "expected lognormal:MU,SIGMA (ln of a volume normal with mean MU and deviation SIGMA >= 0)";
+        let Some(args) = text.strip_prefix("lognormal:") else {
+            return Err(format!("unknown volume law {text:?}: {expected}"));
+        };
+        let numbers: Vec<f64> = args
+            .split(',')
+            .map(|x| x.trim().parse::<f64>())
+            .collect::<std::result::Result<_, _>>()
+            .map_err(|_| format!("{text:?}: {expected}"))?;
+        match numbers[..] {
+            [mu, sigma] if mu.is_finite() && sigma.is_finite() && sigma >= 0.0 => Ok(Self::LogNormal { mu, sigma }),
+            _ => Err(format!("{text:?}: {expected}")),
+        }
+    }
+}
+
 /// `max_i |m_i - t_i| / t_i`.
 fn worst(targets: &[f64], masses: &[f64]) -> f64 {
     targets.iter().zip(masses).map(|(t, m)| ((t - m) / t).abs()).fold(0.0, f64::max)
@@ -506,6 +556,22 @@ mod tests {
         }
         let diagonal = rows.iter().map(|r| r.iter().map(|e| e.1).sum()).collect();
         Laplacian { offsets, columns, values, diagonal }
+    }
+
+    #[test]
+    fn volume_laws_parse_and_draw_seeded_log_normal_volumes() {
+        let law: VolumeLaw = "lognormal:0.5,1".parse().unwrap();
+        assert_eq!(law, VolumeLaw::LogNormal { mu: 0.5, sigma: 1.0 });
+        let v = law.draw(20_000, 7);
+        assert_eq!(v, law.draw(20_000, 7), "seeded");
+        let logs: Vec<f64> = v.iter().map(|x| x.ln()).collect();
+        let mean = logs.iter().sum::<f64>() / logs.len() as f64;
+        let sd = (logs.iter().map(|l| (l - mean).powi(2)).sum::<f64>() / logs.len() as f64).sqrt();
+        assert!((mean - 0.5).abs() < 0.03 && (sd - 1.0).abs() < 0.03, "{mean} {sd}");
+        for bad in ["normal:0,1", "lognormal:0", "lognormal:0,-1", "lognormal:a,1", "lognormal:0,1,2"] {
+            let e = bad.parse::<VolumeLaw>().unwrap_err();
+            assert!(e.contains("expected lognormal:MU,SIGMA"), "{bad}: {e}");
+        }
     }
 
     #[test]
