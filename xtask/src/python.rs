@@ -57,13 +57,17 @@ fn has(python: &Path, module: &str) -> bool {
 }
 
 /// `PATH` with `first` in front and without the folders that hold cargo
-/// or rustc: what a machine without Rust has.
-fn path_without_rust(first: &Path) -> OsString {
+/// or rustc (rustup's; the system's own folders stay, whatever they hold):
+/// what a machine without Rust has. Also whether Rust is then out of reach.
+fn path_without_rust(first: &Path) -> (OsString, bool) {
+    let has_rust = |d: &Path| d.join("cargo").exists() || d.join("rustc").exists();
+    let system = |d: &Path| [Path::new("/usr/bin"), Path::new("/bin")].contains(&d);
     let mut dirs = vec![first.to_path_buf()];
     if let Some(path) = std::env::var_os("PATH") {
-        dirs.extend(std::env::split_paths(&path).filter(|d| !d.join("cargo").exists() && !d.join("rustc").exists()));
+        dirs.extend(std::env::split_paths(&path).filter(|d| system(d) || !has_rust(d)));
     }
-    std::env::join_paths(dirs).unwrap_or_default()
+    let hidden = !dirs.iter().any(|d| has_rust(d));
+    (std::env::join_paths(dirs).unwrap_or_default(), hidden)
 }
 
 fn run(mut cmd: Command, what: &str) -> Result<(), Problem> {
@@ -148,13 +152,15 @@ fn test_steps(root: &Path) -> Result<(), Problem> {
     if !pip(&python, &["--no-deps", "--force-reinstall", &whl]) {
         return Err(Problem::Failed(format!("pip install {whl} failed")));
     }
+    let (path, no_rust) = path_without_rust(&env.join("bin"));
     let mut pytest = Command::new(&python);
     pytest
         .args(["-m", "pytest", "-q"])
         .arg(root.join("python").join("tests"))
         .current_dir(&target)
-        .env("PATH", path_without_rust(&env.join("bin")))
+        .env("PATH", path)
         .env("CVD_TEST_INSTALLED", "1")
+        .env("CVD_TEST_NO_RUST", if no_rust { "1" } else { "0" })
         .env("CVD_BIN", target.join("release").join("cvd"));
     run(pytest, "pytest python/tests (the wheel, installed)")?;
     front_door(root, &target)
@@ -187,6 +193,9 @@ except RuntimeError as e:
 print("the package from pip install ./python: 2000 cells, volumes adding up to the mesh's")
 "#;
     let mut run_check = Command::new(&python);
-    run_check.args(["-c", check]).current_dir(target).env("PATH", path_without_rust(python.parent().unwrap_or(target)));
+    run_check
+        .args(["-c", check])
+        .current_dir(target)
+        .env("PATH", path_without_rust(python.parent().unwrap_or(target)).0);
     run(run_check, "the package installed by pip")
 }
