@@ -45,15 +45,19 @@ pub fn root() -> PathBuf {
 /// Whether MPI can be built against and run here (`mpicc` and `mpirun`
 /// on the PATH): the tests then build the `mpi` feature.
 pub fn has_mpi() -> bool {
-    let runs = |tool: &str| Command::new(tool).arg("--version").stdout(Stdio::null()).stderr(Stdio::null()).status();
-    runs("mpicc").is_ok_and(|s| s.success()) && runs("mpirun").is_ok_and(|s| s.success())
+    runs("mpicc") && runs("mpirun")
+}
+
+/// Whether `tool --version` runs and succeeds.
+fn runs(tool: &str) -> bool {
+    let status = Command::new(tool).arg("--version").stdout(Stdio::null()).stderr(Stdio::null()).status();
+    status.is_ok_and(|s| s.success())
 }
 
 /// Whether spirv-tools (spirv-val and spirv-opt) are installed: what the
 /// SPIR-V kernels' build needs.
 pub fn has_spirv_tools() -> bool {
-    let runs = |tool: &str| Command::new(tool).arg("--version").stdout(Stdio::null()).stderr(Stdio::null()).status();
-    runs("spirv-val").is_ok_and(|s| s.success()) && runs("spirv-opt").is_ok_and(|s| s.success())
+    runs("spirv-val") && runs("spirv-opt")
 }
 
 /// Checks (and where it can, installs) what `needs` asks for.
