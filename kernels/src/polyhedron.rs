@@ -63,6 +63,70 @@ pub fn bisector_offset(d2: f32, gap: f32) -> f32 {
     0.5 * (d2 + gap)
 }
 
+/// `a + b` exactly, as the rounded sum and its error (Knuth's two-sum).
+#[inline]
+fn two_sum(a: f32, b: f32) -> (f32, f32) {
+    let s = a + b;
+    let v = s - a;
+    (s, (a - (s - v)) + (b - v))
+}
+
+/// `a * b` exactly, as the rounded product and its error (one fused
+/// multiply-add: a GLSL `Fma` on the device).
+#[inline]
+fn two_prod(a: f32, b: f32) -> (f32, f32) {
+    let p = a * b;
+    (p, spirv_std::num_traits::Float::mul_add(a, b, -p))
+}
+
+/// `|x - o|²` as `hi + lo`, to about f32's precision squared relative to
+/// it: each axis's difference taken exactly in two parts, squared exactly.
+#[inline]
+fn distance2_split(x: &SplitPoint, o: &SplitPoint) -> (f32, f32) {
+    let (mut s, mut e) = (0.0f32, 0.0f32);
+    let mut k = 0;
+    while k < 3 {
+        let (d, de) = two_sum(x.hi[k], -o.hi[k]);
+        let dl = de + (x.lo[k] - o.lo[k]);
+        let (p, pe) = two_prod(d, d);
+        let (t, te) = two_sum(s, p);
+        s = t;
+        e += te + pe + dl * (2.0 * d + dl);
+        k += 1;
+    }
+    (s, e)
+}
+
+/// The offset `h` of site `i`'s power bisector with site `j`, `n·y <= h`
+/// with `n` = [`between`]`(x_j, x_i)`, in the frame whose origin is `o`
+/// (`y = x - o`): `h = (|x_j - o|² - |x_i - o|² + w_i - w_j) / 2`, summed
+/// in two parts, so that `h` is exact to f32 relative to itself — to the
+/// distance from `o` to the plane, not to the site's. A power cell far
+/// from its site is built in a frame at its centre with these (see
+/// `whole`): in the site's frame its planes' offsets are rounded relative
+/// to their distance from the site, many times the cell's size. With `o`
+/// at `x_i` this is [`bisector_offset`].
+#[inline]
+pub fn bisector_offset_at(xi: &SplitPoint, xj: &SplitPoint, o: &SplitPoint) -> f32 {
+    let (a, ae) = distance2_split(xj, o);
+    let (b, be) = distance2_split(xi, o);
+    let (g, ge) = two_sum(xi.hi[3], -xj.hi[3]);
+    let (t, te) = two_sum(a, -b);
+    let (u, ue) = two_sum(t, g);
+    0.5 * (u + (ue + te + (ae - be) + (ge + (xi.lo[3] - xj.lo[3]))))
+}
+
+/// The point `s + c` as a [`SplitPoint`] (`hi + lo`, exact to f32's
+/// precision squared), with `s`'s value: the origin of a frame at `c`
+/// from a site.
+#[inline]
+pub fn offset_point(s: &SplitPoint, c: Vec3) -> SplitPoint {
+    let (x, xe) = two_sum(s.hi[0], c.x);
+    let (y, ye) = two_sum(s.hi[1], c.y);
+    let (z, ze) = two_sum(s.hi[2], c.z);
+    SplitPoint { hi: [x, y, z, s.hi[3]], lo: [xe + s.lo[0], ye + s.lo[1], ze + s.lo[2], s.lo[3]] }
+}
+
 /// The normal (`xyz`) of a plane `(n, d)`, as a [`Point`].
 #[cfg(not(target_arch = "spirv"))]
 #[inline]
@@ -102,9 +166,11 @@ pub fn tet_planes(v: [Vec3; 4]) -> [Vec4; 4] {
     let mut planes = [Vec4::ZERO; 4];
     let mut i = 0;
     while i < 4 {
-        let a = v[(i + 1) % 4];
-        let b = v[(i + 2) % 4];
-        let c = v[(i + 3) % 4];
+        // The face's corners in one order whatever the tet (by position):
+        // the two tets sharing a face get exactly opposite planes, so that
+        // a cell's pieces on either side neither overlap nor leave a gap
+        // of the tets' rounding (much more than a small cell's).
+        let (a, b, c) = sorted3(v[(i + 1) % 4], v[(i + 2) % 4], v[(i + 3) % 4]);
         let mut n = (b - a).cross(c - a);
         if n.dot(v[i] - a) > 0.0 {
             n = -n;
@@ -113,6 +179,21 @@ pub fn tet_planes(v: [Vec3; 4]) -> [Vec4; 4] {
         i += 1;
     }
     planes
+}
+
+/// Whether `p` comes before `q` by x, then y, then z.
+#[inline]
+fn before(p: Point, q: Point) -> bool {
+    p.x < q.x || (p.x == q.x && (p.y < q.y || (p.y == q.y && p.z < q.z)))
+}
+
+/// `a, b, c` in the order of [`before`].
+#[inline]
+fn sorted3(a: Point, b: Point, c: Point) -> (Point, Point, Point) {
+    let (a, b) = if before(b, a) { (b, a) } else { (a, b) };
+    let (b, c) = if before(c, b) { (c, b) } else { (b, c) };
+    let (a, b) = if before(b, a) { (b, a) } else { (a, b) };
+    (a, b, c)
 }
 
 /// Capacities: a Voronoi cell of a site (Algorithm 1) may have ~40 faces
@@ -167,6 +248,19 @@ pub struct Moments {
     pub first: Vec3,
     /// Second moment `∫ |x|² dV`.
     pub second: f32,
+}
+
+impl Moments {
+    /// These moments (about a frame's origin) about a point `c` behind
+    /// it: the frame's origin lies at `c` from the new one.
+    #[inline]
+    pub fn moved_by(&self, c: Vec3) -> Self {
+        Self {
+            volume: self.volume,
+            first: self.first + self.volume * c,
+            second: self.second + 2.0 * c.dot(self.first) + self.volume * c.length_squared(),
+        }
+    }
 }
 
 /// [`Moments`] while they are summed, in [`Point`]s.
@@ -411,6 +505,24 @@ impl<const P: usize, const V: usize> Polyhedron<P, V> {
             i += 1;
         }
         (r, 0.5 * (lo + hi), 0.5 * (hi - lo))
+    }
+
+    /// Moves the polyhedron by `d`: from a frame at `d` to the frame it
+    /// is in (its planes' offsets follow).
+    #[inline]
+    pub fn translate(&mut self, d: Vec3) {
+        let d = Point::from(d);
+        let mut q = 0;
+        while q < (self.n_planes as usize).min(P) {
+            let pl = self.planes[q];
+            self.planes[q].w = pl.w + normal(pl).dot(d);
+            q += 1;
+        }
+        let mut v = 0;
+        while v < (self.n_verts as usize).min(V) {
+            self.verts[v] += d;
+            v += 1;
+        }
     }
 
     /// Frees the planes no vertex uses, renumbering the rest.

@@ -15,7 +15,7 @@ use crate::abi::{GridParams, QuantPoint, RefineParams, SplitPoint, OUT_OF_HALO};
 use crate::cell::{clip_by_bisectors, tet_vertices, BisectorRun, Clipped, Slack};
 use crate::grid::{ring_row, ring_span};
 use crate::lists::{Lists, NO_LIST};
-use crate::polyhedron::{between, bisector_offset, point, weight_gap, Point, Polyhedron};
+use crate::polyhedron::{between, bisector_offset, bisector_offset_at, point, weight_gap, Point, Polyhedron};
 use spirv_std::glam::Vec3;
 
 /// What clipping a piece to its cell searches: the sites' neighbour
@@ -231,6 +231,69 @@ pub fn walk_rings<T, R: RingVisitor<T>>(w: &GridWalk, x: Point, visitor: &mut R,
         }
         r += 1;
     }
+}
+
+/// A polyhedron in a frame away from site `i` ([`clip_in_frame`]),
+/// clipped by the bisectors of the sites a ring walk meets.
+struct FrameClip<'a> {
+    run: BisectorRun,
+    i: u32,
+    sites: &'a [SplitPoint],
+    /// The frame's origin.
+    frame: SplitPoint,
+    /// Sites farther from site `i` than this (squared) cannot cut.
+    reach2: f32,
+}
+
+impl<const P: usize, const V: usize> RingVisitor<Polyhedron<P, V>> for FrameClip<'_> {
+    #[inline]
+    fn reach2(&self) -> f32 {
+        self.reach2
+    }
+
+    #[inline]
+    fn visit(&mut self, poly: &mut Polyhedron<P, V>, s: u32) -> bool {
+        if s == self.i {
+            return false;
+        }
+        let si = self.sites[self.i as usize];
+        let xs = self.sites[s as usize];
+        let n = between(&xs, &si);
+        if n.length_squared() > self.reach2 {
+            return false;
+        }
+        let h = bisector_offset_at(&si, &xs, &self.frame);
+        if self.run.clears(n, h) {
+            return false;
+        }
+        self.run.clip(poly, n, h, s)
+    }
+}
+
+/// Clips `poly`, in the frame whose origin is `frame` (near the cell, away
+/// from site `i`), by the bisectors of every site within `sqrt(reach2)`
+/// of site `i` (a security radius the cell's build in the site's own frame
+/// found), their offsets exact relative to their distance from the frame
+/// ([`bisector_offset_at`]). The cell comes out as precise relative to
+/// its own size as a cell around its site.
+#[inline]
+pub fn clip_in_frame<const P: usize, const V: usize>(
+    poly: &mut Polyhedron<P, V>,
+    i: usize,
+    sites: &[SplitPoint],
+    w: GridWalk,
+    frame: &SplitPoint,
+    reach2: f32,
+) -> Clipped {
+    let mut run = BisectorRun::new(poly, Slack::default());
+    run.out.walks = 1;
+    run.out.security_missed = false;
+    let mut clip = FrameClip { run, i: i as u32, sites, frame: *frame, reach2 };
+    if walk_rings(&w, point(sites[i].hi), &mut clip, poly) == walk_end::OUT_OF_HALO {
+        clip.run.out.security_missed = true;
+        clip.run.out.out_of_halo = true;
+    }
+    clip.run.out
 }
 
 /// A piece clipped by the sites a ring walk meets.

@@ -43,8 +43,8 @@ use crate::clip::{
     FaceInputs, PieceSink,
 };
 use crate::lists::NO_LIST;
-use crate::polyhedron::{between, tet_planes, Clip, Point, Polyhedron, TET_FACE};
-use crate::walk::{clip_by_list, clip_to_cell, walk_to_cell, GridWalk};
+use crate::polyhedron::{between, offset_point, tet_planes, Clip, Point, Polyhedron, TET_FACE};
+use crate::walk::{clip_by_list, clip_in_frame, clip_to_cell, walk_to_cell, GridWalk};
 use spirv_std::glam::{Vec3, Vec4};
 #[cfg(target_arch = "spirv")]
 use spirv_std::num_traits::Float;
@@ -327,11 +327,12 @@ fn in_mesh_once(site: &SplitPoint, verts: &[SplitPoint], tets: &[[u32; 4]], d: &
 }
 
 /// Whether the domain's boundary may cut the cell within `poly` (relative
-/// to its site): asked of the finished cell (false: it is integrated
+/// to `si`: its site, or the origin of the frame a cell far from its site
+/// is built in): asked of the finished cell (false: it is integrated
 /// whole), and of a polyhedron holding it before the walk (true: the walk
 /// need only reach what the tets hold). A side of the domain's box as a
-/// face, a cell away from its site, a boundary triangle near and not
-/// separated, or the site outside the tets: true. Rounding: the vertices
+/// face, a cell away from `si`, a boundary triangle near and not
+/// separated, or `si` outside the tets: true. Rounding: the vertices
 /// are within 1e-6 of the cell's size of where they belong, the triangles
 /// and the site within `margin`.
 #[inline]
@@ -477,6 +478,9 @@ pub fn whole_cell<const P: usize, const V: usize, A: AtomicSums, C: AtomicSums, 
     // of the domain to its box). Such a cell is then cut by its tets.
     let mut in_mesh = MAYBE;
     let mut bounded = false;
+    // How far the walk went when bounded (sites beyond cannot cut what
+    // the tets hold of the cell).
+    let mut cap2 = f32::INFINITY;
     let mut built = clip_by_list(&mut poly, i, sites, &w);
     if built.security_missed
         && d.params.whole != domain_whole::ALL
@@ -487,8 +491,7 @@ pub fn whole_cell<const P: usize, const V: usize, A: AtomicSums, C: AtomicSums, 
             built = clip_by_list(&mut poly, i, sites, &w);
         }
         if built.security_missed {
-            let cap2 =
-                Slack::of(c.weight_range, sites, i, c.n_sites).reach2(domain_reach2(&si, &poly, verts, tets, &d));
+            cap2 = Slack::of(c.weight_range, sites, i, c.n_sites).reach2(domain_reach2(&si, &poly, verts, tets, &d));
             built = walk_to_cell(&mut poly, i, sites, w, built, cap2);
             bounded = true;
         }
@@ -505,18 +508,51 @@ pub fn whole_cell<const P: usize, const V: usize, A: AtomicSums, C: AtomicSums, 
         count(counters, 0, 0, &built);
         return;
     }
-    let (_, centre, half) = poly.bounds();
     let with_faces = face_sums_of(c) != face_sums::NONE;
-    if poly.is_empty()
+    let mut whole = poly.is_empty()
         || d.params.whole == domain_whole::ALL
-        || (!bounded && !may_be_cut(&si, &poly, verts, tets, &d, &mut in_mesh))
-    {
+        || (!bounded && !may_be_cut(&si, &poly, verts, tets, &d, &mut in_mesh));
+    // A power cell away from its site (outside the cell's bounding box) is
+    // built again in a frame at its centre: in the site's frame its
+    // vertices are rounded relative to their distance from the site, up to
+    // many times the cell's own size (weights that differ by more than the
+    // sites' spacing squared, as transport's between cells of very
+    // different sizes). A Voronoi cell holds its site: never rebuilt.
+    let (r2, centre, half) = poly.bounds();
+    let mut frame = si;
+    let mut shift = Vec3::ZERO;
+    let away = centre.abs() - half;
+    if !poly.is_empty() && away.x.max(away.y).max(away.z) > 0.0 {
+        shift = Vec3::from(centre);
+        frame = offset_point(&si, shift);
+        let reach2 = Slack::of(c.weight_range, sites, i, c.n_sites).reach2(r2 * (1.0 + 1e-3)).min(cap2);
+        // A box around the cell, larger than its rounding could make it:
+        // a side of it as a face would say the first build was wrong.
+        let span = Vec3::from(half) * 1.5 + Vec3::splat(1e-4 * centre.length() + d.params.margin);
+        let had_box_face = poly.has_box_face();
+        poly.set_cuboid((lo - shift).max(-span), (hi - shift).min(span));
+        let again = clip_in_frame(&mut poly, i, sites, w, &frame, reach2);
+        built.clips += again.clips;
+        built.walks += again.walks;
+        if !again.finished() || (!had_box_face && poly.has_box_face()) {
+            unfinished.push(WHOLE_CELL, i as u32);
+            count(counters, 0, 0, &again);
+            return;
+        }
+        // The cell holds its frame's origin: the domain's test, made there,
+        // can find it whole (away from its site, it was taken as cut).
+        let mut in_mesh = MAYBE;
+        whole = whole || (!bounded && !may_be_cut(&frame, &poly, verts, tets, &d, &mut in_mesh));
+    }
+    if whole {
         if !poly.is_empty() {
             let mut areas = [0.0f32; P];
             let m = if with_faces { poly.moments_and_areas(&mut areas) } else { poly.moments() };
+            let m = m.moved_by(shift);
             accumulate(i, &m, c.fixed_scale, sums);
             // No tet face in a whole cell: tet 0's boundary bits are not read.
             add_faces(i, 0, &poly, &areas, c, faces, 1, sums);
+            poly.translate(shift);
             sink.piece(WHOLE_CELL, i as u32, &poly, m.volume);
         }
         counters.add(counter::WHOLE, 1);
@@ -524,13 +560,15 @@ pub fn whole_cell<const P: usize, const V: usize, A: AtomicSums, C: AtomicSums, 
         return;
     }
     counters.add(counter::CUT, 1);
+    let (_, centre, half) = poly.bounds();
     let mut out = Clipped { clips: built.clips, walks: built.walks, ..Clipped::default() };
-    let (pieces, nonempty, failed) = cut_cell(i, &poly, centre, half, c, sites, verts, tets, &d, faces, 1, sums, sink);
+    let cell = Frame { origin: &frame, shift, poly: &poly, centre, half };
+    let (pieces, nonempty, failed) = cut_cell(i, &cell, c, verts, tets, &d, faces, 1, sums, sink);
     out.clips += pieces;
     if failed != NONE_FAILED {
         // Take back the faces of the pieces added before the failure.
         if with_faces {
-            cut_cell_until(i, &poly, centre, half, c, sites, verts, tets, &d, faces, sums);
+            cut_cell_until(i, &cell, c, verts, tets, &d, faces, sums);
         }
         sink.discard_site(i as u32);
         unfinished.push(WHOLE_CELL, i as u32);
@@ -541,24 +579,32 @@ pub fn whole_cell<const P: usize, const V: usize, A: AtomicSums, C: AtomicSums, 
     count(counters, pieces, nonempty, &out);
 }
 
+/// A cell as [`cut_cell`] cuts it: the polyhedron, in the frame whose
+/// origin is `origin` (`shift` from the site: 0, or the centre of a cell
+/// far from its site), and its bounding box `centre ± half` there.
+struct Frame<'a, const P: usize, const V: usize> {
+    origin: &'a SplitPoint,
+    shift: Vec3,
+    poly: &'a Polyhedron<P, V>,
+    centre: Point,
+    half: Point,
+}
+
 /// No piece failed ([`cut_cell`]).
 const NONE_FAILED: u32 = u32::MAX;
 
-/// Site `i`'s cell `poly` (bounding box `centre ± half`, relative to the
-/// site) clipped by every tet of the domain whose box meets the cell's;
-/// each non-empty piece's moments are added to the site's sums, its faces
-/// with `sign`, and the piece handed to `sink`. Returns the pairs tried,
-/// the non-empty pieces, and the tet whose piece failed (then no moments
-/// were added, but the faces of the pieces before it were), or
+/// Site `i`'s cell (`cell`, in its frame) clipped by every tet of the
+/// domain whose box meets the cell's; each non-empty piece's moments are
+/// added to the site's sums (about the site), its faces with `sign`, and
+/// the piece handed to `sink` (relative to the site). Returns the pairs
+/// tried, the non-empty pieces, and the tet whose piece failed (then no
+/// moments were added, but the faces of the pieces before it were), or
 /// [`NONE_FAILED`].
 #[inline]
 fn cut_cell<const P: usize, const V: usize, A: AtomicSums, S: PieceSink>(
     i: usize,
-    poly: &Polyhedron<P, V>,
-    centre: Point,
-    half: Point,
+    cell: &Frame<P, V>,
     c: &crate::abi::ClipParams,
-    sites: &[SplitPoint],
     verts: &[SplitPoint],
     tets: &[[u32; 4]],
     d: &Domain,
@@ -567,13 +613,13 @@ fn cut_cell<const P: usize, const V: usize, A: AtomicSums, S: PieceSink>(
     sums: &mut A,
     sink: &mut S,
 ) -> (i64, i64, u32) {
-    let si = sites[i];
-    let xi = xyz(si.hi) + xyz(si.lo);
+    let (poly, origin) = (cell.poly, cell.origin);
+    let xo = xyz(origin.hi) + xyz(origin.lo);
     // The cell's box, padded for rounding, in the frame.
-    let pad = Vec3::from(half) * 1e-5 + Vec3::splat(d.params.margin);
-    let blo = Vec3::from(centre - half) - pad;
-    let bhi = Vec3::from(centre + half) + pad;
-    let (qlo, qhi) = d.range(xi + blo, xi + bhi);
+    let pad = Vec3::from(cell.half) * 1e-5 + Vec3::splat(d.params.margin);
+    let blo = Vec3::from(cell.centre - cell.half) - pad;
+    let bhi = Vec3::from(cell.centre + cell.half) + pad;
+    let (qlo, qhi) = d.range(xo + blo, xo + bhi);
     // Summed in fixed point, each piece rounded alone: a cell cut into
     // thousands of pieces (a few sites in a large domain) sums them
     // exactly, as the other strategies' atomics do.
@@ -604,7 +650,7 @@ fn cut_cell<const P: usize, const V: usize, A: AtomicSums, S: PieceSink>(
                     if first[0] != x || first[1] != y || first[2] != z {
                         continue;
                     }
-                    let tv = tet_vertices(t, verts, tets, &si);
+                    let tv = tet_vertices(t, verts, tets, origin);
                     let tlo = tv[0].min(tv[1]).min(tv[2].min(tv[3]));
                     let thi = tv[0].max(tv[1]).max(tv[2].max(tv[3]));
                     if tlo.x > bhi.x
@@ -630,6 +676,7 @@ fn cut_cell<const P: usize, const V: usize, A: AtomicSums, S: PieceSink>(
                     }
                     let mut areas = [0.0f32; P];
                     let (m, _) = piece_moments(&piece, t, verts, tets, &tv, face_sums_of(c), &mut areas);
+                    let m = m.moved_by(cell.shift);
                     if m.volume != 0.0 {
                         nonempty += 1;
                     }
@@ -638,6 +685,7 @@ fn cut_cell<const P: usize, const V: usize, A: AtomicSums, S: PieceSink>(
                         add_faces(i, t, &piece, &areas, c, faces, sign, sums);
                     }
                     if sign > 0 {
+                        piece.translate(cell.shift);
                         sink.piece(t as u32, i as u32, &piece, m.volume);
                     }
                 }
@@ -659,11 +707,8 @@ fn cut_cell<const P: usize, const V: usize, A: AtomicSums, S: PieceSink>(
 #[inline]
 fn cut_cell_until<const P: usize, const V: usize, A: AtomicSums>(
     i: usize,
-    poly: &Polyhedron<P, V>,
-    centre: Point,
-    half: Point,
+    cell: &Frame<P, V>,
     c: &crate::abi::ClipParams,
-    sites: &[SplitPoint],
     verts: &[SplitPoint],
     tets: &[[u32; 4]],
     d: &Domain,
@@ -671,7 +716,7 @@ fn cut_cell_until<const P: usize, const V: usize, A: AtomicSums>(
     sums: &mut A,
 ) {
     let mut none = crate::clip::NoPieces;
-    cut_cell(i, poly, centre, half, c, sites, verts, tets, d, faces, -1, sums, &mut none);
+    cut_cell(i, cell, c, verts, tets, d, faces, -1, sums, &mut none);
 }
 
 /// The tet `tv` (relative to the site) clipped by the planes of `cell`'s

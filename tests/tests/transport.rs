@@ -45,9 +45,10 @@ fn equal_volumes_in_a_box_checked_by_voro_plus_plus() {
 /// Starts far from the targets, on every backend: sites whose spacing
 /// varies 100x across the box, three tight clusters in a crowd, and
 /// log-normal capacities (sigma 1: targets spanning 10³; sigma 2: 10⁶).
-/// Each converges (sigma 2 to the f32 diagram's precision for cells of
-/// 10⁻⁹ of the box: see BENCHMARKS), and voro++'s radical cells with the
-/// weights found hold the targets.
+/// Each converges to 10⁻⁶ of every target (sigma 2, with cells of 10⁻⁹
+/// of the box beside cells 10⁶ times larger, to 2·10⁻⁶: the needle-shaped
+/// cells' f32 rounding, see BENCHMARKS), and voro++'s radical cells with
+/// the weights found hold the targets.
 #[test]
 fn far_starts_converge() {
     let mesh = TetMesh::cube(6);
@@ -80,10 +81,10 @@ fn far_starts_converge() {
     // (name, sites, capacities, tolerance)
     type Case<'a> = (&'a str, &'a [[f64; 3]], Option<&'a [f64]>, f64);
     let cases: [Case; 4] = [
-        ("graded 100x", &graded, None, 1e-5),
-        ("three clusters", &clustered, None, 1e-5),
-        ("log-normal sigma 1", &unit, Some(&ln1), 1e-5),
-        ("log-normal sigma 2", &unit, Some(&ln2), 1e-3),
+        ("graded 100x", &graded, None, 1e-6),
+        ("three clusters", &clustered, None, 1e-6),
+        ("log-normal sigma 1", &unit, Some(&ln1), 1e-6),
+        ("log-normal sigma 2", &unit, Some(&ln2), 2e-6),
     ];
     for backend in cvd_tests::backends() {
         for (name, sites, capacities, tolerance) in cases {

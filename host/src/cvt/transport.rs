@@ -275,7 +275,7 @@ impl<'a, D: SiteDiagram> Transport<'a, D> {
             // ones', whose step may then empty them).
             let goal: Vec<f64> =
                 run.targets.iter().zip(&cells.volume).map(|(t, m)| 0.1 * max_error.min(1.0) * t.min(*m)).collect();
-            let (delta, iterations) = laplacian.solve(&residual, &goal);
+            let (delta, iterations) = laplacian.solve(&residual, &goal, &run.targets);
             record.cg_iterations = iterations;
             seconds += clock.elapsed().as_secs_f64();
             // The error's norm, relative per cell as the tolerance is: with
@@ -496,16 +496,20 @@ impl Laplacian {
         });
     }
 
-    /// Solves `L δ = b` (`b` summing to zero: the constant vector is `L`'s
-    /// kernel) by Jacobi-preconditioned conjugate gradients until every
-    /// cell's residual is within its `goal`; `δ` has mean zero. Returns it
-    /// and the iterations.
-    fn solve(&self, b: &[f64], goal: &[f64]) -> (Vec<f64>, u32) {
+    /// Solves `L δ = b` by Jacobi-preconditioned conjugate gradients until
+    /// every cell's residual is within its `goal`; `δ` has mean zero.
+    /// Returns it and the iterations. `b` is taken on `L`'s range (the
+    /// constant vector is its kernel, so the range sums to zero): what it
+    /// sums to — the masses' total rounding, as the domain fixes their sum
+    /// — is taken off each cell in proportion to its `share` (its target),
+    /// not evenly: an even part of the total rounding of thousands of
+    /// cells is many times a cell 10⁻⁶ of the others' size, whose step it
+    /// would then turn the wrong way.
+    fn solve(&self, b: &[f64], goal: &[f64], share: &[f64]) -> (Vec<f64>, u32) {
         let n = b.len();
         let dot = |a: &[f64], b: &[f64]| a.par_iter().zip(b).with_min_len(4096).map(|(x, y)| x * y).sum::<f64>();
-        // The right-hand side projected on L's range (rounding aside, it is).
-        let mean = b.iter().sum::<f64>() / n as f64;
-        let mut r: Vec<f64> = b.iter().map(|x| x - mean).collect();
+        let excess = b.iter().sum::<f64>() / share.iter().sum::<f64>();
+        let mut r: Vec<f64> = b.iter().zip(share).map(|(x, s)| x - excess * s).collect();
         let inverse: Vec<f64> = self.diagonal.iter().map(|&d| if d > 0.0 { 1.0 / d } else { 0.0 }).collect();
         let mut x = vec![0.0; n];
         let mut z: Vec<f64> = r.iter().zip(&inverse).map(|(r, m)| r * m).collect();
@@ -594,7 +598,7 @@ mod tests {
         let mut b = [0.0; 4];
         l.apply(&x, &mut b);
         assert!(b.iter().sum::<f64>().abs() < 1e-12, "L's range sums to zero");
-        let (solved, iterations) = l.solve(&b, &[1e-12; 4]);
+        let (solved, iterations) = l.solve(&b, &[1e-12; 4], &[1.0; 4]);
         let mean = x.iter().sum::<f64>() / 4.0;
         for (s, x) in solved.iter().zip(x) {
             assert!((s - (x - mean)).abs() < 1e-9, "{solved:?} against {x} - {mean}");
@@ -607,12 +611,20 @@ mod tests {
         // b with a constant part: the solve drops it (the masses' sum is
         // fixed by the domain, so Newton's system only sees differences).
         let l = laplacian(3, &[(0, 1, 1.0), (1, 2, 1.0)]);
-        let (a, _) = l.solve(&[1.0, 0.0, -1.0], &[1e-12; 3]);
-        let (b, _) = l.solve(&[6.0, 5.0, 4.0], &[1e-12; 3]);
+        let (a, _) = l.solve(&[1.0, 0.0, -1.0], &[1e-12; 3], &[1.0; 3]);
+        let (b, _) = l.solve(&[6.0, 5.0, 4.0], &[1e-12; 3], &[1.0; 3]);
         for (a, b) in a.iter().zip(&b) {
             assert!((a - b).abs() < 1e-9);
         }
         assert!(a.iter().sum::<f64>().abs() < 1e-12);
+        // What b sums to is taken off in proportion to the shares: a cell
+        // of share 10⁻⁶ with nothing to change keeps (almost) nothing to
+        // change, where an even split would ask it for a third of the sum.
+        let shares = [1.0, 1.0, 1e-6];
+        let (c, _) = l.solve(&[1.0, -1.0 + 3e-9, 0.0], &[1e-15; 3], &shares);
+        let mut lc = [0.0; 3];
+        l.apply(&c, &mut lc);
+        assert!(lc[2].abs() < 1e-14, "the small cell's share of the excess: {:e}", lc[2]);
     }
 
     #[test]
