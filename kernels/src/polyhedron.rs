@@ -166,11 +166,9 @@ pub fn tet_planes(v: [Vec3; 4]) -> [Vec4; 4] {
     let mut planes = [Vec4::ZERO; 4];
     let mut i = 0;
     while i < 4 {
-        // The face's corners in one order whatever the tet (by position):
-        // the two tets sharing a face get exactly opposite planes, so that
-        // a cell's pieces on either side neither overlap nor leave a gap
-        // of the tets' rounding (much more than a small cell's).
-        let (a, b, c) = sorted3(v[(i + 1) % 4], v[(i + 2) % 4], v[(i + 3) % 4]);
+        let a = v[(i + 1) % 4];
+        let b = v[(i + 2) % 4];
+        let c = v[(i + 3) % 4];
         let mut n = (b - a).cross(c - a);
         if n.dot(v[i] - a) > 0.0 {
             n = -n;
@@ -179,21 +177,6 @@ pub fn tet_planes(v: [Vec3; 4]) -> [Vec4; 4] {
         i += 1;
     }
     planes
-}
-
-/// Whether `p` comes before `q` by x, then y, then z.
-#[inline]
-fn before(p: Point, q: Point) -> bool {
-    p.x < q.x || (p.x == q.x && (p.y < q.y || (p.y == q.y && p.z < q.z)))
-}
-
-/// `a, b, c` in the order of [`before`].
-#[inline]
-fn sorted3(a: Point, b: Point, c: Point) -> (Point, Point, Point) {
-    let (a, b) = if before(b, a) { (b, a) } else { (a, b) };
-    let (b, c) = if before(c, b) { (c, b) } else { (b, c) };
-    let (a, b) = if before(b, a) { (b, a) } else { (a, b) };
-    (a, b, c)
 }
 
 /// Capacities: a Voronoi cell of a site (Algorithm 1) may have ~40 faces

@@ -478,9 +478,6 @@ pub fn whole_cell<const P: usize, const V: usize, A: AtomicSums, C: AtomicSums, 
     // of the domain to its box). Such a cell is then cut by its tets.
     let mut in_mesh = MAYBE;
     let mut bounded = false;
-    // How far the walk went when bounded (sites beyond cannot cut what
-    // the tets hold of the cell).
-    let mut cap2 = f32::INFINITY;
     let mut built = clip_by_list(&mut poly, i, sites, &w);
     if built.security_missed
         && d.params.whole != domain_whole::ALL
@@ -491,7 +488,8 @@ pub fn whole_cell<const P: usize, const V: usize, A: AtomicSums, C: AtomicSums, 
             built = clip_by_list(&mut poly, i, sites, &w);
         }
         if built.security_missed {
-            cap2 = Slack::of(c.weight_range, sites, i, c.n_sites).reach2(domain_reach2(&si, &poly, verts, tets, &d));
+            let cap2 =
+                Slack::of(c.weight_range, sites, i, c.n_sites).reach2(domain_reach2(&si, &poly, verts, tets, &d));
             built = walk_to_cell(&mut poly, i, sites, w, built, cap2);
             bounded = true;
         }
@@ -518,17 +516,22 @@ pub fn whole_cell<const P: usize, const V: usize, A: AtomicSums, C: AtomicSums, 
     // many times the cell's own size (weights that differ by more than the
     // sites' spacing squared, as transport's between cells of very
     // different sizes). A Voronoi cell holds its site: never rebuilt.
-    let (r2, centre, half) = poly.bounds();
+    let (_, centre, half) = poly.bounds();
     let mut frame = si;
     let mut shift = Vec3::ZERO;
     let away = centre.abs() - half;
     if !poly.is_empty() && away.x.max(away.y).max(away.z) > 0.0 {
         shift = Vec3::from(centre);
         frame = offset_point(&si, shift);
-        let reach2 = Slack::of(c.weight_range, sites, i, c.n_sites).reach2(r2 * (1.0 + 1e-3)).min(cap2);
-        // A box around the cell, larger than its rounding could make it:
-        // a side of it as a face would say the first build was wrong.
-        let span = Vec3::from(half) * 1.5 + Vec3::splat(1e-4 * centre.length() + d.params.margin);
+        // A box around the cell, larger than its rounding could make it (a
+        // side of it as a face would say the first build was wrong), and
+        // every site that can cut a point of the box: those within the
+        // security radius of its farthest corner from the site (not only
+        // those a bounded walk took: the box reaches a little beyond what
+        // that walk certified).
+        let span = Vec3::from(half) * 1.01 + Vec3::splat(1e-4 * centre.length());
+        let corner = shift.abs() + span;
+        let reach2 = Slack::of(c.weight_range, sites, i, c.n_sites).reach2(corner.length_squared() * (1.0 + 1e-5));
         let had_box_face = poly.has_box_face();
         poly.set_cuboid((lo - shift).max(-span), (hi - shift).min(span));
         let again = clip_in_frame(&mut poly, i, sites, w, &frame, reach2);
@@ -539,10 +542,11 @@ pub fn whole_cell<const P: usize, const V: usize, A: AtomicSums, C: AtomicSums, 
             count(counters, 0, 0, &again);
             return;
         }
-        // The cell holds its frame's origin: the domain's test, made there,
-        // can find it whole (away from its site, it was taken as cut).
+        // Empty now (it was a sliver of rounding): nothing to cut. Else the
+        // cell holds its frame's origin: the domain's test, made there, can
+        // find it whole (away from its site, it was taken as cut).
         let mut in_mesh = MAYBE;
-        whole = whole || (!bounded && !may_be_cut(&frame, &poly, verts, tets, &d, &mut in_mesh));
+        whole = whole || poly.is_empty() || (!bounded && !may_be_cut(&frame, &poly, verts, tets, &d, &mut in_mesh));
     }
     if whole {
         if !poly.is_empty() {

@@ -106,6 +106,10 @@ fn check_power_cells(mesh: &TetMesh, sites: &[[f64; 3]], w: &[f64], exact: &(Vec
     let empty = vol.iter().filter(|&&v| v == 0.0).count();
     for (backend, strategy, pairing) in runs() {
         let what = format!("{} {strategy:?} {pairing:?}", backend.name());
+        // lavapipe rounds the power cells whole cells rebuild in a frame
+        // at their centre less finely than the CPU (its fused multiply-add
+        // need not be fused; measured 6.4e-6 on the L below).
+        let tol = if backend.name().starts_with("cpu") || strategy != Strategy::Whole { tol } else { tol.max(1e-5) };
         let cells = ClippedVoronoi::new(mesh, sites)
             .weights(w)
             .strategy(strategy)
