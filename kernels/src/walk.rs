@@ -272,8 +272,8 @@ impl<const P: usize, const V: usize> RingVisitor<Polyhedron<P, V>> for FrameClip
 
 /// Clips `poly`, in the frame whose origin is `frame` (near the cell, away
 /// from site `i`), by the bisectors of every site within `sqrt(reach2)`
-/// of site `i` (a security radius the cell's build in the site's own frame
-/// found), their offsets exact relative to their distance from the frame
+/// of site `i` (the security radius of `poly`'s farthest point from the
+/// site), their offsets exact relative to their distance from the frame
 /// ([`bisector_offset_at`]). The cell comes out as precise relative to
 /// its own size as a cell around its site.
 #[inline]
