@@ -39,11 +39,12 @@ pub mod spirv;
 
 pub use backend::Backend;
 pub use backends::{BackendChoice, BackendOptions};
-pub use diagram::periodic::{PeriodicBox, PeriodicCells, PeriodicVoronoi};
+pub use diagram::periodic::{PeriodicCells, PeriodicVoronoi};
 pub use diagram::voronoi::{Cells, ClippedVoronoi, Counters};
 pub use error::{Error, Result};
 pub use exec::CpuBackend;
 pub use geom::mesh::TetMesh;
+pub use geom::periodic_box::PeriodicBox;
 pub use job::clip::{JobShape, Pairing, Strategy};
 pub use job::knn::{KnnJob, KnnMethod, Neighbors};
 pub use job::BackendKind;

@@ -8,6 +8,7 @@
 pub mod density;
 pub mod domain;
 pub mod mesh;
+pub mod periodic_box;
 pub mod points;
 pub mod quantize;
 pub mod site_grid;
