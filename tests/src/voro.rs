@@ -8,7 +8,7 @@ use voro_rs::prelude::*;
 /// given as radii `sqrt(w)`): volumes and centroids in input order (an
 /// empty cell: volume 0, no centroid).
 pub fn power_cells(lo: [f64; 3], hi: [f64; 3], sites: &[[f64; 3]], w: &[f64]) -> (Vec<f64>, Vec<Option<[f64; 3]>>) {
-    radical_cells(lo, hi, sites, w, false)
+    radical_cells(lo, hi, sites, w, [false; 3])
 }
 
 /// voro++'s radical cells in the periodic box `lo..hi` (sites inside it):
@@ -20,7 +20,20 @@ pub fn periodic_power_cells(
     sites: &[[f64; 3]],
     w: &[f64],
 ) -> (Vec<f64>, Vec<Option<[f64; 3]>>) {
-    radical_cells(lo, hi, sites, w, true)
+    radical_cells(lo, hi, sites, w, [true; 3])
+}
+
+/// voro++'s radical cells in the box `lo..hi` periodic along the axes
+/// flagged, walls along the others (sites inside it): volumes and
+/// centroids, as [`periodic_power_cells`].
+pub fn partly_periodic_power_cells(
+    lo: [f64; 3],
+    hi: [f64; 3],
+    periodic: [bool; 3],
+    sites: &[[f64; 3]],
+    w: &[f64],
+) -> (Vec<f64>, Vec<Option<[f64; 3]>>) {
+    radical_cells(lo, hi, sites, w, periodic)
 }
 
 fn radical_cells(
@@ -28,11 +41,11 @@ fn radical_cells(
     hi: [f64; 3],
     sites: &[[f64; 3]],
     w: &[f64],
-    periodic: bool,
+    periodic: [bool; 3],
 ) -> (Vec<f64>, Vec<Option<[f64; 3]>>) {
     let least = w.iter().copied().fold(f64::INFINITY, f64::min);
     let blocks = ((sites.len() as f64 / 5.0).cbrt().ceil() as i32).max(1);
-    let mut con = ContainerRad::new(lo, hi, [blocks; 3], [periodic; 3]);
+    let mut con = ContainerRad::new(lo, hi, [blocks; 3], periodic);
     for (i, (&p, &wi)) in sites.iter().zip(w).enumerate() {
         con.put(i as i32, p, (wi - least).sqrt());
     }

@@ -83,9 +83,9 @@ pub trait SiteDiagram: Sync {
         p
     }
 
-    /// A periodic box's sides (a face's neighbour is the nearest image),
-    /// or `None`.
-    fn period(&self) -> Option<[f64; 3]> {
+    /// The periodic box (a face's neighbour is an image through its
+    /// shift), or `None`.
+    fn period(&self) -> Option<crate::geom::periodic_box::PeriodicBox> {
         None
     }
 

@@ -17,8 +17,8 @@ impl SiteDiagram for PeriodicVoronoi<'_> {
         self.domain().wrap(p)
     }
 
-    fn period(&self) -> Option<[f64; 3]> {
-        Some(self.domain().lengths())
+    fn period(&self) -> Option<crate::geom::periodic_box::PeriodicBox> {
+        Some(self.domain())
     }
 
     fn cells_at(&self, sites: &[[f64; 3]]) -> Result<Cells> {

@@ -18,6 +18,7 @@
 use crate::cvt::{CvtRun, Iteration, SiteDiagram};
 use crate::diagram::voronoi::Cells;
 use crate::error::{Error, Result};
+use crate::geom::periodic_box::PeriodicBox;
 use rayon::prelude::*;
 use std::time::Instant;
 
@@ -217,7 +218,7 @@ impl<'a, D: SiteDiagram> Transport<'a, D> {
         }
         let clock = Instant::now();
         // The sites as the diagram sees them (wrapped into a periodic box),
-        // and the box's sides, if periodic.
+        // and the box, if periodic.
         let frame: (Vec<[f64; 3]>, _) = (sites.iter().map(|&x| self.diagram.place(x)).collect(), self.diagram.period());
         let at = |w: &[f64]| self.diagram.power_cells_at(sites, w);
         let mut cells = at(&w)?;
@@ -427,11 +428,11 @@ struct Laplacian {
 
 impl Laplacian {
     /// From the cells' faces: `A_ij / 2|x_i - x_j|` per shared face (`A_ij`
-    /// its area, or its mass under a density; in a periodic box of sides
-    /// `lengths`, `x_j` the image the face is shared with).
+    /// its area, or its mass under a density; in a periodic box
+    /// `period`, `x_j` the image the face is shared with).
     /// Refuses a diagram whose cells fall apart into separate groups (a
     /// domain in pieces).
-    fn of(cells: &Cells, sites: &[[f64; 3]], lengths: Option<[f64; 3]>) -> Result<Self> {
+    fn of(cells: &Cells, sites: &[[f64; 3]], period: Option<PeriodicBox>) -> Result<Self> {
         let adj = cells.adjacency().expect("the transport's diagrams have faces");
         let rows: Vec<u32> =
             adj.offsets.windows(2).enumerate().flat_map(|(i, r)| std::iter::repeat_n(i as u32, r[1] - r[0])).collect();
@@ -439,9 +440,8 @@ impl Laplacian {
             .into_par_iter()
             .map(|e| {
                 let (p, mut q) = (sites[rows[e] as usize], sites[adj.neighbors[e] as usize]);
-                if let Some(l) = lengths {
-                    let s = adj.shift(e);
-                    q = [0, 1, 2].map(|a| q[a] + s[a] as f64 * l[a]);
+                if let Some(b) = period {
+                    q = b.shifted(q, adj.shift(e));
                 }
                 let dist = ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt();
                 adj.areas[e] / (2.0 * dist)

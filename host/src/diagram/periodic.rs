@@ -35,13 +35,24 @@
 //! ([`Adjacency::shifts`]). The box's own faces are no boundary here.
 //! Sums are folded in a fixed order, so a run repeats bit for bit.
 //!
-//! Orthorhombic boxes. A triclinic cell (three lattice vectors) needs its
-//! parallelepiped cut into tets, images moved by lattice vectors, and the
-//! wrap done in lattice coordinates; the kernels need nothing new.
+//! Triclinic cells and walls. The box may be any parallelepiped (three
+//! lattice vectors, [`PeriodicBox::triclinic`]): sites are wrapped in its
+//! fractional coordinates, images are moved by lattice vectors, and the
+//! halo's images are those whose distance to the cell's slabs is within
+//! it (a bound from below of their distance to the cell, so a few more
+//! than needed). Along an axis that does not repeat, the cell's two faces
+//! are walls: no image is taken across them, and each site and image
+//! near a wall is mirrored in it. Inside the walls a mirror is never
+//! nearer than the point it mirrors (the wall bisects them), so it cuts
+//! no cell there; a site's own mirror, with the site's weight, cuts the
+//! site's cell exactly along the wall. A face with a mirror is the cell's
+//! area on the wall (its boundary). Walls are taken under whole cells
+//! only; a site on a wall is moved [`WALL_GAP`] of the cell's height
+//! inside, so that its mirror stays apart from it (and counted).
 
 use crate::backend::Backend;
 use crate::diagram::voronoi::{Cells, ClippedVoronoi};
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::geom::periodic_box::PeriodicBox;
 use crate::geom::site_grid::SiteGrid;
 use crate::job::clip::{JobShape, Strategy};
@@ -55,12 +66,33 @@ use std::time::Instant;
 /// frames the job (its [`JobShape`] for the default strategy too).
 pub const WHOLE_FRAME_TETS: usize = 6;
 
-/// The image of a site: site `site` moved by `shift` box lengths.
+/// The image of a site: site `site` moved by `shift` lattice vectors,
+/// then, for a mirror, reflected in a wall.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 struct Image {
     site: u32,
     shift: [i32; 3],
+    /// The wall it is reflected in: `2 axis + upper`, or [`NO_WALL`].
+    wall: u8,
 }
+
+/// An image not reflected in any wall.
+const NO_WALL: u8 = u8::MAX;
+
+impl Image {
+    fn at(&self, domain: &PeriodicBox, sites: &[[f64; 3]]) -> [f64; 3] {
+        let p = domain.shifted(sites[self.site as usize], self.shift);
+        if self.wall == NO_WALL {
+            p
+        } else {
+            domain.mirrored(p, (self.wall / 2) as usize, self.wall % 2 == 1)
+        }
+    }
+}
+
+/// How close to a wall, in its cell's heights, a site may lie: nearer, it
+/// is moved this far inside, so that its mirror stays apart from it.
+pub const WALL_GAP: f64 = 1e-9;
 
 /// Builder of a periodic diagram: the cells of sites in a periodic box.
 #[derive(Clone, Copy)]
@@ -90,8 +122,13 @@ pub struct PeriodicCells {
     pub offsets: Vec<[f64; 3]>,
     /// How many sites were given outside the box (and wrapped).
     pub wrapped: usize,
-    /// How many images joined the sites.
+    /// How many images joined the sites (mirrors included).
     pub images: usize,
+    /// How many of them are mirrors in the walls.
+    pub mirrors: usize,
+    /// How many sites lay on a wall (within [`WALL_GAP`] of its cell's
+    /// height) and were moved that far inside it.
+    pub on_walls: usize,
     /// The halo's width (see the module's documentation).
     pub halo: f64,
 }
@@ -165,21 +202,34 @@ impl<'a> PeriodicVoronoi<'a> {
         let n = self.sites.len();
         let domain = self.domain;
         let clock = Instant::now();
-        let sites: Vec<[f64; 3]> = self.sites.iter().map(|&p| domain.wrap(p)).collect();
-        let wrapped = sites.iter().zip(self.sites).filter(|(a, b)| a != b).count();
+        let (sites, on_walls) = place_sites(&domain, self.sites)?;
+        let wrapped = sites.iter().zip(self.sites).filter(|(a, b)| a != b).count() - on_walls;
         let range = self.weights.map_or(0.0, |w| {
             let (lo, hi) = w.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
             hi - lo
         });
         let spacing = (domain.volume() / n as f64).cbrt();
+        let shape = JobShape { density: false, sites: sites.len(), tets: WHOLE_FRAME_TETS };
+        let strategy = match self.strategy {
+            // Walls are mirrors, which only whole cells take as such.
+            None if domain.has_walls() => Some(Strategy::Whole),
+            Some(s) if s != Strategy::Whole && domain.has_walls() => {
+                return Err(Error::InvalidInput(format!(
+                    "a cell with walls (periodic along {} only) is computed with whole cells; the {} strategy \
+                     applies to cells periodic along every axis",
+                    periodic_axes(&domain),
+                    s.name()
+                )))
+            }
+            s => s,
+        };
+        let whole = ClippedVoronoi::strategy_for(strategy, self.backend, shape) == Strategy::Whole;
         // A first halo: about the largest gap of uniform sites; then the
         // one the sites need.
         let first = (2.0 * spacing * 2.0 * spacing + range).sqrt();
         let mut images = images_within(&domain, &sites, first);
         let reach = coverage(&domain, &sites, &images, spacing);
         let mut halo = (reach * reach + range).sqrt() * (1.0 + 1e-9);
-        let shape = JobShape { density: false, sites: sites.len(), tets: WHOLE_FRAME_TETS };
-        let whole = ClippedVoronoi::strategy_for(self.strategy, self.backend, shape) == Strategy::Whole;
         if whole {
             // A whole cell reaches up to `H` outside the box, and the sites
             // that may cut it lie within `H` of its points.
@@ -188,18 +238,18 @@ impl<'a> PeriodicVoronoi<'a> {
         if halo > first {
             images = images_within(&domain, &sites, halo);
         }
+        let before = images.len();
+        images.extend(mirrors_within(&domain, &sites, &images, halo));
+        let mirrors = images.len() - before;
         let mut all = sites.clone();
-        all.extend(images.iter().map(|m| domain.shifted(sites[m.site as usize], m.shift)));
+        all.extend(images.iter().map(|m| m.at(&domain, &sites)));
         let weights: Option<Vec<f64>> =
             self.weights.map(|w| w.iter().copied().chain(images.iter().map(|m| w[m.site as usize])).collect());
         // Whole cells need the box only as the job's frame: its 6 tets.
         let mesh = domain.mesh(self.tets.unwrap_or(if whole { 6 } else { n }));
         let images_s = clock.elapsed().as_secs_f64();
-        let mut diagram = ClippedVoronoi::new(&mesh, &all)
-            .faces(self.faces)
-            .strategy(self.strategy)
-            .k_site(self.k_site)
-            .images_after(n);
+        let mut diagram =
+            ClippedVoronoi::new(&mesh, &all).faces(self.faces).strategy(strategy).k_site(self.k_site).images_after(n);
         if let Some(w) = &weights {
             diagram = diagram.weights(w);
         }
@@ -212,15 +262,61 @@ impl<'a> PeriodicVoronoi<'a> {
         cells.timings = whole.timings.clone();
         cells.timings.phases.insert(0, ("images".into(), images_s));
         cells.timings.push("fold", clock.elapsed().as_secs_f64());
-        Ok(PeriodicCells { cells, sites, offsets, wrapped, images: images.len(), halo })
+        Ok(PeriodicCells { cells, sites, offsets, wrapped, images: images.len(), mirrors, on_walls, halo })
     }
 }
 
+/// The periodic axes' names, for messages.
+fn periodic_axes(domain: &PeriodicBox) -> String {
+    let names: Vec<&str> = (0..3).filter(|&a| domain.periodic()[a]).map(PeriodicBox::axis_name).collect();
+    if names.is_empty() {
+        "no axis".into()
+    } else {
+        names.join(", ")
+    }
+}
+
+/// The sites wrapped into the box along its periodic axes; along its
+/// walls each must lie between them (a site on a wall, or outside it by
+/// rounding, within [`WALL_GAP`] of the height, is moved that far inside:
+/// its mirror must stay apart from it). Also how many were moved so.
+fn place_sites(domain: &PeriodicBox, sites: &[[f64; 3]]) -> Result<(Vec<[f64; 3]>, usize)> {
+    let mut placed: Vec<[f64; 3]> = sites.par_iter().map(|&p| domain.wrap(p)).collect();
+    if !domain.has_walls() {
+        return Ok((placed, 0));
+    }
+    let h = domain.heights();
+    let mut moved = 0;
+    for (i, p) in placed.iter_mut().enumerate() {
+        let (out, axis) = domain.outside_walls(*p);
+        if out > WALL_GAP * h[axis] {
+            return Err(Error::InvalidInput(format!(
+                "site {i} {:?} lies {out:e} outside the walls across axis {} (the cell is not periodic along it)",
+                sites[i],
+                PeriodicBox::axis_name(axis)
+            )));
+        }
+        let s = domain.fractional(*p);
+        let inside = s.map(|x| x.clamp(WALL_GAP, 1.0 - WALL_GAP));
+        let mut t = [0.0; 3];
+        for a in (0..3).filter(|&a| !domain.periodic()[a]) {
+            t[a] = inside[a] - s[a];
+        }
+        if t != [0.0; 3] {
+            let v = domain.vectors();
+            *p = [0, 1, 2].map(|k| p[k] + t[0] * v[0][k] + t[1] * v[1][k] + t[2] * v[2][k]);
+            moved += 1;
+        }
+    }
+    Ok((placed, moved))
+}
+
 /// Every image of `sites` (other than the sites themselves) within
-/// `halo` of the box, by site, then shift.
+/// `halo` of the box, by site, then shift: shifts along the periodic axes
+/// only.
 fn images_within(domain: &PeriodicBox, sites: &[[f64; 3]], halo: f64) -> Vec<Image> {
-    let l = domain.lengths();
-    let m = l.map(|l| (halo / l).ceil().min(64.0) as i32);
+    let h = domain.heights();
+    let m = [0, 1, 2].map(|a| if domain.periodic()[a] { (halo / h[a]).ceil().min(64.0) as i32 } else { 0 });
     let shifts: Vec<[i32; 3]> = (-m[2]..=m[2])
         .flat_map(|z| (-m[1]..=m[1]).flat_map(move |y| (-m[0]..=m[0]).map(move |x| [x, y, z])))
         .filter(|s| *s != [0; 3])
@@ -229,38 +325,64 @@ fn images_within(domain: &PeriodicBox, sites: &[[f64; 3]], halo: f64) -> Vec<Ima
         .par_iter()
         .enumerate()
         .flat_map_iter(|(i, &p)| {
-            shifts
-                .iter()
-                .filter(move |&&s| domain.distance(domain.shifted(p, s)) <= halo)
-                .map(move |&shift| Image { site: i as u32, shift })
+            shifts.iter().filter(move |&&s| domain.distance(domain.shifted(p, s)) <= halo).map(move |&shift| Image {
+                site: i as u32,
+                shift,
+                wall: NO_WALL,
+            })
+        })
+        .collect()
+}
+
+/// The mirrors of the sites and their `images` in each wall that lie
+/// within `halo` of the box. Inside the walls a mirror is never nearer
+/// than the point it mirrors, so it cuts no cell there; a site's own
+/// mirror cuts its cell along the wall (their bisector, with equal
+/// weights, is the wall).
+fn mirrors_within(domain: &PeriodicBox, sites: &[[f64; 3]], images: &[Image], halo: f64) -> Vec<Image> {
+    let walls: Vec<u8> =
+        (0..3u8).filter(|&a| !domain.periodic()[a as usize]).flat_map(|a| [2 * a, 2 * a + 1]).collect();
+    if walls.is_empty() {
+        return Vec::new();
+    }
+    let own = (0..sites.len()).map(|i| Image { site: i as u32, shift: [0; 3], wall: NO_WALL });
+    let points: Vec<Image> = own.chain(images.iter().copied()).collect();
+    points
+        .par_iter()
+        .flat_map_iter(|m| {
+            walls.iter().filter_map(move |&wall| {
+                let mirror = Image { wall, ..*m };
+                (domain.distance(mirror.at(domain, sites)) <= halo).then_some(mirror)
+            })
         })
         .collect()
 }
 
 /// An upper bound of the distance from any point of the box to the
-/// nearest of `sites` and `images`: over query cells of about `spacing`,
-/// each cell's farthest corner from the site nearest its centre.
+/// nearest of `sites` and `images`: over query cells of about `spacing`
+/// (a grid of the fractional coordinates), each cell's farthest corner
+/// from the site nearest its centre.
 fn coverage(domain: &PeriodicBox, sites: &[[f64; 3]], images: &[Image], spacing: f64) -> f64 {
     let points: Vec<SplitPoint> = sites
         .iter()
         .copied()
-        .chain(images.iter().map(|m| domain.shifted(sites[m.site as usize], m.shift)))
+        .chain(images.iter().map(|m| m.at(domain, sites)))
         .map(|p| SplitPoint::site(p, 0.0))
         .collect();
     let grid = SiteGrid::new(&points);
-    let (lo, l) = (domain.lo(), domain.lengths());
-    let dims = l.map(|l| ((l / spacing).ceil() as usize).clamp(1, 1 << 10));
-    let side = [0, 1, 2].map(|a| l[a] / dims[a] as f64);
+    let dims = domain.heights().map(|l| ((l / spacing).ceil() as usize).clamp(1, 1 << 10));
     (0..dims[0] * dims[1] * dims[2])
         .into_par_iter()
         .map(|c| {
             let at = [c % dims[0], (c / dims[0]) % dims[1], c / (dims[0] * dims[1])];
-            let corner = |a: usize, up: usize| lo[a] + (at[a] + up) as f64 * side[a];
-            let centre = [0, 1, 2].map(|a| lo[a] + (at[a] as f64 + 0.5) * side[a]);
-            let (s, _) = grid.nearest(centre);
+            let point = |s: [f64; 3]| domain.cartesian([0, 1, 2].map(|a| (at[a] as f64 + s[a]) / dims[a] as f64));
+            let (s, _) = grid.nearest(point([0.5; 3]));
             let q = points[s as usize].to_f64();
             (0..8)
-                .map(|k| (0..3).map(|a| (corner(a, (k >> a) & 1) - q[a]).powi(2)).sum::<f64>())
+                .map(|k| {
+                    let corner = point([0, 1, 2].map(|a| ((k >> a) & 1) as f64));
+                    (0..3).map(|a| (corner[a] - q[a]).powi(2)).sum::<f64>()
+                })
                 .fold(0.0, f64::max)
                 .sqrt()
         })
@@ -268,8 +390,9 @@ fn coverage(domain: &PeriodicBox, sites: &[[f64; 3]], images: &[Image], spacing:
 }
 
 /// The cells of `sites` from the diagram `whole` of `all` (the sites, then
-/// their `images`): each image's sums added to its site's; and each
-/// centroid's offset from its site, unwrapped.
+/// their `images`): each image's sums added to its site's, a face with a
+/// mirror taken as the cell's boundary on a wall; and each centroid's
+/// offset from its site, unwrapped.
 fn fold(
     domain: &PeriodicBox,
     sites: &[[f64; 3]],
@@ -278,11 +401,15 @@ fn fold(
     whole: &Cells,
 ) -> (Cells, Vec<[f64; 3]>) {
     let n = sites.len();
-    // The images of each site, in order.
+    // The images of each site, in order (mirrors get no cells: they are
+    // taken under whole cells only).
     let mut of = vec![Vec::new(); n];
     for (k, m) in images.iter().enumerate() {
-        of[m.site as usize].push(n + k);
+        if m.wall == NO_WALL {
+            of[m.site as usize].push(n + k);
+        }
     }
+    let mirror = |u: usize| u >= n && images[u - n].wall != NO_WALL;
     let shift = |u: usize| if u < n { [0; 3] } else { images[u - n].shift };
     let owner = |u: usize| if u < n { u } else { images[u - n].site as usize };
     let mut volume = vec![0.0; n];
@@ -315,15 +442,24 @@ fn fold(
     counters.duplicate_sites = sites.iter().filter(|p| !seen.insert(p.map(f64::to_bits))).count() as u64;
     counters.empty_cells = volume.iter().filter(|&&v| v <= 0.0).count() as u64 - counters.duplicate_sites;
     let adjacency = whole.adjacency.as_ref().map(|a| {
-        // Per site: (neighbour, shift, area, normal).
+        // Per site: (neighbour, shift, area, normal), and the boundary's
+        // area and area vector.
         type Face = (u32, [i32; 3], f64, [f64; 3]);
-        let rows: Vec<Vec<Face>> = (0..n)
+        let rows: Vec<(Vec<Face>, f64, [f64; 3])> = (0..n)
             .into_par_iter()
             .map(|i| {
                 let mut faces: HashMap<(u32, [i32; 3]), (f64, [f64; 3])> = HashMap::new();
+                let (mut wall, mut wall_vector) = (0.0, [0.0; 3]);
                 for u in std::iter::once(i).chain(of[i].iter().copied()) {
                     let su = shift(u);
                     for (v, area, normal) in a.of(u) {
+                        if mirror(v as usize) {
+                            wall += area;
+                            for k in 0..3 {
+                                wall_vector[k] += area * normal[k];
+                            }
+                            continue;
+                        }
                         let sv = shift(v as usize);
                         let key = (owner(v as usize) as u32, [0, 1, 2].map(|k| sv[k] - su[k]));
                         faces.entry(key).or_insert((0.0, normal)).0 += area;
@@ -331,11 +467,24 @@ fn fold(
                 }
                 let mut row: Vec<_> = faces.into_iter().map(|((j, s), (area, normal))| (j, s, area, normal)).collect();
                 row.sort_unstable_by_key(|e| (e.0, e.1));
-                row
+                (row, wall, wall_vector)
             })
             .collect();
+        // A face with a mirror is seen from the cell's side only: half its
+        // area is on the mirror's row, as the face with the cell.
+        let (mut half, mut half_vector) = (vec![0.0; n], vec![[0.0; 3]; n]);
+        for u in (n..all.len()).filter(|&u| mirror(u)) {
+            for (v, area, normal) in a.of(u) {
+                let i = owner(v as usize);
+                half[i] += area;
+                for k in 0..3 {
+                    half_vector[i][k] -= area * normal[k];
+                }
+            }
+        }
         let mut adj = Adjacency { offsets: vec![0], ..Default::default() };
-        for row in rows {
+        for (i, (row, wall, wall_vector)) in rows.into_iter().enumerate() {
+            let (wall, wall_vector) = (wall + half[i], [0, 1, 2].map(|k| wall_vector[k] + half_vector[i][k]));
             for (j, s, area, normal) in row {
                 adj.neighbors.push(j);
                 adj.shifts.push(s);
@@ -343,9 +492,9 @@ fn fold(
                 adj.normals.push(normal);
             }
             adj.offsets.push(adj.neighbors.len());
+            adj.boundary.push(wall);
+            adj.boundary_vector.push(wall_vector);
         }
-        adj.boundary = vec![0.0; n];
-        adj.boundary_vector = vec![[0.0; 3]; n];
         adj
     });
     let total_volume: f64 = volume.iter().sum();
@@ -373,7 +522,6 @@ fn fold(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::error::Error;
     use crate::geom::points;
 
     #[test]
@@ -389,7 +537,7 @@ mod tests {
                         for x in -4..=4 {
                             let s = [x, y, z];
                             if s != [0; 3] && b.distance(b.shifted(p, s)) <= halo {
-                                expected.push(Image { site: i as u32, shift: s });
+                                expected.push(Image { site: i as u32, shift: s, wall: NO_WALL });
                             }
                         }
                     }
