@@ -133,8 +133,8 @@ fn walls_along_some_axes_give_voro_plus_plus_partly_periodic_cells() {
                 for i in 0..sites.len() {
                     let mut closure = adj.boundary_vector[i];
                     for e in adj.offsets[i]..adj.offsets[i + 1] {
-                        for a in 0..3 {
-                            closure[a] += adj.areas[e] * adj.normals[e][a];
+                        for (c, n) in closure.iter_mut().zip(adj.normals[e]) {
+                            *c += adj.areas[e] * n;
                         }
                     }
                     // Relative to the surface, at least the mean cell's, as

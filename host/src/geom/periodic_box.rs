@@ -8,9 +8,10 @@ use crate::geom::mesh::TetMesh;
 /// (x, y, z for an axis-aligned box).
 const AXES: [&str; 3] = ["a (x)", "b (y)", "c (z)"];
 
-/// The unit cell of a space that repeats: a parallelepiped `origin + s_a a
-/// + s_b b + s_c c` (`0 <= s < 1`) whose opposite faces are glued along
-/// the periodic axes; along the others its two faces are walls.
+/// The unit cell of a space that repeats: a parallelepiped, the points
+/// `origin + s_a a + s_b b + s_c c` with `0 <= s < 1`, whose opposite
+/// faces are glued along the periodic axes; along the others its two
+/// faces are walls.
 ///
 /// An axis-aligned box (`lo..hi`, [`Self::new`]) is the common case; a
 /// triclinic cell is given by three lattice vectors ([`Self::triclinic`])
@@ -81,7 +82,7 @@ impl PeriodicBox {
         let [a, b, c] = vectors;
         let volume = dot(cross(a, b), c);
         let norms: f64 = vectors.iter().map(|v| dot(*v, *v).sqrt()).product();
-        if !(volume > 1e-12 * norms) {
+        if volume.partial_cmp(&(1e-12 * norms)) != Some(std::cmp::Ordering::Greater) {
             return Err(Error::InvalidInput(format!(
                 "the lattice vectors a = {a:?}, b = {b:?}, c = {c:?} must span a right-handed cell \
                  ((a x b) . c > 0); their triple product is {volume:e}{}",
