@@ -39,6 +39,7 @@ pub mod spirv;
 
 pub use backend::Backend;
 pub use backends::{BackendChoice, BackendOptions};
+pub use diagram::particles::{IndexThresholds, ParticleCells, INDEX_ORDERS};
 pub use diagram::periodic::{PeriodicCells, PeriodicVoronoi};
 pub use diagram::voronoi::{Cells, ClippedVoronoi, Counters};
 pub use error::{Error, Result};

@@ -8,7 +8,9 @@
 //! lattices (FCC, BCC, HCP) in cells that are not their own give every
 //! cell the lattice's volume and faces.
 
-use cvd::{geom::points, PeriodicBox, PeriodicCells, PeriodicVoronoi, Strategy};
+use cvd::{
+    geom::points, CpuBackend, IndexThresholds, ParticleCells, PeriodicBox, PeriodicCells, PeriodicVoronoi, Strategy,
+};
 use cvd_tests::backends;
 use cvd_tests::voro::{partly_periodic_power_cells, periodic_power_cells};
 
@@ -232,12 +234,21 @@ fn fcc_bcc_and_hcp_in_cells_that_are_not_their_own() {
     let bcc_primitive = [[0.5, 0.5, -0.5], [-0.5, 0.5, 0.5], [0.5, -0.5, 0.5]];
     let hex = [[1.0, 0.0, 0.0], [0.5, h, 0.0], [0.0, 0.0, c]];
     let cases = [
-        // name, lattice, basis, supercell, cell volume, faces
-        ("FCC", fcc_primitive, vec![[0.0; 3]], [[3, 0, 0], [1, 3, 0], [0, 1, 2]], 0.25, 12),
-        ("BCC", bcc_primitive, vec![[0.0; 3]], [[2, 1, 0], [0, 3, 0], [1, 0, 3]], 0.5, 14),
-        ("HCP", hex, vec![[0.0; 3], [1.0 / 3.0, 1.0 / 3.0, 0.5]], [[3, 0, 0], [1, 3, 0], [0, 0, 2]], h * c / 2.0, 12),
+        // name, lattice, basis, supercell, cell volume, faces, Voronoi index
+        ("FCC", fcc_primitive, vec![[0.0; 3]], [[3, 0, 0], [1, 3, 0], [0, 1, 2]], 0.25, 12, [0, 12, 0, 0]),
+        ("BCC", bcc_primitive, vec![[0.0; 3]], [[2, 1, 0], [0, 3, 0], [1, 0, 3]], 0.5, 14, [0, 6, 0, 8]),
+        (
+            "HCP",
+            hex,
+            vec![[0.0; 3], [1.0 / 3.0, 1.0 / 3.0, 0.5]],
+            [[3, 0, 0], [1, 3, 0], [0, 0, 2]],
+            h * c / 2.0,
+            12,
+            [0, 12, 0, 0],
+        ),
     ];
-    for (name, lattice, basis, m, volume, faces) in cases {
+    let cpu = CpuBackend::new(None).unwrap();
+    for (name, lattice, basis, m, volume, faces, index) in cases {
         let (domain, sites) = lattice_in(lattice, &basis, m);
         let det = m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
             + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);
@@ -250,6 +261,54 @@ fn fcc_bcc_and_hcp_in_cells_that_are_not_their_own() {
             }
             let counts = face_counts(&out);
             assert!(counts.iter().all(|&f| f == faces), "{what}: faces {counts:?}, not {faces}");
+            // The Voronoi index with no threshold: the lattice's vertices
+            // where more than three cells meet are one point.
+            let out = PeriodicVoronoi::new(domain, &sites).backend(backend).compute_with_polyhedra(&cpu).unwrap();
+            let q = ParticleCells::of(sites.len(), out.cells.polyhedra().unwrap(), &IndexThresholds::default());
+            for i in 0..sites.len() {
+                assert_eq!(q.index[i][..4], index, "{what}: cell {i}'s Voronoi index");
+                assert_eq!((q.coordination[i], q.max_face_order[i]), (faces as u32, if name == "BCC" { 6 } else { 4 }));
+            }
         }
+    }
+}
+
+/// A perfect icosahedral cluster in a triclinic cell among particles kept
+/// away from it: the centre's cell is the regular dodecahedron, Voronoi
+/// index <0,0,12,0>.
+#[test]
+fn an_icosahedral_cluster_gives_its_centre_twelve_pentagons() {
+    let domain = PeriodicBox::lammps([0.0; 3], [6.0, 5.5, 5.0], [1.5, -1.0, 0.75]).unwrap();
+    let centre = domain.cartesian([0.5; 3]);
+    let g = (1.0 + 5.0f64.sqrt()) / 2.0;
+    let scale = 1.0 / (1.0 + g * g).sqrt();
+    let mut sites = vec![centre];
+    for (a, b) in [(1.0, g), (1.0, -g), (-1.0, g), (-1.0, -g)] {
+        for v in [[0.0, a, b], [a, b, 0.0], [b, 0.0, a]] {
+            sites.push([0, 1, 2].map(|k| centre[k] + scale * v[k]));
+        }
+    }
+    // Others at least 2.5 from the centre, which the dodecahedron (circumradius
+    // 0.63) does not reach.
+    for p in points::uniform(400, 331) {
+        let q = domain.cartesian(p);
+        if (0..3).map(|k| (q[k] - centre[k]).powi(2)).sum::<f64>().sqrt() > 2.5 {
+            sites.push(q);
+        }
+    }
+    // The dodecahedron of inradius 1/2: edge 1 / sqrt(5/2 + 11 sqrt(5) / 10).
+    let edge = 1.0 / (2.5 + 1.1 * 5.0f64.sqrt()).sqrt();
+    let volume = (15.0 + 7.0 * 5.0f64.sqrt()) / 4.0 * edge.powi(3);
+    let cpu = CpuBackend::new(None).unwrap();
+    for backend in backends() {
+        let out = PeriodicVoronoi::new(domain, &sites).backend(backend).compute_with_polyhedra(&cpu).unwrap();
+        assert!((out.cells.volume[0] - volume).abs() < 1e-6 * volume, "{}: {}", backend.kind(), out.cells.volume[0]);
+        let q = ParticleCells::of(sites.len(), out.cells.polyhedra().unwrap(), &IndexThresholds::default());
+        assert_eq!(q.index[0], [0, 0, 12, 0, 0, 0, 0, 0], "{}", backend.kind());
+        assert_eq!((q.coordination[0], q.max_face_order[0]), (12, 5));
+        // Twelve pentagons of edge `edge`.
+        let area = 3.0 * (25.0 + 10.0 * 5.0f64.sqrt()).sqrt() * edge * edge;
+        assert!((q.area[0] - area).abs() < 1e-6 * area, "{}: area {} against {area}", backend.kind(), q.area[0]);
+        assert_eq!(out.cells.volume.len(), sites.len());
     }
 }

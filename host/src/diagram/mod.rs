@@ -1,6 +1,8 @@
 //! The clipped Voronoi diagram, the library's API: the cells of sites in a
 //! tet mesh ([`voronoi`]) and in a periodic box, through the sites'
-//! images ([`periodic`]).
+//! images ([`periodic`]), and what particle simulations ask of each cell
+//! ([`particles`]: surface, coordination, Voronoi index).
 
+pub mod particles;
 pub mod periodic;
 pub mod voronoi;

@@ -53,10 +53,13 @@
 use crate::backend::Backend;
 use crate::diagram::voronoi::{Cells, ClippedVoronoi};
 use crate::error::{Error, Result};
+use crate::exec::CpuBackend;
 use crate::geom::periodic_box::PeriodicBox;
 use crate::geom::site_grid::SiteGrid;
 use crate::job::clip::{JobShape, Strategy};
 use crate::passes::faces::Adjacency;
+use crate::passes::pieces::ON_BOUNDARY;
+use crate::passes::polyhedra::CellPolyhedron;
 use cvd_kernels::abi::SplitPoint;
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -198,6 +201,19 @@ impl<'a> PeriodicVoronoi<'a> {
 
     /// Computes the cells.
     pub fn compute(&self) -> Result<PeriodicCells> {
+        self.run(None)
+    }
+
+    /// Computes the cells, each also as one closed polyhedron (whole cells
+    /// only: [`Cells::polyhedra`], one per site with a cell, in site
+    /// order) — its faces with the neighbours' sites (an image's face:
+    /// its site's) or [`ON_BOUNDARY`] on a wall. On another backend than
+    /// the CPU, the polyhedra come from a second run on `cpu`.
+    pub fn compute_with_polyhedra(&self, cpu: &CpuBackend) -> Result<PeriodicCells> {
+        self.run(Some(cpu))
+    }
+
+    fn run(&self, cpu: Option<&CpuBackend>) -> Result<PeriodicCells> {
         crate::job::sites::check_sites(self.sites, self.weights)?;
         let n = self.sites.len();
         let domain = self.domain;
@@ -211,8 +227,9 @@ impl<'a> PeriodicVoronoi<'a> {
         let spacing = (domain.volume() / n as f64).cbrt();
         let shape = JobShape { density: false, sites: sites.len(), tets: WHOLE_FRAME_TETS };
         let strategy = match self.strategy {
-            // Walls are mirrors, which only whole cells take as such.
-            None if domain.has_walls() => Some(Strategy::Whole),
+            // Walls are mirrors, which only whole cells take as such; the
+            // polyhedra are whole cells'.
+            None if domain.has_walls() || cpu.is_some() => Some(Strategy::Whole),
             Some(s) if s != Strategy::Whole && domain.has_walls() => {
                 return Err(Error::InvalidInput(format!(
                     "a cell with walls (periodic along {} only) is computed with whole cells; the {} strategy \
@@ -256,14 +273,43 @@ impl<'a> PeriodicVoronoi<'a> {
         if let Some(b) = self.backend {
             diagram = diagram.backend(b);
         }
-        let whole = diagram.compute()?;
+        let (whole, polyhedra) = match cpu {
+            None => (diagram.compute()?, None),
+            Some(cpu) => {
+                if diagram.resolved_strategy() != Strategy::Whole {
+                    return Err(Error::InvalidInput(
+                        "the polyhedra of a periodic box's cells come from whole cells (--strategy whole)".into(),
+                    ));
+                }
+                let (mut cells, _) = diagram.compute_with_geometry(cpu)?;
+                let polyhedra = cells.polyhedra.take();
+                (cells, polyhedra)
+            }
+        };
         let clock = Instant::now();
         let (mut cells, offsets) = fold(&domain, &sites, &all, &images, &whole);
+        cells.polyhedra = polyhedra.map(|p| own_polyhedra(p, &images, n));
         cells.timings = whole.timings.clone();
         cells.timings.phases.insert(0, ("images".into(), images_s));
         cells.timings.push("fold", clock.elapsed().as_secs_f64());
         Ok(PeriodicCells { cells, sites, offsets, wrapped, images: images.len(), mirrors, on_walls, halo })
     }
+}
+
+/// The polyhedra of the sites' own cells (the first `n`; under whole
+/// cells the images have none), with each face's maker taken to its site,
+/// or to [`ON_BOUNDARY`] for a mirror's (a wall).
+fn own_polyhedra(mut polyhedra: Vec<CellPolyhedron>, images: &[Image], n: usize) -> Vec<CellPolyhedron> {
+    polyhedra.retain(|p| (p.site as usize) < n);
+    polyhedra.par_iter_mut().for_each(|p| {
+        for m in &mut p.face_neighbors {
+            if *m >= n as i64 {
+                let image = images[*m as usize - n];
+                *m = if image.wall == NO_WALL { image.site as i64 } else { ON_BOUNDARY };
+            }
+        }
+    });
+    polyhedra
 }
 
 /// The periodic axes' names, for messages.
