@@ -148,6 +148,54 @@ pub struct RunArgs {
     /// The periodic box's corners (implies --periodic).
     #[arg(long = "box", value_name = "X0,Y0,Z0,X1,Y1,Z1", value_delimiter = ',', allow_hyphen_values = true)]
     pub periodic_box: Option<Vec<f64>>,
+    /// A triclinic box by LAMMPS's tilts (lengths) of the box --box gives:
+    /// a = (X1-X0, 0, 0), b = (XY, Y1-Y0, 0), c = (XZ, YZ, Z1-Z0) from its
+    /// lower corner.
+    #[arg(long, value_name = "XY,XZ,YZ", value_delimiter = ',', allow_hyphen_values = true, requires = "periodic_box")]
+    pub tilt: Option<Vec<f64>>,
+    /// A triclinic box by its three edge vectors a, b, c (a right-handed
+    /// frame), from --origin (implies --periodic).
+    #[arg(
+        long,
+        value_name = "AX,AY,AZ,BX,BY,BZ,CX,CY,CZ",
+        value_delimiter = ',',
+        allow_hyphen_values = true,
+        conflicts_with = "periodic_box"
+    )]
+    pub lattice: Option<Vec<f64>>,
+    /// The corner the --lattice vectors start from.
+    #[arg(long, value_name = "X,Y,Z", value_delimiter = ',', allow_hyphen_values = true, requires = "lattice")]
+    pub origin: Option<Vec<f64>>,
+    /// The axes along which the box repeats, of x y z (a b c for a
+    /// triclinic box); along the others its faces are walls that cut the
+    /// cells (`xy`: a slab with walls at its z faces).
+    #[arg(long, value_name = "AXES", default_value = "xyz")]
+    pub periodic_axes: String,
+    /// Radical (power) cells from a radius per particle, one number per
+    /// line in the sites' order: weights r², as voro++'s radical
+    /// tessellation.
+    #[arg(long, value_name = "PATH", conflicts_with = "weights")]
+    pub radii: Option<PathBuf>,
+    /// The particles' quantities in cells.csv: each cell's faces counted
+    /// above the thresholds (coordination), the Voronoi index (faces with
+    /// 3, 4, ..., 10 or more edges: columns n3..n10) and the largest face
+    /// order, as OVITO's Voronoi analysis; summary.json gains the most
+    /// common indices. Computes the cells' polyhedra (whole cells).
+    #[arg(long)]
+    pub voronoi_index: bool,
+    /// Edges shorter than this length are not counted in the Voronoi index.
+    #[arg(long, default_value_t = 0.0, value_name = "LENGTH")]
+    pub edge_threshold: f64,
+    /// Edges shorter than this times the cell's V^(1/3) are not counted.
+    #[arg(long, default_value_t = 0.0, value_name = "FRACTION")]
+    pub relative_edge_threshold: f64,
+    /// Faces of this area or less are not counted.
+    #[arg(long, default_value_t = 0.0, value_name = "AREA")]
+    pub face_threshold: f64,
+    /// Faces of this fraction of the cell's surface or less are not
+    /// counted.
+    #[arg(long, default_value_t = 0.0, value_name = "FRACTION")]
+    pub relative_face_threshold: f64,
     /// Output folder [default: out/<model or mesh file name>/].
     #[arg(long, long_help = crate::outputs::help())]
     pub out: Option<PathBuf>,
@@ -269,7 +317,7 @@ impl RunArgs {
 
     /// Whether the domain is a periodic box.
     pub fn periodic(&self) -> bool {
-        self.periodic || self.periodic_box.is_some()
+        self.periodic || self.periodic_box.is_some() || self.lattice.is_some()
     }
 }
 

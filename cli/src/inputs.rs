@@ -39,9 +39,8 @@ impl Inputs {
             let sites: Vec<[f64; 3]> = match &args.sites_file {
                 Some(path) => cvd_io::read_sites(path)?,
                 None => {
-                    let (lo, l) = (domain.lo(), domain.lengths());
                     let unit = points::uniform(args.sites.unwrap_or(5000), args.seed);
-                    unit.iter().map(|p| [0, 1, 2].map(|a| lo[a] + p[a] * l[a])).collect()
+                    unit.iter().map(|&p| domain.cartesian(p)).collect()
                 }
             };
             let weights = weights(args, sites.len())?;
@@ -226,6 +225,12 @@ fn density(args: &RunArgs, mesh: &TetMesh) -> cvd::Result<Option<Vec<f64>>> {
 
 /// The power weights the arguments give, if any: one per site.
 fn weights(args: &RunArgs, n_sites: usize) -> cvd::Result<Option<Vec<f64>>> {
+    if let Some(path) = &args.radii {
+        let radii = per_site(path, "radii", n_sites)?;
+        return cvd::diagram::particles::radii_weights(&radii)
+            .map(Some)
+            .map_err(|e| cvd::Error::InvalidInput(format!("{}: {e}", path.display())));
+    }
     let Some(path) = &args.weights else { return Ok(None) };
     if args.iterations > 0 && !args.transports() {
         return Err(cvd::Error::InvalidInput(
@@ -262,20 +267,72 @@ fn periodic_box(args: &RunArgs) -> cvd::Result<PeriodicBox> {
     if let Some((_, what)) = given.iter().find(|g| g.0) {
         return refuse(&format!("{what} is not available in a periodic box yet"));
     }
-    match &args.periodic_box {
-        Some(c) if c.len() == 6 => PeriodicBox::new([c[0], c[1], c[2]], [c[3], c[4], c[5]]),
-        Some(c) => refuse(&format!("--box takes six numbers, X0,Y0,Z0,X1,Y1,Z1, not {}", c.len())),
-        None if args.model == "cube" => Ok(PeriodicBox::unit()),
-        None => refuse(&format!(
-            "give the box (--box X0,Y0,Z0,X1,Y1,Z1), or --model cube for the unit cube, not --model {}",
+    let periodic = periodic_axes(&args.periodic_axes)?;
+    let domain = match (&args.periodic_box, &args.tilt, &args.lattice) {
+        (_, _, Some(v)) if v.len() == 9 => {
+            let origin = match &args.origin {
+                Some(o) if o.len() == 3 => [o[0], o[1], o[2]],
+                Some(o) => return refuse(&format!("--origin takes three numbers, X,Y,Z, not {}", o.len())),
+                None => [0.0; 3],
+            };
+            PeriodicBox::triclinic(origin, [[v[0], v[1], v[2]], [v[3], v[4], v[5]], [v[6], v[7], v[8]]])
+        }
+        (_, _, Some(v)) => {
+            refuse(&format!("--lattice takes nine numbers, AX,AY,AZ,BX,BY,BZ,CX,CY,CZ, not {}", v.len()))
+        }
+        (Some(c), _, _) if c.len() != 6 => {
+            refuse(&format!("--box takes six numbers, X0,Y0,Z0,X1,Y1,Z1, not {}", c.len()))
+        }
+        (Some(_), Some(t), _) if t.len() != 3 => {
+            refuse(&format!("--tilt takes three numbers, XY,XZ,YZ, not {}", t.len()))
+        }
+        (Some(c), Some(t), _) => PeriodicBox::lammps([c[0], c[1], c[2]], [c[3], c[4], c[5]], [t[0], t[1], t[2]]),
+        (Some(c), None, _) => PeriodicBox::new([c[0], c[1], c[2]], [c[3], c[4], c[5]]),
+        (None, _, _) if args.model == "cube" => Ok(PeriodicBox::unit()),
+        (None, _, _) => refuse(&format!(
+            "give the box (--box X0,Y0,Z0,X1,Y1,Z1, or --lattice), or --model cube for the unit cube, not --model {}",
             args.model
         )),
+    }?;
+    Ok(domain.with_periodic(periodic))
+}
+
+/// The axes `--periodic-axes` names: letters of `xyz` or `abc`, each at
+/// most once.
+fn periodic_axes(text: &str) -> cvd::Result<[bool; 3]> {
+    let mut axes = [false; 3];
+    for c in text.chars() {
+        let a = match c.to_ascii_lowercase() {
+            'x' | 'a' => 0,
+            'y' | 'b' => 1,
+            'z' | 'c' => 2,
+            _ => {
+                return Err(cvd::Error::InvalidInput(format!(
+                    "--periodic-axes {text:?}: expected letters of xyz (or abc), not {c:?}"
+                )))
+            }
+        };
+        if axes[a] {
+            return Err(cvd::Error::InvalidInput(format!("--periodic-axes {text:?}: {c:?} twice")));
+        }
+        axes[a] = true;
     }
+    Ok(axes)
 }
 
 #[cfg(test)]
 mod tests {
-    use super::natural_key;
+    use super::{natural_key, periodic_axes};
+
+    #[test]
+    fn periodic_axes_are_letters_of_xyz_or_abc() {
+        assert_eq!(periodic_axes("xyz").unwrap(), [true; 3]);
+        assert_eq!(periodic_axes("xy").unwrap(), [true, true, false]);
+        assert_eq!(periodic_axes("CA").unwrap(), [true, false, true]);
+        assert_eq!(periodic_axes("").unwrap(), [false; 3]);
+        assert!(periodic_axes("xx").unwrap_err().to_string().contains("twice"));
+        assert!(periodic_axes("xw").unwrap_err().to_string().contains("'w'"));
+    }
 
     #[test]
     fn numbers_in_names_compare_as_numbers() {

@@ -5,7 +5,7 @@
 
 use crate::args::RunArgs;
 use crate::progress::with_bar;
-use cvd::{Cells, Pieces, TetMesh};
+use cvd::{Cells, ParticleCells, Pieces, TetMesh};
 use cvd_io::{Section, Summary};
 use std::path::{Path, PathBuf};
 
@@ -26,6 +26,8 @@ pub struct Results<'a> {
     pub weights: Option<&'a [f64]>,
     /// The pieces the polyhedra were merged from, when drawn.
     pub pieces: Option<&'a Pieces>,
+    /// The particles' quantities (`--voronoi-index`).
+    pub particles: Option<&'a ParticleCells>,
     /// The run in numbers.
     pub summary: &'a Summary,
 }
@@ -63,9 +65,9 @@ pub const OUTPUTS: &[Output] = &[
     },
     Output {
         file: "cells.csv",
-        holds: "per input site: volume, centroid, energy",
+        holds: "per input site: volume, centroid, energy (with --voronoi-index: coordination, index)",
         when: |_| true,
-        write: |path, r, _| cvd_io::write_cells_csv(path, r.cells),
+        write: |path, r, _| cvd_io::write_cells_csv_with(path, r.cells, r.particles),
         slow: false,
     },
     Output {
@@ -179,7 +181,7 @@ pub fn write_all(dir: &Path, results: &Results) -> cvd::Result<Vec<String>> {
 /// The copies `--output` (cells.csv) and `--json` (summary.json) ask for.
 pub fn write_copies(results: &Results) -> cvd::Result<()> {
     if let Some(path) = &results.args.output {
-        cvd_io::write_cells_csv(path, results.cells)?;
+        cvd_io::write_cells_csv_with(path, results.cells, results.particles)?;
         println!("wrote {} (cells.csv)", path.display());
     }
     if let Some(path) = &results.args.json {

@@ -10,8 +10,8 @@ use crate::progress::{with_iterations, with_spinner};
 use cvd::cvt::transport::{Transport, VolumeLaw};
 use cvd::cvt::SiteDiagram;
 use cvd::exec::CpuBackend;
-use cvd::{Backend, Cells, ClippedVoronoi, JobShape, PeriodicVoronoi, Pieces};
-use cvd_io::{CvtRecord, PeriodicRecord, Summary, TransportRecord};
+use cvd::{Backend, Cells, ClippedVoronoi, IndexThresholds, JobShape, ParticleCells, PeriodicVoronoi, Pieces};
+use cvd_io::{CvtRecord, ParticlesRecord, PeriodicRecord, Summary, TransportRecord};
 
 /// What the optimiser gives the final diagram.
 struct Optimised {
@@ -35,6 +35,8 @@ struct Diagram {
     pieces: Option<Pieces>,
     /// A periodic box's record.
     periodic: Option<PeriodicRecord>,
+    /// The particles' quantities (`--voronoi-index`).
+    particles: Option<ParticleCells>,
 }
 
 /// Exit status of a run whose optimal transport did not reach its
@@ -103,6 +105,9 @@ pub fn run(args: &RunArgs) -> cvd::Result<u8> {
     summary.transport = optimised.transport;
     summary.parts = run_backend.parts().map(|d| d.report());
     summary.periodic = diagram.periodic.map(|p| PeriodicRecord { wrapped: inputs.wrapped, ..p });
+    if let Some(p) = &diagram.particles {
+        summary.particles = Some(ParticlesRecord::of(p, &thresholds(args)?));
+    }
     let polyhedra = diagram.cells.polyhedra();
     if let (Some(pieces), Some(polyhedra)) = (&diagram.pieces, polyhedra) {
         summary.pieces = Some(pieces.len());
@@ -118,6 +123,7 @@ pub fn run(args: &RunArgs) -> cvd::Result<u8> {
         sites: &diagram.sites,
         weights: optimised.weights.as_deref().filter(|_| summary.transport.is_some()),
         pieces: diagram.pieces.as_ref(),
+        particles: diagram.particles.as_ref(),
         summary: &summary,
     };
     let written = outputs::write_all(&dir, &results)?;
@@ -125,8 +131,8 @@ pub fn run(args: &RunArgs) -> cvd::Result<u8> {
     if inputs.wrapped > 0 {
         println!("{} sites were outside the box: wrapped into it (sites.xyz holds them wrapped)", inputs.wrapped);
     }
-    if matches!(inputs.domain, Domain::Box(_)) && !args.no_geometry {
-        println!("the cells' geometry (cells.vtu, walls.ply, the pictures) is not drawn for periodic boxes");
+    if matches!(inputs.domain, Domain::Box(_)) && !args.no_geometry && diagram.cells.polyhedra().is_none() {
+        println!("the cells' geometry (cells.vtu, walls.ply) of a periodic box is drawn with --voronoi-index");
     }
     println!("wrote {}: {}", dir.display(), written.join(", "));
     outputs::write_copies(&results)?;
@@ -270,7 +276,8 @@ fn final_diagram(args: &RunArgs, inputs: &Inputs, o: &Optimised, run: &RunBacken
                 let (cells, pieces) = with_spinner(what, || cv.compute_with_geometry(&cpu))?;
                 (cells, Some(pieces))
             };
-            Ok(Diagram { cells, sites: o.sites.clone(), pieces, periodic: None })
+            let particles = particles(args, &cells, o.sites.len())?;
+            Ok(Diagram { cells, sites: o.sites.clone(), pieces, periodic: None, particles })
         }
         Domain::Box(b) => {
             let mut pv = PeriodicVoronoi::new(*b, &o.sites)
@@ -285,11 +292,43 @@ fn final_diagram(args: &RunArgs, inputs: &Inputs, o: &Optimised, run: &RunBacken
                 let first = with_spinner("warm-up run", || pv.compute())?;
                 println!("warm-up run: {:.1} ms; the table shows the next", first.cells.timings.total() * 1e3);
             }
-            let out = with_spinner("periodic Voronoi diagram", || pv.compute())?;
+            let out = if args.voronoi_index {
+                let cpu = CpuBackend::new(args.backend.threads)?;
+                with_spinner("periodic Voronoi diagram and its cells' polyhedra", || pv.compute_with_polyhedra(&cpu))?
+            } else {
+                with_spinner("periodic Voronoi diagram", || pv.compute())?
+            };
             let periodic = PeriodicRecord::of(b, &out);
-            Ok(Diagram { cells: out.cells, sites: out.sites, pieces: None, periodic: Some(periodic) })
+            let particles = particles(args, &out.cells, out.sites.len())?;
+            Ok(Diagram { cells: out.cells, sites: out.sites, pieces: None, periodic: Some(periodic), particles })
         }
     }
+}
+
+/// The thresholds of the Voronoi index the arguments give.
+fn thresholds(args: &RunArgs) -> cvd::Result<IndexThresholds> {
+    let t = IndexThresholds {
+        edge: args.edge_threshold,
+        relative_edge: args.relative_edge_threshold,
+        face: args.face_threshold,
+        relative_face: args.relative_face_threshold,
+    };
+    t.check()?;
+    Ok(t)
+}
+
+/// The particles' quantities of `cells` (`--voronoi-index`), from their
+/// polyhedra.
+fn particles(args: &RunArgs, cells: &Cells, n: usize) -> cvd::Result<Option<ParticleCells>> {
+    if !args.voronoi_index {
+        return Ok(None);
+    }
+    let Some(polyhedra) = cells.polyhedra() else {
+        return Err(cvd::Error::InvalidInput(
+            "--voronoi-index needs the cells' polyhedra: not with --no-geometry or in parts".into(),
+        ));
+    };
+    Ok(Some(ParticleCells::of(n, polyhedra, &thresholds(args)?)))
 }
 
 fn create_dir(dir: &std::path::Path) -> cvd::Result<()> {

@@ -459,6 +459,72 @@ fn a_periodic_box_fills_with_cells_whose_faces_carry_image_shifts() {
     assert!(text(&out.stderr).contains("--model cube"), "{}", text(&out.stderr));
 }
 
+/// An FCC crystal in a LAMMPS triclinic box that is not its own cell,
+/// walls along z: every inner cell is FCC's rhombic dodecahedron, Voronoi
+/// index <0,12,0,0>; radii as power weights; bad boxes refused by name.
+#[test]
+fn a_triclinic_slab_gives_particle_quantities_and_bad_boxes_are_refused() {
+    let dir = temp_dir("triclinic");
+    // FCC of cube side 1: 4 x 4 cubes along x and y, tilted by one cube
+    // (a whole lattice vector), 3 cubes along z between walls.
+    let mut text_sites = String::new();
+    for k in 0..3 {
+        for j in 0..4 {
+            for i in 0..4 {
+                for o in [[0.25, 0.25, 0.25], [0.75, 0.75, 0.25], [0.75, 0.25, 0.75], [0.25, 0.75, 0.75]] {
+                    let p = [i as f64 + o[0], j as f64 + o[1], k as f64 + o[2]];
+                    text_sites.push_str(&format!("{} {} {}\n", p[0], p[1], p[2]));
+                }
+            }
+        }
+    }
+    std::fs::write(dir.join("fcc.xyz"), &text_sites).unwrap();
+    let radii = "0.5\n".repeat(192);
+    std::fs::write(dir.join("r.txt"), radii).unwrap();
+    let args = [
+        "--box",
+        "0,0,0,4,4,3",
+        "--tilt",
+        "1,0,0",
+        "--periodic-axes",
+        "xy",
+        "--sites-file",
+        "fcc.xyz",
+        "--radii",
+        "r.txt",
+        "--voronoi-index",
+        "--out",
+        "o",
+    ];
+    let out = cvd_run(&dir, &args);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let rows = cvd_io::read_cells_csv(&dir.join("o/cells.csv")).unwrap();
+    assert_eq!(rows.len(), 192);
+    let inner = rows.iter().filter(|r| r.site / 64 == 1);
+    for r in inner {
+        let p = r.particle.unwrap();
+        assert_eq!(p.index, [0, 12, 0, 0, 0, 0, 0, 0], "site {}", r.site);
+        assert!((r.volume - 0.25).abs() < 1e-6, "site {}: {}", r.site, r.volume);
+    }
+    let total: f64 = rows.iter().map(|r| r.volume).sum();
+    assert!((total - 48.0).abs() < 1e-5, "the cells fill the slab: {total}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("o/summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["periodic"]["periodic"], serde_json::json!([true, true, false]), "{summary}");
+    assert_eq!(summary["particles"]["top_indices"][0][0], "<0,12,0,0>", "{summary}");
+    for (args, says) in [
+        (&["--lattice", "1,0,0,0,1,0,0,0"][..], "--lattice takes nine numbers"),
+        (&["--lattice", "1,0,0,0,0,1,0,1,0"][..], "right-handed"),
+        (&["--box", "0,0,0,1,1,1", "--periodic-axes", "xw"][..], "--periodic-axes"),
+        (&["--box", "0,0,0,1,1,1", "--tilt", "1,2"][..], "--tilt takes three numbers"),
+        (&["--box", "0,0,0,4,4,1", "--sites-file", "fcc.xyz", "--periodic-axes", "xy"][..], "outside the walls"),
+    ] {
+        let out = cvd_run(&dir, &[args, &["--out", "bad"]].concat());
+        assert_eq!(out.status.code(), Some(2), "{args:?}");
+        assert!(text(&out.stderr).contains(says), "{args:?}: {}", text(&out.stderr));
+    }
+}
+
 /// The bits of each coordinate.
 fn bits(sites: &[[f64; 3]]) -> Vec<u64> {
     sites.iter().flatten().map(|c| c.to_bits()).collect()

@@ -19,6 +19,18 @@ use crate::geom::vec3::{cross, norm, sub};
 use crate::passes::polyhedra::CellPolyhedron;
 use rayon::prelude::*;
 
+/// Power weights `r²` from radii (voro++'s radical tessellation: the
+/// cell of particle `i` is where `|x - x_i|² - r_i²` is least).
+pub fn radii_weights(radii: &[f64]) -> crate::error::Result<Vec<f64>> {
+    if let Some(i) = radii.iter().position(|r| !(r.is_finite() && *r >= 0.0)) {
+        return Err(crate::error::Error::InvalidInput(format!(
+            "particle {i}'s radius is {}; radii must be numbers >= 0",
+            radii[i]
+        )));
+    }
+    Ok(radii.iter().map(|r| r * r).collect())
+}
+
 /// The orders the Voronoi index counts: faces with 3, 4, ... edges, the
 /// last column counting faces with `2 + INDEX_ORDERS` edges or more.
 pub const INDEX_ORDERS: usize = 8;

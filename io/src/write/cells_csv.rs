@@ -1,13 +1,17 @@
 //! `cells.csv`: one row per input site, in input order —
 //! `site,volume,cx,cy,cz,energy`, and `area,neighbors` (the cell's surface
 //! area and how many cells it shares a face with) when the faces were
-//! computed — duplicates and empty cells included (an empty cell has
+//! computed, and the particles' quantities when asked for
+//! (`coordination,max_face_order,n3,...,n10`: the faces counted above the
+//! thresholds, the largest face order, and the Voronoi index, `n10` for 10
+//! edges or more) — duplicates and empty cells included (an empty cell has
 //! volume 0 and the site as its centroid). Numbers are written so that
 //! they read back exactly.
 
 use crate::read::{write_file, write_rows};
 use cvd::diagram::voronoi::Cells;
 use cvd::error::{Error, Result};
+use cvd::{ParticleCells, INDEX_ORDERS};
 use std::io::Write;
 use std::path::Path;
 
@@ -15,6 +19,20 @@ use std::path::Path;
 pub const HEADER: &str = "site,volume,cx,cy,cz,energy";
 /// The header line with the faces' columns.
 pub const HEADER_FACES: &str = "site,volume,cx,cy,cz,energy,area,neighbors";
+
+/// The particles' columns, after the others.
+pub const PARTICLE_COLUMNS: &str = "coordination,max_face_order,n3,n4,n5,n6,n7,n8,n9,n10";
+
+/// A row's particle quantities.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ParticleRow {
+    /// Faces counted above the thresholds.
+    pub coordination: u32,
+    /// The most edges of a counted face.
+    pub max_face_order: u32,
+    /// Counted faces with 3, 4, ..., 10 or more edges.
+    pub index: [u32; INDEX_ORDERS],
+}
 
 /// One row of `cells.csv`.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -31,20 +49,37 @@ pub struct CellRow {
     pub area: Option<f64>,
     /// How many cells it shares a face with, when the faces were computed.
     pub neighbors: Option<usize>,
+    /// Its particle quantities, when asked for.
+    pub particle: Option<ParticleRow>,
 }
 
 /// Writes `cells` as `cells.csv`.
 pub fn write_cells_csv(path: &Path, cells: &Cells) -> Result<()> {
+    write_cells_csv_with(path, cells, None)
+}
+
+/// Writes `cells` as `cells.csv`, with the `particles`' columns if given.
+pub fn write_cells_csv_with(path: &Path, cells: &Cells, particles: Option<&ParticleCells>) -> Result<()> {
     write_file(path, |w| {
         let faces = cells.adjacency();
-        writeln!(w, "{}", if faces.is_some() { HEADER_FACES } else { HEADER })?;
+        write!(w, "{}", if faces.is_some() { HEADER_FACES } else { HEADER })?;
+        match particles {
+            Some(_) => writeln!(w, ",{PARTICLE_COLUMNS}")?,
+            None => writeln!(w)?,
+        }
         write_rows(w, cells.volume.len(), |i, t| {
             let (v, c, e) = (cells.volume[i], cells.centroid[i], cells.energy[i]);
             write!(t, "{i},{v:e},{},{},{},{e:e}", c[0], c[1], c[2])?;
-            match faces {
-                Some(a) => writeln!(t, ",{:e},{}", a.surface_area(i), a.offsets[i + 1] - a.offsets[i]),
-                None => writeln!(t),
+            if let Some(a) = faces {
+                write!(t, ",{:e},{}", a.surface_area(i), a.offsets[i + 1] - a.offsets[i])?;
             }
+            if let Some(p) = particles {
+                write!(t, ",{},{}", p.coordination[i], p.max_face_order[i])?;
+                for n in p.index[i] {
+                    write!(t, ",{n}")?;
+                }
+            }
+            writeln!(t)
         })
     })
 }
@@ -55,14 +90,29 @@ pub fn read_cells_csv(path: &Path) -> Result<Vec<CellRow>> {
     let text = std::fs::read_to_string(path).map_err(|source| Error::Io { path: name.clone(), source })?;
     let error = |line: usize, message: String| Error::Parse { path: name.clone(), line, message };
     let mut lines = text.lines().enumerate().map(|(i, l)| (i + 1, l.trim_end()));
-    let columns = match lines.next() {
-        Some((_, HEADER)) => 6,
-        Some((_, HEADER_FACES)) => 8,
-        Some((no, other)) => {
-            return Err(error(no, format!("expected the header {HEADER:?} or {HEADER_FACES:?}, found {other:?}")))
+    let (base, extra) = match lines.next() {
+        Some((_, header)) => {
+            let (base, particles) = match header.strip_suffix(PARTICLE_COLUMNS).and_then(|h| h.strip_suffix(',')) {
+                Some(base) => (base, 2 + INDEX_ORDERS),
+                None => (header, 0),
+            };
+            match base {
+                HEADER => (6, particles),
+                HEADER_FACES => (8, particles),
+                _ => {
+                    return Err(error(
+                        1,
+                        format!(
+                            "expected the header {HEADER:?} or {HEADER_FACES:?} (either then \
+                             \",{PARTICLE_COLUMNS}\"), found {header:?}"
+                        ),
+                    ))
+                }
+            }
         }
         None => return Err(error(1, format!("expected the header {HEADER:?}, found an empty file"))),
     };
+    let columns = base + extra;
     let mut rows = Vec::new();
     for (no, line) in lines.filter(|(_, l)| !l.is_empty()) {
         let fields: Vec<&str> = line.split(',').collect();
@@ -82,11 +132,25 @@ pub fn read_cells_csv(path: &Path) -> Result<Vec<CellRow>> {
             volume: number(1)?,
             centroid: [number(2)?, number(3)?, number(4)?],
             energy: number(5)?,
-            area: if columns == 8 { Some(number(6)?) } else { None },
-            neighbors: if columns == 8 {
+            area: if base == 8 { Some(number(6)?) } else { None },
+            neighbors: if base == 8 {
                 Some(fields[7].parse::<usize>().map_err(|_| {
                     error(no, format!("expected a number of neighbours in column 8, found {:?}", fields[7]))
                 })?)
+            } else {
+                None
+            },
+            particle: if extra > 0 {
+                let count = |k: usize| -> Result<u32> {
+                    fields[k]
+                        .parse::<u32>()
+                        .map_err(|_| error(no, format!("expected a count in column {}, found {:?}", k + 1, fields[k])))
+                };
+                let mut index = [0; INDEX_ORDERS];
+                for (k, n) in index.iter_mut().enumerate() {
+                    *n = count(base + 2 + k)?;
+                }
+                Some(ParticleRow { coordination: count(base)?, max_face_order: count(base + 1)?, index })
             } else {
                 None
             },
@@ -122,6 +186,31 @@ mod tests {
 
     fn same_bits(a: f64, b: f64) -> bool {
         a.to_bits() == b.to_bits()
+    }
+
+    #[test]
+    fn particle_columns_read_back_with_or_without_faces() {
+        let cells = awkward_cells(3);
+        let particles = ParticleCells {
+            area: vec![1.0, 2.0, 0.0],
+            coordination: vec![12, 14, 0],
+            index: vec![[0, 12, 0, 0, 0, 0, 0, 0], [0, 6, 0, 8, 0, 0, 0, 0], [0; INDEX_ORDERS]],
+            max_face_order: vec![4, 6, 0],
+        };
+        let path = temp_path("cells-particles.csv");
+        write_cells_csv_with(&path, &cells, Some(&particles)).unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert!(text.starts_with(&format!("{HEADER},{PARTICLE_COLUMNS}\n")), "{text}");
+        let rows = read_cells_csv(&path).unwrap();
+        assert_eq!(
+            rows[1].particle,
+            Some(ParticleRow { coordination: 14, max_face_order: 6, index: particles.index[1] })
+        );
+        assert_eq!((rows[1].area, rows[2].particle.unwrap().coordination), (None, 0));
+        std::fs::write(&path, text.replacen(",12,4,", ",x,4,", 1)).unwrap();
+        let e = read_cells_csv(&path).unwrap_err().to_string();
+        assert!(e.contains("line 2") && e.contains("column 7"), "{e}");
+        std::fs::remove_file(&path).ok();
     }
 
     #[test]

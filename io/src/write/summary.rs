@@ -69,15 +69,69 @@ pub struct Summary {
     /// rank's totals (absent otherwise).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub parts: Option<cvd::backends::distributed::PartReport>,
+    /// The particles' quantities (`--voronoi-index`; absent otherwise).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub particles: Option<ParticlesRecord>,
+}
+
+/// The particles' quantities over all cells: the thresholds, the mean
+/// coordination and the most common Voronoi indices.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct ParticlesRecord {
+    /// The thresholds the index was counted with: `edge`,
+    /// `relative_edge`, `face`, `relative_face`.
+    pub thresholds: [f64; 4],
+    /// The mean coordination over non-empty cells.
+    pub mean_coordination: f64,
+    /// The ten most common indices, `<n3,n4,n5,n6,...>` (trailing zeros
+    /// beyond n6 left out), with how many cells have each, most common
+    /// first (ties by index).
+    pub top_indices: Vec<(String, usize)>,
+}
+
+impl ParticlesRecord {
+    /// The record of `particles` counted with `thresholds`.
+    pub fn of(particles: &cvd::ParticleCells, thresholds: &cvd::IndexThresholds) -> Self {
+        let mut counts: std::collections::HashMap<[u32; cvd::INDEX_ORDERS], usize> = Default::default();
+        let mut cells = 0;
+        let mut total = 0u64;
+        for (i, index) in particles.index.iter().enumerate() {
+            if particles.coordination[i] > 0 {
+                *counts.entry(*index).or_default() += 1;
+                cells += 1;
+                total += particles.coordination[i] as u64;
+            }
+        }
+        let mut top: Vec<([u32; cvd::INDEX_ORDERS], usize)> = counts.into_iter().collect();
+        top.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
+        let name = |index: &[u32; cvd::INDEX_ORDERS]| {
+            let last = index.iter().rposition(|&n| n > 0).unwrap_or(0).max(3);
+            let parts: Vec<String> = index[..=last].iter().map(u32::to_string).collect();
+            format!("<{}>", parts.join(","))
+        };
+        Self {
+            thresholds: [thresholds.edge, thresholds.relative_edge, thresholds.face, thresholds.relative_face],
+            mean_coordination: total as f64 / cells.max(1) as f64,
+            top_indices: top.iter().take(10).map(|(i, c)| (name(i), *c)).collect(),
+        }
+    }
 }
 
 /// A periodic box and the images its diagram took.
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
 pub struct PeriodicRecord {
-    /// The box's lower corner.
+    /// The box's lower corner (a triclinic cell's origin).
     pub lo: [f64; 3],
-    /// The box's upper corner.
+    /// The box's upper corner (a triclinic cell's corner `lo + a + b + c`).
     pub hi: [f64; 3],
+    /// The cell's edge vectors a, b, c.
+    pub vectors: [[f64; 3]; 3],
+    /// Whether it repeats along each (else: walls).
+    pub periodic: [bool; 3],
+    /// Mirrors of sites in the walls among the images.
+    pub mirrors: usize,
+    /// Sites on a wall, moved 1e-9 of the cell's height inside.
+    pub on_walls: usize,
     /// Sites given outside the box, wrapped into it.
     pub wrapped: usize,
     /// Images of sites that joined them (the final diagram's).
@@ -89,7 +143,17 @@ pub struct PeriodicRecord {
 impl PeriodicRecord {
     /// The record of `cells`, computed in `domain`.
     pub fn of(domain: &cvd::PeriodicBox, cells: &cvd::PeriodicCells) -> Self {
-        Self { lo: domain.lo(), hi: domain.hi(), wrapped: cells.wrapped, images: cells.images, halo: cells.halo }
+        Self {
+            lo: domain.lo(),
+            hi: domain.hi(),
+            vectors: domain.vectors(),
+            periodic: domain.periodic(),
+            mirrors: cells.mirrors,
+            on_walls: cells.on_walls,
+            wrapped: cells.wrapped,
+            images: cells.images,
+            halo: cells.halo,
+        }
     }
 }
 
@@ -256,6 +320,7 @@ impl Summary {
             transport: None,
             periodic: None,
             parts: None,
+            particles: None,
         }
     }
 
@@ -373,10 +438,30 @@ impl fmt::Display for Summary {
             )?;
         }
         if let Some(p) = &self.periodic {
+            let walls = if p.periodic.contains(&false) {
+                format!(
+                    ", walls across {} ({} mirrors, {} sites on them moved inside)",
+                    (0..3).filter(|&a| !p.periodic[a]).map(|a| ["a", "b", "c"][a]).collect::<Vec<_>>().join(" "),
+                    p.mirrors,
+                    p.on_walls
+                )
+            } else {
+                String::new()
+            };
             writeln!(
                 f,
-                "  {:<11}box {:?} to {:?}: {} images within {:.4} of it, {} sites wrapped into it",
+                "  {:<11}box {:?} to {:?}: {} images within {:.4} of it, {} sites wrapped into it{walls}",
                 "periodic", p.lo, p.hi, p.images, p.halo, p.wrapped
+            )?;
+        }
+        if let Some(p) = &self.particles {
+            let top: Vec<String> = p.top_indices.iter().take(3).map(|(i, c)| format!("{i} x{c}")).collect();
+            writeln!(
+                f,
+                "  {:<11}mean coordination {:.3}; most common Voronoi indices {}",
+                "particles",
+                p.mean_coordination,
+                top.join(", ")
             )?;
         }
         if let Some(t) = &self.transport {
@@ -427,7 +512,7 @@ mod tests {
         (text, value)
     }
 
-    const OPTIONAL: [&str; 6] = ["pieces", "lids", "cvt", "transport", "periodic", "parts"];
+    const OPTIONAL: [&str; 7] = ["pieces", "lids", "cvt", "transport", "periodic", "parts", "particles"];
 
     #[test]
     fn the_fields_readers_use_are_there_and_exact() {
@@ -472,7 +557,14 @@ mod tests {
             Iteration { energy: 2.0, seconds: 1.5, empty_cells: 0, second_pass: 1, unresolved: 4, newton_steps: 0 },
         ];
         s.cvt = Some(CvtRecord::of("lbfgs", &iterations));
-        s.periodic = Some(PeriodicRecord { lo: [0.0; 3], hi: [1.0, 2.0, 3.0], wrapped: 4, images: 50, halo: 0.5 });
+        s.periodic = Some(PeriodicRecord {
+            lo: [0.0; 3],
+            hi: [1.0, 2.0, 3.0],
+            wrapped: 4,
+            images: 50,
+            halo: 0.5,
+            ..Default::default()
+        });
         s.parts = Some(Default::default());
         let run = TransportRun {
             steps: vec![
