@@ -28,6 +28,8 @@ __all__ = [
     "devices",
     "lloyd",
     "mesh_surface",
+    "ParticleCells",
+    "particle_voronoi",
     "periodic_voronoi",
     "read_mesh",
     "sample",
@@ -122,6 +124,135 @@ def periodic_voronoi(sites, lo, hi, *, backend="auto", faces=False, weights=None
     if len(lo) != 3 or len(hi) != 3:
         raise ValueError(f"lo and hi must have three numbers each, not {len(lo)} and {len(hi)}")
     return _cvd.periodic_voronoi(_points(sites, "sites"), lo, hi, backend, bool(faces), _values(weights, "weights"))
+
+
+def _cell(box, origin):
+    """(origin, vectors) of a cell given as lattice vectors ((3, 3), rows a,
+    b, c), lengths (Lx, Ly, Lz), lengths and LAMMPS tilts (Lx, Ly, Lz, xy,
+    xz, yz; lengths, not freud's factors), or a freud.box.Box (centred on
+    0, as freud's are)."""
+    if hasattr(box, "to_matrix"):
+        vectors = _np.asarray(box.to_matrix(), dtype=_np.float64).T
+        centre = -0.5 * vectors.sum(axis=0)
+        return (centre if origin is None else _np.asarray(origin, dtype=_np.float64)), vectors
+    b = _np.asarray(box, dtype=_np.float64)
+    if b.shape == (3, 3):
+        vectors = b
+    elif b.shape == (3,):
+        vectors = _np.diag(b)
+    elif b.shape == (6,):
+        lx, ly, lz, xy, xz, yz = b
+        vectors = _np.array([[lx, 0.0, 0.0], [xy, ly, 0.0], [xz, yz, lz]])
+    else:
+        raise ValueError(
+            f"box must be lattice vectors (3, 3), lengths (3,), or lengths and tilts (6,), not of shape {b.shape}"
+        )
+    o = _np.zeros(3) if origin is None else _np.asarray(origin, dtype=_np.float64)
+    if o.shape != (3,):
+        raise ValueError(f"origin must have three numbers, not shape {o.shape}")
+    return o, vectors
+
+
+class ParticleCells:
+    """The cells of particles in a periodic cell (see particle_voronoi).
+
+    Arrays, one row per particle in input order: `volumes`, `centroids`
+    (wrapped into the cell), `areas` (surface, walls included),
+    `neighbor_counts` (particles sharing a face), and with the index
+    `coordination` (faces counted above the thresholds, walls included, as
+    OVITO's), `voronoi_index` ((n, 8): faces with 3, 4, ..., 10 or more
+    edges) and `max_face_order`. `points`: the particles wrapped into the
+    cell. `adjacency`: CSR arrays `offsets`, `neighbors`, `areas`,
+    `normals`, `shifts` (lattice vectors to the neighbour's image) and
+    `boundary` (area on the walls). `cells`: the underlying Cells
+    (`counters`, `timings`, `polyhedra` when asked for).
+    """
+
+    def __init__(self, cells, points, particles, origin, vectors, periodic):
+        self.cells = cells
+        self.points = points
+        self.volumes = cells.volume
+        self.centroids = cells.centroid
+        self.adjacency = cells.adjacency
+        offsets = self.adjacency["offsets"]
+        self.neighbor_counts = _np.diff(offsets)
+        if particles is not None:
+            self.areas = particles["area"]
+            self.coordination = particles["coordination"]
+            self.voronoi_index = particles["voronoi_index"]
+            self.max_face_order = particles["max_face_order"]
+        else:
+            rows = _np.repeat(_np.arange(len(offsets) - 1), self.neighbor_counts)
+            self.areas = _np.bincount(rows, weights=self.adjacency["areas"], minlength=len(offsets) - 1)
+            self.areas = self.areas + self.adjacency["boundary"]
+            self.coordination = self.voronoi_index = self.max_face_order = None
+        self.origin = origin
+        self.vectors = vectors
+        self.periodic = periodic
+
+    def neighbor_pairs(self):
+        """The shared faces as arrays (i, j, area, shift): particle i's cell
+        shares a face of `area` with particle j's image `shift` lattice
+        vectors away, each face once from each side (freud's nlist with
+        weights)."""
+        a = self.adjacency
+        i = _np.repeat(_np.arange(len(a["offsets"]) - 1), self.neighbor_counts)
+        return i, a["neighbors"], a["areas"], a["shifts"]
+
+    def __repr__(self):
+        return f"ParticleCells({len(self.volumes)} particles, periodic {tuple(self.periodic)})"
+
+
+def particle_voronoi(
+    points,
+    box,
+    *,
+    origin=None,
+    periodic=True,
+    radii=None,
+    voronoi_index=True,
+    edge_threshold=0.0,
+    relative_edge_threshold=0.0,
+    face_threshold=0.0,
+    relative_face_threshold=0.0,
+    polyhedra=False,
+    backend="auto",
+):
+    """The Voronoi cells of particles `points` ((n, 3)) in a periodic cell,
+    as freud's and pyvoro2's users know them.
+
+    box: lattice vectors ((3, 3), rows a, b, c; right-handed), lengths
+    (Lx, Ly, Lz), lengths and LAMMPS's tilts (Lx, Ly, Lz, xy, xz, yz, as
+    lengths: freud's tilt factors times Ly or Lz), or a freud.box.Box.
+    origin: the cell's corner (default 0; a freud box: centred on 0).
+    periodic: True, or a flag per axis (a, b, c): along the others the
+    cell's faces are walls that cut the cells.
+    radii: one per particle for radical (power) cells, weights r², as
+    voro++; or None.
+    voronoi_index: also each cell's coordination, Voronoi index and largest
+    face order, counting edges and faces above the thresholds as OVITO's
+    Voronoi analysis does (edge: length, relative_edge: times the cell's
+    V^(1/3); face: area, relative_face: fraction of the cell's surface).
+    polyhedra: also each cell's polyhedron (`result.cells.polyhedra`).
+
+    Returns a ParticleCells.
+    """
+    o, vectors = _cell(box, origin)
+    flags = (bool(periodic),) * 3 if _np.ndim(periodic) == 0 else tuple(bool(p) for p in periodic)
+    if len(flags) != 3:
+        raise ValueError(f"periodic must be one flag or three, not {len(flags)}")
+    cells, wrapped, particles = _cvd.particle_voronoi(
+        _points(points, "points"),
+        [float(x) for x in o],
+        [[float(x) for x in row] for row in vectors],
+        list(flags),
+        _values(radii, "radii"),
+        backend,
+        bool(voronoi_index),
+        (float(edge_threshold), float(relative_edge_threshold), float(face_threshold), float(relative_face_threshold)),
+        bool(polyhedra),
+    )
+    return ParticleCells(cells, wrapped, particles, o, vectors, flags)
 
 
 def lloyd(mesh, sites, iterations, *, optimizer="lloyd", backend="auto", density=None, progress=False):

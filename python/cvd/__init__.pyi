@@ -47,6 +47,39 @@ def clipped_voronoi(
     polyhedra: bool = False,
     weights: Optional[npt.ArrayLike] = None,
 ) -> Cells: ...
+class ParticleCells:
+    cells: Cells
+    points: npt.NDArray[np.float64]
+    volumes: npt.NDArray[np.float64]
+    centroids: npt.NDArray[np.float64]
+    areas: npt.NDArray[np.float64]
+    neighbor_counts: npt.NDArray[np.int64]
+    coordination: Optional[npt.NDArray[np.int64]]
+    voronoi_index: Optional[npt.NDArray[np.int64]]
+    max_face_order: Optional[npt.NDArray[np.int64]]
+    adjacency: dict[str, npt.NDArray[Any]]
+    origin: npt.NDArray[np.float64]
+    vectors: npt.NDArray[np.float64]
+    periodic: tuple[bool, bool, bool]
+    def neighbor_pairs(
+        self,
+    ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64], npt.NDArray[np.float64], npt.NDArray[np.int64]]: ...
+
+def particle_voronoi(
+    points: npt.ArrayLike,
+    box: Any,
+    *,
+    origin: Optional[Sequence[float]] = None,
+    periodic: Union[bool, Sequence[bool]] = True,
+    radii: Optional[npt.ArrayLike] = None,
+    voronoi_index: bool = True,
+    edge_threshold: float = 0.0,
+    relative_edge_threshold: float = 0.0,
+    face_threshold: float = 0.0,
+    relative_face_threshold: float = 0.0,
+    polyhedra: bool = False,
+    backend: str = "auto",
+) -> ParticleCells: ...
 def periodic_voronoi(
     sites: npt.ArrayLike,
     lo: Sequence[float],

@@ -408,6 +408,80 @@ fn periodic_voronoi<'py>(
     Ok((to_python(py, out.cells)?, wrapped))
 }
 
+/// The cells of particles in a periodic (possibly triclinic, possibly
+/// walled) cell: `origin`, lattice vectors `vectors` (rows a, b, c),
+/// `periodic` per axis, radii (power weights r²) or None, the Voronoi
+/// index's `thresholds` (edge, relative edge, face, relative face) when
+/// `index`; returns (cells with faces, wrapped points, a dict of the
+/// particles' arrays or None).
+#[pyfunction]
+#[pyo3(signature = (points, origin, vectors, periodic, radii=None, backend="auto", index=true, thresholds=(0.0, 0.0, 0.0, 0.0), polyhedra=false))]
+#[allow(clippy::too_many_arguments)]
+fn particle_voronoi<'py>(
+    py: Python<'py>,
+    points: PyReadonlyArray2<'_, f64>,
+    origin: [f64; 3],
+    vectors: [[f64; 3]; 3],
+    periodic: [bool; 3],
+    radii: Option<PyReadonlyArray1<'_, f64>>,
+    backend: &str,
+    index: bool,
+    thresholds: (f64, f64, f64, f64),
+    polyhedra: bool,
+) -> PyResult<(Cells, Bound<'py, PyArray2<f64>>, Option<Bound<'py, PyDict>>)> {
+    let points = rows3(&points, "points")?;
+    let radii: Option<Vec<f64>> = radii.map(|r| r.as_array().to_vec());
+    let options = self::backend(backend)?;
+    let t = cvd::IndexThresholds {
+        edge: thresholds.0,
+        relative_edge: thresholds.1,
+        face: thresholds.2,
+        relative_face: thresholds.3,
+    };
+    let (mut out, particles) = py
+        .detach(|| -> cvd::Result<(cvd::PeriodicCells, Option<cvd::ParticleCells>)> {
+            t.check()?;
+            let domain = cvd::PeriodicBox::triclinic(origin, vectors)?.with_periodic(periodic);
+            let weights = match &radii {
+                Some(r) if r.len() != points.len() => {
+                    return Err(cvd::Error::InvalidInput(format!("{} radii for {} points", r.len(), points.len())))
+                }
+                Some(r) => Some(cvd::diagram::particles::radii_weights(r)?),
+                None => None,
+            };
+            let b = cvd::backends::open(&options)?;
+            let mut pv = cvd::PeriodicVoronoi::new(domain, &points).faces(true).backend(b.as_ref());
+            if let Some(w) = &weights {
+                pv = pv.weights(w);
+            }
+            if !(index || polyhedra) {
+                return Ok((pv.compute()?, None));
+            }
+            let out = pv.compute_with_polyhedra(&cvd::CpuBackend::new(None)?)?;
+            let particles = index.then(|| cvd::ParticleCells::of(points.len(), out.cells.polyhedra().unwrap_or(&[]), &t));
+            Ok((out, particles))
+        })
+        .map_err(err)?;
+    if !polyhedra {
+        out.cells.polyhedra = None;
+    }
+    let n = out.sites.len();
+    let wrapped = flat(out.sites).into_pyarray(py).reshape([n, 3])?;
+    let particles = match particles {
+        Some(p) => {
+            let d = PyDict::new(py);
+            d.set_item("area", p.area.into_pyarray(py))?;
+            d.set_item("coordination", p.coordination.iter().map(|&c| c as i64).collect::<Vec<_>>().into_pyarray(py))?;
+            d.set_item("max_face_order", p.max_face_order.iter().map(|&c| c as i64).collect::<Vec<_>>().into_pyarray(py))?;
+            let index: Vec<i64> = p.index.iter().flatten().map(|&c| c as i64).collect();
+            d.set_item("voronoi_index", index.into_pyarray(py).reshape([n, cvd::INDEX_ORDERS])?)?;
+            Some(d)
+        }
+        None => None,
+    };
+    Ok((to_python(py, out.cells)?, wrapped, particles))
+}
+
 /// `iterations` of Lloyd's method (`optimizer="lloyd"`) or L-BFGS
 /// (`"lbfgs"`) from `sites`; returns the sites and the history (a dict of
 /// arrays `energy` and `empty_cells`, one entry per iteration). Ctrl-C
@@ -566,6 +640,7 @@ fn _cvd(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(lloyd, m)?)?;
     m.add_function(wrap_pyfunction!(transport, m)?)?;
     m.add_function(wrap_pyfunction!(periodic_voronoi, m)?)?;
+    m.add_function(wrap_pyfunction!(particle_voronoi, m)?)?;
     m.add_function(wrap_pyfunction!(devices, m)?)?;
     // Whether this build has the SPIR-V kernels (the Vulkan backend).
     m.add("KERNELS", cvd::backends::vulkan::HAS_KERNELS)?;
