@@ -1,12 +1,15 @@
 //! The input formats, one table per kind of input: [`MESHES`],
-//! [`SURFACES`] and [`SITES`]. Each row gives a format's extensions, its
-//! name, a note on the variants read, and its reader.
+//! [`SURFACES`], [`SITES`] and [`PARTICLES`]. Each row gives a format's
+//! extensions, its name, a note on the variants read, and its reader
+//! (for particles, which are read frame by frame, the opening of a
+//! reader).
 //!
 //! The tables drive everything that lists the formats: [`read_mesh`],
-//! [`read_surface`] and [`read_sites`] choose the row by the file's
-//! extension (any case); the error for an unknown extension lists the
-//! table; [`help`] (and [`mesh_help`], [`surface_help`], [`sites_help`])
-//! gives the same list for the command line's help; [`extensions`] lists
+//! [`read_surface`], [`read_sites`] and [`open_particles`] choose the row
+//! by the file's extension (any case); the error for an unknown extension
+//! lists the table; [`help`] (and [`mesh_help`], [`surface_help`],
+//! [`sites_help`], [`particles_help`]) gives the same list for the command
+//! line's help; [`extensions`] lists
 //! a table's extensions. Adding a reader is one file in `io/src/read/`
 //! plus one row here (and a sample in this file's tests, which check that
 //! every row reads one). `docs/FORMATS.md` describes the formats for users.
@@ -21,18 +24,21 @@
 //! [`read_mesh`]: super::read_mesh
 //! [`read_surface`]: super::read_surface
 //! [`read_sites`]: super::read_sites
+//! [`open_particles`]: super::open_particles
 
 use super::surface::text;
 use super::{gmsh, npy, tetgen, xyz};
 use super::{parse_medit, parse_meshb, parse_obj, parse_off, parse_ply, parse_stl, parse_tet, parse_vtk, parse_vtu};
 use super::{read_bytes, read_bytes_parallel, read_text};
+use super::{ExtxyzReader, FrameReader, LammpsDumpReader};
 use cvd::error::{Error, Result};
 use cvd::geom::mesh::TetMesh;
 use cvd::geom::surface::TriSurface;
 use std::fmt::Write;
 use std::path::Path;
 
-/// One input format: a row of [`MESHES`], [`SURFACES`] or [`SITES`].
+/// One input format: a row of [`MESHES`], [`SURFACES`], [`SITES`] or
+/// [`PARTICLES`].
 pub struct Format<T> {
     /// The extensions that choose it, lowercase and without the dot (they
     /// match in any case). TetGen's `.node` and `.ele` are one format: a
@@ -175,6 +181,36 @@ pub const SITES: &[Format<Vec<[f64; 3]>>] = &[
     },
 ];
 
+/// Particle trajectories ([`open_particles`](super::open_particles)),
+/// read frame by frame: a row opens a reader of the file's frames.
+pub const PARTICLES: &[Format<Box<dyn FrameReader>>] = &[
+    Format {
+        extensions: &["dump", "lammpstrj"],
+        name: "LAMMPS text dump",
+        detail: "also files named dump.*; orthogonal, triclinic or general triclinic boxes; x, xu, xs or xsu columns",
+        fallback: false,
+        read: |path| Ok(Box::new(LammpsDumpReader::open(path)?)),
+    },
+    Format {
+        extensions: &["extxyz"],
+        name: "extended XYZ",
+        detail: "Lattice, pbc and Properties as ASE writes them",
+        fallback: false,
+        read: |path| Ok(Box::new(ExtxyzReader::open(path)?)),
+    },
+];
+
+/// The row of [`PARTICLES`] that reads `path`: by its extension as
+/// [`find`] does, else the LAMMPS dump's for a file named `dump.*` (any
+/// case; LAMMPS's examples name their dumps so, e.g. `dump.lj`).
+pub fn find_particles(path: &Path) -> Option<&'static Format<Box<dyn FrameReader>>> {
+    find(PARTICLES, path).or_else(|| {
+        let name = path.file_name()?.to_str()?;
+        let dump = name.get(..5).is_some_and(|p| p.eq_ignore_ascii_case("dump.")) && name.len() > 5;
+        dump.then_some(&PARTICLES[0])
+    })
+}
+
 /// The row of `formats` that reads `path`: the one naming its extension
 /// (any case), else the fallback row if there is one.
 pub fn find<'a, T>(formats: &'a [Format<T>], path: &Path) -> Option<&'a Format<T>> {
@@ -243,11 +279,17 @@ pub fn sites_help() -> String {
     help(SITES)
 }
 
+/// [`help`] of [`PARTICLES`].
+pub fn particles_help() -> String {
+    help(PARTICLES)
+}
+
 #[cfg(test)]
 mod tests {
     use super::super::tests::{temp_path, two_tets};
+    use super::super::{extxyz, lammps_dump};
     use super::super::{gmsh, gmsh_binary, medit, meshb, surface, tet, tetgen, vtk, vtu};
-    use super::super::{read_mesh, read_sites, read_surface, write_sites_npy};
+    use super::super::{open_particles, read_mesh, read_sites, read_surface, write_sites_npy};
     use super::*;
     use std::collections::HashSet;
 
@@ -259,8 +301,8 @@ mod tests {
     }
 
     /// Each table's rows, by the table's name.
-    fn tables() -> [(&'static str, Vec<Row>); 3] {
-        [("meshes", rows(MESHES)), ("surfaces", rows(SURFACES)), ("sites", rows(SITES))]
+    fn tables() -> [(&'static str, Vec<Row>); 4] {
+        [("meshes", rows(MESHES)), ("surfaces", rows(SURFACES)), ("sites", rows(SITES)), ("particles", rows(PARTICLES))]
     }
 
     #[test]
@@ -308,6 +350,16 @@ mod tests {
         check(MESHES);
         check(SURFACES);
         check(SITES);
+        check(PARTICLES);
+        // Particles: files named dump.* are LAMMPS dumps, whatever their
+        // extension; other names are not.
+        for name in ["dump.lj", "dir/DUMP.melt", "dump.1000.txt", "dump.xyz", "a/dump.dump"] {
+            assert!(find_particles(Path::new(name)).is_some_and(|f| std::ptr::eq(f, &PARTICLES[0])), "{name}");
+        }
+        assert!(find_particles(Path::new("run.EXTXYZ")).is_some_and(|f| std::ptr::eq(f, &PARTICLES[1])));
+        for name in ["dump.", "dump", "mydump.lj", "dump_lj", "dir.dump/x.lj", "x.xyz"] {
+            assert!(find_particles(Path::new(name)).is_none(), "{name}");
+        }
         // Files read in any case, TetGen's sibling in the given one's.
         let (mesh, node, ele) = (temp_path("case.MeSh"), temp_path("case.NODE"), temp_path("case.ELE"));
         std::fs::write(&mesh, medit::tests::VALID).unwrap();
@@ -350,11 +402,17 @@ mod tests {
         let read = read_sites(&path);
         std::fs::remove_file(&path).unwrap();
         assert_eq!(read.unwrap(), [[0.0; 3], [1.0, 2.0, 3.0]]);
+        // Particles: refused before the file is opened.
+        let e = open_particles(Path::new("missing/run.xyz")).err().unwrap();
+        let prefix = "missing/run.xyz: unknown particle format; supported extensions: .dump/.lammpstrj (LAMMPS";
+        assert!(matches!(&e, Error::InvalidInput(m) if m.starts_with(prefix)), "{e:?}");
+        names(&tables[3].1, &e.to_string());
     }
 
     #[test]
     fn help_names_every_extension() {
-        for (help, (table, rows)) in [mesh_help(), surface_help(), sites_help()].into_iter().zip(tables()) {
+        let helps = [mesh_help(), surface_help(), sites_help(), particles_help()];
+        for (help, (table, rows)) in helps.into_iter().zip(tables()) {
             for (exts, name, _) in rows {
                 assert!(help.contains(name), "{table}: {help}");
                 exts.iter().for_each(|e| assert!(help.contains(&format!(".{e}")), "{table}: {help}"));
@@ -366,6 +424,8 @@ mod tests {
         assert_eq!(all, ["mesh", "node", "ele", "tet", "msh", "vtk", "vtu", "meshb"]);
         assert_eq!(extensions(SURFACES).collect::<Vec<_>>(), ["stl", "obj", "off", "ply"]);
         assert_eq!(extensions(SITES).collect::<Vec<_>>(), ["npy", "xyz"]);
+        assert_eq!(extensions(PARTICLES).collect::<Vec<_>>(), ["dump", "lammpstrj", "extxyz"]);
+        assert!(particles_help().starts_with(".dump/.lammpstrj (LAMMPS text dump, also files named dump.*; "));
     }
 
     /// Writes `files` (name suffix, contents) to the temporary directory,
@@ -439,6 +499,32 @@ mod tests {
             assert_eq!(read.unwrap_or_else(|e| panic!(".{ext}: {e}")), sites, ".{ext}");
         }
         for f in SITES {
+            assert!(f.extensions.iter().all(|e| samples.iter().any(|s| s.0 == *e)), "no sample of {}", f.name);
+        }
+    }
+
+    #[test]
+    fn every_particles_row_reads_a_valid_file() {
+        let samples: [(&str, &str, &str); 4] = [
+            ("dump", "", lammps_dump::tests::VALID),
+            ("lammpstrj", "", lammps_dump::tests::VALID),
+            ("lj", "dump.", lammps_dump::tests::VALID),
+            ("extxyz", "", extxyz::tests::VALID),
+        ];
+        let dir = temp_path("particles");
+        std::fs::create_dir_all(&dir).unwrap();
+        for (i, (ext, prefix, text)) in samples.iter().enumerate() {
+            let path = dir.join(format!("{prefix}row{i}.{ext}"));
+            std::fs::write(&path, text).unwrap();
+            let frames: Result<Vec<_>> = open_particles(&path).map(|r| r.collect()).and_then(|f| f);
+            std::fs::remove_file(&path).unwrap();
+            let frames = frames.unwrap_or_else(|e| panic!(".{ext}: {e}"));
+            assert_eq!(frames.len(), 2, ".{ext}");
+            assert_eq!(frames[0].positions, [[0.5, 0.25, -1.0], [9.0, 9.0, 4.0], [1.5, 2.5, 3.5]], ".{ext}");
+            assert_eq!(frames[0].domain.periodic(), [true, true, false], ".{ext}");
+        }
+        std::fs::remove_dir(&dir).unwrap();
+        for f in PARTICLES {
             assert!(f.extensions.iter().all(|e| samples.iter().any(|s| s.0 == *e)), "no sample of {}", f.name);
         }
     }

@@ -1,9 +1,10 @@
 //! Random bytes and random mutations of valid files, fed to every reader:
 //! each must return a mesh or an error, never panic, and never claim more
-//! memory than the text could fill.
+//! memory than the text could fill; the particle readers must also end.
 
 use super::gmsh::tests::{V22, V41};
-use super::{parse_gmsh, parse_medit, parse_tet, parse_tetgen, parse_xyz};
+use super::particles::tests::read_all_frames;
+use super::{parse_gmsh, parse_medit, parse_tet, parse_tetgen, parse_xyz, ExtxyzReader, LammpsDumpReader};
 use proptest::prelude::*;
 
 const XYZ: &str = "3\n# three sites\n0 0 0\n1 0.5 0.25\n-1e-3 2 3\n";
@@ -17,6 +18,8 @@ fn read_all(text: &str) {
     let _ = parse_tetgen(super::tetgen::tests::NODE, "f.node", text, "f.ele");
     let _ = parse_xyz(text, "f.xyz");
     let _ = super::parse_values(text, "f.txt");
+    read_all_frames(text, |b| LammpsDumpReader::new(b, "f.dump"));
+    read_all_frames(text, |b| ExtxyzReader::new(b, "f.extxyz"));
 }
 
 fn valid_files() -> Vec<&'static str> {
@@ -28,6 +31,8 @@ fn valid_files() -> Vec<&'static str> {
         super::tetgen::tests::NODE,
         super::tetgen::tests::ELE,
         XYZ,
+        super::lammps_dump::tests::VALID,
+        super::extxyz::tests::VALID,
     ]
 }
 
@@ -90,12 +95,14 @@ proptest! {
             "0", "1", "2", "3", "4", "-1", "1e9", "nan", "inf", "0.5", "4294967295", "\n", " ", "#",
             "vertices", "cells", "Vertices", "Tetrahedra", "End", "MeshVersionFormatted", "Dimension",
             "$MeshFormat", "$EndMeshFormat", "$Nodes", "$EndNodes", "$Elements", "$EndElements", "2.2", "4.1",
+            "ITEM:", "TIMESTEP", "NUMBER OF ATOMS", "BOX BOUNDS", "ATOMS", "pp", "xy xz yz", "abc origin", "id", "x",
+            "xs", "Lattice=\"1 0 0 0 1 0 0 0 1\"", "Properties=pos:R:3:id:I:1", "pbc=\"T F T\"", "\"",
         ]), 0..80)) {
         read_all(&tokens.join(" "));
     }
 
     #[test]
-    fn mutated_valid_files_never_panic(file in 0usize..7, edits in prop::collection::vec(edit(), 1..6)) {
+    fn mutated_valid_files_never_panic(file in 0usize..9, edits in prop::collection::vec(edit(), 1..6)) {
         read_all(&apply(valid_files()[file], &edits));
     }
 }

@@ -1,21 +1,29 @@
-//! Reading tet meshes, surfaces and site files, and writing them back.
+//! Reading tet meshes, surfaces, site files and particle trajectories,
+//! and writing them back.
 //!
 //! [`read_mesh`], [`read_surface`] and [`read_sites`] choose the format by
 //! the file's extension, from the tables in [`formats`] (the list of
 //! formats, the variants each reads, and how to add one).
+//! [`open_particles`] opens a trajectory (LAMMPS dump or extended XYZ) the
+//! same way, as a [`FrameReader`] giving one [`ParticleFrame`] (positions,
+//! cell, ids, radii) at a time, so that a file of any length is read in
+//! the memory of one frame.
 //!
 //! A bad file is reported as [`Error::Parse`] naming its line and what was
 //! expected there; no input makes a reader panic, and counts read from a
 //! file only reserve as much memory as the file could actually fill.
 
 mod binary;
+mod extxyz;
 pub mod formats;
 mod gmsh;
 mod gmsh_binary;
+mod lammps_dump;
 mod lex;
 mod medit;
 mod meshb;
 mod npy;
+mod particles;
 mod surface;
 mod tet;
 mod tetgen;
@@ -26,11 +34,14 @@ mod xyz;
 #[cfg(test)]
 mod fuzz;
 
+pub use extxyz::ExtxyzReader;
 pub use gmsh::parse_gmsh;
 pub use gmsh_binary::parse_gmsh_binary;
+pub use lammps_dump::LammpsDumpReader;
 pub use medit::parse_medit;
 pub use meshb::parse_meshb;
 pub use npy::{parse_npy, write_sites_npy};
+pub use particles::{open_particles, FrameReader, ParticleFrame};
 pub use surface::{parse_obj, parse_off, parse_ply, parse_stl, read_surface};
 pub use tet::parse_tet;
 pub use tetgen::parse_tetgen;

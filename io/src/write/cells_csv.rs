@@ -209,7 +209,7 @@ mod tests {
         assert_eq!((rows[1].area, rows[2].particle.unwrap().coordination), (None, 0));
         std::fs::write(&path, text.replacen(",12,4,", ",x,4,", 1)).unwrap();
         let e = read_cells_csv(&path).unwrap_err().to_string();
-        assert!(e.contains("line 2") && e.contains("column 7"), "{e}");
+        assert!(e.contains(":2:") && e.contains("column 7"), "{e}");
         std::fs::remove_file(&path).ok();
     }
 

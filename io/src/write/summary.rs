@@ -566,6 +566,13 @@ mod tests {
             ..Default::default()
         });
         s.parts = Some(Default::default());
+        let particles = cvd::ParticleCells {
+            area: vec![1.0; 3],
+            coordination: vec![12, 12, 0],
+            index: vec![[0, 12, 0, 0, 0, 0, 0, 0], [0, 12, 0, 0, 0, 0, 0, 0], [0; cvd::INDEX_ORDERS]],
+            max_face_order: vec![4, 4, 0],
+        };
+        s.particles = Some(ParticlesRecord::of(&particles, &cvd::IndexThresholds::default()));
         let run = TransportRun {
             steps: vec![
                 NewtonStep { max_error: 0.5, step: 1.0, diagrams: 2, cg_iterations: 7, seconds: 0.25 },
@@ -593,6 +600,8 @@ mod tests {
         let p = &j["periodic"];
         assert_eq!((p["wrapped"].as_u64(), p["images"].as_u64(), p["halo"].as_f64()), (Some(4), Some(50), Some(0.5)));
         assert_eq!(p["hi"], serde_json::json!([1.0, 2.0, 3.0]));
+        assert_eq!(j["particles"]["top_indices"], serde_json::json!([["<0,12,0,0>", 2]]), "empty cells not counted");
+        assert_eq!(j["particles"]["mean_coordination"].as_f64(), Some(12.0));
         let t = &j["transport"];
         assert_eq!(
             (t["targets"].as_str(), t["converged"].as_bool(), t["tolerance"].as_f64()),
