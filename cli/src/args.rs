@@ -171,6 +171,15 @@ pub struct RunArgs {
     /// cells (`xy`: a slab with walls at its z faces).
     #[arg(long, value_name = "AXES", default_value = "xyz")]
     pub periodic_axes: String,
+    /// A particle trajectory (LAMMPS text dump, extended XYZ): the cells
+    /// of each frame in its own cell (periodic axes and radii from the
+    /// file), written to frames/cells.<frame>.csv with summary.json.
+    #[arg(long, value_name = "PATH", conflicts_with_all = ["mesh", "surface", "sites_file", "periodic_box", "lattice"])]
+    pub particles: Option<PathBuf>,
+    /// The frames of --particles: A:B:STEP (from A to before B, every
+    /// STEP; each part optional, as Python's slices), or one frame N.
+    #[arg(long, value_name = "A:B:STEP", requires = "particles")]
+    pub frames: Option<crate::frames::FrameRange>,
     /// Radical (power) cells from a radius per particle, one number per
     /// line in the sites' order: weights r², as voro++'s radical
     /// tessellation.

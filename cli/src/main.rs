@@ -7,6 +7,7 @@
 mod args;
 mod backend;
 mod commands;
+mod frames;
 mod inputs;
 mod outputs;
 mod progress;

@@ -67,7 +67,7 @@ pub const OUTPUTS: &[Output] = &[
         file: "cells.csv",
         holds: "per input site: volume, centroid, energy (with --voronoi-index: coordination, index)",
         when: |_| true,
-        write: |path, r, _| cvd_io::write_cells_csv_with(path, r.cells, r.particles),
+        write: |path, r, _| cvd_io::write_cells_csv_with(path, r.cells, r.particles, None),
         slow: false,
     },
     Output {
@@ -181,7 +181,7 @@ pub fn write_all(dir: &Path, results: &Results) -> cvd::Result<Vec<String>> {
 /// The copies `--output` (cells.csv) and `--json` (summary.json) ask for.
 pub fn write_copies(results: &Results) -> cvd::Result<()> {
     if let Some(path) = &results.args.output {
-        cvd_io::write_cells_csv_with(path, results.cells, results.particles)?;
+        cvd_io::write_cells_csv_with(path, results.cells, results.particles, None)?;
         println!("wrote {} (cells.csv)", path.display());
     }
     if let Some(path) = &results.args.json {

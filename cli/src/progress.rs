@@ -49,3 +49,25 @@ pub fn with_iterations<T>(what: &str, iterations: usize, f: impl FnOnce(&mut dyn
     bar.finish_and_clear();
     out
 }
+
+/// Runs `f` with a bar over `frames` frames of a trajectory (a spinner
+/// with a count when the number is not known), fed through `f`'s callback
+/// with the frames done and the last one's particles.
+pub fn with_frames<T>(frames: Option<usize>, f: impl FnOnce(&mut dyn FnMut(usize, usize)) -> T) -> T {
+    let bar = match frames {
+        Some(n) => ProgressBar::new(n as u64).with_style(
+            ProgressStyle::with_template("frames {bar:30} {pos}/{len}, {elapsed} ({per_sec}) {msg}")
+                .unwrap_or_else(|_| ProgressStyle::default_bar()),
+        ),
+        None => ProgressBar::new_spinner().with_style(
+            ProgressStyle::with_template("{spinner} frames {pos}, {elapsed} ({per_sec}) {msg}")
+                .unwrap_or_else(|_| ProgressStyle::default_spinner()),
+        ),
+    };
+    let out = f(&mut |done, particles| {
+        bar.set_position(done as u64);
+        bar.set_message(format!("{particles} particles"));
+    });
+    bar.finish_and_clear();
+    out
+}

@@ -45,6 +45,9 @@ pub const NOT_CONVERGED: u8 = 3;
 
 /// Runs `cvd run`; the exit status: 0, or [`NOT_CONVERGED`].
 pub fn run(args: &RunArgs) -> cvd::Result<u8> {
+    if let Some(file) = &args.particles {
+        return crate::frames::run(args, file);
+    }
     let inputs = Inputs::read(args)?;
     let dir = inputs.out_dir(args);
     let (run_backend, why) = backend::open(args)?;

@@ -55,11 +55,18 @@ pub struct CellRow {
 
 /// Writes `cells` as `cells.csv`.
 pub fn write_cells_csv(path: &Path, cells: &Cells) -> Result<()> {
-    write_cells_csv_with(path, cells, None)
+    write_cells_csv_with(path, cells, None, None)
 }
 
-/// Writes `cells` as `cells.csv`, with the `particles`' columns if given.
-pub fn write_cells_csv_with(path: &Path, cells: &Cells, particles: Option<&ParticleCells>) -> Result<()> {
+/// Writes `cells` as `cells.csv`, with the `particles`' columns if given,
+/// and in the `site` column each row's id from `ids` if given (a particle
+/// file's ids) instead of its index.
+pub fn write_cells_csv_with(
+    path: &Path,
+    cells: &Cells,
+    particles: Option<&ParticleCells>,
+    ids: Option<&[u64]>,
+) -> Result<()> {
     write_file(path, |w| {
         let faces = cells.adjacency();
         write!(w, "{}", if faces.is_some() { HEADER_FACES } else { HEADER })?;
@@ -69,7 +76,8 @@ pub fn write_cells_csv_with(path: &Path, cells: &Cells, particles: Option<&Parti
         }
         write_rows(w, cells.volume.len(), |i, t| {
             let (v, c, e) = (cells.volume[i], cells.centroid[i], cells.energy[i]);
-            write!(t, "{i},{v:e},{},{},{},{e:e}", c[0], c[1], c[2])?;
+            let site = ids.map_or(i as u64, |ids| ids[i]);
+            write!(t, "{site},{v:e},{},{},{},{e:e}", c[0], c[1], c[2])?;
             if let Some(a) = faces {
                 write!(t, ",{:e},{}", a.surface_area(i), a.offsets[i + 1] - a.offsets[i])?;
             }
@@ -198,7 +206,7 @@ mod tests {
             max_face_order: vec![4, 6, 0],
         };
         let path = temp_path("cells-particles.csv");
-        write_cells_csv_with(&path, &cells, Some(&particles)).unwrap();
+        write_cells_csv_with(&path, &cells, Some(&particles), Some(&[7, 8, 90])).unwrap();
         let text = std::fs::read_to_string(&path).unwrap();
         assert!(text.starts_with(&format!("{HEADER},{PARTICLE_COLUMNS}\n")), "{text}");
         let rows = read_cells_csv(&path).unwrap();
@@ -207,6 +215,7 @@ mod tests {
             Some(ParticleRow { coordination: 14, max_face_order: 6, index: particles.index[1] })
         );
         assert_eq!((rows[1].area, rows[2].particle.unwrap().coordination), (None, 0));
+        assert_eq!(rows.iter().map(|r| r.site).collect::<Vec<_>>(), [7, 8, 90], "the ids");
         std::fs::write(&path, text.replacen(",12,4,", ",x,4,", 1)).unwrap();
         let e = read_cells_csv(&path).unwrap_err().to_string();
         assert!(e.contains(":2:") && e.contains("column 7"), "{e}");

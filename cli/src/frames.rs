@@ -1,0 +1,210 @@
+//! `cvd run --particles FILE`: the cells of every frame of a particle
+//! trajectory (a LAMMPS dump, an extended XYZ), each in its own cell with
+//! its periodic axes and radii, written as one `cells.csv` per frame in
+//! `frames/` (`cells.<frame>.csv`, the `site` column holding the file's
+//! particle ids where it has them) and one `summary.json` for the run.
+
+use crate::args::RunArgs;
+use crate::progress::with_frames;
+use cvd::{CpuBackend, IndexThresholds, ParticleCells, PeriodicVoronoi};
+use cvd_io::{FrameRecord, TrajectorySummary};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// The frames `--frames A:B:STEP` asks for: from `A` (default 0) to before
+/// `B` (default: the end), every `STEP` (default 1); `N` alone is that
+/// frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FrameRange {
+    pub start: usize,
+    pub end: Option<usize>,
+    pub step: usize,
+}
+
+impl std::str::FromStr for FrameRange {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        let number = |t: &str, what: &str| -> Result<Option<usize>, String> {
+            let t = t.trim();
+            if t.is_empty() {
+                return Ok(None);
+            }
+            t.parse::<usize>().map(Some).map_err(|_| format!("{what} {t:?} is not a frame number (0, 1, 2, ...)"))
+        };
+        let parts: Vec<&str> = s.split(':').collect();
+        let range = match parts.as_slice() {
+            [one] => {
+                let n = number(one, "the frame")?.ok_or("expected A:B:STEP, A:B or a frame number")?;
+                FrameRange { start: n, end: Some(n + 1), step: 1 }
+            }
+            [a, b] => FrameRange { start: number(a, "the start")?.unwrap_or(0), end: number(b, "the end")?, step: 1 },
+            [a, b, c] => FrameRange {
+                start: number(a, "the start")?.unwrap_or(0),
+                end: number(b, "the end")?,
+                step: number(c, "the step")?.unwrap_or(1),
+            },
+            _ => return Err(format!("{s:?}: expected A:B:STEP")),
+        };
+        if range.step == 0 {
+            return Err("the step must be at least 1".into());
+        }
+        Ok(range)
+    }
+}
+
+impl FrameRange {
+    /// Whether frame `index` is one asked for.
+    fn wants(&self, index: usize) -> bool {
+        index >= self.start && self.end.is_none_or(|e| index < e) && (index - self.start).is_multiple_of(self.step)
+    }
+
+    /// Whether no frame from `index` on is asked for.
+    fn past(&self, index: usize) -> bool {
+        self.end.is_some_and(|e| index >= e)
+    }
+
+    /// How many frames it asks for, if it knows.
+    fn count(&self) -> Option<usize> {
+        self.end.map(|e| e.saturating_sub(self.start).div_ceil(self.step))
+    }
+}
+
+/// Runs `cvd run --particles`.
+pub fn run(args: &RunArgs, file: &Path) -> cvd::Result<u8> {
+    let range = args.frames.unwrap_or(FrameRange { start: 0, end: None, step: 1 });
+    let thresholds = IndexThresholds {
+        edge: args.edge_threshold,
+        relative_edge: args.relative_edge_threshold,
+        face: args.face_threshold,
+        relative_face: args.relative_face_threshold,
+    };
+    thresholds.check()?;
+    let name = file.file_stem().and_then(|s| s.to_str()).unwrap_or("particles").to_string();
+    let dir = args.out.clone().unwrap_or_else(|| PathBuf::from("out").join(&name));
+    let frames_dir = dir.join("frames");
+    std::fs::create_dir_all(&frames_dir)
+        .map_err(|source| cvd::Error::Write { path: frames_dir.display().to_string(), source })?;
+    let mut reader = cvd_io::open_particles(file)?;
+    let cpu = CpuBackend::new(args.backend.threads)?;
+    let clock = Instant::now();
+    let mut records = Vec::new();
+    let mut diagram_seconds = 0.0;
+    println!(
+        "{}: frames {}..{} every {}, on the CPU with {} threads",
+        file.display(),
+        range.start,
+        range.end.map_or("the end".to_string(), |e| e.to_string()),
+        range.step,
+        cpu.threads()
+    );
+    with_frames(range.count(), |show| -> cvd::Result<()> {
+        loop {
+            let index = reader.next_index();
+            if range.past(index) {
+                return Ok(());
+            }
+            if !range.wants(index) {
+                if !reader.skip_frame()? {
+                    return Ok(());
+                }
+                continue;
+            }
+            let Some(frame) = reader.next() else { return Ok(()) };
+            let frame = frame?;
+            let weights = frame.radii.as_deref().map(cvd::diagram::particles::radii_weights).transpose()?;
+            let started = Instant::now();
+            let mut pv = PeriodicVoronoi::new(frame.domain, &frame.positions)
+                .faces(!args.no_neighbors)
+                .strategy(args.strategy)
+                .backend(&cpu);
+            if let Some(w) = &weights {
+                pv = pv.weights(w);
+            }
+            let out = if args.voronoi_index { pv.compute_with_polyhedra(&cpu)? } else { pv.compute()? };
+            let particles = out.cells.polyhedra().map(|p| ParticleCells::of(frame.positions.len(), p, &thresholds));
+            let seconds = started.elapsed().as_secs_f64();
+            diagram_seconds += seconds;
+            let file = format!("cells.{index:06}.csv");
+            cvd_io::write_cells_csv_with(
+                &frames_dir.join(&file),
+                &out.cells,
+                particles.as_ref(),
+                frame.ids.as_deref(),
+            )?;
+            let c = &out.cells.counters;
+            records.push(FrameRecord {
+                frame: index,
+                timestep: frame.timestep,
+                particles: frame.positions.len(),
+                periodic: frame.domain.periodic(),
+                images: out.images,
+                e_vol: out.cells.e_vol,
+                empty_cells: c.empty_cells,
+                second_pass: c.second_pass,
+                unresolved: c.unresolved,
+                seconds,
+                file: format!("frames/{file}"),
+            });
+            show(records.len(), frame.positions.len());
+        }
+    })?;
+    if records.is_empty() {
+        return Err(cvd::Error::InvalidInput(format!(
+            "{}: no frame in {}..{} (every {})",
+            file.display(),
+            range.start,
+            range.end.map_or("the end".to_string(), |e| e.to_string()),
+            range.step
+        )));
+    }
+    let total = clock.elapsed().as_secs_f64();
+    let summary = TrajectorySummary {
+        particles_file: file.display().to_string(),
+        frames_per_second: records.len() as f64 / total,
+        diagram_seconds,
+        total_seconds: total,
+        reused_cells: 0,
+        thresholds: args.voronoi_index.then_some([
+            thresholds.edge,
+            thresholds.relative_edge,
+            thresholds.face,
+            thresholds.relative_face,
+        ]),
+        frames: records,
+    };
+    summary.write_json(&dir.join("summary.json"))?;
+    let n = summary.frames.len();
+    println!(
+        "{n} frames: cells {:.3} s ({:.1} ms a frame), {:.3} s in all ({:.2} frames/s)",
+        diagram_seconds,
+        1e3 * diagram_seconds / n as f64,
+        total,
+        summary.frames_per_second
+    );
+    let worst = summary.frames.iter().map(|f| f.e_vol).fold(0.0, f64::max);
+    println!("E_vol at most {worst:.1e}; wrote {}: frames/cells.*.csv ({n}), summary.json", dir.display());
+    Ok(0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::FrameRange;
+
+    #[test]
+    fn frame_ranges_read_as_slices() {
+        let r = |s: &str| s.parse::<FrameRange>();
+        assert_eq!(r("2:10:3"), Ok(FrameRange { start: 2, end: Some(10), step: 3 }));
+        assert_eq!(r(":"), Ok(FrameRange { start: 0, end: None, step: 1 }));
+        assert_eq!(r("5"), Ok(FrameRange { start: 5, end: Some(6), step: 1 }));
+        assert_eq!(r("::2"), Ok(FrameRange { start: 0, end: None, step: 2 }));
+        assert!(r("1:2:0").unwrap_err().contains("step"));
+        assert!(r("a:2").unwrap_err().contains("\"a\""));
+        assert!(r("1:2:3:4").is_err());
+        let range = r("2:10:3").unwrap();
+        let wanted: Vec<usize> = (0..12).filter(|&i| range.wants(i)).collect();
+        assert_eq!(wanted, [2, 5, 8]);
+        assert_eq!(range.count(), Some(3));
+        assert!(range.past(10) && !range.past(9));
+    }
+}
