@@ -174,17 +174,18 @@ class ParticleCells:
         self.volumes = cells.volume
         self.centroids = cells.centroid
         self.adjacency = cells.adjacency
-        offsets = self.adjacency["offsets"]
-        self.neighbor_counts = _np.diff(offsets)
+        self.neighbor_counts = None if self.adjacency is None else _np.diff(self.adjacency["offsets"])
         if particles is not None:
             self.areas = particles["area"]
             self.coordination = particles["coordination"]
             self.voronoi_index = particles["voronoi_index"]
             self.max_face_order = particles["max_face_order"]
         else:
-            rows = _np.repeat(_np.arange(len(offsets) - 1), self.neighbor_counts)
-            self.areas = _np.bincount(rows, weights=self.adjacency["areas"], minlength=len(offsets) - 1)
-            self.areas = self.areas + self.adjacency["boundary"]
+            self.areas = None
+            if self.adjacency is not None:
+                n = len(self.volumes)
+                rows = _np.repeat(_np.arange(n), self.neighbor_counts)
+                self.areas = _np.bincount(rows, weights=self.adjacency["areas"], minlength=n) + self.adjacency["boundary"]
             self.coordination = self.voronoi_index = self.max_face_order = None
         self.origin = origin
         self.vectors = vectors
@@ -196,6 +197,8 @@ class ParticleCells:
         vectors away, each face once from each side (freud's nlist with
         weights)."""
         a = self.adjacency
+        if a is None:
+            raise ValueError("the faces were not computed (particle_voronoi(..., faces=True))")
         i = _np.repeat(_np.arange(len(a["offsets"]) - 1), self.neighbor_counts)
         return i, a["neighbors"], a["areas"], a["shifts"]
 
@@ -216,6 +219,7 @@ def particle_voronoi(
     face_threshold=0.0,
     relative_face_threshold=0.0,
     polyhedra=False,
+    faces=True,
     backend="auto",
 ):
     """The Voronoi cells of particles `points` ((n, 3)) in a periodic cell,
@@ -234,6 +238,9 @@ def particle_voronoi(
     Voronoi analysis does (edge: length, relative_edge: times the cell's
     V^(1/3); face: area, relative_face: fraction of the cell's surface).
     polyhedra: also each cell's polyhedron (`result.cells.polyhedra`).
+    faces: the shared faces (`adjacency`, `neighbor_counts`, `areas`);
+    with faces=False and voronoi_index=False, the volumes and centroids
+    alone (the least work).
 
     Returns a ParticleCells.
     """
@@ -251,6 +258,7 @@ def particle_voronoi(
         bool(voronoi_index),
         (float(edge_threshold), float(relative_edge_threshold), float(face_threshold), float(relative_face_threshold)),
         bool(polyhedra),
+        bool(faces),
     )
     return ParticleCells(cells, wrapped, particles, o, vectors, flags)
 

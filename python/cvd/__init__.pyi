@@ -52,12 +52,12 @@ class ParticleCells:
     points: npt.NDArray[np.float64]
     volumes: npt.NDArray[np.float64]
     centroids: npt.NDArray[np.float64]
-    areas: npt.NDArray[np.float64]
-    neighbor_counts: npt.NDArray[np.int64]
+    areas: Optional[npt.NDArray[np.float64]]
+    neighbor_counts: Optional[npt.NDArray[np.int64]]
     coordination: Optional[npt.NDArray[np.int64]]
     voronoi_index: Optional[npt.NDArray[np.int64]]
     max_face_order: Optional[npt.NDArray[np.int64]]
-    adjacency: dict[str, npt.NDArray[Any]]
+    adjacency: Optional[dict[str, npt.NDArray[Any]]]
     origin: npt.NDArray[np.float64]
     vectors: npt.NDArray[np.float64]
     periodic: tuple[bool, bool, bool]
@@ -78,6 +78,7 @@ def particle_voronoi(
     face_threshold: float = 0.0,
     relative_face_threshold: float = 0.0,
     polyhedra: bool = False,
+    faces: bool = True,
     backend: str = "auto",
 ) -> ParticleCells: ...
 def periodic_voronoi(

@@ -412,10 +412,10 @@ fn periodic_voronoi<'py>(
 /// walled) cell: `origin`, lattice vectors `vectors` (rows a, b, c),
 /// `periodic` per axis, radii (power weights r²) or None, the Voronoi
 /// index's `thresholds` (edge, relative edge, face, relative face) when
-/// `index`; returns (cells with faces, wrapped points, a dict of the
-/// particles' arrays or None).
+/// `index`; returns (cells, with their faces if `faces`, wrapped points, a
+/// dict of the particles' arrays or None).
 #[pyfunction]
-#[pyo3(signature = (points, origin, vectors, periodic, radii=None, backend="auto", index=true, thresholds=(0.0, 0.0, 0.0, 0.0), polyhedra=false))]
+#[pyo3(signature = (points, origin, vectors, periodic, radii=None, backend="auto", index=true, thresholds=(0.0, 0.0, 0.0, 0.0), polyhedra=false, faces=true))]
 #[allow(clippy::too_many_arguments)]
 fn particle_voronoi<'py>(
     py: Python<'py>,
@@ -428,6 +428,7 @@ fn particle_voronoi<'py>(
     index: bool,
     thresholds: (f64, f64, f64, f64),
     polyhedra: bool,
+    faces: bool,
 ) -> PyResult<(Cells, Bound<'py, PyArray2<f64>>, Option<Bound<'py, PyDict>>)> {
     let points = rows3(&points, "points")?;
     let radii: Option<Vec<f64>> = radii.map(|r| r.as_array().to_vec());
@@ -450,7 +451,7 @@ fn particle_voronoi<'py>(
                 None => None,
             };
             let b = cvd::backends::open(&options)?;
-            let mut pv = cvd::PeriodicVoronoi::new(domain, &points).faces(true).backend(b.as_ref());
+            let mut pv = cvd::PeriodicVoronoi::new(domain, &points).faces(faces).backend(b.as_ref());
             if let Some(w) = &weights {
                 pv = pv.weights(w);
             }
