@@ -459,7 +459,8 @@ fn particle_voronoi<'py>(
                 return Ok((pv.compute()?, None));
             }
             let out = pv.compute_with_polyhedra(&cvd::CpuBackend::new(None)?)?;
-            let particles = index.then(|| cvd::ParticleCells::of(points.len(), out.cells.polyhedra().unwrap_or(&[]), &t));
+            let particles =
+                index.then(|| cvd::ParticleCells::of(points.len(), out.cells.polyhedra().unwrap_or(&[]), &t));
             Ok((out, particles))
         })
         .map_err(err)?;
@@ -473,7 +474,10 @@ fn particle_voronoi<'py>(
             let d = PyDict::new(py);
             d.set_item("area", p.area.into_pyarray(py))?;
             d.set_item("coordination", p.coordination.iter().map(|&c| c as i64).collect::<Vec<_>>().into_pyarray(py))?;
-            d.set_item("max_face_order", p.max_face_order.iter().map(|&c| c as i64).collect::<Vec<_>>().into_pyarray(py))?;
+            d.set_item(
+                "max_face_order",
+                p.max_face_order.iter().map(|&c| c as i64).collect::<Vec<_>>().into_pyarray(py),
+            )?;
             let index: Vec<i64> = p.index.iter().flatten().map(|&c| c as i64).collect();
             d.set_item("voronoi_index", index.into_pyarray(py).reshape([n, cvd::INDEX_ORDERS])?)?;
             Some(d)

@@ -4,8 +4,6 @@ the mesh, Lloyd lowers the energy, the backends agree), and clear errors on
 bad input."""
 
 import csv
-import os
-import shutil
 import subprocess
 
 import numpy as np
@@ -13,13 +11,7 @@ import pytest
 
 import cvd
 
-CI = os.environ.get("CI") == "true"
-
-
-def cli():
-    """The `cvd` command line built beside this package (CVD_BIN), or None."""
-    path = os.environ.get("CVD_BIN") or shutil.which("cvd")
-    return path if path and os.path.exists(path) else None
+from helpers import CI, cli
 
 
 @pytest.fixture(scope="module")
@@ -40,10 +32,6 @@ def test_volumes_add_up_to_the_mesh(mesh):
 
 def test_numbers_equal_the_command_line(mesh, tmp_path):
     exe = cli()
-    if exe is None:
-        if CI:
-            pytest.fail("CI=true but the cvd command line is not built (CVD_BIN)")
-        pytest.skip("the cvd command line is not built (set CVD_BIN)")
     sites = cvd.sample(mesh, 500, seed=7)
     xyz = tmp_path / "sites.xyz"
     np.savetxt(xyz, sites, fmt="%.17g")
@@ -275,10 +263,6 @@ def test_periodic_box_cells_fill_it_and_match_the_command_line(tmp_path):
     path = tmp_path / "s.xyz"
     np.savetxt(path, wrapped, fmt="%.17g")
     exe = cli()
-    if exe is None:
-        if CI:
-            pytest.fail("CI=true but the cvd command line is not built (CVD_BIN)")
-        pytest.skip("the cvd command line is not built (set CVD_BIN)")
     run = subprocess.run(
         [exe, "run", "--box", "0,0,0,2,1,1", "--sites-file", str(path), "--backend", "cpu", "--out", str(tmp_path / "o")],
         capture_output=True, text=True)

@@ -13,19 +13,10 @@ import numpy as np
 import pytest
 
 import cvd
+from helpers import CI, need
 
-CI = os.environ.get("CI") == "true"
 PYTHON_DIR = pathlib.Path(__file__).resolve().parent.parent
 
-
-def need(module):
-    """`module`, or a skip with the reason (a failure under CI=true)."""
-    try:
-        return __import__(module)
-    except ImportError:
-        if CI:
-            pytest.fail(f"CI=true but {module} is not installed (python3 -m pip install {module})")
-        pytest.skip(f"{module} is not installed")
 
 
 def test_the_wheel_runs_where_there_is_no_rust():

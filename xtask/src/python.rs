@@ -161,7 +161,8 @@ fn test_steps(root: &Path) -> Result<(), Problem> {
         .env("PATH", path)
         .env("CVD_TEST_INSTALLED", "1")
         .env("CVD_TEST_NO_RUST", if no_rust { "1" } else { "0" })
-        .env("CVD_BIN", target.join("release").join("cvd"));
+        .env("CVD_BIN", target.join("release").join("cvd"))
+        .env("CVD_TEST_CACHE", &target);
     run(pytest, "pytest python/tests (the wheel, installed)")?;
     front_door(root, &target)
 }

@@ -57,9 +57,10 @@ use crate::exec::CpuBackend;
 use crate::geom::periodic_box::PeriodicBox;
 use crate::geom::site_grid::SiteGrid;
 use crate::job::clip::{JobShape, Strategy};
+use crate::job::BackendKind;
 use crate::passes::faces::Adjacency;
 use crate::passes::pieces::ON_BOUNDARY;
-use crate::passes::polyhedra::CellPolyhedron;
+use crate::passes::polyhedra::{merge_pieces, CellPolyhedron};
 use cvd_kernels::abi::SplitPoint;
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -281,9 +282,27 @@ impl<'a> PeriodicVoronoi<'a> {
                         "the polyhedra of a periodic box's cells come from whole cells (--strategy whole)".into(),
                     ));
                 }
-                let (mut cells, _) = diagram.compute_with_geometry(cpu)?;
-                let polyhedra = cells.polyhedra.take();
-                (cells, polyhedra)
+                // As `ClippedVoronoi::compute_with_geometry`: another
+                // backend's pieces stay on its device.
+                let (mut cells, mut pieces) = if self.backend.is_none_or(|b| b.kind() == BackendKind::Cpu) {
+                    diagram.compute_with_pieces(cpu)?
+                } else {
+                    (diagram.compute()?, diagram.faces(false).compute_with_pieces(cpu)?.1)
+                };
+                // A wall is one face, whatever mirrors made its parts: in
+                // exact arithmetic a neighbour's mirror only touches the
+                // cell along the line where the wall meets their bisector,
+                // and rounding can leave a sliver of it there.
+                if domain.has_walls() {
+                    let first = all.len() as i64;
+                    pieces.map_makers(|m| match usize::try_from(m - n as i64).ok().and_then(|k| images.get(k)) {
+                        Some(image) if image.wall != NO_WALL => first + image.wall as i64,
+                        _ => m,
+                    });
+                }
+                let (polyhedra, t) = crate::geom::timing::timed(|| merge_pieces(&pieces));
+                cells.timings.push("polyhedra", t);
+                (cells, Some(polyhedra))
             }
         };
         let clock = Instant::now();
@@ -298,14 +317,17 @@ impl<'a> PeriodicVoronoi<'a> {
 
 /// The polyhedra of the sites' own cells (the first `n`; under whole
 /// cells the images have none), with each face's maker taken to its site,
-/// or to [`ON_BOUNDARY`] for a mirror's (a wall).
+/// or to [`ON_BOUNDARY`] for a wall's (made by mirrors, numbered after the
+/// images).
 fn own_polyhedra(mut polyhedra: Vec<CellPolyhedron>, images: &[Image], n: usize) -> Vec<CellPolyhedron> {
     polyhedra.retain(|p| (p.site as usize) < n);
     polyhedra.par_iter_mut().for_each(|p| {
         for m in &mut p.face_neighbors {
             if *m >= n as i64 {
-                let image = images[*m as usize - n];
-                *m = if image.wall == NO_WALL { image.site as i64 } else { ON_BOUNDARY };
+                *m = match images.get(*m as usize - n) {
+                    Some(image) if image.wall == NO_WALL => image.site as i64,
+                    _ => ON_BOUNDARY,
+                };
             }
         }
     });

@@ -91,6 +91,17 @@ struct Part {
 }
 
 impl Pieces {
+    /// Each face's maker `m` (an input site, or [`ON_BOUNDARY`], [`IN_MESH`])
+    /// replaced by `f(m)`, which must fit an `i32`: makers that are one
+    /// face, made one maker (a periodic box's mirrors in one wall).
+    pub fn map_makers(&mut self, f: impl Fn(i64) -> i64 + Sync) {
+        self.parts.par_iter_mut().for_each(|part| {
+            for m in &mut part.makers {
+                *m = f(*m as i64) as i32;
+            }
+        });
+    }
+
     /// Number of pieces.
     pub fn len(&self) -> usize {
         self.order.len()

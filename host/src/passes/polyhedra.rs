@@ -125,7 +125,8 @@ enum Wall {
 
 /// The pieces `range` (all of one site) merged into one polyhedron.
 fn merge_cell(pieces: &Pieces, range: std::ops::Range<usize>) -> CellPolyhedron {
-    if range.len() == 1 && pieces.tet(range.start) == Piece::WHOLE {
+    let whole = range.len() == 1 && pieces.tet(range.start) == Piece::WHOLE;
+    if whole {
         if let Some(cell) = whole_cell(pieces, range.start) {
             return cell;
         }
@@ -168,7 +169,11 @@ fn merge_cell(pieces: &Pieces, range: std::ops::Range<usize>) -> CellPolyhedron 
         faces = join_walls(&points, &polygons);
     }
     let (repaired, open) = close_holes(&mut faces);
-    drop_edge_points(&points, &mut faces, tolerance * (COLLINEAR / WELD_TOLERANCE));
+    // A whole cell is convex: a point on only two of its faces lies on
+    // their line, however far rounding (or a sliver joined into a face)
+    // left it from the line of its neighbours.
+    let straight = if whole { f64::INFINITY } else { tolerance * (COLLINEAR / WELD_TOLERANCE) };
+    drop_edge_points(&points, &mut faces, straight);
 
     // Only the points the faces use, numbered in order of first use.
     let mut number = vec![u32::MAX; points.len()];
@@ -206,6 +211,13 @@ fn whole_cell(pieces: &Pieces, k: usize) -> Option<CellPolyhedron> {
         cell.face_ends.push(cell.face_vertices.len() as u32);
         cell.face_neighbors.push(maker);
     });
+    // Two faces with one maker are one face (a periodic box's wall, made
+    // by several mirrors): joined as a cut cell's are.
+    let mut makers = cell.face_neighbors.clone();
+    makers.sort_unstable();
+    if makers.windows(2).any(|w| w[0] == w[1]) {
+        return None;
+    }
     let (weld, _) = weld(&points);
     if weld.iter().enumerate().any(|(i, &w)| w as usize != i) {
         return None;
@@ -490,8 +502,9 @@ fn open_edges(faces: &[(Wall, Vec<u32>)]) -> Vec<(u32, u32)> {
 }
 
 /// Takes out the points on exactly two faces of different walls that lie
-/// on the line of their neighbours in both (within `tolerance`): there
-/// they only split an edge, where it crossed a face between tets.
+/// on the line of their neighbours in both (within `tolerance`; any, when
+/// infinite): there they only split an edge, where it crossed a face
+/// between tets.
 fn drop_edge_points(points: &[[f64; 3]], faces: &mut [(Wall, Vec<u32>)], tolerance: f64) {
     // Per point: faces, first and last wall, and whether it ever is a
     // corner.

@@ -23,8 +23,8 @@
 //! `radii` (`R:1`) the radii; the others are not looked at.
 
 use super::particles::{
-    box_message, count, finite, frame_or_end, nth_frame, open_buffered, read_atoms, skipped, tokens, unsigned, Atoms,
-    Columns, Field, FrameReader, Lines, ParticleFrame,
+    box_message, count, finite, open_buffered, read_atoms, tokens, unsigned, Atoms, Columns, Field, FrameReader, Lines,
+    ParticleFrame,
 };
 use cvd::error::Result;
 use cvd::PeriodicBox;
@@ -308,43 +308,7 @@ fn word(text: &str, start: usize, key: bool) -> std::result::Result<(String, usi
     }
 }
 
-impl<R: BufRead> ExtxyzReader<R> {
-    /// [`FrameReader::skip_frame`]: nothing after an error or the end.
-    fn skip_checked(&mut self) -> Result<bool> {
-        if self.done {
-            return Ok(false);
-        }
-        let skip = self.skip();
-        skipped(&mut self.done, skip)
-    }
-}
-
-impl<R: BufRead> Iterator for ExtxyzReader<R> {
-    type Item = Result<ParticleFrame>;
-
-    fn next(&mut self) -> Option<Self::Item> {
-        if self.done {
-            return None;
-        }
-        let read = self.read();
-        frame_or_end(&mut self.done, read)
-    }
-
-    /// Skips `n` frames without parsing their atoms, then reads one.
-    fn nth(&mut self, n: usize) -> Option<Self::Item> {
-        nth_frame(self, n, Self::skip_checked)
-    }
-}
-
-impl<R: BufRead + Send> FrameReader for ExtxyzReader<R> {
-    fn skip_frame(&mut self) -> Result<bool> {
-        self.skip_checked()
-    }
-
-    fn next_index(&self) -> usize {
-        self.index
-    }
-}
+super::particles::frame_reader!(ExtxyzReader);
 
 #[cfg(test)]
 pub(crate) mod tests {

@@ -32,8 +32,8 @@
 //! not looked at (types may be names).
 
 use super::particles::{
-    box_message, count, finite, frame_or_end, nth_frame, open_buffered, read_atoms, skipped, tokens, unsigned, Atoms,
-    Columns, Field, FrameReader, Lines, ParticleFrame,
+    box_message, count, finite, open_buffered, read_atoms, tokens, unsigned, Atoms, Columns, Field, FrameReader, Lines,
+    ParticleFrame,
 };
 use cvd::error::{Error, Result};
 use cvd::PeriodicBox;
@@ -287,43 +287,7 @@ fn columns<R: BufRead>(lines: &Lines<R>, names: &[&str]) -> Result<Columns> {
     Ok(Columns::new(names.len(), fields, scaled, names.join(" ")))
 }
 
-impl<R: BufRead> LammpsDumpReader<R> {
-    /// [`FrameReader::skip_frame`]: nothing after an error or the end.
-    fn skip_checked(&mut self) -> Result<bool> {
-        if self.done {
-            return Ok(false);
-        }
-        let skip = self.skip();
-        skipped(&mut self.done, skip)
-    }
-}
-
-impl<R: BufRead> Iterator for LammpsDumpReader<R> {
-    type Item = Result<ParticleFrame>;
-
-    fn next(&mut self) -> Option<Self::Item> {
-        if self.done {
-            return None;
-        }
-        let read = self.read();
-        frame_or_end(&mut self.done, read)
-    }
-
-    /// Skips `n` frames without parsing their atoms, then reads one.
-    fn nth(&mut self, n: usize) -> Option<Self::Item> {
-        nth_frame(self, n, Self::skip_checked)
-    }
-}
-
-impl<R: BufRead + Send> FrameReader for LammpsDumpReader<R> {
-    fn skip_frame(&mut self) -> Result<bool> {
-        self.skip_checked()
-    }
-
-    fn next_index(&self) -> usize {
-        self.index
-    }
-}
+super::particles::frame_reader!(LammpsDumpReader);
 
 #[cfg(test)]
 pub(crate) mod tests {

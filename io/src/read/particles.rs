@@ -455,6 +455,54 @@ pub(super) fn skipped(done: &mut bool, skip: Result<bool>) -> Result<bool> {
     skip
 }
 
+/// A reader's `Iterator` and [`FrameReader`], from its own `read(&mut
+/// self) -> Result<Option<ParticleFrame>>` (the next frame, `None` at the
+/// end), `skip(&mut self) -> Result<bool>` (past the next frame) and its
+/// fields `done` (after an error or the end) and `index` (the next
+/// frame's).
+macro_rules! frame_reader {
+    ($reader:ident) => {
+        impl<R: BufRead> $reader<R> {
+            /// [`FrameReader::skip_frame`]: nothing after an error or the end.
+            fn skip_checked(&mut self) -> Result<bool> {
+                if self.done {
+                    return Ok(false);
+                }
+                let skip = self.skip();
+                super::particles::skipped(&mut self.done, skip)
+            }
+        }
+
+        impl<R: BufRead> Iterator for $reader<R> {
+            type Item = Result<ParticleFrame>;
+
+            fn next(&mut self) -> Option<Self::Item> {
+                if self.done {
+                    return None;
+                }
+                let read = self.read();
+                super::particles::frame_or_end(&mut self.done, read)
+            }
+
+            /// Skips `n` frames without parsing their atoms, then reads one.
+            fn nth(&mut self, n: usize) -> Option<Self::Item> {
+                super::particles::nth_frame(self, n, Self::skip_checked)
+            }
+        }
+
+        impl<R: BufRead + Send> FrameReader for $reader<R> {
+            fn skip_frame(&mut self) -> Result<bool> {
+                self.skip_checked()
+            }
+
+            fn next_index(&self) -> usize {
+                self.index
+            }
+        }
+    };
+}
+pub(super) use frame_reader;
+
 /// `Iterator::nth` of a reader: `n` frames skipped with `skip` (the
 /// reader's `skip_frame`), then one read.
 pub(super) fn nth_frame<I: Iterator<Item = Result<ParticleFrame>>>(
