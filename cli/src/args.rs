@@ -179,7 +179,7 @@ pub struct RunArgs {
     /// The frames of --particles: A:B:STEP (from A to before B, every
     /// STEP; each part optional, as Python's slices), or one frame N.
     #[arg(long, value_name = "A:B:STEP", requires = "particles")]
-    pub frames: Option<crate::frames::FrameRange>,
+    pub frames: Option<FrameRange>,
     /// Radical (power) cells from a radius per particle, one number per
     /// line in the sites' order: weights r², as voro++'s radical
     /// tessellation.
@@ -367,5 +367,86 @@ mod tests {
         assert_eq!(two_counts("2, 3"), Ok([2, 3]));
         assert!(two_counts("2").unwrap_err().contains("separated by a comma"));
         assert!(two_counts("a,3").unwrap_err().contains("whole numbers"));
+    }
+}
+
+/// The frames `--frames A:B:STEP` asks for: from `A` (default 0) to before
+/// `B` (default: the end), every `STEP` (default 1); `N` alone is that
+/// frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FrameRange {
+    pub start: usize,
+    pub end: Option<usize>,
+    pub step: usize,
+}
+
+impl std::str::FromStr for FrameRange {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        let number = |t: &str, what: &str| -> Result<Option<usize>, String> {
+            let t = t.trim();
+            if t.is_empty() {
+                return Ok(None);
+            }
+            t.parse::<usize>().map(Some).map_err(|_| format!("{what} {t:?} is not a frame number (0, 1, 2, ...)"))
+        };
+        let parts: Vec<&str> = s.split(':').collect();
+        let range = match parts.as_slice() {
+            [one] => {
+                let n = number(one, "the frame")?.ok_or("expected A:B:STEP, A:B or a frame number")?;
+                FrameRange { start: n, end: Some(n + 1), step: 1 }
+            }
+            [a, b] => FrameRange { start: number(a, "the start")?.unwrap_or(0), end: number(b, "the end")?, step: 1 },
+            [a, b, c] => FrameRange {
+                start: number(a, "the start")?.unwrap_or(0),
+                end: number(b, "the end")?,
+                step: number(c, "the step")?.unwrap_or(1),
+            },
+            _ => return Err(format!("{s:?}: expected A:B:STEP")),
+        };
+        if range.step == 0 {
+            return Err("the step must be at least 1".into());
+        }
+        Ok(range)
+    }
+}
+
+impl FrameRange {
+    /// Whether frame `index` is one asked for.
+    pub fn wants(&self, index: usize) -> bool {
+        index >= self.start && self.end.is_none_or(|e| index < e) && (index - self.start).is_multiple_of(self.step)
+    }
+
+    /// Whether no frame from `index` on is asked for.
+    pub fn past(&self, index: usize) -> bool {
+        self.end.is_some_and(|e| index >= e)
+    }
+
+    /// How many frames it asks for, if it knows.
+    pub fn count(&self) -> Option<usize> {
+        self.end.map(|e| e.saturating_sub(self.start).div_ceil(self.step))
+    }
+}
+
+#[cfg(test)]
+mod frame_range_tests {
+    use super::FrameRange;
+
+    #[test]
+    fn frame_ranges_read_as_slices() {
+        let r = |s: &str| s.parse::<FrameRange>();
+        assert_eq!(r("2:10:3"), Ok(FrameRange { start: 2, end: Some(10), step: 3 }));
+        assert_eq!(r(":"), Ok(FrameRange { start: 0, end: None, step: 1 }));
+        assert_eq!(r("5"), Ok(FrameRange { start: 5, end: Some(6), step: 1 }));
+        assert_eq!(r("::2"), Ok(FrameRange { start: 0, end: None, step: 2 }));
+        assert!(r("1:2:0").unwrap_err().contains("step"));
+        assert!(r("a:2").unwrap_err().contains("\"a\""));
+        assert!(r("1:2:3:4").is_err());
+        let range = r("2:10:3").unwrap();
+        let wanted: Vec<usize> = (0..12).filter(|&i| range.wants(i)).collect();
+        assert_eq!(wanted, [2, 5, 8]);
+        assert_eq!(range.count(), Some(3));
+        assert!(range.past(10) && !range.past(9));
     }
 }

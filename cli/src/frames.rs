@@ -4,71 +4,12 @@
 //! `frames/` (`cells.<frame>.csv`, the `site` column holding the file's
 //! particle ids where it has them) and one `summary.json` for the run.
 
-use crate::args::RunArgs;
+use crate::args::{FrameRange, RunArgs};
 use crate::progress::with_frames;
 use cvd::{CpuBackend, IndexThresholds, ParticleCells, PeriodicVoronoi};
 use cvd_io::{FrameRecord, TrajectorySummary};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
-
-/// The frames `--frames A:B:STEP` asks for: from `A` (default 0) to before
-/// `B` (default: the end), every `STEP` (default 1); `N` alone is that
-/// frame.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct FrameRange {
-    pub start: usize,
-    pub end: Option<usize>,
-    pub step: usize,
-}
-
-impl std::str::FromStr for FrameRange {
-    type Err = String;
-
-    fn from_str(s: &str) -> Result<Self, String> {
-        let number = |t: &str, what: &str| -> Result<Option<usize>, String> {
-            let t = t.trim();
-            if t.is_empty() {
-                return Ok(None);
-            }
-            t.parse::<usize>().map(Some).map_err(|_| format!("{what} {t:?} is not a frame number (0, 1, 2, ...)"))
-        };
-        let parts: Vec<&str> = s.split(':').collect();
-        let range = match parts.as_slice() {
-            [one] => {
-                let n = number(one, "the frame")?.ok_or("expected A:B:STEP, A:B or a frame number")?;
-                FrameRange { start: n, end: Some(n + 1), step: 1 }
-            }
-            [a, b] => FrameRange { start: number(a, "the start")?.unwrap_or(0), end: number(b, "the end")?, step: 1 },
-            [a, b, c] => FrameRange {
-                start: number(a, "the start")?.unwrap_or(0),
-                end: number(b, "the end")?,
-                step: number(c, "the step")?.unwrap_or(1),
-            },
-            _ => return Err(format!("{s:?}: expected A:B:STEP")),
-        };
-        if range.step == 0 {
-            return Err("the step must be at least 1".into());
-        }
-        Ok(range)
-    }
-}
-
-impl FrameRange {
-    /// Whether frame `index` is one asked for.
-    fn wants(&self, index: usize) -> bool {
-        index >= self.start && self.end.is_none_or(|e| index < e) && (index - self.start).is_multiple_of(self.step)
-    }
-
-    /// Whether no frame from `index` on is asked for.
-    fn past(&self, index: usize) -> bool {
-        self.end.is_some_and(|e| index >= e)
-    }
-
-    /// How many frames it asks for, if it knows.
-    fn count(&self) -> Option<usize> {
-        self.end.map(|e| e.saturating_sub(self.start).div_ceil(self.step))
-    }
-}
 
 /// Runs `cvd run --particles`.
 pub fn run(args: &RunArgs, file: &Path) -> cvd::Result<u8> {
@@ -185,26 +126,4 @@ pub fn run(args: &RunArgs, file: &Path) -> cvd::Result<u8> {
     let worst = summary.frames.iter().map(|f| f.e_vol).fold(0.0, f64::max);
     println!("E_vol at most {worst:.1e}; wrote {}: frames/cells.*.csv ({n}), summary.json", dir.display());
     Ok(0)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::FrameRange;
-
-    #[test]
-    fn frame_ranges_read_as_slices() {
-        let r = |s: &str| s.parse::<FrameRange>();
-        assert_eq!(r("2:10:3"), Ok(FrameRange { start: 2, end: Some(10), step: 3 }));
-        assert_eq!(r(":"), Ok(FrameRange { start: 0, end: None, step: 1 }));
-        assert_eq!(r("5"), Ok(FrameRange { start: 5, end: Some(6), step: 1 }));
-        assert_eq!(r("::2"), Ok(FrameRange { start: 0, end: None, step: 2 }));
-        assert!(r("1:2:0").unwrap_err().contains("step"));
-        assert!(r("a:2").unwrap_err().contains("\"a\""));
-        assert!(r("1:2:3:4").is_err());
-        let range = r("2:10:3").unwrap();
-        let wanted: Vec<usize> = (0..12).filter(|&i| range.wants(i)).collect();
-        assert_eq!(wanted, [2, 5, 8]);
-        assert_eq!(range.count(), Some(3));
-        assert!(range.past(10) && !range.past(9));
-    }
 }

@@ -408,6 +408,10 @@ fn periodic_voronoi<'py>(
     Ok((to_python(py, out.cells)?, wrapped))
 }
 
+/// What `particle_voronoi` gives: the cells, the points wrapped, and the
+/// particles' arrays.
+type ParticleResult<'py> = (Cells, Bound<'py, PyArray2<f64>>, Option<Bound<'py, PyDict>>);
+
 /// The cells of particles in a periodic (possibly triclinic, possibly
 /// walled) cell: `origin`, lattice vectors `vectors` (rows a, b, c),
 /// `periodic` per axis, radii (power weights r²) or None, the Voronoi
@@ -429,7 +433,7 @@ fn particle_voronoi<'py>(
     thresholds: (f64, f64, f64, f64),
     polyhedra: bool,
     faces: bool,
-) -> PyResult<(Cells, Bound<'py, PyArray2<f64>>, Option<Bound<'py, PyDict>>)> {
+) -> PyResult<ParticleResult<'py>> {
     let points = rows3(&points, "points")?;
     let radii: Option<Vec<f64>> = radii.map(|r| r.as_array().to_vec());
     let options = self::backend(backend)?;
