@@ -312,10 +312,9 @@ super::particles::frame_reader!(ExtxyzReader);
 
 #[cfg(test)]
 pub(crate) mod tests {
-    use super::super::particles::tests::read_all_frames;
+    use super::super::particles::tests::{fails_at, read_all_frames, replace_line};
     use super::super::tests::no_panic_on_mutations;
     use super::*;
-    use cvd::error::Error;
 
     /// Two frames: the first with every key read, extra columns and
     /// quoted values, ids out of order; the second with the default
@@ -340,18 +339,12 @@ O 1 1 1
     /// `part`.
     #[track_caller]
     fn fails(text: &str, line: usize, frame: usize, part: &str) {
-        let e = read_all(text).unwrap_err();
-        let m = e.to_string();
-        assert!(matches!(e, Error::Parse { .. }), "{m}");
-        assert!(m.starts_with(&format!("t.extxyz:{line}: frame {frame}: ")), "{m}");
-        assert!(m.contains(part), "{m}");
+        fails_at(read_all(text), "t.extxyz", line, frame, part);
     }
 
     /// `VALID` with its line `line` (1-based) replaced.
     fn with_line(line: usize, text: &str) -> String {
-        let mut lines: Vec<&str> = VALID.lines().collect();
-        lines[line - 1] = text;
-        lines.join("\n") + "\n"
+        replace_line(VALID, line, text)
     }
 
     /// A frame of the default columns in the cell `lattice`.

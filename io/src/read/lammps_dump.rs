@@ -291,7 +291,7 @@ super::particles::frame_reader!(LammpsDumpReader);
 
 #[cfg(test)]
 pub(crate) mod tests {
-    use super::super::particles::tests::read_all_frames;
+    use super::super::particles::tests::{fails_at, read_all_frames, replace_line};
     use super::super::tests::{no_panic_on_mutations, parse_err};
     use super::*;
     use std::fmt::Write;
@@ -333,18 +333,12 @@ ITEM: ATOMS id type xs ys zs
     /// `part`.
     #[track_caller]
     fn fails(text: &str, line: usize, frame: usize, part: &str) {
-        let e = read_all(text).unwrap_err();
-        let m = e.to_string();
-        assert!(matches!(e, Error::Parse { .. }), "{m}");
-        assert!(m.starts_with(&format!("t.dump:{line}: frame {frame}: ")), "{m}");
-        assert!(m.contains(part), "{m}");
+        fails_at(read_all(text), "t.dump", line, frame, part);
     }
 
     /// `VALID` with its line `line` (1-based) replaced.
     fn with_line(line: usize, text: &str) -> String {
-        let mut lines: Vec<&str> = VALID.lines().collect();
-        lines[line - 1] = text;
-        lines.join("\n") + "\n"
+        replace_line(VALID, line, text)
     }
 
     /// A frame: the box's lines, the columns and the atom lines.

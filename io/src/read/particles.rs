@@ -545,6 +545,24 @@ pub(super) mod tests {
         panic!("a reader that does not end");
     }
 
+    /// The frames a reader named `name` read, `frames`, ended in an error
+    /// at `line` of frame `frame`, the message holding `part`.
+    #[track_caller]
+    pub fn fails_at(frames: Result<Vec<ParticleFrame>>, name: &str, line: usize, frame: usize, part: &str) {
+        let e = frames.unwrap_err();
+        let m = e.to_string();
+        assert!(matches!(e, Error::Parse { .. }), "{m}");
+        assert!(m.starts_with(&format!("{name}:{line}: frame {frame}: ")), "{m}");
+        assert!(m.contains(part), "{m}");
+    }
+
+    /// `text` with its line `line` (1-based) replaced by `new`.
+    pub fn replace_line(text: &str, line: usize, new: &str) -> String {
+        let mut lines: Vec<&str> = text.lines().collect();
+        lines[line - 1] = new;
+        lines.join("\n") + "\n"
+    }
+
     #[test]
     fn lines_count_and_skip() {
         let text = "a\r\n\n  \nb\nc\nd\ne";
