@@ -1,6 +1,7 @@
 //! Geometry, the engine's lowest layer: tet meshes ([`mesh`]), closed
 //! triangle surfaces ([`surface`]), densities over a mesh ([`density`]),
-//! point sets and their Morton order ([`points`]), the integer frame the
+//! point sets and their Morton order ([`points`]), the periodic box with
+//! its walls ([`periodic_box`]), the integer frame the
 //! kernels compare distances in ([`quantize`]), the host's site grid for
 //! ball queries ([`site_grid`]), small vector helpers ([`vec3`]) and
 //! per-phase times ([`timing`]). It knows no job, backend or diagram.
