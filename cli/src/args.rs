@@ -324,6 +324,18 @@ impl RunArgs {
         self.transport || self.capacities.is_some() || self.volumes.is_some()
     }
 
+    /// The Voronoi index's thresholds, checked.
+    pub fn index_thresholds(&self) -> cvd::Result<cvd::IndexThresholds> {
+        let t = cvd::IndexThresholds {
+            edge: self.edge_threshold,
+            relative_edge: self.relative_edge_threshold,
+            face: self.face_threshold,
+            relative_face: self.relative_face_threshold,
+        };
+        t.check()?;
+        Ok(t)
+    }
+
     /// Whether the domain is a periodic box.
     pub fn periodic(&self) -> bool {
         self.periodic || self.periodic_box.is_some() || self.lattice.is_some()

@@ -6,7 +6,7 @@
 
 use crate::args::{FrameRange, RunArgs};
 use crate::progress::with_frames;
-use cvd::{CpuBackend, IndexThresholds, ParticleCells, PeriodicVoronoi};
+use cvd::{CpuBackend, ParticleCells, PeriodicVoronoi};
 use cvd_io::{FrameRecord, TrajectorySummary};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -14,13 +14,7 @@ use std::time::Instant;
 /// Runs `cvd run --particles`.
 pub fn run(args: &RunArgs, file: &Path) -> cvd::Result<u8> {
     let range = args.frames.unwrap_or(FrameRange { start: 0, end: None, step: 1 });
-    let thresholds = IndexThresholds {
-        edge: args.edge_threshold,
-        relative_edge: args.relative_edge_threshold,
-        face: args.face_threshold,
-        relative_face: args.relative_face_threshold,
-    };
-    thresholds.check()?;
+    let thresholds = args.index_thresholds()?;
     let name = file.file_stem().and_then(|s| s.to_str()).unwrap_or("particles").to_string();
     let dir = args.out.clone().unwrap_or_else(|| PathBuf::from("out").join(&name));
     let frames_dir = dir.join("frames");

@@ -10,7 +10,7 @@ use crate::progress::{with_iterations, with_spinner};
 use cvd::cvt::transport::{Transport, VolumeLaw};
 use cvd::cvt::SiteDiagram;
 use cvd::exec::CpuBackend;
-use cvd::{Backend, Cells, ClippedVoronoi, IndexThresholds, JobShape, ParticleCells, PeriodicVoronoi, Pieces};
+use cvd::{Backend, Cells, ClippedVoronoi, JobShape, ParticleCells, PeriodicVoronoi, Pieces};
 use cvd_io::{CvtRecord, ParticlesRecord, PeriodicRecord, Summary, TransportRecord};
 
 /// What the optimiser gives the final diagram.
@@ -109,7 +109,7 @@ pub fn run(args: &RunArgs) -> cvd::Result<u8> {
     summary.parts = run_backend.parts().map(|d| d.report());
     summary.periodic = diagram.periodic.map(|p| PeriodicRecord { wrapped: inputs.wrapped, ..p });
     if let Some(p) = &diagram.particles {
-        summary.particles = Some(ParticlesRecord::of(p, &thresholds(args)?));
+        summary.particles = Some(ParticlesRecord::of(p, &args.index_thresholds()?));
     }
     let polyhedra = diagram.cells.polyhedra();
     if let (Some(pieces), Some(polyhedra)) = (&diagram.pieces, polyhedra) {
@@ -308,18 +308,6 @@ fn final_diagram(args: &RunArgs, inputs: &Inputs, o: &Optimised, run: &RunBacken
     }
 }
 
-/// The thresholds of the Voronoi index the arguments give.
-fn thresholds(args: &RunArgs) -> cvd::Result<IndexThresholds> {
-    let t = IndexThresholds {
-        edge: args.edge_threshold,
-        relative_edge: args.relative_edge_threshold,
-        face: args.face_threshold,
-        relative_face: args.relative_face_threshold,
-    };
-    t.check()?;
-    Ok(t)
-}
-
 /// The particles' quantities of `cells` (`--voronoi-index`), from their
 /// polyhedra.
 fn particles(args: &RunArgs, cells: &Cells, n: usize) -> cvd::Result<Option<ParticleCells>> {
@@ -331,7 +319,7 @@ fn particles(args: &RunArgs, cells: &Cells, n: usize) -> cvd::Result<Option<Part
             "--voronoi-index needs the cells' polyhedra: not with --no-geometry or in parts".into(),
         ));
     };
-    Ok(Some(ParticleCells::of(n, polyhedra, &thresholds(args)?)))
+    Ok(Some(ParticleCells::of(n, polyhedra, &args.index_thresholds()?)))
 }
 
 fn create_dir(dir: &std::path::Path) -> cvd::Result<()> {

@@ -251,7 +251,6 @@ impl PeriodicBox {
     /// `p` reflected in the wall across axis `axis` on the origin's side
     /// (`upper` false) or the far side.
     pub fn mirrored(&self, p: [f64; 3], axis: usize, upper: bool) -> [f64; 3] {
-        let s = self.fractional(p)[axis] - if upper { 1.0 } else { 0.0 };
         if self.aligned {
             let mut q = p;
             let wall = if upper { self.hi()[axis] } else { self.origin[axis] };
@@ -259,6 +258,7 @@ impl PeriodicBox {
             return q;
         }
         // p - 2 s r / |r|²: s / |r| is p's signed distance from the wall.
+        let s = self.fractional(p)[axis] - if upper { 1.0 } else { 0.0 };
         let r = self.reciprocal[axis];
         let f = 2.0 * s / dot(r, r);
         [0, 1, 2].map(|k| p[k] - f * r[k])
