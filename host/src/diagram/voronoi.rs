@@ -354,7 +354,12 @@ impl<'a> ClippedVoronoi<'a> {
         };
         // One frame and grid for both k-NN jobs, covering the mesh: sites
         // that move (Lloyd) stay inside it.
-        let site_knn = KnnJob::sites_in_frame(&sites, &local_mesh.vertices, self.resolved_k_site(), KnnMethod::Grid)?;
+        let mut site_knn =
+            KnnJob::sites_in_frame(&sites, &local_mesh.vertices, self.resolved_k_site(), KnnMethod::Grid)?;
+        // Whole cells are built for the sites answered for alone (a
+        // periodic box's images get none): only their lists are needed.
+        let listed = if strategy == Strategy::Whole { own } else { n };
+        site_knn = site_knn.answering_first(listed);
         // Its queries come when it runs (ClipJob::tet_knn_job).
         let tet_knn = KnnJob::points_like(&site_knn, &[], k)?;
         if local_mesh.tets.len().checked_mul(k).is_none_or(|n| n > u32::MAX as usize) {
@@ -401,7 +406,7 @@ impl<'a> ClippedVoronoi<'a> {
             fixed_scale: bits.exp2() as f32,
             tet_base: 0,
             nbr_base: 0,
-            nbr_end: n as u32,
+            nbr_end: listed as u32,
             own_lo: 0,
             own_hi: own as u32,
             box_lo_x: (lo[0] - margin) as f32,
@@ -584,7 +589,8 @@ impl ClippedVoronoi<'_> {
         let k = job.params.k_site as usize;
         let n = job.params.n_sites;
         let mut cpu = None;
-        let lists = if lists.k as usize == k && lists.view(0).slot(n as usize - 1) != NO_LIST {
+        let listed = job.site_knn.params.n_queries as usize;
+        let lists = if lists.k as usize == k && lists.view(0).slot(listed - 1) != NO_LIST {
             lists
         } else {
             drop(lists);

@@ -412,7 +412,7 @@ impl CpuBackend {
     /// [`Self::packed_lists`], searching `grid` (the job's grid, built
     /// already) if given.
     fn packed_lists_on(&self, job: &KnnJob, bits: u32, grid: Option<&CpuGrid>) -> Result<PackedLists> {
-        let (k, n) = (job.params.k, job.queries.len());
+        let (k, n) = (job.params.k, job.params.n_queries as usize);
         let mut words = vec![0u32; n * lists::stride(k, bits) + lists::spare(bits)];
         let out = SharedSlots::new(&mut words);
         let timings = self.each_list(job, grid, &|slot, nbr, _| lists::pack(nbr, k, bits, slot, &mut out.share()));
@@ -474,7 +474,7 @@ impl CpuBackend {
     /// squared distances, to `store` with the query's slot.
     fn each_list(&self, job: &KnnJob, grid: Option<&CpuGrid>, store: &ListStore) -> Timings {
         let p = KnnParams { local_lists: 1, ..job.params };
-        let (k, n) = (p.k as usize, job.queries.len());
+        let (k, n) = (p.k as usize, p.n_queries as usize);
         let mut timings = Timings::default();
         if k == 0 || n == 0 {
             return timings;

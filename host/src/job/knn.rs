@@ -112,6 +112,16 @@ impl KnnJob {
         Ok(job)
     }
 
+    /// The same job answering only its first `m` sites, in index order (a
+    /// periodic box's whole cells: the images need no list).
+    pub fn answering_first(mut self, m: usize) -> Self {
+        if self.params.exclude_self != 0 && m < self.queries.len() {
+            self.params.n_queries = m as u32;
+            self.params.in_order = 1;
+        }
+        self
+    }
+
     /// The `k` nearest sites of every query point, with the sites, frame
     /// and grid of a site job (the queries must lie in its frame).
     pub fn points_like(site_job: &KnnJob, queries: &[[f64; 3]], k: usize) -> Result<Self> {

@@ -224,7 +224,7 @@ impl Backend for VulkanBackend {
                 .ok_or_else(|| Error::Internal("a whole-cell job without its domain index".into()))?;
             // Whole cells keep every list (the plan has one window): one
             // thread per site, then the sums back.
-            site_lists(&mut j, 0, n)?;
+            site_lists(&mut j, 0, sk.params.n_queries as u64)?;
             // No buffer is empty: an unread record where there is none.
             let d = [
                 j.upload(std::slice::from_ref(&domain.params))?,
