@@ -41,6 +41,7 @@ pub use backend::Backend;
 pub use backends::{BackendChoice, BackendOptions};
 pub use diagram::particles::{IndexThresholds, ParticleCells, INDEX_ORDERS};
 pub use diagram::periodic::{PeriodicCells, PeriodicVoronoi};
+pub use diagram::trajectory::FrameLists;
 pub use diagram::voronoi::{Cells, ClippedVoronoi, Counters};
 pub use error::{Error, Result};
 pub use exec::CpuBackend;

@@ -127,6 +127,42 @@ pub fn brute_query<N, D>(
     pad(best.found, k, base, nbr, d2);
 }
 
+/// The `k` nearest to `q` of the candidate sites `cands` (indices into
+/// `sites`, in any order), skipping site `exclude`, sorted as
+/// [`grid_query`] sorts (distance, then index) at `base..base + k`, the
+/// slots past the candidates padded as there. Returns how many were
+/// found. Where every site nearer than some distance is a candidate (a
+/// list kept from the last frame, see the host's trajectories), the list
+/// up to that distance is the one [`grid_query`] gives, entry for entry.
+#[inline]
+#[allow(clippy::too_many_arguments)]
+pub fn candidate_query<N, D>(
+    sites: &[QuantPoint],
+    cands: &[u32],
+    q: [u32; 3],
+    exclude: u32,
+    k: u32,
+    base: usize,
+    nbr: &mut N,
+    d2: &mut D,
+) -> u32
+where
+    N: OutBuf<u32> + ?Sized,
+    D: OutBuf<u64> + ?Sized,
+{
+    let mut best = Best::new(k, base);
+    let mut j = 0usize;
+    while j < cands.len() {
+        let c = cands[j];
+        if c != exclude && c != NO_SITE {
+            best.offer(dist2(q, &sites[c as usize]), c, nbr, d2);
+        }
+        j += 1;
+    }
+    pad(best.found, k, base, nbr, d2);
+    best.found
+}
+
 /// The distance from `q` to the nearest point outside the box of cells
 /// within Chebyshev ring `r` of cell `c`, or `u64::MAX` when that box covers
 /// the whole grid. Every site not yet visited is at least this far.

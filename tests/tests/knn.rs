@@ -124,3 +124,39 @@ fn flat_sites_keep_the_grid_small() {
     assert!(job.params.grid.n_cells as usize <= 2 * sites.len() + 64);
     check_all(|m| KnnJob::sites(&sites, 10, m).unwrap());
 }
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(24))]
+
+    /// A list from candidates (`knn::candidate_query`, a trajectory's
+    /// kept lists) is the k-NN list wherever every site nearer than its
+    /// last entry is a candidate: given the first `m` of a site's exact
+    /// 2k-list, in shuffled order and with farther sites mixed in, its
+    /// first `min(k, m)` entries equal the exact list's.
+    #[test]
+    fn lists_from_candidates_are_the_knn_lists(
+        layout in prop_oneof![Just(Layout::Uniform), Just(Layout::Clustered), Just(Layout::Duplicates), Just(Layout::Lattice)],
+        n in 20usize..400,
+        k in 1usize..24,
+        seed in 0u64..1000,
+    ) {
+        let pts = make_points(layout, n, seed);
+        let job = KnnJob::sites(&pts, 2 * k, KnnMethod::Brute).unwrap();
+        let (want, _) = reference_knn(&job);
+        let kk = job.params.k as usize;
+        for q in 0..job.queries.len() {
+            let exact = &want[q * kk..(q + 1) * kk];
+            let m = (seed as usize + q) % (kk + 1);
+            // The first m, reversed, and every third farther site.
+            let mut cands: Vec<u32> = exact[..m].iter().rev().copied().collect();
+            cands.extend(exact[m..].iter().step_by(3));
+            let k = k.min(kk) as u32;
+            let (mut nbr, mut d2) = (vec![0u32; k as usize], vec![0u64; k as usize]);
+            let at = job.queries[q];
+            let found = cvd_kernels::knn::candidate_query(&job.sites, &cands, [at[0], at[1], at[2]], at[3], k, 0, &mut nbr[..], &mut d2[..]);
+            prop_assert_eq!(found as usize, cands.len().min(k as usize));
+            let sure = m.min(k as usize);
+            prop_assert_eq!(&nbr[..sure], &exact[..sure], "query {}", q);
+        }
+    }
+}

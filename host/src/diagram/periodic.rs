@@ -51,6 +51,7 @@
 //! inside, so that its mirror stays apart from it (and counted).
 
 use crate::backend::Backend;
+use crate::diagram::trajectory::{FrameLists, KEEP_SPARE};
 use crate::diagram::voronoi::{Cells, ClippedVoronoi};
 use crate::error::{Error, Result};
 use crate::exec::CpuBackend;
@@ -73,15 +74,15 @@ pub const WHOLE_FRAME_TETS: usize = 6;
 /// The image of a site: site `site` moved by `shift` lattice vectors,
 /// then, for a mirror, reflected in a wall.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-struct Image {
-    site: u32,
-    shift: [i32; 3],
+pub(super) struct Image {
+    pub(super) site: u32,
+    pub(super) shift: [i32; 3],
     /// The wall it is reflected in: `2 axis + upper`, or [`NO_WALL`].
-    wall: u8,
+    pub(super) wall: u8,
 }
 
 /// An image not reflected in any wall.
-const NO_WALL: u8 = u8::MAX;
+pub(super) const NO_WALL: u8 = u8::MAX;
 
 impl Image {
     fn at(&self, domain: &PeriodicBox, sites: &[[f64; 3]]) -> [f64; 3] {
@@ -109,6 +110,8 @@ pub struct PeriodicVoronoi<'a> {
     strategy: Option<Strategy>,
     k_site: Option<usize>,
     tets: Option<usize>,
+    keep: bool,
+    last: Option<&'a FrameLists>,
 }
 
 /// A periodic diagram's cells, per input site.
@@ -135,13 +138,48 @@ pub struct PeriodicCells {
     pub on_walls: usize,
     /// The halo's width (see the module's documentation).
     pub halo: f64,
+    /// What this frame leaves for the next ([`PeriodicVoronoi::keep_lists`];
+    /// `None` where not asked for, or on another backend than the CPU).
+    pub lists: Option<FrameLists>,
+    /// How many cells were built from the last frame's lists
+    /// ([`PeriodicVoronoi::after`]) without searching for neighbours.
+    pub reused: usize,
 }
 
 impl<'a> PeriodicVoronoi<'a> {
     /// The cells of `sites` in the periodic box `domain` (sites outside it
     /// are wrapped into it).
     pub fn new(domain: PeriodicBox, sites: &'a [[f64; 3]]) -> Self {
-        Self { domain, sites, weights: None, backend: None, faces: false, strategy: None, k_site: None, tets: None }
+        Self {
+            domain,
+            sites,
+            weights: None,
+            backend: None,
+            faces: false,
+            strategy: None,
+            k_site: None,
+            tets: None,
+            keep: false,
+            last: None,
+        }
+    }
+
+    /// Keeps each particle's nearest sites and images for the next frame
+    /// of a trajectory ([`PeriodicCells::lists`]; whole cells on the CPU
+    /// backend; see [`crate::diagram::trajectory`]).
+    pub fn keep_lists(mut self, on: bool) -> Self {
+        self.keep = on;
+        self
+    }
+
+    /// Starts from the last frame's lists ([`PeriodicCells::lists`] of the
+    /// same particles in the same cell, with the same weights; otherwise
+    /// they are not used): a cell whose list they certify is built without
+    /// searching for neighbours ([`PeriodicCells::reused`]). The cells are
+    /// those of a frame computed afresh, bit for bit.
+    pub fn after(mut self, last: Option<&'a FrameLists>) -> Self {
+        self.last = last;
+        self
     }
 
     /// The box.
@@ -268,13 +306,23 @@ impl<'a> PeriodicVoronoi<'a> {
         let images_s = clock.elapsed().as_secs_f64();
         let mut diagram =
             ClippedVoronoi::new(&mesh, &all).faces(self.faces).strategy(strategy).k_site(self.k_site).images_after(n);
+        let whole_cells = diagram.resolved_strategy() == Strategy::Whole;
+        let candidates = match self.last {
+            Some(last) if whole_cells && last.fits(&domain, &sites, self.weights) => {
+                Some(last.candidates(&sites, &images))
+            }
+            _ => None,
+        };
+        if self.keep && whole_cells {
+            diagram = diagram.keep_lists(Some(diagram.resolved_k_site() + KEEP_SPARE)).candidates(candidates.as_ref());
+        }
         if let Some(w) = &weights {
             diagram = diagram.weights(w);
         }
         if let Some(b) = self.backend {
             diagram = diagram.backend(b);
         }
-        let (whole, polyhedra) = match cpu {
+        let (mut whole, polyhedra) = match cpu {
             None => (diagram.compute()?, None),
             Some(cpu) => {
                 if diagram.resolved_strategy() != Strategy::Whole {
@@ -306,12 +354,26 @@ impl<'a> PeriodicVoronoi<'a> {
             }
         };
         let clock = Instant::now();
+        let kept = whole.kept.take();
+        let reused = kept.as_ref().map_or(0, |k| k.reused);
+        let lists = kept.map(|k| FrameLists::new(domain, sites.clone(), self.weights, &images, &k, halo));
         let (mut cells, offsets) = fold(&domain, &sites, &all, &images, &whole);
         cells.polyhedra = polyhedra.map(|p| own_polyhedra(p, &images, n));
         cells.timings = whole.timings.clone();
         cells.timings.phases.insert(0, ("images".into(), images_s));
         cells.timings.push("fold", clock.elapsed().as_secs_f64());
-        Ok(PeriodicCells { cells, sites, offsets, wrapped, images: images.len(), mirrors, on_walls, halo })
+        Ok(PeriodicCells {
+            cells,
+            sites,
+            offsets,
+            wrapped,
+            images: images.len(),
+            mirrors,
+            on_walls,
+            halo,
+            lists,
+            reused,
+        })
     }
 }
 
@@ -583,6 +645,7 @@ fn fold(
         timings: Default::default(),
         adjacency,
         polyhedra: None,
+        kept: None,
     };
     (cells, offsets)
 }

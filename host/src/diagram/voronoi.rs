@@ -9,12 +9,13 @@ use crate::geom::mesh::TetMesh;
 use crate::geom::points;
 use crate::geom::timing::Timings;
 use crate::job::clip::{default_k_site, paper_k, ClipJob, ClipOutput, Frame, JobShape, Pairing, Strategy};
+use crate::job::kept::{Candidates, Keep, KeptLists, LocalKept, SiteCandidates};
 use crate::job::knn::{KnnJob, KnnMethod};
 use crate::job::sites::SiteMap;
 use crate::job::BackendKind;
 use crate::passes::pieces::{PieceCollector, Pieces};
 use crate::passes::polyhedra::{merge_pieces, CellPolyhedron};
-use cvd_kernels::abi::{counter, domain_whole, ClipParams, RefineParams, SplitPoint, ACCUM_PER_SITE};
+use cvd_kernels::abi::{counter, domain_whole, ClipParams, RefineParams, SplitPoint, ACCUM_PER_SITE, NO_SITE};
 use cvd_kernels::clip::NoPieces;
 use cvd_kernels::lists::NO_LIST;
 use std::sync::Mutex;
@@ -104,6 +105,9 @@ pub struct Cells {
     /// Each cell as one closed polyhedron, when asked for
     /// ([`ClippedVoronoi::compute_with_polyhedra`]).
     pub polyhedra: Option<Vec<CellPolyhedron>>,
+    /// The neighbour lists kept for a trajectory's next frame (periodic
+    /// boxes' whole cells on the CPU backend, when asked for).
+    pub kept: Option<KeptLists>,
 }
 
 impl Cells {
@@ -146,6 +150,11 @@ pub struct ClippedVoronoi<'a> {
     /// A periodic box's job ([`Self::images_after`]): the sites from this
     /// index on are images of the first ones.
     pub(crate) images_from: Option<usize>,
+    /// Whole cells: each answered site's list of this many nearest sites
+    /// kept ([`Cells::kept`]) for a trajectory's next frame.
+    pub(crate) keep: Option<usize>,
+    /// The last frame's kept lists, as candidates ([`crate::job::kept`]).
+    pub(crate) candidates: Option<&'a Candidates>,
 }
 
 impl<'a> ClippedVoronoi<'a> {
@@ -164,7 +173,25 @@ impl<'a> ClippedVoronoi<'a> {
             faces: false,
             face_masses: false,
             images_from: None,
+            keep: None,
+            candidates: None,
         }
+    }
+
+    /// Whole cells: keeps each answered site's `k` nearest sites (at least
+    /// `k_site`) and the distance within which they are all the sites
+    /// ([`Cells::kept`]), for the next frame of a trajectory
+    /// ([`crate::job::kept`]); the CPU backend keeps them, others none.
+    pub(crate) fn keep_lists(mut self, k: Option<usize>) -> Self {
+        self.keep = k;
+        self
+    }
+
+    /// Each answered site's candidate neighbours, from the last frame's
+    /// kept lists: where they certify its list, no grid is searched.
+    pub(crate) fn candidates(mut self, candidates: Option<&'a Candidates>) -> Self {
+        self.candidates = candidates;
+        self
     }
 
     /// A periodic box's cells (see `crate::diagram::periodic`): the sites
@@ -337,7 +364,6 @@ impl<'a> ClippedVoronoi<'a> {
         let mut split: Vec<SplitPoint> =
             sites.iter().enumerate().map(|(u, &p)| SplitPoint::site(p, local_weight(u))).collect();
         crate::job::sites::check_separable(&split, self.sites, &inputs)?;
-        drop(inputs);
         if weight_range > 0.0 {
             // Each site's local weight bound, after the sites.
             let volume = mesh.volume() / frame.scale.powi(3);
@@ -360,6 +386,11 @@ impl<'a> ClippedVoronoi<'a> {
         // periodic box's images get none): only their lists are needed.
         let listed = if strategy == Strategy::Whole { own } else { n };
         site_knn = site_knn.answering_first(listed);
+        let keep = self.keep.filter(|_| strategy == Strategy::Whole).map(|kk| Keep {
+            k: kk.max(site_knn.params.k as usize).min(n.saturating_sub(1)) as u32,
+            candidates: self.candidates.map(|c| local_candidates(c, &inputs[..listed], &map, &site_knn, frame.scale)),
+        });
+        drop(inputs);
         // Its queries come when it runs (ClipJob::tet_knn_job).
         let tet_knn = KnnJob::points_like(&site_knn, &[], k)?;
         if local_mesh.tets.len().checked_mul(k).is_none_or(|n| n > u32::MAX as usize) {
@@ -476,6 +507,7 @@ impl<'a> ClippedVoronoi<'a> {
             pairing,
             tet_faces,
             held: None,
+            keep,
         };
         Ok((job, map, frame))
     }
@@ -562,8 +594,13 @@ impl<'a> ClippedVoronoi<'a> {
         } else {
             (None, 0)
         };
+        let kept = out.kept.take().map(|kept| {
+            let c = self.candidates;
+            input_lists(kept, self.answered(), map, &job.site_knn, frame.scale, c)
+        });
         let mut cells = finish(self.mesh, self.density, self.sites, job, map, frame, out);
         cells.adjacency = adjacency;
+        cells.kept = kept;
         cells.counters.second_pass = refined + redone.finished;
         cells.counters.unresolved = redone.unresolved + out_unresolved;
         cells.counters.missed_tets = redone.missed_tets;
@@ -704,6 +741,73 @@ fn finish(
     };
     cells.timings = out.timings;
     cells
+}
+
+/// The last frame's candidates ([`Candidates`], per answered input site)
+/// for the `listed` sites of a job (`inputs`: their input indices), in its
+/// site indices and squared quantized distances: a candidate that is no
+/// site of the job (a duplicate) is left out, and each reach shrunk by
+/// the quantization's rounding (a distance between quantized points is
+/// within `sqrt(3)` units of the exact one).
+fn local_candidates(c: &Candidates, inputs: &[u32], map: &SiteMap, knn: &KnnJob, scale: f64) -> SiteCandidates {
+    let mut out = SiteCandidates { offsets: vec![0], ..Default::default() };
+    for &i in inputs {
+        let i = i as usize;
+        let (points, reach) = if i < c.len() { (c.of(i), c.reach[i]) } else { (&[][..], 0.0) };
+        out.sites.extend(
+            points.iter().filter(|&&p| (p as usize) < map.len()).filter_map(|&p| map.get(p as usize)).map(|u| u as u32),
+        );
+        out.offsets.push(out.sites.len() as u32);
+        let below = reach / scale * knn.quantizer.scale() - 2.0;
+        out.below2.push(if reach == f64::INFINITY {
+            u64::MAX
+        } else if below > 0.0 {
+            (below * below).min(u64::MAX as f64 / 2.0) as u64
+        } else {
+            0
+        });
+    }
+    out
+}
+
+/// The lists a job kept ([`LocalKept`]), per answered input site (`map`:
+/// each input's job site) in input indices, with the distance within
+/// which each holds every site: a searched list's, from its last entry
+/// (less the quantization's rounding); a list taken from the candidates
+/// keeps theirs.
+fn input_lists(
+    kept: LocalKept,
+    answered: usize,
+    map: &SiteMap,
+    knn: &KnnJob,
+    scale: f64,
+    c: Option<&Candidates>,
+) -> KeptLists {
+    let k = kept.k as usize;
+    let mut input = vec![u32::MAX; map.len()];
+    for (i, m) in map.iter().enumerate() {
+        if let Some(u) = m {
+            input[u] = i as u32;
+        }
+    }
+    let mut out = KeptLists { k, points: vec![u32::MAX; answered * k], reach: vec![0.0; answered], reused: 0 };
+    for i in 0..answered {
+        let Some(u) = map.get(i).filter(|&u| u < kept.reused.len()) else { continue };
+        for (slot, &s) in out.points[i * k..(i + 1) * k].iter_mut().zip(&kept.lists[u * k..(u + 1) * k]) {
+            if s != NO_SITE {
+                *slot = input[s as usize];
+            }
+        }
+        out.reach[i] = if kept.reused[u] {
+            out.reused += 1;
+            c.map_or(0.0, |c| c.reach[i])
+        } else if kept.last2[u] == u64::MAX {
+            f64::INFINITY
+        } else {
+            ((kept.last2[u] as f64).sqrt() - 2.0).max(0.0) / knn.quantizer.scale() * scale
+        };
+    }
+    out
 }
 
 #[cfg(test)]

@@ -7,6 +7,7 @@ use crate::error::{Error, Result};
 use crate::geom::timing::{timed, Timings};
 use crate::job::clip::{ClipJob, ClipOutput, Pairing, Strategy};
 use crate::job::held::HeldCells;
+use crate::job::kept::{Keep, LocalKept};
 use crate::job::knn::{KnnJob, KnnMethod, Neighbors, PackedLists};
 use cvd_kernels::abi::{
     counter, ClipParams, KnnParams, QuantPoint, RefineParams, ACCUM_PER_SITE, NO_SITE, OUT_OF_HALO,
@@ -58,8 +59,19 @@ impl CpuBackend {
         let bits = lists::width(job.params.n_sites);
         // Whole cells pair no tets: no tet lists.
         let whole = job.strategy == Strategy::Whole;
+        let mut kept = None;
         let (site_nn, tet_nn, certified) = match &job.held {
-            None if whole => (self.packed_lists_on(&job.site_knn, bits, Some(&g))?, PackedLists::default(), 0),
+            None if whole => {
+                let lists = match &job.keep {
+                    Some(keep) => {
+                        let (lists, local) = self.kept_lists(&job.site_knn, keep, bits, &g);
+                        kept = Some(local);
+                        lists
+                    }
+                    None => self.packed_lists_on(&job.site_knn, bits, Some(&g))?,
+                };
+                (lists, PackedLists::default(), 0)
+            }
             None => (
                 self.packed_lists_on(&job.site_knn, bits, Some(&g))?,
                 self.packed_lists_on(&job.tet_knn_job(), 32, Some(&g))?,
@@ -207,6 +219,7 @@ impl CpuBackend {
                 refined: (first.len() - still.len()) as u64,
                 unresolved: 0,
                 certified,
+                kept,
                 chunks: 1,
                 unfinished: still,
                 timings,
@@ -417,6 +430,52 @@ impl CpuBackend {
         let out = SharedSlots::new(&mut words);
         let timings = self.each_list(job, grid, &|slot, nbr, _| lists::pack(nbr, k, bits, slot, &mut out.share()));
         Ok(PackedLists { words, k, bits, timings })
+    }
+
+    /// The lists of a whole-cell job that keeps them ([`ClipJob::keep`]),
+    /// searching `grid`: each listed site's `keep.k` nearest, from its
+    /// candidates where they certify its first `k` (the job's), else from
+    /// the grid; the first `k` packed in `bits`-bit entries for the
+    /// kernels, all `keep.k` kept.
+    fn kept_lists(&self, job: &KnnJob, keep: &Keep, bits: u32, grid: &CpuGrid) -> (PackedLists, LocalKept) {
+        let p = job.params;
+        let (k, n) = (p.k, p.n_queries as usize);
+        let kk = keep.k.max(k);
+        let available = p.grid.n_sites.saturating_sub(1);
+        let mut words = vec![0u32; n * lists::stride(k, bits) + lists::spare(bits)];
+        let mut local = LocalKept {
+            k: kk,
+            lists: vec![NO_SITE; n * kk as usize],
+            last2: vec![u64::MAX; n],
+            reused: vec![false; n],
+        };
+        let out = SharedSlots::new(&mut words);
+        let (cs, cc, sorted) = (&grid.cell_start, &grid.cell_count, &grid.sorted);
+        let (_, t) = timed(|| {
+            self.pool.install(|| {
+                let rows = local.lists.par_chunks_mut(kk as usize).zip(&mut local.last2).zip(&mut local.reused);
+                rows.enumerate().for_each_init(
+                    || vec![0u64; kk as usize],
+                    |d2, (u, ((list, last2), reused))| {
+                        let q = job.queries[u];
+                        let at = [q[0], q[1], q[2]];
+                        *reused = keep.candidates.as_ref().is_some_and(|c| {
+                            let below2 = c.below2.get(u).copied().unwrap_or(0);
+                            let found = knn::candidate_query(&job.sites, c.of(u), at, q[3], kk, 0, list, &mut d2[..]);
+                            k > 0 && found >= k.min(available) && d2[k as usize - 1] < below2
+                        });
+                        if !*reused {
+                            knn::grid_query(&p.grid, cs, cc, sorted, at, q[3], kk, 0, list, &mut d2[..]);
+                        }
+                        *last2 = d2[kk as usize - 1];
+                        lists::pack(&list[..k as usize], k, bits, u, &mut out.share());
+                    },
+                );
+            })
+        });
+        let mut timings = Timings::default();
+        timings.push("knn", t);
+        (PackedLists { words, k, bits, timings }, local)
     }
 
     /// The lists of a part of a job ([`ClipJob::held`]) at its queries'

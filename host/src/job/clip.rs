@@ -190,6 +190,10 @@ pub struct ClipJob {
     /// sites it holds (its quantized points are shifted by their corner);
     /// `None`: every site.
     pub held: Option<HeldCells>,
+    /// Whole cells in a trajectory: the sites' lists to keep for the next
+    /// frame, and the last frame's as candidates ([`crate::job::kept`]);
+    /// `None`: nothing kept.
+    pub keep: Option<crate::job::kept::Keep>,
 }
 
 impl ClipJob {
@@ -255,6 +259,9 @@ pub struct ClipOutput {
     pub unresolved: u64,
     /// A part of a job ([`ClipJob::held`]): the neighbour lists certified.
     pub certified: u64,
+    /// The lists kept ([`ClipJob::keep`]; `None` where the backend keeps
+    /// none).
+    pub kept: Option<crate::job::kept::LocalKept>,
     /// Parts the backend split the job into to stay under its memory
     /// budget (1: none).
     pub chunks: u64,

@@ -1,13 +1,15 @@
 //! Jobs: what crosses from the host to a backend and back — k-NN jobs and
 //! their neighbour lists ([`knn`]), the clipping job and its output
 //! ([`clip`]), Lloyd's records ([`lloyd`]), the grid cells a part of a
-//! distributed job holds ([`held`]), the sites as the kernels take them
+//! distributed job holds ([`held`]), the lists a trajectory keeps between
+//! frames ([`kept`]), the sites as the kernels take them
 //! ([`sites`]) and, with power weights, each site's bound of its
 //! neighbours' weights (`weight_bounds`). Plain data and its validation:
 //! no backend, no pass, no diagram.
 
 pub mod clip;
 pub mod held;
+pub mod kept;
 pub mod knn;
 pub mod lloyd;
 pub mod sites;

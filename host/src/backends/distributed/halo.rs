@@ -255,6 +255,7 @@ pub(crate) fn part_job(
         pairing: job.pairing,
         tet_faces: vec![0],
         held: Some(held),
+        keep: None,
     };
     Ok((part, sites))
 }
