@@ -180,6 +180,11 @@ pub struct RunArgs {
     /// STEP; each part optional, as Python's slices), or one frame N.
     #[arg(long, value_name = "A:B:STEP", requires = "particles")]
     pub frames: Option<FrameRange>,
+    /// Builds every frame of --particles afresh. By default a frame starts
+    /// from the last one's neighbour lists where the particles' largest
+    /// displacement still certifies them (the same cells; CPU backend).
+    #[arg(long, requires = "particles")]
+    pub rebuild_frames: bool,
     /// Radical (power) cells from a radius per particle, one number per
     /// line in the sites' order: weights r², as voro++'s radical
     /// tessellation.

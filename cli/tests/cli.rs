@@ -569,3 +569,62 @@ fn parts_give_the_cells_of_one_run_and_bad_counts_are_refused() {
         assert_eq!(out.status.code(), Some(2), "{bad:?}: {}", text(&out.stderr));
     }
 }
+
+#[test]
+fn a_trajectory_reuses_the_last_frames_lists_and_writes_the_same_cells() {
+    let dir = temp_dir("trajectory");
+    // 1 000 particles drifting slowly in a triclinic cell, 5 frames of
+    // extended XYZ.
+    let mut seed = 12345u64;
+    let mut unit = move || {
+        seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        (seed >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let l = 10.0;
+    let mut p: Vec<[f64; 3]> = (0..1000).map(|_| [unit() * l, unit() * l, unit() * l]).collect();
+    let mut xyz = String::new();
+    for _ in 0..5 {
+        xyz.push_str(&format!(
+            "1000\nLattice=\"{l} 0 0 2 {l} 0 -1 1.5 {l}\" Properties=species:S:1:pos:R:3 pbc=\"T T T\"\n"
+        ));
+        for q in &p {
+            // Sheared into the cell: fractional (x, y, z) / l.
+            let s = q.map(|c| c / l);
+            let r = [s[0] * l + s[1] * 2.0 - s[2], s[1] * l + s[2] * 1.5, s[2] * l];
+            xyz.push_str(&format!("Ar {} {} {}\n", r[0], r[1], r[2]));
+        }
+        for q in &mut p {
+            for c in q.iter_mut() {
+                *c += 0.04 * (unit() - 0.5);
+            }
+        }
+    }
+    std::fs::write(dir.join("drift.extxyz"), xyz).unwrap();
+    let summary = |out: &str| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(dir.join(out).join("summary.json")).unwrap()).unwrap()
+    };
+    for (out, extra) in [("reuse", &[][..]), ("rebuild", &["--rebuild-frames"][..])] {
+        let args = [&["--particles", "drift.extxyz", "--voronoi-index", "--out", out][..], extra].concat();
+        let run = Command::new(env!("CARGO_BIN_EXE_cvd"))
+            .current_dir(&dir)
+            .args(["run", "--backend", "cpu", "--threads", "2"])
+            .args(&args)
+            .output()
+            .unwrap();
+        assert!(run.status.success(), "{}", text(&run.stderr));
+    }
+    let (reuse, rebuild) = (summary("reuse"), summary("rebuild"));
+    let reused: Vec<u64> = (0..5).map(|f| reuse["frames"][f]["reused_cells"].as_u64().unwrap()).collect();
+    assert_eq!(reused[0], 0, "{reused:?}");
+    assert!(reused[1..].iter().all(|&r| r > 800), "slow particles keep their lists: {reused:?}");
+    assert_eq!(reuse["reused_cells"].as_u64(), Some(reused.iter().sum()));
+    assert_eq!(rebuild["reused_cells"].as_u64(), Some(0));
+    for f in 0..5 {
+        let name = format!("frames/cells.{f:06}.csv");
+        let (a, b) = (
+            std::fs::read(dir.join("reuse").join(&name)).unwrap(),
+            std::fs::read(dir.join("rebuild").join(&name)).unwrap(),
+        );
+        assert!(a == b, "frame {f}: the same cells.csv, byte for byte");
+    }
+}

@@ -14,6 +14,9 @@ pub struct FrameRecord {
     /// Periodic along a, b, c.
     pub periodic: [bool; 3],
     pub images: usize,
+    /// Cells built from the last frame's neighbour lists, without a
+    /// search for neighbours.
+    pub reused_cells: u64,
     /// `|Σ V_i - V| / V`.
     pub e_vol: f64,
     pub empty_cells: u64,
@@ -34,8 +37,8 @@ pub struct TrajectorySummary {
     /// Seconds in all: reading, computing, writing.
     pub total_seconds: f64,
     pub frames_per_second: f64,
-    /// The cells a frame took from the frame before instead of building
-    /// them again: none yet, every frame is built in full.
+    /// Cells built from the last frame's neighbour lists over all frames
+    /// (the frames' `reused_cells` summed).
     pub reused_cells: u64,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub thresholds: Option<[f64; 4]>,
