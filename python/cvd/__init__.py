@@ -30,6 +30,7 @@ __all__ = [
     "mesh_surface",
     "ParticleCells",
     "particle_voronoi",
+    "ParticleVoronoi",
     "periodic_voronoi",
     "read_mesh",
     "sample",
@@ -165,7 +166,8 @@ class ParticleCells:
     cell. `adjacency`: CSR arrays `offsets`, `neighbors`, `areas`,
     `normals`, `shifts` (lattice vectors to the neighbour's image) and
     `boundary` (area on the walls). `cells`: the underlying Cells
-    (`counters`, `timings`, `polyhedra` when asked for).
+    (`counters`, `timings`, `polyhedra` when asked for). `reused`: cells
+    built from the last frame's neighbours (ParticleVoronoi).
     """
 
     def __init__(self, cells, points, particles, origin, vectors, periodic):
@@ -190,6 +192,7 @@ class ParticleCells:
         self.origin = origin
         self.vectors = vectors
         self.periodic = periodic
+        self.reused = 0
 
     def neighbor_pairs(self):
         """The shared faces as arrays (i, j, area, shift): particle i's cell
@@ -242,25 +245,94 @@ def particle_voronoi(
     with faces=False and voronoi_index=False, the volumes and centroids
     alone (the least work).
 
-    Returns a ParticleCells.
+    Returns a ParticleCells. For the frames of a trajectory, see
+    ParticleVoronoi: each frame starts from the last one's neighbours.
     """
-    o, vectors = _cell(box, origin)
-    flags = (bool(periodic),) * 3 if _np.ndim(periodic) == 0 else tuple(bool(p) for p in periodic)
-    if len(flags) != 3:
-        raise ValueError(f"periodic must be one flag or three, not {len(flags)}")
-    cells, wrapped, particles = _cvd.particle_voronoi(
-        _points(points, "points"),
-        [float(x) for x in o],
-        [[float(x) for x in row] for row in vectors],
-        list(flags),
-        _values(radii, "radii"),
-        backend,
-        bool(voronoi_index),
-        (float(edge_threshold), float(relative_edge_threshold), float(face_threshold), float(relative_face_threshold)),
-        bool(polyhedra),
-        bool(faces),
-    )
-    return ParticleCells(cells, wrapped, particles, o, vectors, flags)
+    return ParticleVoronoi(
+        voronoi_index=voronoi_index,
+        edge_threshold=edge_threshold,
+        relative_edge_threshold=relative_edge_threshold,
+        face_threshold=face_threshold,
+        relative_face_threshold=relative_face_threshold,
+        polyhedra=polyhedra,
+        faces=faces,
+        backend=backend,
+        reuse=False,
+    ).compute(points, box, origin=origin, periodic=periodic, radii=radii)
+
+
+class ParticleVoronoi:
+    """The cells of a trajectory's frames, one compute() per frame, as
+    freud's Voronoi is used: the options (those of particle_voronoi) once,
+    then `compute(points, box, origin=, periodic=, radii=)` per frame,
+    which returns a ParticleCells.
+
+    With reuse=True (the default) each frame keeps its particles' nearest
+    neighbours (about 600 bytes per particle) and the next one starts from
+    them: where the particles' largest displacement since still certifies
+    a particle's list, no neighbour search is made for it. The cells are
+    those of a frame computed afresh, bit for bit; `result.reused` (and
+    `self.reused`) counts the cells built so. Lists are kept on the CPU
+    backend; a frame with other particles, radii or another cell starts
+    afresh.
+    """
+
+    def __init__(
+        self,
+        *,
+        voronoi_index=True,
+        edge_threshold=0.0,
+        relative_edge_threshold=0.0,
+        face_threshold=0.0,
+        relative_face_threshold=0.0,
+        polyhedra=False,
+        faces=True,
+        backend="auto",
+        reuse=True,
+    ):
+        self.voronoi_index = bool(voronoi_index)
+        self.thresholds = (
+            float(edge_threshold),
+            float(relative_edge_threshold),
+            float(face_threshold),
+            float(relative_face_threshold),
+        )
+        self.polyhedra = bool(polyhedra)
+        self.faces = bool(faces)
+        self.backend = backend
+        self.reuse = bool(reuse)
+        self.reused = 0
+        self._lists = None
+
+    def compute(self, points, box, *, origin=None, periodic=True, radii=None):
+        """The cells of one frame (see particle_voronoi for the
+        arguments); returns a ParticleCells."""
+        o, vectors = _cell(box, origin)
+        flags = (bool(periodic),) * 3 if _np.ndim(periodic) == 0 else tuple(bool(p) for p in periodic)
+        if len(flags) != 3:
+            raise ValueError(f"periodic must be one flag or three, not {len(flags)}")
+        cells, wrapped, particles, lists, reused = _cvd.particle_voronoi(
+            _points(points, "points"),
+            [float(x) for x in o],
+            [[float(x) for x in row] for row in vectors],
+            list(flags),
+            _values(radii, "radii"),
+            self.backend,
+            self.voronoi_index,
+            self.thresholds,
+            self.polyhedra,
+            self.faces,
+            self.reuse,
+            self._lists if self.reuse else None,
+        )
+        self._lists = lists
+        self.reused = reused
+        result = ParticleCells(cells, wrapped, particles, o, vectors, flags)
+        result.reused = reused
+        return result
+
+    def __repr__(self):
+        return f"ParticleVoronoi(reuse={self.reuse}, last frame reused {self.reused} cells)"
 
 
 def lloyd(mesh, sites, iterations, *, optimizer="lloyd", backend="auto", density=None, progress=False):

@@ -61,6 +61,7 @@ class ParticleCells:
     origin: npt.NDArray[np.float64]
     vectors: npt.NDArray[np.float64]
     periodic: tuple[bool, bool, bool]
+    reused: int
     def neighbor_pairs(
         self,
     ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64], npt.NDArray[np.float64], npt.NDArray[np.int64]]: ...
@@ -81,6 +82,37 @@ def particle_voronoi(
     faces: bool = True,
     backend: str = "auto",
 ) -> ParticleCells: ...
+
+class ParticleVoronoi:
+    voronoi_index: bool
+    thresholds: tuple[float, float, float, float]
+    polyhedra: bool
+    faces: bool
+    backend: str
+    reuse: bool
+    reused: int
+    def __init__(
+        self,
+        *,
+        voronoi_index: bool = True,
+        edge_threshold: float = 0.0,
+        relative_edge_threshold: float = 0.0,
+        face_threshold: float = 0.0,
+        relative_face_threshold: float = 0.0,
+        polyhedra: bool = False,
+        faces: bool = True,
+        backend: str = "auto",
+        reuse: bool = True,
+    ) -> None: ...
+    def compute(
+        self,
+        points: npt.ArrayLike,
+        box: Any,
+        *,
+        origin: Optional[Sequence[float]] = None,
+        periodic: Union[bool, Sequence[bool]] = True,
+        radii: Optional[npt.ArrayLike] = None,
+    ) -> ParticleCells: ...
 def periodic_voronoi(
     sites: npt.ArrayLike,
     lo: Sequence[float],

@@ -410,7 +410,12 @@ fn periodic_voronoi<'py>(
 
 /// What `particle_voronoi` gives: the cells, the points wrapped, and the
 /// particles' arrays.
-type ParticleResult<'py> = (Cells, Bound<'py, PyArray2<f64>>, Option<Bound<'py, PyDict>>);
+type ParticleResult<'py> = (Cells, Bound<'py, PyArray2<f64>>, Option<Bound<'py, PyDict>>, Option<FrameLists>, usize);
+
+/// What a frame leaves for the next (`cvd::FrameLists`): each particle's
+/// nearest sites and images, opaque to Python.
+#[pyclass(module = "cvd", frozen)]
+struct FrameLists(cvd::FrameLists);
 
 /// The cells of particles in a periodic (possibly triclinic, possibly
 /// walled) cell: `origin`, lattice vectors `vectors` (rows a, b, c),
@@ -419,7 +424,7 @@ type ParticleResult<'py> = (Cells, Bound<'py, PyArray2<f64>>, Option<Bound<'py, 
 /// `index`; returns (cells, with their faces if `faces`, wrapped points, a
 /// dict of the particles' arrays or None).
 #[pyfunction]
-#[pyo3(signature = (points, origin, vectors, periodic, radii=None, backend="auto", index=true, thresholds=(0.0, 0.0, 0.0, 0.0), polyhedra=false, faces=true))]
+#[pyo3(signature = (points, origin, vectors, periodic, radii=None, backend="auto", index=true, thresholds=(0.0, 0.0, 0.0, 0.0), polyhedra=false, faces=true, keep=false, last=None))]
 #[allow(clippy::too_many_arguments)]
 fn particle_voronoi<'py>(
     py: Python<'py>,
@@ -433,7 +438,10 @@ fn particle_voronoi<'py>(
     thresholds: (f64, f64, f64, f64),
     polyhedra: bool,
     faces: bool,
+    keep: bool,
+    last: Option<PyRef<'_, FrameLists>>,
 ) -> PyResult<ParticleResult<'py>> {
+    let last = last.as_deref().map(|l| &l.0);
     let points = rows3(&points, "points")?;
     let radii: Option<Vec<f64>> = radii.map(|r| r.as_array().to_vec());
     let options = self::backend(backend)?;
@@ -455,7 +463,11 @@ fn particle_voronoi<'py>(
                 None => None,
             };
             let b = cvd::backends::open(&options)?;
-            let mut pv = cvd::PeriodicVoronoi::new(domain, &points).faces(faces).backend(b.as_ref());
+            let mut pv = cvd::PeriodicVoronoi::new(domain, &points)
+                .faces(faces)
+                .backend(b.as_ref())
+                .keep_lists(keep)
+                .after(last);
             if let Some(w) = &weights {
                 pv = pv.weights(w);
             }
@@ -471,6 +483,8 @@ fn particle_voronoi<'py>(
     if !polyhedra {
         out.cells.polyhedra = None;
     }
+    let lists = out.lists.take().map(FrameLists);
+    let reused = out.reused;
     let n = out.sites.len();
     let wrapped = flat(out.sites).into_pyarray(py).reshape([n, 3])?;
     let particles = match particles {
@@ -488,7 +502,7 @@ fn particle_voronoi<'py>(
         }
         None => None,
     };
-    Ok((to_python(py, out.cells)?, wrapped, particles))
+    Ok((to_python(py, out.cells)?, wrapped, particles, lists, reused))
 }
 
 /// `iterations` of Lloyd's method (`optimizer="lloyd"`) or L-BFGS
@@ -641,6 +655,7 @@ fn devices<'py>(py: Python<'py>) -> PyResult<Vec<Bound<'py, PyDict>>> {
 fn _cvd(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Mesh>()?;
     m.add_class::<Cells>()?;
+    m.add_class::<FrameLists>()?;
     m.add_function(wrap_pyfunction!(builtin, m)?)?;
     m.add_function(wrap_pyfunction!(read_mesh, m)?)?;
     m.add_function(wrap_pyfunction!(mesh_surface, m)?)?;

@@ -51,7 +51,7 @@
 //! inside, so that its mirror stays apart from it (and counted).
 
 use crate::backend::Backend;
-use crate::diagram::trajectory::{FrameLists, KEEP_SPARE};
+use crate::diagram::trajectory::FrameLists;
 use crate::diagram::voronoi::{Cells, ClippedVoronoi};
 use crate::error::{Error, Result};
 use crate::exec::CpuBackend;
@@ -64,7 +64,6 @@ use crate::passes::pieces::ON_BOUNDARY;
 use crate::passes::polyhedra::{merge_pieces, CellPolyhedron};
 use cvd_kernels::abi::SplitPoint;
 use rayon::prelude::*;
-use std::collections::HashMap;
 use std::time::Instant;
 
 /// The tets of a periodic job under whole cells: the box, as 6 tets, only
@@ -307,14 +306,12 @@ impl<'a> PeriodicVoronoi<'a> {
         let mut diagram =
             ClippedVoronoi::new(&mesh, &all).faces(self.faces).strategy(strategy).k_site(self.k_site).images_after(n);
         let whole_cells = diagram.resolved_strategy() == Strategy::Whole;
-        let candidates = match self.last {
-            Some(last) if whole_cells && last.fits(&domain, &sites, self.weights) => {
-                Some(last.candidates(&sites, &images))
-            }
-            _ => None,
-        };
+        let last = self.last.filter(|l| whole_cells && l.fits(&domain, &sites, self.weights));
+        let moves = last.map(|l| l.moves(&sites));
+        let candidates = last.zip(moves.as_ref()).and_then(|(l, m)| l.candidates(m, &images));
+        let spare = FrameLists::spare(last, moves.as_ref(), candidates.is_some());
         if self.keep && whole_cells {
-            diagram = diagram.keep_lists(Some(diagram.resolved_k_site() + KEEP_SPARE)).candidates(candidates.as_ref());
+            diagram = diagram.keep_lists(Some(diagram.resolved_k_site() + spare)).candidates(candidates.as_ref());
         }
         if let Some(w) = &weights {
             diagram = diagram.weights(w);
@@ -356,18 +353,19 @@ impl<'a> PeriodicVoronoi<'a> {
         let clock = Instant::now();
         let kept = whole.kept.take();
         let reused = kept.as_ref().map_or(0, |k| k.reused);
-        let lists = kept.map(|k| FrameLists::new(domain, sites.clone(), self.weights, &images, &k, halo));
         let (mut cells, offsets) = fold(&domain, &sites, &all, &images, &whole);
         cells.polyhedra = polyhedra.map(|p| own_polyhedra(p, &images, n));
         cells.timings = whole.timings.clone();
         cells.timings.phases.insert(0, ("images".into(), images_s));
         cells.timings.push("fold", clock.elapsed().as_secs_f64());
+        let image_count = images.len();
+        let lists = kept.map(|k| FrameLists::new(domain, sites.clone(), self.weights, images, k, halo, last, spare));
         Ok(PeriodicCells {
             cells,
             sites,
             offsets,
             wrapped,
-            images: images.len(),
+            images: image_count,
             mirrors,
             on_walls,
             halo,
@@ -578,7 +576,9 @@ fn fold(
         let rows: Vec<(Vec<Face>, f64, [f64; 3])> = (0..n)
             .into_par_iter()
             .map(|i| {
-                let mut faces: HashMap<(u32, [i32; 3]), (f64, [f64; 3])> = HashMap::new();
+                // Faces by (neighbour, shift), in the order met: sorted
+                // (stably) and each run of one key summed in that order.
+                let mut faces: Vec<((u32, [i32; 3]), f64, [f64; 3])> = Vec::new();
                 let (mut wall, mut wall_vector) = (0.0, [0.0; 3]);
                 for u in std::iter::once(i).chain(of[i].iter().copied()) {
                     let su = shift(u);
@@ -592,11 +592,17 @@ fn fold(
                         }
                         let sv = shift(v as usize);
                         let key = (owner(v as usize) as u32, [0, 1, 2].map(|k| sv[k] - su[k]));
-                        faces.entry(key).or_insert((0.0, normal)).0 += area;
+                        faces.push((key, area, normal));
                     }
                 }
-                let mut row: Vec<_> = faces.into_iter().map(|((j, s), (area, normal))| (j, s, area, normal)).collect();
-                row.sort_unstable_by_key(|e| (e.0, e.1));
+                faces.sort_by_key(|f| f.0);
+                let mut row: Vec<(u32, [i32; 3], f64, [f64; 3])> = Vec::with_capacity(faces.len());
+                for ((j, s), area, normal) in faces {
+                    match row.last_mut() {
+                        Some(last) if (last.0, last.1) == (j, s) => last.2 += area,
+                        _ => row.push((j, s, 0.0 + area, normal)),
+                    }
+                }
                 (row, wall, wall_vector)
             })
             .collect();

@@ -388,7 +388,7 @@ impl<'a> ClippedVoronoi<'a> {
         site_knn = site_knn.answering_first(listed);
         let keep = self.keep.filter(|_| strategy == Strategy::Whole).map(|kk| Keep {
             k: kk.max(site_knn.params.k as usize).min(n.saturating_sub(1)) as u32,
-            candidates: self.candidates.map(|c| local_candidates(c, &inputs[..listed], &map, &site_knn, frame.scale)),
+            candidates: self.candidates.map(|c| local_candidates(c, &inputs, listed, &map, &site_knn, frame.scale)),
         });
         drop(inputs);
         // Its queries come when it runs (ClipJob::tet_knn_job).
@@ -595,8 +595,14 @@ impl<'a> ClippedVoronoi<'a> {
             (None, 0)
         };
         let kept = out.kept.take().map(|kept| {
-            let c = self.candidates;
-            input_lists(kept, self.answered(), map, &job.site_knn, frame.scale, c)
+            // Each job site's input index.
+            let mut inputs = vec![u32::MAX; job.site_knn.sites.len()];
+            for (i, m) in map.iter().enumerate() {
+                if let Some(u) = m {
+                    inputs[u] = i as u32;
+                }
+            }
+            kept_lists(kept, inputs, &job.site_knn, frame.scale, self.candidates)
         });
         let mut cells = finish(self.mesh, self.density, self.sites, job, map, frame, out);
         cells.adjacency = adjacency;
@@ -743,71 +749,91 @@ fn finish(
     cells
 }
 
-/// The last frame's candidates ([`Candidates`], per answered input site)
-/// for the `listed` sites of a job (`inputs`: their input indices), in its
-/// site indices and squared quantized distances: a candidate that is no
-/// site of the job (a duplicate) is left out, and each reach shrunk by
-/// the quantization's rounding (a distance between quantized points is
-/// within `sqrt(3)` units of the exact one).
-fn local_candidates(c: &Candidates, inputs: &[u32], map: &SiteMap, knn: &KnnJob, scale: f64) -> SiteCandidates {
-    let mut out = SiteCandidates { offsets: vec![0], ..Default::default() };
-    for &i in inputs {
-        let i = i as usize;
-        let (points, reach) = if i < c.len() { (c.of(i), c.reach[i]) } else { (&[][..], 0.0) };
-        out.sites.extend(
-            points.iter().filter(|&&p| (p as usize) < map.len()).filter_map(|&p| map.get(p as usize)).map(|u| u as u32),
-        );
-        out.offsets.push(out.sites.len() as u32);
+/// The last frame's candidates ([`Candidates`]) for the `listed` sites of
+/// a job (`inputs`: each job site's input index) in its site indices and
+/// squared quantized distances: each last-job site taken to this job's
+/// site (none for a point that is no site of it, or a duplicate's), and
+/// each reach shrunk by the quantization's rounding (a distance between
+/// quantized points is within `sqrt(3)` units of the exact one).
+fn local_candidates(
+    c: &Candidates,
+    inputs: &[u32],
+    listed: usize,
+    map: &SiteMap,
+    knn: &KnnJob,
+    scale: f64,
+) -> SiteCandidates {
+    use rayon::prelude::*;
+    let site =
+        |p: u32| if (p as usize) < map.len() { map.get(p as usize).map_or(NO_SITE, |u| u as u32) } else { NO_SITE };
+    let to_site: Vec<u32> = c.to_input.par_iter().map(|&p| site(p)).collect();
+    let k = c.k;
+    let mut out = SiteCandidates { k, sites: vec![NO_SITE; listed * k], below2: vec![0; listed] };
+    out.sites.par_chunks_mut(k.max(1)).zip(&mut out.below2).zip(&inputs[..listed]).for_each(|((row, below2), &i)| {
+        let Some(&r) = c.row_of.get(i as usize).filter(|&&r| r != u32::MAX) else { return };
+        let r = r as usize;
+        for (slot, &v) in row.iter_mut().zip(&c.lists[r * k..(r + 1) * k]) {
+            if v != NO_SITE {
+                *slot = to_site.get(v as usize).copied().unwrap_or(NO_SITE);
+            }
+        }
+        let reach = c.reach[r];
         let below = reach / scale * knn.quantizer.scale() - 2.0;
-        out.below2.push(if reach == f64::INFINITY {
+        *below2 = if reach == f64::INFINITY {
             u64::MAX
         } else if below > 0.0 {
             (below * below).min(u64::MAX as f64 / 2.0) as u64
         } else {
             0
-        });
-    }
+        };
+    });
     out
 }
 
-/// The lists a job kept ([`LocalKept`]), per answered input site (`map`:
-/// each input's job site) in input indices, with the distance within
-/// which each holds every site: a searched list's, from its last entry
-/// (less the quantization's rounding); a list taken from the candidates
-/// keeps theirs.
-fn input_lists(
-    kept: LocalKept,
-    answered: usize,
-    map: &SiteMap,
-    knn: &KnnJob,
-    scale: f64,
-    c: Option<&Candidates>,
-) -> KeptLists {
-    let k = kept.k as usize;
-    let mut input = vec![u32::MAX; map.len()];
-    for (i, m) in map.iter().enumerate() {
-        if let Some(u) = m {
-            input[u] = i as u32;
-        }
-    }
-    let mut out = KeptLists { k, points: vec![u32::MAX; answered * k], reach: vec![0.0; answered], reused: 0 };
-    for i in 0..answered {
-        let Some(u) = map.get(i).filter(|&u| u < kept.reused.len()) else { continue };
-        for (slot, &s) in out.points[i * k..(i + 1) * k].iter_mut().zip(&kept.lists[u * k..(u + 1) * k]) {
-            if s != NO_SITE {
-                *slot = input[s as usize];
-            }
-        }
-        out.reach[i] = if kept.reused[u] {
-            out.reused += 1;
-            c.map_or(0.0, |c| c.reach[i])
-        } else if kept.last2[u] == u64::MAX {
+/// The lists a job kept ([`LocalKept`]) with its sites' input indices
+/// (`inputs`) and each list's reach in input units: a searched list's from
+/// its last entry (less the quantization's rounding), a list taken from
+/// the candidates keeping theirs (`c`, through each site's row).
+fn kept_lists(kept: LocalKept, inputs: Vec<u32>, knn: &KnnJob, scale: f64, c: Option<&Candidates>) -> KeptLists {
+    // Every point not listed lies at least this far: past its last entry.
+    let past = |u: usize| {
+        if kept.last2[u] == u64::MAX {
             f64::INFINITY
         } else {
             ((kept.last2[u] as f64).sqrt() - 2.0).max(0.0) / knn.quantizer.scale() * scale
-        };
-    }
-    out
+        }
+    };
+    let reach: Vec<f64> = (0..kept.reused.len())
+        .map(|u| {
+            if kept.reused[u] {
+                // Not a candidate, or a candidate past the list's end.
+                let row = c.and_then(|c| c.row_of.get(inputs[u] as usize).map(|&r| c.reach[r as usize]));
+                row.unwrap_or(0.0).min(past(u))
+            } else {
+                past(u)
+            }
+        })
+        .collect();
+    let kth: Vec<f64> = kept
+        .kth2
+        .iter()
+        .map(|&d2| if d2 == u64::MAX { f64::INFINITY } else { (d2 as f64).sqrt() / knn.quantizer.scale() * scale })
+        .collect();
+    let reused = kept.reused.iter().filter(|&&r| r).count();
+    let mut beyond: Vec<f64> = (0..kept.reused.len())
+        .filter(|&u| !kept.reused[u])
+        .map(|u| reach[u] - kth[u])
+        .filter(|w: &f64| w.is_finite())
+        .collect();
+    // Rows searched afresh because their candidates failed are the odd
+    // ones: the skin is measured where most rows were searched.
+    let skin = if beyond.len() * 2 < kept.reused.len() {
+        0.0
+    } else {
+        let mid = beyond.len() / 2;
+        beyond.select_nth_unstable_by(mid, f64::total_cmp).1.max(0.0)
+    };
+    KeptLists { k: kept.k as usize, lists: kept.lists, reach, kth, inputs, reused, skin }
 }
 
 #[cfg(test)]

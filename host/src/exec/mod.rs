@@ -447,20 +447,24 @@ impl CpuBackend {
             k: kk,
             lists: vec![NO_SITE; n * kk as usize],
             last2: vec![u64::MAX; n],
+            kth2: vec![u64::MAX; n],
             reused: vec![false; n],
         };
         let out = SharedSlots::new(&mut words);
         let (cs, cc, sorted) = (&grid.cell_start, &grid.cell_count, &grid.sorted);
         let (_, t) = timed(|| {
             self.pool.install(|| {
-                let rows = local.lists.par_chunks_mut(kk as usize).zip(&mut local.last2).zip(&mut local.reused);
-                rows.enumerate().for_each_init(
+                let rows = local.lists.par_chunks_mut(kk as usize).zip(&mut local.last2).zip(&mut local.kth2);
+                rows.zip(&mut local.reused).enumerate().for_each_init(
                     || vec![0u64; kk as usize],
-                    |d2, (u, ((list, last2), reused))| {
+                    |d2, (u, (((list, last2), kth2), reused))| {
                         let q = job.queries[u];
                         let at = [q[0], q[1], q[2]];
                         *reused = keep.candidates.as_ref().is_some_and(|c| {
                             let below2 = c.below2.get(u).copied().unwrap_or(0);
+                            if below2 == 0 {
+                                return false;
+                            }
                             let found = knn::candidate_query(&job.sites, c.of(u), at, q[3], kk, 0, list, &mut d2[..]);
                             k > 0 && found >= k.min(available) && d2[k as usize - 1] < below2
                         });
@@ -468,6 +472,7 @@ impl CpuBackend {
                             knn::grid_query(&p.grid, cs, cc, sorted, at, q[3], kk, 0, list, &mut d2[..]);
                         }
                         *last2 = d2[kk as usize - 1];
+                        *kth2 = if k > 0 { d2[k as usize - 1] } else { 0 };
                         lists::pack(&list[..k as usize], k, bits, u, &mut out.share());
                     },
                 );

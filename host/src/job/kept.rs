@@ -12,38 +12,29 @@
 //! entry, as soon as the `k_site`-th lies nearer than that: then no grid
 //! is searched for it. Where not, the site's list is searched anew.
 //!
-//! The host side speaks of input points and their units ([`Candidates`],
-//! [`KeptLists`]); the job, of its sites and quantized units
-//! ([`SiteCandidates`], [`LocalKept`]).
+//! A job reads its candidates in its own site indices and quantized units
+//! ([`SiteCandidates`]) and returns its lists so ([`LocalKept`]); the
+//! diagram keeps them with what maps one job's sites to the next job's
+//! input points and the reach in input units ([`KeptLists`],
+//! [`Candidates`]).
 
-/// Each answered site's candidate neighbours for a job (input indices,
-/// in any order) and the distance within which every point of the job is
-/// among them (input units; 0: none, search the grid).
+/// The last frame's kept lists as a job's candidates: rows of the last
+/// job's site indices, how those sites are numbered in this job's input
+/// (`u32::MAX`: no point of it), and each answered input site's row.
 #[derive(Clone, Debug, Default)]
 pub struct Candidates {
-    /// Site `i`'s candidates: `points[offsets[i]..offsets[i + 1]]`.
-    pub offsets: Vec<usize>,
-    /// Input point indices.
-    pub points: Vec<u32>,
-    /// Per site: every input point nearer than this is a candidate.
+    /// Entries per row.
+    pub k: usize,
+    /// The rows, `k` entries each (last job's site indices; `NO_SITE`:
+    /// none).
+    pub lists: Vec<u32>,
+    /// Per row: every point of this job nearer than this (input units) to
+    /// its site is among the row's (0: none certain).
     pub reach: Vec<f64>,
-}
-
-impl Candidates {
-    /// Site `i`'s candidates.
-    pub fn of(&self, i: usize) -> &[u32] {
-        &self.points[self.offsets[i]..self.offsets[i + 1]]
-    }
-
-    /// Sites with candidates.
-    pub fn len(&self) -> usize {
-        self.reach.len()
-    }
-
-    /// Whether no site has any.
-    pub fn is_empty(&self) -> bool {
-        self.reach.is_empty()
-    }
+    /// The last job's site `v` is this job's input point `to_input[v]`.
+    pub to_input: Vec<u32>,
+    /// Answered input site `i`'s row (`u32::MAX`: none, search).
+    pub row_of: Vec<u32>,
 }
 
 /// What a job keeps of its sites' lists ([`crate::job::clip::ClipJob::keep`]).
@@ -55,26 +46,24 @@ pub struct Keep {
     pub candidates: Option<SiteCandidates>,
 }
 
-/// [`Candidates`] in a job's terms: per listed site (job order), its
-/// candidates as job site indices, and the squared quantized distance
-/// below which every site is among them (0: none).
+/// [`Candidates`] in a job's terms: `k` candidates per listed site (job
+/// order; job site indices, [`cvd_kernels::abi::NO_SITE`] holes), and
+/// the squared quantized distance below which every site is among them
+/// (0: none).
 #[derive(Clone, Debug, Default)]
 pub struct SiteCandidates {
-    /// Site `u`'s candidates: `sites[offsets[u]..offsets[u + 1]]`.
-    pub offsets: Vec<u32>,
-    /// Job site indices.
+    /// Entries per site.
+    pub k: usize,
+    /// The candidates, `k` per listed site.
     pub sites: Vec<u32>,
-    /// Per site, squared quantized distance.
+    /// Per listed site, squared quantized distance.
     pub below2: Vec<u64>,
 }
 
 impl SiteCandidates {
     /// Site `u`'s candidates.
     pub fn of(&self, u: usize) -> &[u32] {
-        match (self.offsets.get(u), self.offsets.get(u + 1)) {
-            (Some(&a), Some(&b)) => &self.sites[a as usize..b as usize],
-            _ => &[],
-        }
+        self.sites.get(u * self.k..(u + 1) * self.k).unwrap_or(&[])
     }
 }
 
@@ -90,29 +79,35 @@ pub struct LocalKept {
     pub lists: Vec<u32>,
     /// Per list: the squared quantized distance of its last entry.
     pub last2: Vec<u64>,
+    /// Per list: the squared quantized distance of its `k_site`-th entry
+    /// (the last the cell's list holds).
+    pub kth2: Vec<u64>,
     /// Per list: taken from the candidates (no grid searched).
     pub reused: Vec<bool>,
 }
 
-/// Each answered site's kept list in input terms: `k` input point indices
-/// per site, nearest first (`u32::MAX` past the points there are), the
-/// distance within which every point is listed (input units; infinite
-/// when every point is), and how many lists came from the last frame's.
+/// The lists a job kept ([`LocalKept`]) with what reads them later: the
+/// job's sites' input indices, and each list's reach in input units (the
+/// distance within which it holds every point: a searched list's from its
+/// last entry, less the quantization's rounding, infinite where it holds
+/// every point; a list taken from the candidates keeps theirs).
 #[derive(Clone, Debug, Default)]
 pub struct KeptLists {
-    /// Entries per site.
+    /// Entries per list.
     pub k: usize,
-    /// The lists, `k` entries per answered site, in input order.
-    pub points: Vec<u32>,
-    /// Per answered site: every point nearer than this is listed.
+    /// The lists, `k` per listed site (job order, job site indices,
+    /// `NO_SITE` past the sites there are).
+    pub lists: Vec<u32>,
+    /// Per listed site: every point nearer than this is listed.
     pub reach: Vec<f64>,
+    /// Per listed site: the distance of the `k_site`-th entry (input
+    /// units; infinite past the sites there are).
+    pub kth: Vec<f64>,
+    /// Each job site's input index.
+    pub inputs: Vec<u32>,
     /// Lists that came from the candidates.
     pub reused: usize,
-}
-
-impl KeptLists {
-    /// Site `i`'s list (entries `u32::MAX` past the points there are).
-    pub fn of(&self, i: usize) -> &[u32] {
-        &self.points[i * self.k..(i + 1) * self.k]
-    }
+    /// The median reach beyond the `k_site`-th entry of the lists searched
+    /// afresh, where they are most of them (else 0).
+    pub skin: f64,
 }
