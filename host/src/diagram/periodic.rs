@@ -578,7 +578,7 @@ fn fold(
             .map(|i| {
                 // Faces by (neighbour, shift), in the order met: sorted
                 // (stably) and each run of one key summed in that order.
-                let mut faces: Vec<((u32, [i32; 3]), f64, [f64; 3])> = Vec::new();
+                let mut faces: Vec<Face> = Vec::new();
                 let (mut wall, mut wall_vector) = (0.0, [0.0; 3]);
                 for u in std::iter::once(i).chain(of[i].iter().copied()) {
                     let su = shift(u);
@@ -592,12 +592,12 @@ fn fold(
                         }
                         let sv = shift(v as usize);
                         let key = (owner(v as usize) as u32, [0, 1, 2].map(|k| sv[k] - su[k]));
-                        faces.push((key, area, normal));
+                        faces.push((key.0, key.1, area, normal));
                     }
                 }
-                faces.sort_by_key(|f| f.0);
-                let mut row: Vec<(u32, [i32; 3], f64, [f64; 3])> = Vec::with_capacity(faces.len());
-                for ((j, s), area, normal) in faces {
+                faces.sort_by_key(|f| (f.0, f.1));
+                let mut row: Vec<Face> = Vec::with_capacity(faces.len());
+                for (j, s, area, normal) in faces {
                     match row.last_mut() {
                         Some(last) if (last.0, last.1) == (j, s) => last.2 += area,
                         _ => row.push((j, s, 0.0 + area, normal)),

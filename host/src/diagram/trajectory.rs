@@ -62,7 +62,9 @@ pub const PROBE_EVERY: u32 = 8;
 
 impl FrameLists {
     /// A frame's lists ([`KeptLists`] of its job over its sites, then
-    /// `images`), each reach at most the frame's `halo`.
+    /// `images`), each reach at most the frame's `halo`; `last`: the frame
+    /// before, `spare`: the spare neighbours this one kept.
+    #[allow(clippy::too_many_arguments)]
     pub(super) fn new(
         domain: PeriodicBox,
         sites: Vec<[f64; 3]>,
