@@ -95,6 +95,42 @@ def test_triclinic_cells_and_faces_equal_pyvoro2s():
             print(f"{what}: worst volume {d.max():.1e}, face {worst:.1e}")
 
 
+def test_a_trajectorys_frames_reuse_lists_and_equal_pyvoro2s():
+    """ParticleVoronoi over slowly moving particles (some crossing the
+    cell's sides): every frame equals the same frame computed afresh,
+    array for array, with most cells built from the last frame's lists;
+    and the last frame equals pyvoro2's cells and faces."""
+    pv = need("pyvoro2")
+    points, rng = jittered(12, 7)
+    spacing = (np.linalg.det(VECTORS) / len(points)) ** (1 / 3)
+    traj = cvd.ParticleVoronoi(backend="cpu")
+    frames = [points]
+    for _ in range(4):
+        frames.append(frames[-1] + rng.normal(0.0, 0.01 * spacing, points.shape))
+    reused = []
+    for f, p in enumerate(frames):
+        got = traj.compute(p, VECTORS, origin=ORIGIN)
+        fresh = cvd.particle_voronoi(p, VECTORS, origin=ORIGIN, backend="cpu")
+        for name in ("volumes", "centroids", "areas", "coordination", "voronoi_index", "max_face_order"):
+            assert np.array_equal(getattr(got, name), getattr(fresh, name)), f"frame {f}: {name}"
+        for a, b in zip(got.neighbor_pairs(), fresh.neighbor_pairs()):
+            assert np.array_equal(a, b), f"frame {f}: faces"
+        assert got.reused == traj.reused and fresh.reused == 0
+        reused.append(got.reused)
+    n = len(points)
+    assert reused[0] == 0 and min(reused[1:]) > 0.8 * n, reused
+    domain = pv.PeriodicCell(vectors=VECTORS, origin=ORIGIN)
+    vol, faces = pyvoro2_cells(pv, frames[-1], domain)
+    mean = np.linalg.det(VECTORS) / n
+    d = np.abs(got.volumes - vol) / np.maximum(vol, mean)
+    assert d.max() <= 1e-6, f"worst volume {d.max():.2e}"
+    check_faces(got, faces, 6 * mean ** (2 / 3), "the last frame")
+    # Other radii: afresh.
+    again = traj.compute(frames[-1], VECTORS, origin=ORIGIN, radii=np.full(n, 0.4))
+    assert again.reused == 0
+    assert not cvd.ParticleVoronoi(reuse=False, backend="cpu").compute(frames[0], VECTORS).reused
+
+
 def test_walls_equal_pyvoro2s_partly_periodic_boxes():
     pv = need("pyvoro2")
     lengths = np.array([10.0, 11.0, 12.0])

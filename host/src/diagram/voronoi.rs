@@ -514,7 +514,7 @@ impl<'a> ClippedVoronoi<'a> {
 
     /// Computes the clipped cells.
     pub fn compute(&self) -> Result<Cells> {
-        let (job, map, frame) = self.job()?;
+        let (job, map, frame, job_s) = self.timed_job()?;
         let cpu;
         let backend = match self.backend {
             Some(b) => b,
@@ -523,8 +523,16 @@ impl<'a> ClippedVoronoi<'a> {
                 &cpu
             }
         };
-        let out = backend.clip(&job)?;
+        let mut out = backend.clip(&job)?;
+        out.timings.phases.insert(0, ("job".into(), job_s));
         self.finish_job(&job, &map, &frame, out, &Mutex::new(Vec::<NoPieces>::new()))
+    }
+
+    /// The job ([`Self::job`]) and the seconds it took to build.
+    fn timed_job(&self) -> Result<(ClipJob, SiteMap, Frame, f64)> {
+        let (job, t) = crate::geom::timing::timed(|| self.job());
+        let (job, map, frame) = job?;
+        Ok((job, map, frame, t))
     }
 
     /// Computes the clipped cells on the CPU backend `cpu` (whatever
@@ -533,9 +541,10 @@ impl<'a> ClippedVoronoi<'a> {
     /// world coordinates on request ([`Pieces::get`]). The cells are those
     /// [`Self::compute`] returns on `cpu`.
     pub fn compute_with_pieces(&self, cpu: &crate::exec::CpuBackend) -> Result<(Cells, Pieces)> {
-        let (job, map, frame) = self.job()?;
+        let (job, map, frame, job_s) = self.timed_job()?;
         let sinks = Mutex::new(Vec::new());
-        let out = cpu.clip_into::<PieceCollector>(&job, &sinks)?;
+        let mut out = cpu.clip_into::<PieceCollector>(&job, &sinks)?;
+        out.timings.phases.insert(0, ("job".into(), job_s));
         let cells = self.finish_job(&job, &map, &frame, out, &sinks)?;
         let collected = sinks.into_inner().unwrap_or_else(|e| e.into_inner());
         Ok((cells, crate::passes::pieces::to_world(collected, &job, &map, &frame, self.sites)))
