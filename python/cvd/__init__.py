@@ -268,7 +268,7 @@ class ParticleVoronoi:
     which returns a ParticleCells.
 
     With reuse=True (the default) each frame keeps its particles' nearest
-    neighbours (about 600 bytes per particle) and the next one starts from
+    neighbours (about 300 bytes per particle) and the next one starts from
     them: where the particles' largest displacement since still certifies
     a particle's list, no neighbour search is made for it. The cells are
     those of a frame computed afresh, bit for bit; `result.reused` (and

@@ -2,18 +2,22 @@
 //! leaves for the next ([`FrameLists`]), and the next frame's candidate
 //! neighbours from it (see [`crate::job::kept`] for why they certify).
 //!
-//! A frame keeps, per particle, its nearest sites and images as
-//! *identities* — a particle, a lattice shift and a wall — never as the
-//! frame's own indices, which the next frame renumbers. Between frames
-//! each particle moves by a displacement `d_j` taken modulo the lattice
-//! (the fractional coordinates' difference rounded to whole turns along
-//! the periodic axes: a particle wrapped across a side keeps its
-//! neighbours), so that a neighbour `(j, s)` of particle `i` is
-//! `(j, s - w_j + w_i)` now, `w` each particle's whole turns. With `d` the
-//! largest displacement, the particle's list holds every point within
-//! `r - |d_i| - d` of it, `r` its last reach. A frame's reach is at most
-//! its halo: a point outside one frame's halo (no point of that job) is
-//! farther than the halo from every particle in the cell.
+//! A frame keeps, per particle, its nearest sites and images in its job's
+//! numbering, with what each job point is — a particle, a lattice shift
+//! and a wall — which the next frame renumbers. Between frames each
+//! particle moves by a displacement `d_j` taken modulo the lattice (the
+//! fractional coordinates' difference rounded to whole turns `w_j` along
+//! the periodic axes), so that a point `(j, s)` of the last job is
+//! `(j, s - w_j)` now, as seen from a particle that did not wrap (one
+//! that did is searched afresh). With `d` the largest displacement,
+//! particle `i`'s list holds every point within `r - |d_i| - d` of it, `r`
+//! its last reach. A frame's reach is at most its halo: a point outside
+//! one frame's halo (no point of that job) is farther than the halo from
+//! every particle in the cell — a mirror too, being farther from the cell
+//! than the point it mirrors, which lies inside the walls.
+//!
+//! Keeping the spare neighbours costs a wider search; a frame keeps them
+//! only while they pay ([`FrameLists::spare`]).
 
 use super::periodic::{Image, NO_WALL};
 use crate::geom::periodic_box::PeriodicBox;
