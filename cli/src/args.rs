@@ -285,8 +285,10 @@ pub struct BackendArgs {
     /// Enable the Vulkan validation layer.
     #[arg(long)]
     pub validation: bool,
-    /// Most device memory a job may hold, in MiB (default: 80 % of the
-    /// device's memory); larger jobs run in chunks.
+    /// Most memory a job may hold, in MiB. On a Vulkan device (default:
+    /// 80 % of its memory) larger jobs run in chunks; on the CPU (default:
+    /// the memory the machine has available) a larger job is refused
+    /// before it starts, with both numbers.
     #[arg(long, value_name = "MIB")]
     pub memory_budget: Option<u64>,
 }

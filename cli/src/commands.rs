@@ -9,6 +9,9 @@ use std::path::Path;
 /// checked against the CPU backend.
 pub fn knn(args: &KnnArgs) -> cvd::Result<()> {
     let backend = backends::open(&args.backend.options())?;
+    // The sites, their quantized copy, and three runs' lists and distances.
+    let bytes = (args.sites as u64).saturating_mul(64 + 36 * args.k as u64);
+    cvd::job::memory::check(&format!("k-NN of {} sites", args.sites), bytes, None)?;
     let sites = points::uniform(args.sites, args.seed);
     let job = KnnJob::sites(&sites, args.k, args.method)?;
     println!("k-NN of {} uniform sites, k = {}, {:?}, on {}", args.sites, job.params.k, args.method, backend.name());

@@ -36,13 +36,19 @@ impl Inputs {
     pub fn read(args: &RunArgs) -> cvd::Result<Self> {
         if args.periodic() {
             let domain = periodic_box(args)?;
+            // Whole cells frame the box with 6 tets; its images may be as
+            // many as its sites.
+            let job = |n: usize| check_memory(args, 2 * n as u64, 6);
             let sites: Vec<[f64; 3]> = match &args.sites_file {
                 Some(path) => cvd_io::read_sites(path)?,
                 None => {
-                    let unit = points::uniform(args.sites.unwrap_or(5000), args.seed);
+                    let n = args.sites.unwrap_or(5000);
+                    job(n)?;
+                    let unit = points::uniform(n, args.seed);
                     unit.iter().map(|&p| domain.cartesian(p)).collect()
                 }
             };
+            job(sites.len())?;
             let weights = weights(args, sites.len())?;
             // Said of the sites as given (the iterations move wrapped ones).
             let wrapped = sites.iter().filter(|&&p| domain.wrap(p) != p).count();
@@ -50,6 +56,7 @@ impl Inputs {
             return Ok(Self { name, domain: Domain::Box(domain), sites, weights, density: None, wrapped });
         }
         let (name, mesh) = load_model(args)?;
+        let job = |n: usize| check_memory(args, n as u64, mesh.tets.len() as u64);
         let sites: Vec<[f64; 3]> = match &args.sites_file {
             Some(path) => cvd_io::read_sites(path)?,
             None => {
@@ -57,9 +64,11 @@ impl Inputs {
                     Some(n) => n,
                     None => models::default_sites(&args.model).unwrap_or(5000),
                 };
+                job(n)?;
                 points::in_mesh(&mesh, n, args.seed)
             }
         };
+        job(sites.len())?;
         let weights = weights(args, sites.len())?;
         let density = density(args, &mesh)?;
         Ok(Self { name, domain: Domain::Mesh(mesh), sites, weights, density, wrapped: 0 })
@@ -78,6 +87,18 @@ impl Inputs {
         let stem = Path::new(name).file_stem().map(|s| s.to_string_lossy().into_owned());
         Path::new("out").join(stem.filter(|s| !s.is_empty()).unwrap_or_else(|| "model".into()))
     }
+}
+
+/// Refuses a run whose job of `sites` sites and `tets` tets would not fit
+/// in memory (`cvd::job::memory`), before its sites are made: against
+/// `--memory-budget` on the CPU, else the memory the machine has.
+fn check_memory(args: &RunArgs, sites: u64, tets: u64) -> cvd::Result<()> {
+    use cvd::job::clip::{DEFAULT_K_SITE, DEFAULT_K_SITE_CPU_FLOOD};
+    let cpu = args.backend.backend != cvd::BackendChoice::Vulkan;
+    let k_site = args.k_site.unwrap_or(if cpu { DEFAULT_K_SITE_CPU_FLOOD } else { DEFAULT_K_SITE });
+    let size = cvd::job::memory::JobSize { sites, tets, k_site: k_site as u64, faces: !args.no_neighbors };
+    let budget = args.backend.memory_budget.filter(|_| cpu).map(|mib| mib << 20);
+    cvd::job::memory::check(&format!("a job of {sites} sites and {tets} tets"), size.bytes(), budget)
 }
 
 /// The model's mesh: an explicit file, a file of that name in the models

@@ -628,3 +628,45 @@ fn a_trajectory_reuses_the_last_frames_lists_and_writes_the_same_cells() {
         assert!(a == b, "frame {f}: the same cells.csv, byte for byte");
     }
 }
+
+#[test]
+fn jobs_too_large_for_the_memory_are_refused_before_they_start() {
+    let dir = temp_dir("memory");
+    let refused = |args: &[&str], says: &[&str]| {
+        let out = cvd_run(&dir, &[args, &["--out", "o"]].concat());
+        let err = text(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {err}");
+        for s in says {
+            assert!(err.contains(s), "{args:?}: {err}");
+        }
+        assert!(!err.contains("memory allocation") && !err.contains("panicked"), "{err}");
+    };
+    // An absurd number of sites: refused before they are made.
+    refused(&["--sites", "10000000000"], &["10000000000 sites", "needs about", "TB", "available"]);
+    refused(&["--box", "0,0,0,1,1,1", "--sites", "10000000000"], &["needs about", "available"]);
+    // A modest job under a CPU budget of 1 MiB.
+    refused(&["--sites", "20000", "--memory-budget", "1"], &["needs about", "1.0 MB", "--memory-budget"]);
+    let out = cvd_run(&dir, &["--sites", "2000", "--memory-budget", "64", "--no-geometry", "--out", "ok"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    // Files larger than the memory (sparse: no disk is taken), refused by
+    // name before they are read.
+    let Some(available) = cvd::job::memory::available() else {
+        eprintln!("SKIPPED the files: the machine does not say how much memory it has");
+        return;
+    };
+    let huge = dir.join("huge.xyz");
+    std::fs::File::create(&huge).unwrap().set_len(2 * available).unwrap();
+    refused(&["--sites-file", "huge.xyz"], &["huge.xyz", "needs about", "available"]);
+    let n = 2 * available / 24;
+    let dict = format!("{{'descr': '<f8', 'fortran_order': False, 'shape': ({n}, 3), }}");
+    let mut header = b"\x93NUMPY\x01\x00".to_vec();
+    let padded = (10 + dict.len() + 1).div_ceil(64) * 64;
+    header.extend_from_slice(&((padded - 10) as u16).to_le_bytes());
+    header.extend_from_slice(dict.as_bytes());
+    header.resize(padded - 1, b' ');
+    header.push(b'\n');
+    let npy = dir.join("huge.npy");
+    std::fs::write(&npy, &header).unwrap();
+    std::fs::OpenOptions::new().write(true).open(&npy).unwrap().set_len(padded as u64 + n * 24).unwrap();
+    refused(&["--sites-file", "huge.npy"], &["huge.npy", &format!("the {n} sites"), "available"]);
+}

@@ -53,6 +53,24 @@ pub enum Error {
         /// The underlying error.
         source: std::io::Error,
     },
+    /// A job (or a file to read) larger than the memory it may take:
+    /// refused before anything is allocated (`job::memory`).
+    #[error(
+        "{what} needs about {} of memory, more than {of}: {}; \
+         use fewer sites, a machine with more memory, or a distributed run",
+        human(*needed),
+        human(*limit)
+    )]
+    TooLarge {
+        /// What would not fit.
+        what: String,
+        /// Bytes it needs (estimated).
+        needed: u64,
+        /// Bytes it may take.
+        limit: u64,
+        /// What sets the limit.
+        of: String,
+    },
     /// A check of the library's own results failed.
     #[error("internal error: {0}")]
     Internal(String),
@@ -70,7 +88,30 @@ impl Error {
     /// Whether the error lies in what the caller gave (arguments, input
     /// files, a device name) rather than in the machine or the library.
     pub fn is_input_error(&self) -> bool {
-        matches!(self, Error::InvalidInput(_) | Error::Parse { .. } | Error::Io { .. } | Error::NoSuchDevice { .. })
+        matches!(
+            self,
+            Error::InvalidInput(_)
+                | Error::Parse { .. }
+                | Error::Io { .. }
+                | Error::NoSuchDevice { .. }
+                | Error::TooLarge { .. }
+        )
+    }
+}
+
+/// Bytes as people read them: `1.5 GB`.
+pub fn human(bytes: u64) -> String {
+    const UNITS: [&str; 6] = ["bytes", "kB", "MB", "GB", "TB", "PB"];
+    let mut x = bytes as f64;
+    let mut u = 0;
+    while x >= 1000.0 && u + 1 < UNITS.len() {
+        x /= 1000.0;
+        u += 1;
+    }
+    if u == 0 {
+        format!("{bytes} bytes")
+    } else {
+        format!("{x:.1} {}", UNITS[u])
     }
 }
 

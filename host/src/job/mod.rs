@@ -2,7 +2,8 @@
 //! their neighbour lists ([`knn`]), the clipping job and its output
 //! ([`clip`]), Lloyd's records ([`lloyd`]), the grid cells a part of a
 //! distributed job holds ([`held`]), the lists a trajectory keeps between
-//! frames ([`kept`]), the sites as the kernels take them
+//! frames ([`kept`]), a job's memory estimated before it is allocated
+//! ([`memory`]), the sites as the kernels take them
 //! ([`sites`]) and, with power weights, each site's bound of its
 //! neighbours' weights (`weight_bounds`). Plain data and its validation:
 //! no backend, no pass, no diagram.
@@ -12,6 +13,7 @@ pub mod held;
 pub mod kept;
 pub mod knn;
 pub mod lloyd;
+pub mod memory;
 pub mod sites;
 pub(crate) mod weight_bounds;
 

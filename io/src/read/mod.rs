@@ -133,6 +133,7 @@ fn read_bytes_parallel(path: &Path) -> Result<Vec<u8>> {
     let Some(len) = usize::try_from(meta.len()).ok().filter(|_| meta.is_file()) else {
         return read_bytes(path);
     };
+    cvd::job::memory::check(&format!("reading {} whole", path.display()), len as u64, None)?;
     let mut bytes = vec![0; len];
     read_exact_at(&file, 0, &mut bytes).map_err(io)?;
     // Whatever was appended since the size was taken.

@@ -93,6 +93,7 @@ pub(super) fn read_npy(path: &Path) -> Result<Vec<[f64; 3]>> {
     }
     let h = header(&prefix, size, &name)?;
     drop(prefix);
+    cvd::job::memory::check(&format!("the {} sites of {name}", h.n), (h.n as u64).saturating_mul(24), None)?;
     let points = decode(&h, |buf| super::read_exact_at(&file, h.len as u64, buf)).map_err(io)?;
     finite(points, &name)
 }
