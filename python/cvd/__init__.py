@@ -209,22 +209,7 @@ class ParticleCells:
         return f"ParticleCells({len(self.volumes)} particles, periodic {tuple(self.periodic)})"
 
 
-def particle_voronoi(
-    points,
-    box,
-    *,
-    origin=None,
-    periodic=True,
-    radii=None,
-    voronoi_index=True,
-    edge_threshold=0.0,
-    relative_edge_threshold=0.0,
-    face_threshold=0.0,
-    relative_face_threshold=0.0,
-    polyhedra=False,
-    faces=True,
-    backend="auto",
-):
+def particle_voronoi(points, box, *, origin=None, periodic=True, radii=None, **options):
     """The Voronoi cells of particles `points` ((n, 3)) in a periodic cell,
     as freud's and pyvoro2's users know them.
 
@@ -245,20 +230,17 @@ def particle_voronoi(
     with faces=False and voronoi_index=False, the volumes and centroids
     alone (the least work).
 
+    The options (voronoi_index=True, edge_threshold=0.0,
+    relative_edge_threshold=0.0, face_threshold=0.0,
+    relative_face_threshold=0.0, polyhedra=False, faces=True,
+    backend="auto") are ParticleVoronoi's.
+
     Returns a ParticleCells. For the frames of a trajectory, see
     ParticleVoronoi: each frame starts from the last one's neighbours.
     """
-    return ParticleVoronoi(
-        voronoi_index=voronoi_index,
-        edge_threshold=edge_threshold,
-        relative_edge_threshold=relative_edge_threshold,
-        face_threshold=face_threshold,
-        relative_face_threshold=relative_face_threshold,
-        polyhedra=polyhedra,
-        faces=faces,
-        backend=backend,
-        reuse=False,
-    ).compute(points, box, origin=origin, periodic=periodic, radii=radii)
+    if "reuse" in options:
+        raise TypeError("particle_voronoi() computes one frame: for reuse between frames, use ParticleVoronoi")
+    return ParticleVoronoi(reuse=False, **options).compute(points, box, origin=origin, periodic=periodic, radii=radii)
 
 
 class ParticleVoronoi:
