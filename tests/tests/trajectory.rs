@@ -182,3 +182,23 @@ fn particle_quantities_from_reused_lists_are_the_same() {
     assert_eq!((x.index, x.coordination), (y.index, y.coordination));
     assert_eq!(bits(&x.area), bits(&y.area));
 }
+
+#[test]
+fn one_particle_and_walls_everywhere_keep_their_lists_too() {
+    // One particle in a box with walls on every side: its only other
+    // points are its mirrors. And two particles, periodic.
+    let b = PeriodicBox::new([0.0; 3], [1.0, 2.0, 3.0]).unwrap().with_periodic([false; 3]);
+    let one = [[0.3, 0.9, 1.1]];
+    let first = PeriodicVoronoi::new(b, &one).keep_lists(true).compute().unwrap();
+    let again =
+        PeriodicVoronoi::new(b, &[[0.31, 0.9, 1.1]]).keep_lists(true).after(first.lists.as_ref()).compute().unwrap();
+    let fresh = PeriodicVoronoi::new(b, &[[0.31, 0.9, 1.1]]).compute().unwrap();
+    assert_eq!(bits(&again.cells.volume), bits(&fresh.cells.volume));
+    assert!((again.cells.volume[0] - 6.0).abs() < 6e-6, "the whole box: {}", again.cells.volume[0]);
+    let b = PeriodicBox::new([0.0; 3], [1.0; 3]).unwrap();
+    let two = [[0.2, 0.2, 0.2], [0.7, 0.6, 0.8]];
+    let first = PeriodicVoronoi::new(b, &two).keep_lists(true).compute().unwrap();
+    let again = PeriodicVoronoi::new(b, &two).keep_lists(true).after(first.lists.as_ref()).compute().unwrap();
+    let fresh = PeriodicVoronoi::new(b, &two).compute().unwrap();
+    assert_eq!(bits(&again.cells.volume), bits(&fresh.cells.volume));
+}

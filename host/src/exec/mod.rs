@@ -440,7 +440,8 @@ impl CpuBackend {
     fn kept_lists(&self, job: &KnnJob, keep: &Keep, bits: u32, grid: &CpuGrid) -> (PackedLists, LocalKept) {
         let p = job.params;
         let (k, n) = (p.k, p.n_queries as usize);
-        let kk = keep.k.max(k);
+        // At least one entry kept (a job of one site has none to list).
+        let kk = keep.k.max(k).max(1);
         let available = p.grid.n_sites.saturating_sub(1);
         let mut words = vec![0u32; n * lists::stride(k, bits) + lists::spare(bits)];
         let mut local = LocalKept {
