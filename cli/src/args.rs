@@ -326,6 +326,13 @@ pub struct KnnArgs {
 }
 
 impl RunArgs {
+    /// `--memory-budget` in bytes where it limits the host's memory: off
+    /// the Vulkan backend (on a device it splits jobs instead).
+    pub fn cpu_memory_budget(&self) -> Option<u64> {
+        let cpu = self.backend.backend != cvd::BackendChoice::Vulkan;
+        self.backend.memory_budget.filter(|_| cpu).map(|mib| mib << 20)
+    }
+
     /// Whether the arguments ask for optimal transport.
     pub fn transports(&self) -> bool {
         self.transport || self.capacities.is_some() || self.volumes.is_some()

@@ -97,8 +97,7 @@ fn check_memory(args: &RunArgs, sites: u64, tets: u64) -> cvd::Result<()> {
     let cpu = args.backend.backend != cvd::BackendChoice::Vulkan;
     let k_site = args.k_site.unwrap_or(if cpu { DEFAULT_K_SITE_CPU_FLOOD } else { DEFAULT_K_SITE });
     let size = cvd::job::memory::JobSize { sites, tets, k_site: k_site as u64, faces: !args.no_neighbors };
-    let budget = args.backend.memory_budget.filter(|_| cpu).map(|mib| mib << 20);
-    cvd::job::memory::check(&format!("a job of {sites} sites and {tets} tets"), size.bytes(), budget)
+    cvd::job::memory::check(&format!("a job of {sites} sites and {tets} tets"), size.bytes(), args.cpu_memory_budget())
 }
 
 /// The model's mesh: an explicit file, a file of that name in the models

@@ -256,7 +256,8 @@ fn final_diagram(args: &RunArgs, inputs: &Inputs, o: &Optimised, run: &RunBacken
                 .k(args.k)
                 .k_site(args.k_site)
                 .density(inputs.density.as_deref())
-                .faces(!no_neighbors);
+                .faces(!no_neighbors)
+                .memory_budget(args.cpu_memory_budget());
             if let Some(w) = &o.weights {
                 cv = cv.weights(w);
             }
@@ -287,6 +288,7 @@ fn final_diagram(args: &RunArgs, inputs: &Inputs, o: &Optimised, run: &RunBacken
                 .strategy(args.strategy)
                 .k_site(args.k_site)
                 .faces(!args.no_neighbors)
+                .memory_budget(args.cpu_memory_budget())
                 .backend(backend);
             if let Some(w) = &o.weights {
                 pv = pv.weights(w);

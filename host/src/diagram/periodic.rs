@@ -111,6 +111,7 @@ pub struct PeriodicVoronoi<'a> {
     tets: Option<usize>,
     keep: bool,
     last: Option<&'a FrameLists>,
+    memory_budget: Option<u64>,
 }
 
 /// A periodic diagram's cells, per input site.
@@ -160,7 +161,15 @@ impl<'a> PeriodicVoronoi<'a> {
             tets: None,
             keep: false,
             last: None,
+            memory_budget: None,
         }
+    }
+
+    /// Most memory the job may hold, in bytes (see
+    /// [`ClippedVoronoi::memory_budget`]; images count as sites).
+    pub fn memory_budget(mut self, bytes: impl Into<Option<u64>>) -> Self {
+        self.memory_budget = bytes.into();
+        self
     }
 
     /// Keeps each particle's nearest sites and images for the next frame
@@ -303,8 +312,12 @@ impl<'a> PeriodicVoronoi<'a> {
         // Whole cells need the box only as the job's frame: its 6 tets.
         let mesh = domain.mesh(self.tets.unwrap_or(if whole { 6 } else { n }));
         let images_s = clock.elapsed().as_secs_f64();
-        let mut diagram =
-            ClippedVoronoi::new(&mesh, &all).faces(self.faces).strategy(strategy).k_site(self.k_site).images_after(n);
+        let mut diagram = ClippedVoronoi::new(&mesh, &all)
+            .faces(self.faces)
+            .strategy(strategy)
+            .k_site(self.k_site)
+            .images_after(n)
+            .memory_budget(self.memory_budget);
         let whole_cells = diagram.resolved_strategy() == Strategy::Whole;
         let last = self.last.filter(|l| whole_cells && l.fits(&domain, &sites, self.weights));
         let moves = last.map(|l| l.moves(&sites));

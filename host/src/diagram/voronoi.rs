@@ -155,6 +155,8 @@ pub struct ClippedVoronoi<'a> {
     pub(crate) keep: Option<usize>,
     /// The last frame's kept lists, as candidates ([`crate::job::kept`]).
     pub(crate) candidates: Option<&'a Candidates>,
+    /// Most bytes the job may hold ([`Self::memory_budget`]).
+    pub(crate) memory_budget: Option<u64>,
 }
 
 impl<'a> ClippedVoronoi<'a> {
@@ -175,7 +177,17 @@ impl<'a> ClippedVoronoi<'a> {
             images_from: None,
             keep: None,
             candidates: None,
+            memory_budget: None,
         }
+    }
+
+    /// Most memory the job may hold, in bytes: a job whose estimate
+    /// ([`crate::job::memory::JobSize`]) exceeds it is refused before
+    /// anything is allocated ([`Error::TooLarge`]). Default: the memory
+    /// the machine has available.
+    pub fn memory_budget(mut self, bytes: impl Into<Option<u64>>) -> Self {
+        self.memory_budget = bytes.into();
+        self
     }
 
     /// Whole cells: keeps each answered site's `k` nearest sites (at least
@@ -337,6 +349,14 @@ impl<'a> ClippedVoronoi<'a> {
         if self.k_site == Some(0) || self.k == Some(0) {
             return Err(Error::InvalidInput("k and k_site must be at least 1".into()));
         }
+        let size = crate::job::memory::JobSize {
+            sites: self.sites.len() as u64,
+            tets: mesh.tets.len() as u64,
+            k_site: self.resolved_k_site() as u64,
+            faces: self.faces,
+        };
+        let what = format!("the diagram of {} sites in {} tets", self.sites.len(), mesh.tets.len());
+        crate::job::memory::check(&what, size.bytes(), self.memory_budget)?;
         // Duplicates: the largest weight owns the cell, the lowest index on
         // a tie (without weights: the lowest index). Sites and tets go to
         // the kernels in Morton order, for locality; the map sends each
@@ -897,6 +917,26 @@ mod tests {
         assert!(refused(d.strategy(Strategy::TetCell).pairing(Pairing::Knn).k(Some(0))).contains("at least 1"));
         assert!(refused(d.k(Some(0))).contains("at least 1"), "even where flood does not use k");
         assert!(refused(d.pairing(Pairing::Knn)).contains("pairs no tets"), "whole cells, the default");
+    }
+
+    #[test]
+    fn a_job_over_its_memory_budget_is_refused_before_it_is_built() {
+        let mesh = TetMesh::cube(4);
+        let sites = points::uniform(20_000, 3);
+        let d = ClippedVoronoi::new(&mesh, &sites);
+        match d.memory_budget(1 << 20).job() {
+            Err(e @ Error::TooLarge { .. }) => {
+                let m = e.to_string();
+                assert!(m.contains("20000 sites in 384 tets") && m.contains("1.0 MB"), "{m}");
+                assert!(e.is_input_error());
+            }
+            Err(e) => panic!("not refused for its size: {e}"),
+            Ok(_) => panic!("a job of 20 000 sites in 1 MiB"),
+        }
+        assert!(d.memory_budget(1 << 30).job().is_ok());
+        let b = crate::PeriodicBox::unit();
+        let periodic = crate::PeriodicVoronoi::new(b, &sites).memory_budget(1 << 20).compute();
+        assert!(matches!(periodic, Err(Error::TooLarge { .. })), "{:?}", periodic.err());
     }
 
     #[test]
