@@ -613,7 +613,7 @@ fn fold(
                 for (j, s, area, normal) in faces {
                     match row.last_mut() {
                         Some(last) if (last.0, last.1) == (j, s) => last.2 += area,
-                        _ => row.push((j, s, 0.0 + area, normal)),
+                        _ => row.push((j, s, area, normal)),
                     }
                 }
                 (row, wall, wall_vector)

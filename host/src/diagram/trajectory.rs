@@ -152,7 +152,7 @@ impl FrameLists {
     /// found again among them, each reach shrunk by the moves. A particle
     /// wrapped across a side since gets none (its list is searched).
     /// `None` where they would certify fewer than an eighth of the cells.
-    pub(super) fn candidates(&self, moves: &Moves, images: &[Image]) -> Option<Candidates> {
+    pub(super) fn candidates(&self, moves: &Moves, images: &[Image]) -> Option<Candidates<'_>> {
         let n = self.sites.len();
         let (most, moves) = (moves.most, &moves.each);
         // Rounding of the distances compared: a relative margin. A row
@@ -216,12 +216,6 @@ impl FrameLists {
                 find(m.site as usize, [0, 1, 2].map(|a| m.shift[a] - w[a]), m.wall)
             })
             .collect();
-        Some(Candidates {
-            k: self.kept.k,
-            lists: self.kept.lists.clone(),
-            reach,
-            to_input,
-            row_of: self.row_of.clone(),
-        })
+        Some(Candidates { k: self.kept.k, lists: &self.kept.lists, reach, to_input, row_of: &self.row_of })
     }
 }

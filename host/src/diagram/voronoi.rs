@@ -154,7 +154,7 @@ pub struct ClippedVoronoi<'a> {
     /// kept ([`Cells::kept`]) for a trajectory's next frame.
     pub(crate) keep: Option<usize>,
     /// The last frame's kept lists, as candidates ([`crate::job::kept`]).
-    pub(crate) candidates: Option<&'a Candidates>,
+    pub(crate) candidates: Option<&'a Candidates<'a>>,
     /// Most bytes the job may hold ([`Self::memory_budget`]).
     pub(crate) memory_budget: Option<u64>,
 }
@@ -201,7 +201,7 @@ impl<'a> ClippedVoronoi<'a> {
 
     /// Each answered site's candidate neighbours, from the last frame's
     /// kept lists: where they certify its list, no grid is searched.
-    pub(crate) fn candidates(mut self, candidates: Option<&'a Candidates>) -> Self {
+    pub(crate) fn candidates(mut self, candidates: Option<&'a Candidates<'a>>) -> Self {
         self.candidates = candidates;
         self
     }
@@ -624,13 +624,7 @@ impl<'a> ClippedVoronoi<'a> {
             (None, 0)
         };
         let kept = out.kept.take().map(|kept| {
-            // Each job site's input index.
-            let mut inputs = vec![u32::MAX; job.site_knn.sites.len()];
-            for (i, m) in map.iter().enumerate() {
-                if let Some(u) = m {
-                    inputs[u] = i as u32;
-                }
-            }
+            let inputs = map.inputs(job.site_knn.sites.len());
             kept_lists(kept, inputs, &job.site_knn, frame.scale, self.candidates)
         });
         let mut cells = finish(self.mesh, self.density, self.sites, job, map, frame, out);
@@ -785,7 +779,7 @@ fn finish(
 /// each reach shrunk by the quantization's rounding (a distance between
 /// quantized points is within `sqrt(3)` units of the exact one).
 fn local_candidates(
-    c: &Candidates,
+    c: &Candidates<'_>,
     inputs: &[u32],
     listed: usize,
     map: &SiteMap,
@@ -823,7 +817,7 @@ fn local_candidates(
 /// (`inputs`) and each list's reach in input units: a searched list's from
 /// its last entry (less the quantization's rounding), a list taken from
 /// the candidates keeping theirs (`c`, through each site's row).
-fn kept_lists(kept: LocalKept, inputs: Vec<u32>, knn: &KnnJob, scale: f64, c: Option<&Candidates>) -> KeptLists {
+fn kept_lists(kept: LocalKept, inputs: Vec<u32>, knn: &KnnJob, scale: f64, c: Option<&Candidates<'_>>) -> KeptLists {
     // Every point not listed lies at least this far: past its last entry.
     let past = |u: usize| {
         if kept.last2[u] == u64::MAX {

@@ -20,21 +20,22 @@
 
 /// The last frame's kept lists as a job's candidates: rows of the last
 /// job's site indices, how those sites are numbered in this job's input
-/// (`u32::MAX`: no point of it), and each answered input site's row.
+/// (`u32::MAX`: no point of it), and each answered input site's row. The
+/// rows are the last frame's, borrowed.
 #[derive(Clone, Debug, Default)]
-pub struct Candidates {
+pub struct Candidates<'a> {
     /// Entries per row.
     pub k: usize,
     /// The rows, `k` entries each (last job's site indices; `NO_SITE`:
     /// none).
-    pub lists: Vec<u32>,
+    pub lists: &'a [u32],
     /// Per row: every point of this job nearer than this (input units) to
     /// its site is among the row's (0: none certain).
     pub reach: Vec<f64>,
     /// The last job's site `v` is this job's input point `to_input[v]`.
     pub to_input: Vec<u32>,
     /// Answered input site `i`'s row (`u32::MAX`: none, search).
-    pub row_of: Vec<u32>,
+    pub row_of: &'a [u32],
 }
 
 /// What a job keeps of its sites' lists ([`crate::job::clip::ClipJob::keep`]).

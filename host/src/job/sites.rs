@@ -53,6 +53,18 @@ impl SiteMap {
         }
     }
 
+    /// Each of `n` places' input site (`u32::MAX` for a place no input
+    /// site has): the map turned around.
+    pub fn inputs(&self, n: usize) -> Vec<u32> {
+        let mut inputs = vec![NONE; n];
+        for (i, &u) in self.0.iter().enumerate() {
+            if u != NONE {
+                inputs[u as usize] = i as u32;
+            }
+        }
+        inputs
+    }
+
     /// Every input site's place, in input order.
     pub fn iter(&self) -> impl DoubleEndedIterator<Item = Option<usize>> + ExactSizeIterator + '_ {
         self.0.iter().map(|&u| if u == NONE { None } else { Some(u as usize) })

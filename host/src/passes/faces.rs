@@ -289,12 +289,7 @@ pub(crate) fn assemble(faces: FaceRows, map: &crate::job::sites::SiteMap, sites:
     let n = faces.len();
     // The input index of each unique site (duplicates map to nothing), and
     // its position in the world, in the job's order.
-    let mut owner = vec![u32::MAX; n];
-    for (i, m) in map.iter().enumerate() {
-        if let Some(u) = m {
-            owner[u] = i as u32;
-        }
-    }
+    let owner = map.inputs(n);
     let at: Vec<[f64; 3]> = owner.par_iter().map(|&i| sites[i as usize]).collect();
     let faces = &faces;
     // Faces seen from one side only (the other side's rounded to nothing):
