@@ -4,6 +4,8 @@
 //! [`read_mesh`], [`read_surface`] and [`read_sites`] choose the format by
 //! the file's extension, from the tables in [`formats`] (the list of
 //! formats, the variants each reads, and how to add one).
+//! [`read_sites_part`] reads one part of a sites file, only its bytes,
+//! for runs of several processes none of which reads the whole file.
 //! [`open_particles`] opens a trajectory (LAMMPS dump or extended XYZ) the
 //! same way, as a [`FrameReader`] giving one [`ParticleFrame`] (positions,
 //! cell, ids, radii) at a time, so that a file of any length is read in
@@ -24,6 +26,7 @@ mod medit;
 mod meshb;
 mod npy;
 mod particles;
+mod parts;
 mod surface;
 mod tet;
 mod tetgen;
@@ -42,6 +45,7 @@ pub use medit::parse_medit;
 pub use meshb::parse_meshb;
 pub use npy::{parse_npy, write_sites_npy};
 pub use particles::{open_particles, FrameReader, ParticleFrame};
+pub use parts::{read_sites_part, CountLine, SitesPart, SitesPartSummary};
 pub use surface::{parse_obj, parse_off, parse_ply, parse_stl, read_surface};
 pub use tet::parse_tet;
 pub use tetgen::parse_tetgen;

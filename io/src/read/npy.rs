@@ -67,7 +67,7 @@ pub fn parse_npy(bytes: &[u8], name: &str) -> Result<Vec<[f64; 3]>> {
         Ok(())
     })
     .map_err(|source| Error::Io { path: name.to_string(), source })?;
-    finite(points, name)
+    finite(points, name, 0)
 }
 
 /// Reads an `.npy` file, its data straight into the sites' memory.
@@ -82,20 +82,62 @@ pub(super) fn read_npy(path: &Path) -> Result<Vec<[f64; 3]>> {
         file.read_to_end(&mut bytes).map_err(io)?;
         return parse_npy(&bytes, &name);
     }
-    let size = meta.len();
+    let h = read_header(&file, meta.len(), &name)?;
+    cvd::job::memory::check(&format!("the {} sites of {name}", h.n), (h.n as u64).saturating_mul(24), None)?;
+    let points = decode(&h, |buf| super::read_exact_at(&file, h.len as u64, buf)).map_err(io)?;
+    finite(points, &name, 0)
+}
+
+/// The header of a regular file of `size` bytes, read from its start
+/// (and checked against the size, as [`header`] does).
+fn read_header(file: &std::fs::File, size: u64, name: &str) -> Result<Header> {
+    let io = |source| Error::Io { path: name.to_string(), source };
     let mut prefix = vec![0; size.min(12) as usize];
-    file.read_exact(&mut prefix).map_err(io)?;
-    let want = (header_len(&prefix, &name)? as u64).min(size) as usize;
+    super::read_exact_at(file, 0, &mut prefix).map_err(io)?;
+    let want = (header_len(&prefix, name)? as u64).min(size) as usize;
     if want > prefix.len() {
         let old = prefix.len();
         prefix.resize(want, 0);
-        file.read_exact(&mut prefix[old..]).map_err(io)?;
+        super::read_exact_at(file, old as u64, &mut prefix[old..]).map_err(io)?;
     }
-    let h = header(&prefix, size, &name)?;
-    drop(prefix);
-    cvd::job::memory::check(&format!("the {} sites of {name}", h.n), (h.n as u64).saturating_mul(24), None)?;
-    let points = decode(&h, |buf| super::read_exact_at(&file, h.len as u64, buf)).map_err(io)?;
-    finite(points, &name)
+    header(&prefix, size, name)
+}
+
+/// Part `part` of `parts` of an `.npy` regular file of `size` bytes: the
+/// rows `n * part / parts .. n * (part + 1) / parts`, read at their
+/// offsets (in Fortran order, the three columns' ranges). Returns the
+/// part's first row, its sites and the file's rows.
+pub(super) fn read_npy_part(
+    file: &std::fs::File,
+    size: u64,
+    name: &str,
+    part: usize,
+    parts: usize,
+) -> Result<(u64, Vec<[f64; 3]>, u64)> {
+    let io = |source| Error::Io { path: name.to_string(), source };
+    let h = read_header(file, size, name)?;
+    let n = h.n as u64;
+    let rows = super::parts::share(n, part, parts);
+    // Fits: at most the file's rows, which the header found in the file.
+    let m = (rows.end - rows.start) as usize;
+    let what = format!("the {m} sites of part {part} of {parts} of {name}");
+    cvd::job::memory::check(&what, (m as u64).saturating_mul(24), None)?;
+    let item = h.dtype.size() as u64;
+    let data = h.len as u64;
+    let part_header = Header { n: m, ..h };
+    let points = decode(&part_header, |buf| {
+        if !h.fortran {
+            return super::read_exact_at(file, data + rows.start * 3 * item, buf);
+        }
+        // All x, then all y, then all z: the part's range of each.
+        let column = m * item as usize;
+        for (axis, range) in buf.chunks_exact_mut(column.max(1)).enumerate() {
+            super::read_exact_at(file, data + (axis as u64 * n + rows.start) * item, range)?;
+        }
+        Ok(())
+    })
+    .map_err(io)?;
+    Ok((rows.start, finite(points, name, rows.start)?, n))
 }
 
 /// Writes sites as an `.npy` file (version 1.0, `<f8`, C order, shape
@@ -284,13 +326,17 @@ fn decode(h: &Header, fill: impl FnOnce(&mut [u8]) -> std::io::Result<()>) -> st
     })
 }
 
-/// The sites, if all coordinates are finite.
-fn finite(points: Vec<[f64; 3]>, name: &str) -> Result<Vec<[f64; 3]>> {
+/// The sites, if all coordinates are finite (`first`: the file's row of
+/// the first, for errors).
+fn finite(points: Vec<[f64; 3]>, name: &str, first: u64) -> Result<Vec<[f64; 3]>> {
     let Some(i) = points.par_iter().position_first(|p| p.iter().any(|c| !c.is_finite())) else {
         return Ok(points);
     };
     let (axis, c) = ["x", "y", "z"].into_iter().zip(points[i]).find(|(_, c)| !c.is_finite()).unwrap_or(("x", 0.0));
-    Err(error(name, format!("expected the {axis} coordinate of point {} (a finite number), found {c}", i + 1)))
+    Err(error(
+        name,
+        format!("expected the {axis} coordinate of point {} (a finite number), found {c}", first + i as u64 + 1),
+    ))
 }
 
 /// A value of the header's dict.

@@ -7,7 +7,8 @@
 //! parsed again knowing them: the first error of the file is reported as
 //! the sequential reading would, with its line and point numbers.
 
-use super::lex::{parse_error, Lexer, Tokens};
+use super::lex::{parse_error, Lexer, Line, Tokens};
+use super::parts::CountLine;
 use cvd::error::{Error, Result};
 use rayon::prelude::*;
 use std::borrow::Cow;
@@ -166,6 +167,92 @@ fn points_of(
         last = Some(line.no);
     }
     Ok((last, lex.line_no()))
+}
+
+/// The sites of a part of a text sites file (see
+/// [`read_sites_part`](super::read_sites_part)): `bytes` being whole lines
+/// starting at byte `offset` of the file, parsed as [`parse_xyz`] parses
+/// them, except that the part's first line holding a token, if it holds a
+/// single one, is returned (as a [`CountLine`]) rather than judged: it
+/// is the file's count line only if no earlier part holds a token. Errors
+/// name the file and the line's byte offset, in pieces parsed on all of
+/// rayon's threads.
+pub(super) fn parse_xyz_part(bytes: &[u8], offset: u64, path: &str) -> Result<(Vec<[f64; 3]>, Option<CountLine>)> {
+    let mut start = 0;
+    let mut count = None;
+    while start < bytes.len() {
+        let end = line_end(bytes, start);
+        let line_bytes = &bytes[start..end];
+        let text = text(line_bytes);
+        if let Some(line) = Lexer::new(&text, path).line() {
+            if line.len() == 1 {
+                let n = line.first().count("a point count or 3 coordinates x y z");
+                let n = n.map_err(|e| at_byte(e, line_bytes, offset + start as u64, path))?;
+                count = Some(CountLine { offset: offset + start as u64, count: n as u64 });
+                start = end;
+            }
+            break;
+        }
+        start = end;
+    }
+    let body = &bytes[start..];
+    let offset = offset + start as u64;
+    let scan = |r: &Range<usize>| {
+        let piece = &body[r.clone()];
+        let text = text(piece);
+        let mut lex = Lexer::new(&text, path);
+        let mut points = Vec::new();
+        while let Some(mut line) = lex.line() {
+            let p = point(&mut line).map_err(|e| at_byte(e, piece, offset + r.start as u64, path))?;
+            points.push(p);
+        }
+        Ok(points)
+    };
+    let cuts = cut_after_lines(body, PIECE);
+    let pieces: Vec<Result<Vec<[f64; 3]>>> =
+        if cuts.len() > 1 { cuts.par_iter().map(scan).collect() } else { cuts.iter().map(scan).collect() };
+    let mut points = Vec::new();
+    for p in pieces {
+        let p = p?;
+        if points.is_empty() {
+            points = p;
+        } else {
+            points.extend_from_slice(&p);
+        }
+    }
+    Ok((points, count))
+}
+
+/// A point: a line of 3 finite coordinates (errors without the point's
+/// number, which a part does not know).
+fn point(line: &mut Line) -> Result<[f64; 3]> {
+    let (Some(x), Some(y), Some(z), None) = (line.tok(), line.tok(), line.tok(), line.tok()) else {
+        let wrong = line.expect_len(3, "3 coordinates x y z").err();
+        return Err(wrong.unwrap_or_else(|| line.error("3 coordinates counted twice, differently")));
+    };
+    let mut p = [0.0; 3];
+    for ((c, tok), axis) in p.iter_mut().zip([x, y, z]).zip(["x", "y", "z"]) {
+        *c = tok.f64(format_args!("the {axis} coordinate"))?;
+    }
+    Ok(p)
+}
+
+/// A parse error of a line of `bytes` (its number counted from 1 at their
+/// start, which is byte `offset` of the file) as an error naming the
+/// file and the line's byte offset: "PATH: the line at byte B: ...".
+fn at_byte(e: Error, bytes: &[u8], offset: u64, path: &str) -> Error {
+    match e {
+        Error::Parse { line, message, .. } => {
+            let start = match line.checked_sub(2) {
+                None => 0,
+                Some(ends) => {
+                    bytes.iter().enumerate().filter(|&(_, &b)| b == b'\n').nth(ends).map_or(0, |(i, _)| i + 1)
+                }
+            };
+            Error::InvalidInput(format!("{path}: the line at byte {}: {message}", offset + start as u64))
+        }
+        other => other,
+    }
 }
 
 /// Parses one number per line (per-vertex values such as a density); `#`
