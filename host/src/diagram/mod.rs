@@ -6,5 +6,6 @@
 
 pub mod particles;
 pub mod periodic;
+pub mod periodic_parts;
 pub mod trajectory;
 pub mod voronoi;

@@ -58,6 +58,7 @@ use crate::exec::CpuBackend;
 use crate::geom::periodic_box::PeriodicBox;
 use crate::geom::site_grid::SiteGrid;
 use crate::job::clip::{JobShape, Strategy};
+use crate::job::sites::Layout;
 use crate::job::BackendKind;
 use crate::passes::faces::Adjacency;
 use crate::passes::pieces::ON_BOUNDARY;
@@ -73,7 +74,7 @@ pub const WHOLE_FRAME_TETS: usize = 6;
 /// The image of a site: site `site` moved by `shift` lattice vectors,
 /// then, for a mirror, reflected in a wall.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(super) struct Image {
+pub(crate) struct Image {
     pub(super) site: u32,
     pub(super) shift: [i32; 3],
     /// The wall it is reflected in: `2 axis + upper`, or [`NO_WALL`].
@@ -84,7 +85,7 @@ pub(super) struct Image {
 pub(super) const NO_WALL: u8 = u8::MAX;
 
 impl Image {
-    fn at(&self, domain: &PeriodicBox, sites: &[[f64; 3]]) -> [f64; 3] {
+    pub(super) fn at(&self, domain: &PeriodicBox, sites: &[[f64; 3]]) -> [f64; 3] {
         let p = domain.shifted(sites[self.site as usize], self.shift);
         if self.wall == NO_WALL {
             p
@@ -101,17 +102,17 @@ pub const WALL_GAP: f64 = 1e-9;
 /// Builder of a periodic diagram: the cells of sites in a periodic box.
 #[derive(Clone, Copy)]
 pub struct PeriodicVoronoi<'a> {
-    domain: PeriodicBox,
-    sites: &'a [[f64; 3]],
-    weights: Option<&'a [f64]>,
-    backend: Option<&'a dyn Backend>,
-    faces: bool,
-    strategy: Option<Strategy>,
-    k_site: Option<usize>,
-    tets: Option<usize>,
-    keep: bool,
-    last: Option<&'a FrameLists>,
-    memory_budget: Option<u64>,
+    pub(super) domain: PeriodicBox,
+    pub(super) sites: &'a [[f64; 3]],
+    pub(super) weights: Option<&'a [f64]>,
+    pub(super) backend: Option<&'a dyn Backend>,
+    pub(super) faces: bool,
+    pub(super) strategy: Option<Strategy>,
+    pub(super) k_site: Option<usize>,
+    pub(super) tets: Option<usize>,
+    pub(super) keep: bool,
+    pub(super) last: Option<&'a FrameLists>,
+    pub(super) memory_budget: Option<u64>,
 }
 
 /// A periodic diagram's cells, per input site.
@@ -292,7 +293,9 @@ impl<'a> PeriodicVoronoi<'a> {
         // one the sites need.
         let first = (2.0 * spacing * 2.0 * spacing + range).sqrt();
         let mut images = images_within(&domain, &sites, first);
-        let reach = coverage(&domain, &sites, &images, spacing);
+        let points: Vec<[f64; 3]> = sites.iter().copied().chain(images.iter().map(|m| m.at(&domain, &sites))).collect();
+        let (reach, _) = coverage(&domain, &points, spacing, |_| true);
+        drop(points);
         let mut halo = (reach * reach + range).sqrt() * (1.0 + 1e-9);
         if whole {
             // A whole cell reaches up to `H` outside the box, and the sites
@@ -318,7 +321,34 @@ impl<'a> PeriodicVoronoi<'a> {
             .k_site(self.k_site)
             .images_after(n)
             .memory_budget(self.memory_budget);
+        if let Some(b) = self.backend {
+            diagram = diagram.backend(b);
+        }
         let whole_cells = diagram.resolved_strategy() == Strategy::Whole;
+        // Whole cells in the order and frame a part of the box would lay
+        // them out in (`crate::diagram::periodic_parts`): the same bits.
+        let frame = frame_of(all.iter().copied());
+        let order: Vec<u32> = if whole_cells {
+            let blocks = Blocks::of(&domain, n);
+            let key = |u: usize| match u.checked_sub(n).map(|k| images[k]) {
+                None => PointKey::of(&domain, &blocks, &frame, all[u], u as u64, None),
+                Some(m) => PointKey::of(&domain, &blocks, &frame, all[u], m.site as u64, Some((m.shift, m.wall))),
+            };
+            let mut keyed: Vec<(PointKey, u32)> = (0..all.len()).into_par_iter().map(|u| (key(u), u as u32)).collect();
+            keyed.par_sort_unstable();
+            keyed.into_iter().map(|(_, u)| u).collect()
+        } else {
+            Vec::new()
+        };
+        if whole_cells {
+            diagram = diagram.layout(Layout {
+                order: &order,
+                lo: frame.0,
+                hi: frame.1,
+                grid_sites: all.len(),
+                answer: (0, n),
+            });
+        }
         let last = self.last.filter(|l| whole_cells && l.fits(&domain, &sites, self.weights));
         let moves = last.map(|l| l.moves(&sites));
         let candidates = last.zip(moves.as_ref()).and_then(|(l, m)| l.candidates(m, &images));
@@ -328,9 +358,6 @@ impl<'a> PeriodicVoronoi<'a> {
         }
         if let Some(w) = &weights {
             diagram = diagram.weights(w);
-        }
-        if let Some(b) = self.backend {
-            diagram = diagram.backend(b);
         }
         let (mut whole, polyhedra) = match cpu {
             None => (diagram.compute()?, None),
@@ -421,7 +448,7 @@ fn periodic_axes(domain: &PeriodicBox) -> String {
 /// walls each must lie between them (a site on a wall, or outside it by
 /// rounding, within [`WALL_GAP`] of the height, is moved that far inside:
 /// its mirror must stay apart from it). Also how many were moved so.
-fn place_sites(domain: &PeriodicBox, sites: &[[f64; 3]]) -> Result<(Vec<[f64; 3]>, usize)> {
+pub(super) fn place_sites(domain: &PeriodicBox, sites: &[[f64; 3]]) -> Result<(Vec<[f64; 3]>, usize)> {
     let mut placed: Vec<[f64; 3]> = sites.par_iter().map(|&p| domain.wrap(p)).collect();
     if !domain.has_walls() {
         return Ok((placed, 0));
@@ -455,7 +482,7 @@ fn place_sites(domain: &PeriodicBox, sites: &[[f64; 3]]) -> Result<(Vec<[f64; 3]
 /// Every image of `sites` (other than the sites themselves) within
 /// `halo` of the box, by site, then shift: shifts along the periodic axes
 /// only.
-fn images_within(domain: &PeriodicBox, sites: &[[f64; 3]], halo: f64) -> Vec<Image> {
+pub(super) fn images_within(domain: &PeriodicBox, sites: &[[f64; 3]], halo: f64) -> Vec<Image> {
     let h = domain.heights();
     let m = [0, 1, 2].map(|a| if domain.periodic()[a] { (halo / h[a]).ceil().min(64.0) as i32 } else { 0 });
     let shifts: Vec<[i32; 3]> = (-m[2]..=m[2])
@@ -480,7 +507,7 @@ fn images_within(domain: &PeriodicBox, sites: &[[f64; 3]], halo: f64) -> Vec<Ima
 /// than the point it mirrors, so it cuts no cell there; a site's own
 /// mirror cuts its cell along the wall (their bisector, with equal
 /// weights, is the wall).
-fn mirrors_within(domain: &PeriodicBox, sites: &[[f64; 3]], images: &[Image], halo: f64) -> Vec<Image> {
+pub(super) fn mirrors_within(domain: &PeriodicBox, sites: &[[f64; 3]], images: &[Image], halo: f64) -> Vec<Image> {
     let walls: Vec<u8> =
         (0..3u8).filter(|&a| !domain.periodic()[a as usize]).flat_map(|a| [2 * a, 2 * a + 1]).collect();
     if walls.is_empty() {
@@ -500,34 +527,260 @@ fn mirrors_within(domain: &PeriodicBox, sites: &[[f64; 3]], images: &[Image], ha
 }
 
 /// An upper bound of the distance from any point of the box to the
-/// nearest of `sites` and `images`: over query cells of about `spacing`
-/// (a grid of the fractional coordinates), each cell's farthest corner
-/// from the site nearest its centre.
-fn coverage(domain: &PeriodicBox, sites: &[[f64; 3]], images: &[Image], spacing: f64) -> f64 {
-    let points: Vec<SplitPoint> = sites
-        .iter()
-        .copied()
-        .chain(images.iter().map(|m| m.at(domain, sites)))
-        .map(|p| SplitPoint::site(p, 0.0))
-        .collect();
+/// nearest of `points`: over query cells of about `spacing` (a grid of the
+/// fractional coordinates; those `counted` says), each cell's centre's
+/// distance to its nearest point plus the cell's half diagonal. The
+/// nearest point's distance is the same whichever of equally near points
+/// is found, so the bound is a function of the points alone: a part that
+/// holds every point within the centre's nearest distance of its cells
+/// gets the same bits. Also the largest such nearest distance.
+pub(super) fn coverage(
+    domain: &PeriodicBox,
+    points: &[[f64; 3]],
+    spacing: f64,
+    counted: impl Fn([f64; 3]) -> bool + Sync,
+) -> (f64, f64) {
+    let dims = coverage_dims(domain, spacing);
+    let points: Vec<SplitPoint> = points.iter().map(|&p| SplitPoint::site(p, 0.0)).collect();
+    if points.is_empty() {
+        return (0.0, 0.0);
+    }
     let grid = SiteGrid::new(&points);
-    let dims = domain.heights().map(|l| ((l / spacing).ceil() as usize).clamp(1, 1 << 10));
+    let centre = |at: [usize; 3]| domain.cartesian([0, 1, 2].map(|a| (at[a] as f64 + 0.5) / dims[a] as f64));
+    // Every cell is the same parallelepiped: its centre's farthest corner.
+    let half = (0..8)
+        .map(|k| {
+            let d = [0, 1, 2].map(|a| if (k >> a) & 1 == 0 { -0.5 } else { 0.5 } / dims[a] as f64);
+            let (c, o) = (domain.cartesian(d), domain.cartesian([0.0; 3]));
+            (0..3).map(|a| (c[a] - o[a]).powi(2)).sum::<f64>().sqrt()
+        })
+        .fold(0.0, f64::max);
     (0..dims[0] * dims[1] * dims[2])
         .into_par_iter()
-        .map(|c| {
-            let at = [c % dims[0], (c / dims[0]) % dims[1], c / (dims[0] * dims[1])];
-            let point = |s: [f64; 3]| domain.cartesian([0, 1, 2].map(|a| (at[a] as f64 + s[a]) / dims[a] as f64));
-            let (s, _) = grid.nearest(point([0.5; 3]));
-            let q = points[s as usize].to_f64();
-            (0..8)
-                .map(|k| {
-                    let corner = point([0, 1, 2].map(|a| ((k >> a) & 1) as f64));
-                    (0..3).map(|a| (corner[a] - q[a]).powi(2)).sum::<f64>()
-                })
-                .fold(0.0, f64::max)
-                .sqrt()
+        .filter_map(|c| {
+            let c = centre([c % dims[0], (c / dims[0]) % dims[1], c / (dims[0] * dims[1])]);
+            counted(c).then(|| {
+                let (s, _) = grid.nearest(c);
+                let q = points[s as usize].to_f64();
+                (0..3).map(|a| (c[a] - q[a]).powi(2)).sum::<f64>().sqrt()
+            })
         })
-        .reduce(|| 0.0, f64::max)
+        .map(|d| (d + half, d))
+        .reduce(|| (0.0, 0.0), |a, b| (a.0.max(b.0), a.1.max(b.1)))
+}
+
+/// The query cells of [`coverage`] along each axis.
+fn coverage_dims(domain: &PeriodicBox, spacing: f64) -> [usize; 3] {
+    domain.heights().map(|l| ((l / spacing).ceil() as usize).clamp(1, 1 << 10))
+}
+
+/// The box cut into blocks along its fractional coordinates — a power of
+/// two along each axis, each block about [`Blocks::SPACINGS`] sites'
+/// spacings across — numbered along a Morton curve. A diagram in parts
+/// gives each rank a run of blocks in that order; every diagram orders its
+/// sites by block first, so the sites of a run are a run of the sites.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) struct Blocks {
+    /// Blocks along each axis.
+    pub dims: [u32; 3],
+}
+
+impl Blocks {
+    /// About how many spacings across a block is.
+    const SPACINGS: f64 = 8.0;
+    /// Most blocks in all.
+    const MOST: u64 = 1 << 21;
+
+    /// The blocks of `domain` for `n` sites.
+    pub fn of(domain: &PeriodicBox, n: usize) -> Self {
+        let spacing = (domain.volume() / n.max(1) as f64).cbrt();
+        let mut dims = domain.heights().map(|h| {
+            let b = (h / (Self::SPACINGS * spacing)).max(1.0);
+            (b.log2().floor().exp2() as u32).clamp(1, 1 << 10)
+        });
+        while dims.iter().map(|&d| d as u64).product::<u64>() > Self::MOST {
+            let a = (0..3).max_by_key(|&a| dims[a]).unwrap_or(0);
+            dims[a] /= 2;
+        }
+        Self { dims }
+    }
+
+    /// Blocks in all.
+    pub fn count(&self) -> usize {
+        self.dims.iter().map(|&d| d as usize).product()
+    }
+
+    /// The block of a point of the box (by its fractional coordinates,
+    /// clamped into the box).
+    pub fn of_point(&self, domain: &PeriodicBox, p: [f64; 3]) -> [u32; 3] {
+        let s = domain.fractional(p);
+        [0, 1, 2].map(|a| ((s[a] * self.dims[a] as f64).floor().max(0.0) as u32).min(self.dims[a] - 1))
+    }
+
+    /// A block's index (x fastest).
+    pub fn index(&self, b: [u32; 3]) -> usize {
+        let d = self.dims.map(|d| d as usize);
+        b[0] as usize + d[0] * (b[1] as usize + d[1] * b[2] as usize)
+    }
+
+    /// A block's place along the Morton curve (bits interleaved).
+    pub fn key(b: [u32; 3]) -> u64 {
+        let spread = |v: u32| {
+            let mut x = v as u64 & 0x1f_ffff;
+            x = (x | (x << 32)) & 0x1f_0000_0000_ffff;
+            x = (x | (x << 16)) & 0x1f_0000_ff00_00ff;
+            x = (x | (x << 8)) & 0x100f_00f0_0f00_f00f;
+            x = (x | (x << 4)) & 0x10c3_0c30_c30c_30c3;
+            (x | (x << 2)) & 0x1249_2492_4924_9249
+        };
+        spread(b[0]) | (spread(b[1]) << 1) | (spread(b[2]) << 2)
+    }
+
+    /// Every block's index, in Morton order.
+    pub fn in_order(&self) -> Vec<u32> {
+        let d = self.dims;
+        let mut all: Vec<(u64, u32)> = (0..d[2])
+            .flat_map(|z| (0..d[1]).flat_map(move |y| (0..d[0]).map(move |x| [x, y, z])))
+            .map(|b| (Self::key(b), self.index(b) as u32))
+            .collect();
+        all.sort_unstable();
+        all.into_iter().map(|(_, i)| i).collect()
+    }
+}
+
+/// The frame of a periodic job: the bounding box of its points (each
+/// part's, combined by their extremes, give the whole job's).
+pub(super) fn frame_of(points: impl Iterator<Item = [f64; 3]>) -> ([f64; 3], [f64; 3]) {
+    let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+    for p in points {
+        for a in 0..3 {
+            lo[a] = lo[a].min(p[a]);
+            hi[a] = hi[a].max(p[a]);
+        }
+    }
+    (lo, hi)
+}
+
+/// What orders a periodic job's points ([`crate::job::sites::Layout`]):
+/// the sites first, by block ([`Blocks`]), then by their place along a
+/// Morton curve in the frame, then by input index; the images and mirrors
+/// after, by their place along the curve, then by site, shift and wall.
+/// The same for a point whoever holds it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub(super) struct PointKey {
+    image: bool,
+    block: u64,
+    curve: u32,
+    site: u64,
+    shift: [i32; 3],
+    wall: u8,
+}
+
+impl PointKey {
+    /// The key of a site (`image` none) or of its image, at `p`.
+    pub fn of(
+        domain: &PeriodicBox,
+        blocks: &Blocks,
+        frame: &([f64; 3], [f64; 3]),
+        p: [f64; 3],
+        site: u64,
+        image: Option<([i32; 3], u8)>,
+    ) -> Self {
+        let (lo, hi) = frame;
+        let extent = (0..3).map(|a| hi[a] - lo[a]).fold(0.0f64, f64::max).max(f64::MIN_POSITIVE);
+        let q = |a: usize| ((((p[a] - lo[a]) / extent) * 1023.0).clamp(0.0, 1023.0)) as u32;
+        let curve = Blocks::key([q(0), q(1), q(2)]) as u32;
+        match image {
+            None => Self {
+                image: false,
+                block: Blocks::key(blocks.of_point(domain, p)),
+                curve,
+                site,
+                shift: [0; 3],
+                wall: NO_WALL,
+            },
+            Some((shift, wall)) => Self { image: true, block: 0, curve, site, shift, wall },
+        }
+    }
+}
+
+/// A face of a folded cell: neighbour, shift, area, normal.
+pub(super) type Face = (u32, [i32; 3], f64, [f64; 3]);
+
+/// A folded cell's faces, and its area and area vector on the walls.
+pub(super) type FoldedFaces = (Vec<Face>, f64, [f64; 3]);
+
+/// A site's volume, energy, centroid offset (unwrapped) and centroid
+/// (wrapped), from the cells `us` of `whole` (its own and its images',
+/// each about its point of `all`).
+pub(super) fn fold_site(
+    domain: &PeriodicBox,
+    site: [f64; 3],
+    all: &[[f64; 3]],
+    whole: &Cells,
+    us: impl Iterator<Item = usize>,
+) -> (f64, f64, [f64; 3], [f64; 3]) {
+    let (mut m, mut first, mut e) = (0.0, [0.0; 3], 0.0);
+    for u in us {
+        let v = whole.volume[u];
+        if v > 0.0 {
+            m += v;
+            e += whole.energy[u];
+            for a in 0..3 {
+                first[a] += v * (whole.centroid[u][a] - all[u][a]);
+            }
+        }
+    }
+    if m > 0.0 {
+        let offset = first.map(|f| f / m);
+        (m, e, offset, domain.wrap([0, 1, 2].map(|a| site[a] + offset[a])))
+    } else {
+        (m, e, [0.0; 3], site)
+    }
+}
+
+/// A site's faces from the faces of its cells `us` in `a`: by (neighbour's
+/// site, shift between them), in the order met, sorted (stably) and each
+/// run of one key summed in that order; a face with a mirror is on a wall
+/// (its area and area vector summed apart).
+pub(super) fn fold_faces(
+    a: &Adjacency,
+    us: impl Iterator<Item = usize>,
+    shift: impl Fn(usize) -> [i32; 3],
+    owner: impl Fn(usize) -> u32,
+    mirror: impl Fn(usize) -> bool,
+) -> FoldedFaces {
+    let mut faces: Vec<Face> = Vec::new();
+    let (mut wall, mut wall_vector) = (0.0, [0.0; 3]);
+    for u in us {
+        let su = shift(u);
+        for (v, area, normal) in a.of(u) {
+            if mirror(v as usize) {
+                wall += area;
+                for k in 0..3 {
+                    wall_vector[k] += area * normal[k];
+                }
+                continue;
+            }
+            let sv = shift(v as usize);
+            faces.push((owner(v as usize), [0, 1, 2].map(|k| sv[k] - su[k]), area, normal));
+        }
+    }
+    (merge_faces(faces), wall, wall_vector)
+}
+
+/// Faces sorted (stably) by (neighbour, shift), each run of one key summed
+/// in the order met.
+pub(super) fn merge_faces(mut faces: Vec<Face>) -> Vec<Face> {
+    faces.sort_by_key(|f| (f.0, f.1));
+    let mut row: Vec<Face> = Vec::with_capacity(faces.len());
+    for (j, s, area, normal) in faces {
+        match row.last_mut() {
+            Some(last) if (last.0, last.1) == (j, s) => last.2 += area,
+            _ => row.push((j, s, area, normal)),
+        }
+    }
+    row
 }
 
 /// The cells of `sites` from the diagram `whole` of `all` (the sites, then
@@ -558,65 +811,19 @@ fn fold(
     let mut energy = vec![0.0; n];
     let mut offsets = vec![[0.0; 3]; n];
     for i in 0..n {
-        let (mut m, mut first, mut e) = (0.0, [0.0; 3], 0.0);
-        for u in std::iter::once(i).chain(of[i].iter().copied()) {
-            let v = whole.volume[u];
-            if v > 0.0 {
-                m += v;
-                e += whole.energy[u];
-                for a in 0..3 {
-                    first[a] += v * (whole.centroid[u][a] - all[u][a]);
-                }
-            }
-        }
-        volume[i] = m;
-        energy[i] = e;
-        if m > 0.0 {
-            offsets[i] = first.map(|f| f / m);
-            centroid[i] = domain.wrap([0, 1, 2].map(|a| sites[i][a] + offsets[i][a]));
-        } else {
-            centroid[i] = sites[i];
-        }
+        let us = std::iter::once(i).chain(of[i].iter().copied());
+        (volume[i], energy[i], offsets[i], centroid[i]) = fold_site(domain, sites[i], all, whole, us);
     }
     let mut counters = whole.counters;
     let mut seen = std::collections::HashSet::new();
     counters.duplicate_sites = sites.iter().filter(|p| !seen.insert(p.map(f64::to_bits))).count() as u64;
     counters.empty_cells = volume.iter().filter(|&&v| v <= 0.0).count() as u64 - counters.duplicate_sites;
     let adjacency = whole.adjacency.as_ref().map(|a| {
-        // Per site: (neighbour, shift, area, normal), and the boundary's
-        // area and area vector.
-        type Face = (u32, [i32; 3], f64, [f64; 3]);
         let rows: Vec<(Vec<Face>, f64, [f64; 3])> = (0..n)
             .into_par_iter()
             .map(|i| {
-                // Faces by (neighbour, shift), in the order met: sorted
-                // (stably) and each run of one key summed in that order.
-                let mut faces: Vec<Face> = Vec::new();
-                let (mut wall, mut wall_vector) = (0.0, [0.0; 3]);
-                for u in std::iter::once(i).chain(of[i].iter().copied()) {
-                    let su = shift(u);
-                    for (v, area, normal) in a.of(u) {
-                        if mirror(v as usize) {
-                            wall += area;
-                            for k in 0..3 {
-                                wall_vector[k] += area * normal[k];
-                            }
-                            continue;
-                        }
-                        let sv = shift(v as usize);
-                        let key = (owner(v as usize) as u32, [0, 1, 2].map(|k| sv[k] - su[k]));
-                        faces.push((key.0, key.1, area, normal));
-                    }
-                }
-                faces.sort_by_key(|f| (f.0, f.1));
-                let mut row: Vec<Face> = Vec::with_capacity(faces.len());
-                for (j, s, area, normal) in faces {
-                    match row.last_mut() {
-                        Some(last) if (last.0, last.1) == (j, s) => last.2 += area,
-                        _ => row.push((j, s, area, normal)),
-                    }
-                }
-                (row, wall, wall_vector)
+                let us = std::iter::once(i).chain(of[i].iter().copied());
+                fold_faces(a, us, shift, |v| owner(v) as u32, mirror)
             })
             .collect();
         // A face with a mirror is seen from the cell's side only: half its

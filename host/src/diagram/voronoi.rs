@@ -11,7 +11,7 @@ use crate::geom::timing::Timings;
 use crate::job::clip::{default_k_site, paper_k, ClipJob, ClipOutput, Frame, JobShape, Pairing, Strategy};
 use crate::job::kept::{Candidates, Keep, KeptLists, LocalKept, SiteCandidates};
 use crate::job::knn::{KnnJob, KnnMethod};
-use crate::job::sites::SiteMap;
+use crate::job::sites::{Layout, SiteMap};
 use crate::job::BackendKind;
 use crate::passes::pieces::{PieceCollector, Pieces};
 use crate::passes::polyhedra::{merge_pieces, CellPolyhedron};
@@ -157,6 +157,9 @@ pub struct ClippedVoronoi<'a> {
     pub(crate) candidates: Option<&'a Candidates<'a>>,
     /// Most bytes the job may hold ([`Self::memory_budget`]).
     pub(crate) memory_budget: Option<u64>,
+    /// The sites' order, frame and answered ones, laid out by the caller
+    /// ([`Layout`]).
+    pub(crate) layout: Option<Layout<'a>>,
 }
 
 impl<'a> ClippedVoronoi<'a> {
@@ -178,7 +181,15 @@ impl<'a> ClippedVoronoi<'a> {
             keep: None,
             candidates: None,
             memory_budget: None,
+            layout: None,
         }
+    }
+
+    /// Whole cells laid out by the caller ([`Layout`]): the sites in its
+    /// order, the frame from its bounds, cells for its answered sites only.
+    pub(crate) fn layout(mut self, layout: Layout<'a>) -> Self {
+        self.layout = Some(layout);
+        self
     }
 
     /// Most memory the job may hold, in bytes: a job whose estimate
@@ -363,9 +374,20 @@ impl<'a> ClippedVoronoi<'a> {
         // input site to its place in that order.
         let weight = |i: usize| self.weights.map_or(0.0, |w| w[i]);
         // Periodic whole cells: the sites answered for come first.
-        let answered = self.answered();
-        let (inputs, map) = crate::job::sites::unique_in_morton_order(self.sites, self.weights, answered);
-        let own = inputs.iter().filter(|&&i| (i as usize) < answered).count();
+        let (inputs, map, own) = match &self.layout {
+            Some(layout) => {
+                if strategy != Strategy::Whole {
+                    return Err(Error::Internal("a job laid out by its caller runs whole cells".into()));
+                }
+                crate::job::sites::unique_in_order(self.sites, self.weights, layout)?
+            }
+            None => {
+                let answered = self.answered();
+                let (inputs, map) = crate::job::sites::unique_in_morton_order(self.sites, self.weights, answered);
+                let own = inputs.iter().filter(|&&i| (i as usize) < answered).count();
+                (inputs, map, 0..own)
+            }
+        };
 
         let frame = Frame::of(mesh);
         let sites: Vec<[f64; 3]> = inputs.iter().map(|&i| frame.to_local(self.sites[i as usize])).collect();
@@ -391,6 +413,13 @@ impl<'a> ClippedVoronoi<'a> {
         }
         let verts: Vec<[f64; 3]> = mesh.vertices.iter().map(|&p| frame.to_local(p)).collect();
         let mut local_mesh = TetMesh { vertices: verts, tets: mesh.tets.clone() };
+        // The frame's points: the mesh, and a layout's bounds (the sites lie
+        // inside them).
+        let mut frame_points = local_mesh.vertices.clone();
+        if let Some(l) = &self.layout {
+            let (lo, hi) = (frame.to_local(l.lo), frame.to_local(l.hi));
+            frame_points.extend((0..8).map(|c| [0, 1, 2].map(|a| if c >> a & 1 == 0 { lo[a] } else { hi[a] })));
+        }
         let tet_order = points::morton_order_by(mesh.tets.len(), |t| local_mesh.centroid(t));
         local_mesh.tets = tet_order.iter().map(|&t| mesh.tets[t as usize]).collect();
         let n = sites.len();
@@ -400,15 +429,20 @@ impl<'a> ClippedVoronoi<'a> {
         };
         // One frame and grid for both k-NN jobs, covering the mesh: sites
         // that move (Lloyd) stay inside it.
-        let mut site_knn =
-            KnnJob::sites_in_frame(&sites, &local_mesh.vertices, self.resolved_k_site(), KnnMethod::Grid)?;
+        let mut site_knn = KnnJob::sites_in_frame(&sites, &frame_points, self.resolved_k_site(), KnnMethod::Grid)?;
         // Whole cells are built for the sites answered for alone (a
         // periodic box's images get none): only their lists are needed.
-        let listed = if strategy == Strategy::Whole { own } else { n };
-        site_knn = site_knn.answering_first(listed);
+        let listed = if strategy == Strategy::Whole { own.clone() } else { 0..n };
+        if let Some(l) = &self.layout {
+            site_knn = site_knn.with_grid_for(&frame_points, l.grid_sites);
+        }
+        site_knn = site_knn.answering(listed.clone());
+        if self.keep.is_some() && listed.start > 0 {
+            return Err(Error::Internal("lists are kept for the first sites only".into()));
+        }
         let keep = self.keep.filter(|_| strategy == Strategy::Whole).map(|kk| Keep {
             k: kk.max(site_knn.params.k as usize).min(n.saturating_sub(1)) as u32,
-            candidates: self.candidates.map(|c| local_candidates(c, &inputs, listed, &map, &site_knn, frame.scale)),
+            candidates: self.candidates.map(|c| local_candidates(c, &inputs, listed.end, &map, &site_knn, frame.scale)),
         });
         drop(inputs);
         // Its queries come when it runs (ClipJob::tet_knn_job).
@@ -421,7 +455,10 @@ impl<'a> ClippedVoronoi<'a> {
         }
 
         // Box for Algorithm 1 (mesh and sites, with a margin).
-        let (lo, hi) = crate::geom::vec3::bounding_box(sites.iter().chain(&local_mesh.vertices));
+        let (lo, hi) = match &self.layout {
+            Some(_) => crate::geom::vec3::bounding_box(frame_points.iter()),
+            None => crate::geom::vec3::bounding_box(sites.iter().chain(&local_mesh.vertices)),
+        };
         let diag = (0..3).map(|a| (hi[a] - lo[a]).powi(2)).sum::<f64>().sqrt();
         let margin = 0.01 * diag.max(1e-3);
         // Per-site sums, and their total over all sites, are at most (mesh
@@ -456,10 +493,10 @@ impl<'a> ClippedVoronoi<'a> {
             k_tet: tet_knn.params.k,
             fixed_scale: bits.exp2() as f32,
             tet_base: 0,
-            nbr_base: 0,
-            nbr_end: listed as u32,
-            own_lo: 0,
-            own_hi: own as u32,
+            nbr_base: listed.start as u32,
+            nbr_end: listed.end as u32,
+            own_lo: own.start as u32,
+            own_hi: own.end as u32,
             box_lo_x: (lo[0] - margin) as f32,
             box_lo_y: (lo[1] - margin) as f32,
             box_lo_z: (lo[2] - margin) as f32,
@@ -503,7 +540,7 @@ impl<'a> ClippedVoronoi<'a> {
             .enumerate()
             .map(|(v, &p)| SplitPoint::new(p, self.density.map_or(1.0, |rho| rho[v] as f32)))
             .collect();
-        let whole = match (self.density, self.images_from) {
+        let whole = match (self.density, self.images_from.or(self.layout.map(|_| 0))) {
             (Some(_), _) => domain_whole::NONE,
             (None, Some(_)) => domain_whole::ALL,
             (None, None) => domain_whole::INSIDE,
@@ -655,8 +692,8 @@ impl ClippedVoronoi<'_> {
         let k = job.params.k_site as usize;
         let n = job.params.n_sites;
         let mut cpu = None;
-        let listed = job.site_knn.params.n_queries as usize;
-        let lists = if lists.k as usize == k && lists.view(0).slot(listed - 1) != NO_LIST {
+        let (base, listed) = (job.site_knn.params.query_base, job.site_knn.params.n_queries as usize);
+        let lists = if lists.k as usize == k && lists.view(base).slot(base as usize + listed - 1) != NO_LIST {
             lists
         } else {
             drop(lists);
@@ -664,7 +701,7 @@ impl ClippedVoronoi<'_> {
             c.packed_lists(&job.site_knn, cvd_kernels::lists::width(n))?
         };
         let (mut faces, incomplete) =
-            crate::passes::faces::from_sums(sums, &lists.view(0), k, job.params.area_scale as f64);
+            crate::passes::faces::from_sums(sums, &lists.view(base), k, job.params.area_scale as f64);
         drop(lists);
         if !incomplete.is_empty() {
             // Those sites' own pieces, else every piece again.

@@ -112,11 +112,23 @@ impl KnnJob {
         Ok(job)
     }
 
-    /// The same job answering only its first `m` sites, in index order (a
-    /// periodic box's whole cells: the images need no list).
-    pub fn answering_first(mut self, m: usize) -> Self {
-        if self.params.exclude_self != 0 && m < self.queries.len() {
-            self.params.n_queries = m as u32;
+    /// The same job over a grid sized for `n` sites in the frame of its
+    /// sites and `frame` (a part of a job laid out by its caller searches
+    /// the whole job's grid, so that its walks meet the sites in the same
+    /// order).
+    pub fn with_grid_for(mut self, frame: &[[f64; 3]], n: usize) -> Self {
+        let frame = self.quantizer.quantize_all(frame);
+        let sites = self.params.grid.n_sites;
+        self.params.grid = GridParams { n_sites: sites, ..grid_over(self.sites.iter().chain(&frame), n) };
+        self
+    }
+
+    /// The same job answering only its sites `range`, in index order (a
+    /// periodic box's whole cells in parts: the sites of a part).
+    pub fn answering(mut self, range: std::ops::Range<usize>) -> Self {
+        if self.params.exclude_self != 0 && (range.start > 0 || range.end < self.queries.len()) {
+            self.params.query_base = range.start as u32;
+            self.params.n_queries = range.len() as u32;
             self.params.in_order = 1;
         }
         self

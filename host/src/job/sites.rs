@@ -132,6 +132,78 @@ pub(crate) fn unique_in_morton_order(sites: &[[f64; 3]], weights: Option<&[f64]>
     (inputs, SiteMap(map))
 }
 
+/// A job whose caller lays its sites out (a periodic box's whole cells,
+/// in one process or in parts): the sites in the order given, the frame
+/// from bounds given, cells for the sites at some places of that order
+/// only. The quantization, the sums' fixed point and each cell's first box
+/// then follow from the bounds and not from the sites held, and a site's
+/// neighbours keep their order among themselves, ties included: a part
+/// that holds every site near its own, laid out in the same order, builds
+/// its cells to the same bits as the whole job.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Layout<'a> {
+    /// The input index of each place, every input once.
+    pub order: &'a [u32],
+    /// The frame's corners, in the input's coordinates; every site lies
+    /// between them.
+    pub lo: [f64; 3],
+    /// See `lo`.
+    pub hi: [f64; 3],
+    /// The sites (and images) of the whole job: the size of its grid,
+    /// which a part searches too.
+    pub grid_sites: usize,
+    /// The places (in `order`) of the sites that get cells: from the
+    /// first, up to the second.
+    pub answer: (usize, usize),
+}
+
+/// [`unique_in_morton_order`] for a [`Layout`]: the sites in its order,
+/// each group of duplicates kept at the place of the one that owns their
+/// cell (the largest weight, the earliest place on a tie). Also the places
+/// of the answered sites among those kept.
+pub(crate) fn unique_in_order(
+    sites: &[[f64; 3]],
+    weights: Option<&[f64]>,
+    layout: &Layout,
+) -> Result<(Vec<u32>, SiteMap, std::ops::Range<usize>)> {
+    let order = layout.order;
+    let (first, end) = layout.answer;
+    if order.len() != sites.len() || first > end || end > order.len() {
+        return Err(Error::Internal(format!(
+            "a layout of {} places (answering {:?}) for {} sites",
+            order.len(),
+            layout.answer,
+            sites.len()
+        )));
+    }
+    let weight = |i: usize| weights.map_or(0.0, |w| w[i]);
+    let key = |i: usize| sites[i].map(|c| if c == 0.0 { 0 } else { c.to_bits() });
+    let mut table = IndexTable::with_capacity(sites.len());
+    let mut seen = vec![false; sites.len()];
+    for &i in order {
+        let i = i as usize;
+        if i >= sites.len() || std::mem::replace(&mut seen[i], true) {
+            return Err(Error::Internal(format!("a layout places input {i} of {} twice or beyond", sites.len())));
+        }
+        let s = table.find(i, key);
+        match table.slots[s] {
+            NONE => table.slots[s] = i as u32,
+            o if weight(i) > weight(o as usize) => table.slots[s] = i as u32,
+            _ => {}
+        }
+    }
+    let owns = |i: u32| table.slots[table.find(i as usize, key)] == i;
+    let before = |place: usize| order[..place].iter().filter(|&&i| owns(i)).count();
+    let answer = before(first)..before(end);
+    let inputs: Vec<u32> = order.iter().copied().filter(|&i| owns(i)).collect();
+    drop(table);
+    let mut map = vec![NONE; sites.len()];
+    for (place, &i) in inputs.iter().enumerate() {
+        map[i as usize] = place as u32;
+    }
+    Ok((inputs, SiteMap(map), answer))
+}
+
 /// Refuses distinct sites the kernels could not tell apart: those whose
 /// normalised coordinates, split into `hi + lo` (`split`, the kernels'
 /// sites in order, of the input sites `inputs`), are equal. Names them by

@@ -197,7 +197,7 @@ pub(crate) fn from_sums(sums: Vec<i64>, lists: &Lists, k: usize, area_scale: f64
     // list to look it up in), by maker.
     let row_of = |u: usize, s: &[i64], row: &mut Vec<(u32, i64)>| {
         row.clear();
-        row.extend((0..k).filter(|&q| s[q] != 0).map(|q| (lists.get(u, q), s[q])));
+        row.extend((0..k).filter(|&q| s[q] != 0).map(|q| (lists.get(lists.slot(u), q), s[q])));
         for spill in 0..FACE_SPILLS {
             let (key, area) = (s[k + 5 + 2 * spill], s[k + 6 + 2 * spill]);
             if key != 0 && area != 0 {
@@ -332,18 +332,18 @@ pub(crate) fn assemble(faces: FaceRows, map: &crate::job::sites::SiteMap, sites:
     let l2 = scale * scale;
     by_job.into_par_iter().enumerate().for_each_init(Vec::new, |row, (u, ((js, as_), ns))| {
         let p = at[u];
-        let face = |v: u32, area: f64| {
+        // Each side's half, scaled, the cell's own first: a diagram in
+        // parts adds the other side's half, from another part, the same way.
+        let face = |v: u32, own: f64, other: f64| {
             let q = at[v as usize];
             let d = [q[0] - p[0], q[1] - p[1], q[2] - p[2]];
             let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-            (owner[v as usize], area * l2, d.map(|c| c / len))
+            (owner[v as usize], 0.5 * own * l2 + 0.5 * other * l2, d.map(|c| c / len))
         };
         let (vs, areas) = faces.row(u);
         row.clear();
-        row.extend(
-            vs.iter().zip(areas).map(|(&v, &a)| face(v, 0.5 * (a + faces.area(v as usize, u as u32).unwrap_or(0.0)))),
-        );
-        row.extend(extra(u).iter().map(|&(_, v, a)| face(v, 0.5 * a)));
+        row.extend(vs.iter().zip(areas).map(|(&v, &a)| face(v, a, faces.area(v as usize, u as u32).unwrap_or(0.0))));
+        row.extend(extra(u).iter().map(|&(_, v, a)| face(v, a, 0.0)));
         row.sort_unstable_by_key(|e: &(u32, f64, [f64; 3])| e.0);
         for (k, &(j, a, n)) in row.iter().enumerate() {
             (js[k], as_[k], ns[k]) = (j, a, n);

@@ -47,6 +47,13 @@ pub trait Reduce: Send + Sync {
     /// Replaces `values` on every rank by their sums over all ranks (the
     /// same on every rank).
     fn sum(&self, values: &mut [i64]) -> Result<()>;
+    /// Replaces `values` on every rank by their largest over all ranks.
+    fn max(&self, values: &mut [f64]) -> Result<()>;
+    /// Every rank's `mine`, by rank (the same on every rank).
+    fn all_gather(&self, mine: &[u8]) -> Result<Vec<Vec<u8>>>;
+    /// Sends `to[q]` to rank `q` (one buffer per rank) and returns what each
+    /// rank sent this one, by rank.
+    fn exchange(&self, to: Vec<Vec<u8>>) -> Result<Vec<Vec<u8>>>;
     /// What the ranks are, for reports (e.g. `MPI, 4 ranks`).
     fn describe(&self) -> String;
 }
@@ -65,8 +72,101 @@ impl Reduce for OneProcess {
     fn sum(&self, _values: &mut [i64]) -> Result<()> {
         Ok(())
     }
+    fn max(&self, _values: &mut [f64]) -> Result<()> {
+        Ok(())
+    }
+    fn all_gather(&self, mine: &[u8]) -> Result<Vec<Vec<u8>>> {
+        Ok(vec![mine.to_vec()])
+    }
+    fn exchange(&self, to: Vec<Vec<u8>>) -> Result<Vec<Vec<u8>>> {
+        if to.len() != 1 {
+            return Err(Error::Internal(format!("{} buffers exchanged in one process", to.len())));
+        }
+        Ok(to)
+    }
     fn describe(&self) -> String {
         "one process".into()
+    }
+}
+
+/// `size` ranks in one process, one per thread (a run in parts tested, or
+/// run, without MPI): each collective waits for every rank.
+pub struct InProcess {
+    rank: usize,
+    shared: std::sync::Arc<Shared>,
+}
+
+/// What the ranks of [`InProcess`] share: a slot per rank, and a barrier.
+struct Shared {
+    slots: Mutex<Vec<Vec<Vec<u8>>>>,
+    barrier: std::sync::Barrier,
+}
+
+impl InProcess {
+    /// The `size` ranks, to be moved each to its own thread.
+    pub fn ranks(size: usize) -> Vec<Self> {
+        let shared = std::sync::Arc::new(Shared {
+            slots: Mutex::new(vec![Vec::new(); size]),
+            barrier: std::sync::Barrier::new(size),
+        });
+        (0..size).map(|rank| Self { rank, shared: shared.clone() }).collect()
+    }
+
+    /// Puts `mine` (a buffer per rank) in this rank's slot and returns
+    /// every rank's buffer for this one.
+    fn swap(&self, mine: Vec<Vec<u8>>, each: bool) -> Vec<Vec<u8>> {
+        let lock = || self.shared.slots.lock().unwrap_or_else(|e| e.into_inner());
+        lock()[self.rank] = mine;
+        self.shared.barrier.wait();
+        let got = lock().iter().map(|s| s[if each { self.rank } else { 0 }].clone()).collect();
+        self.shared.barrier.wait();
+        got
+    }
+}
+
+impl Reduce for InProcess {
+    fn rank(&self) -> usize {
+        self.rank
+    }
+    fn size(&self) -> usize {
+        self.shared.barrier_size()
+    }
+    fn sum(&self, values: &mut [i64]) -> Result<()> {
+        let all = self.swap(vec![bytemuck::cast_slice(values).to_vec()], false);
+        values.fill(0);
+        for b in all {
+            for (v, w) in values.iter_mut().zip(b.as_chunks::<8>().0) {
+                *v += i64::from_ne_bytes(*w);
+            }
+        }
+        Ok(())
+    }
+    fn max(&self, values: &mut [f64]) -> Result<()> {
+        let all = self.swap(vec![bytemuck::cast_slice(values).to_vec()], false);
+        for b in all {
+            for (v, w) in values.iter_mut().zip(b.as_chunks::<8>().0) {
+                *v = v.max(f64::from_ne_bytes(*w));
+            }
+        }
+        Ok(())
+    }
+    fn all_gather(&self, mine: &[u8]) -> Result<Vec<Vec<u8>>> {
+        Ok(self.swap(vec![mine.to_vec()], false))
+    }
+    fn exchange(&self, to: Vec<Vec<u8>>) -> Result<Vec<Vec<u8>>> {
+        if to.len() != self.size() {
+            return Err(Error::Internal(format!("{} buffers exchanged among {} ranks", to.len(), self.size())));
+        }
+        Ok(self.swap(to, true))
+    }
+    fn describe(&self) -> String {
+        format!("{} ranks in one process", self.size())
+    }
+}
+
+impl Shared {
+    fn barrier_size(&self) -> usize {
+        self.slots.lock().unwrap_or_else(|e| e.into_inner()).len()
     }
 }
 

@@ -4,9 +4,11 @@
 use super::Reduce;
 use crate::error::{Error, Result};
 use mpi::collective::SystemOperation;
+use mpi::datatype::{Partition, PartitionMut};
 use mpi::environment::Universe;
 use mpi::topology::SimpleCommunicator;
 use mpi::traits::*;
+use mpi::Count;
 use std::sync::Mutex;
 
 /// Most values one MPI call adds (its counts are `int`s).
@@ -78,7 +80,82 @@ impl Reduce for Mpi {
         Ok(())
     }
 
+    fn max(&self, values: &mut [f64]) -> Result<()> {
+        let world = &self.inner.lock().unwrap_or_else(|e| e.into_inner()).1;
+        let mut max = vec![0f64; values.len().min(CALL)];
+        for part in values.chunks_mut(CALL) {
+            let max = &mut max[..part.len()];
+            world.all_reduce_into(&part[..], max, SystemOperation::max());
+            part.copy_from_slice(max);
+        }
+        Ok(())
+    }
+
+    fn all_gather(&self, mine: &[u8]) -> Result<Vec<Vec<u8>>> {
+        let world = &self.inner.lock().unwrap_or_else(|e| e.into_inner()).1;
+        let mut lengths = vec![0u64; self.size];
+        world.all_gather_into(&(mine.len() as u64), &mut lengths[..]);
+        let (counts, displs) = counts_of(&lengths, "gathered")?;
+        let mut all = vec![0u8; lengths.iter().sum::<u64>() as usize];
+        {
+            let mut to = PartitionMut::new(&mut all[..], &counts[..], &displs[..]);
+            world.all_gather_varcount_into(mine, &mut to);
+        }
+        Ok(split(all, &lengths))
+    }
+
+    fn exchange(&self, to: Vec<Vec<u8>>) -> Result<Vec<Vec<u8>>> {
+        if to.len() != self.size {
+            return Err(Error::Internal(format!("{} buffers exchanged among {} ranks", to.len(), self.size)));
+        }
+        let world = &self.inner.lock().unwrap_or_else(|e| e.into_inner()).1;
+        let sent: Vec<u64> = to.iter().map(|b| b.len() as u64).collect();
+        let mut got = vec![0u64; self.size];
+        world.all_to_all_into(&sent[..], &mut got[..]);
+        let (send_counts, send_displs) = counts_of(&sent, "sent")?;
+        let (counts, displs) = counts_of(&got, "received")?;
+        let flat: Vec<u8> = to.concat();
+        drop(to);
+        let mut all = vec![0u8; got.iter().sum::<u64>() as usize];
+        {
+            let from = Partition::new(&flat[..], &send_counts[..], &send_displs[..]);
+            let mut into = PartitionMut::new(&mut all[..], &counts[..], &displs[..]);
+            world.all_to_all_varcount_into(&from, &mut into);
+        }
+        Ok(split(all, &got))
+    }
+
     fn describe(&self) -> String {
         format!("MPI, {} ranks: {}", self.size, self.library)
     }
+}
+
+/// MPI's counts and displacements (`int`s) of buffers of `lengths` bytes,
+/// or an error naming what does not fit them.
+fn counts_of(lengths: &[u64], what: &str) -> Result<(Vec<Count>, Vec<Count>)> {
+    let total: u64 = lengths.iter().sum();
+    if total > Count::MAX as u64 {
+        return Err(Error::TooLarge {
+            what: format!("the bytes {what} in one exchange between MPI ranks"),
+            needed: total,
+            limit: Count::MAX as u64,
+            of: "MPI's count (an int) per call".into(),
+        });
+    }
+    let counts: Vec<Count> = lengths.iter().map(|&l| l as Count).collect();
+    let displs: Vec<Count> = counts.iter().scan(0, |at, &c| Some(std::mem::replace(at, *at + c))).collect();
+    Ok((counts, displs))
+}
+
+/// `all` cut into buffers of `lengths` bytes.
+fn split(all: Vec<u8>, lengths: &[u64]) -> Vec<Vec<u8>> {
+    let mut at = 0;
+    lengths
+        .iter()
+        .map(|&l| {
+            let part = all[at..at + l as usize].to_vec();
+            at += l as usize;
+            part
+        })
+        .collect()
 }

@@ -1,0 +1,722 @@
+//! A periodic box's diagram in parts, over the ranks of a run: no rank
+//! holds the whole problem, and every cell comes out to the bit as in one
+//! process.
+//!
+//! Each rank starts with its own rows of the sites (a run of the input, as
+//! it read them: [`PeriodicVoronoi::compute_in_parts`]). The box is cut
+//! into blocks ([`Blocks`]: a power of two along each axis, numbered along
+//! a Morton curve); the ranks add up how many sites each block holds (one
+//! sum of a few thousand numbers) and each takes a run of blocks along the
+//! curve holding its share of the sites. The sites move to their blocks'
+//! ranks, and each rank receives, from the others, the sites, images and
+//! mirrors within a halo of its blocks — nothing else.
+//!
+//! The one-process diagram is laid out so that a part can repeat it
+//! ([`crate::job::sites::Layout`]): its frame follows from the box and the
+//! halo, its sites are ordered by block, then along a curve, then by index,
+//! and the halo comes from the largest distance of a query cell's centre to
+//! its nearest site. So a rank computes, in turn:
+//! - that distance over the query cells whose centres lie in its blocks,
+//!   from the sites and images within the first halo around them (wider if
+//!   a centre's nearest site lies farther) — the largest over the ranks is
+//!   the one process's, to the bit;
+//! - from it the halo `2H` and the images and mirrors of its own sites, as
+//!   the one process takes them; it receives every point within `2H` of its
+//!   blocks (a cell lies within `H` of its site, and the points that cut it
+//!   within `H` of the cell), and checks that each of its sites' `k_site`
+//!   nearest points lies within the halo too (else all ranks widen it and
+//!   exchange again), so that each list is the one process's, entry for
+//!   entry;
+//! - the whole cells of its own sites, in the one process's order and
+//!   frame, folded as the one process folds them; each cell's row goes
+//!   back to the rank that read its site.
+
+use crate::backend::Backend;
+use crate::backends::distributed::Reduce;
+use crate::diagram::periodic::{
+    coverage, fold_site, frame_of, images_within, merge_faces, mirrors_within, place_sites, Blocks, Face, FoldedFaces,
+    Image, PeriodicCells, PeriodicVoronoi, PointKey, NO_WALL, WHOLE_FRAME_TETS,
+};
+use crate::diagram::voronoi::{Cells, ClippedVoronoi, Counters};
+use crate::error::{Error, Result};
+use crate::exec::CpuBackend;
+use crate::geom::periodic_box::PeriodicBox;
+use crate::geom::timing::{timed, Timings};
+use crate::job::clip::Strategy;
+use crate::job::knn::{KnnJob, KnnMethod};
+use crate::job::sites::Layout;
+use crate::passes::faces::Adjacency;
+use bytemuck::{Pod, Zeroable};
+use rayon::prelude::*;
+
+/// A point a rank holds: a site (no shift, no wall) or an image of one.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct Held {
+    at: [f64; 3],
+    /// The site's input index.
+    site: u64,
+    shift: [i32; 3],
+    /// The wall it is mirrored in, or `NO_WALL`.
+    wall: u32,
+    /// The rank whose cell its site's is.
+    rank: u32,
+    _pad: u32,
+}
+
+impl Held {
+    fn site(at: [f64; 3], site: u64, rank: usize) -> Self {
+        Self { at, site, shift: [0; 3], wall: NO_WALL as u32, rank: rank as u32, _pad: 0 }
+    }
+
+    fn image(m: &Image, domain: &PeriodicBox, sites: &[[f64; 3]], ids: &[Held]) -> Self {
+        let of = ids[m.site as usize];
+        Self { at: m.at(domain, sites), shift: m.shift, wall: m.wall as u32, ..of }
+    }
+
+    fn is_mirror(&self) -> bool {
+        self.wall != NO_WALL as u32
+    }
+
+    /// Where the one process puts a mirror among its points: the sites'
+    /// own mirrors first, by site, then the images', by site and shift
+    /// (`images_within`'s order), each by wall.
+    fn mirror_order(&self) -> (bool, u64, [i32; 3], u32) {
+        let s = self.shift;
+        (s != [0; 3], self.site, [s[2], s[1], s[0]], self.wall)
+    }
+
+    fn is_site(&self) -> bool {
+        self.shift == [0; 3] && self.wall == NO_WALL as u32
+    }
+}
+
+/// A cell's row, sent back to the rank that read its site (its faces
+/// follow it).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct Row {
+    site: u64,
+    volume: f64,
+    centroid: [f64; 3],
+    energy: f64,
+    offset: [f64; 3],
+    wall: f64,
+    wall_vector: [f64; 3],
+    faces: u64,
+}
+
+/// A face of a row.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct FaceRow {
+    neighbor: u64,
+    shift: [i32; 3],
+    _pad: u32,
+    area: f64,
+    normal: [f64; 3],
+}
+
+/// What this rank's part of a diagram in parts did.
+#[derive(Clone, Debug, Default)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
+pub struct PartsReport {
+    /// This rank.
+    pub rank: usize,
+    /// Ranks.
+    pub ranks: usize,
+    /// The first input row this rank read.
+    pub first: u64,
+    /// The rows it read.
+    pub read: u64,
+    /// Sites in all.
+    pub total: u64,
+    /// Blocks of the box in all, and this rank's.
+    pub blocks: [u64; 2],
+    /// The sites whose cells this rank built.
+    pub owned: u64,
+    /// The points it held for them: its sites, and the sites, images and
+    /// mirrors of its halo.
+    pub held: u64,
+    /// The halo's width around its blocks.
+    pub halo: f64,
+    /// Times the ranks widened the halo.
+    pub widened: u32,
+    /// Bytes this rank sent to the others (itself excluded).
+    pub sent: u64,
+    /// Time per phase.
+    pub timings: Timings,
+}
+
+impl PeriodicVoronoi<'_> {
+    /// This rank's part of the diagram of the sites of all ranks of `comm`
+    /// (see the module's documentation): `self`'s sites are this rank's
+    /// rows of the input, the rows of rank 0 first, then rank 1's, and so
+    /// on. Returns the cells of this rank's rows — the same bits as the
+    /// diagram of all the sites in one process, neighbours by input index —
+    /// with the run's totals (counters, total volume, images), and what
+    /// the part did. Whole cells on the CPU; no weights, no polyhedra, no
+    /// kept lists yet.
+    pub fn compute_in_parts(&self, comm: &dyn Reduce) -> Result<(PeriodicCells, PartsReport)> {
+        if self.weights.is_some() {
+            return Err(Error::InvalidInput(
+                "power cells (weights or radii) are not computed in parts yet: run them in one process".into(),
+            ));
+        }
+        if self.strategy.is_some_and(|s| s != Strategy::Whole) {
+            return Err(Error::InvalidInput("a periodic box in parts is computed with whole cells".into()));
+        }
+        let own_cpu;
+        let backend: &dyn Backend = match self.backend {
+            Some(b) if b.kind() == crate::job::BackendKind::Cpu => b,
+            Some(_) => return Err(Error::InvalidInput("a periodic box in parts runs on the CPU backend".into())),
+            None => {
+                own_cpu = CpuBackend::new(None)?;
+                &own_cpu
+            }
+        };
+        let domain = self.domain;
+        let (rank, ranks) = (comm.rank(), comm.size());
+        let mut timings = Timings::default();
+        let clock = std::time::Instant::now();
+        let counts = gather_u64(comm, self.sites.len() as u64)?;
+        let first: u64 = counts[..rank].iter().sum();
+        let total: u64 = counts.iter().sum();
+        if total == 0 {
+            return Err(Error::InvalidInput("no sites".into()));
+        }
+        let reader = |site: u64| {
+            let mut at = 0;
+            counts.iter().position(|&c| {
+                at += c;
+                site < at
+            })
+        };
+        crate::job::sites::check_sites(self.sites, None).map_err(|e| at_row(e, first))?;
+        let (placed, on_walls) = place_sites(&domain, self.sites).map_err(|e| at_row(e, first))?;
+        let wrapped = placed.iter().zip(self.sites).filter(|(a, b)| a != b).count() - on_walls;
+        let spacing = (domain.volume() / total as f64).cbrt();
+
+        // Blocks: their sites counted by all, a run of them per rank.
+        let blocks = Blocks::of(&domain, total as usize);
+        let mut per_block = vec![0i64; blocks.count()];
+        for &p in &placed {
+            per_block[blocks.index(blocks.of_point(&domain, p))] += 1;
+        }
+        comm.sum(&mut per_block)?;
+        let owner = owners(&blocks, &per_block, ranks);
+        drop(per_block);
+        let mine = |p: [f64; 3]| owner[blocks.index(blocks.of_point(&domain, p))] as usize == rank;
+        let mut report = PartsReport {
+            rank,
+            ranks,
+            first,
+            read: self.sites.len() as u64,
+            total,
+            blocks: [blocks.count() as u64, owner.iter().filter(|&&r| r as usize == rank).count() as u64],
+            ..Default::default()
+        };
+
+        // The sites to their blocks' ranks.
+        let mut to = vec![Vec::new(); ranks];
+        for (i, &p) in placed.iter().enumerate() {
+            let r = owner[blocks.index(blocks.of_point(&domain, p))] as usize;
+            to[r].push(Held::site(p, first + i as u64, r));
+        }
+        let mut own: Vec<Held> = send(comm, to, &mut report.sent)?;
+        own.sort_unstable_by_key(|h| h.site);
+        let own_sites: Vec<[f64; 3]> = own.iter().map(|h| h.at).collect();
+        report.owned = own.len() as u64;
+        timings.push("blocks", clock.elapsed().as_secs_f64());
+
+        // The halo the one process takes: from the query cells in this
+        // rank's blocks, each with every point within its nearest's
+        // distance.
+        let clock = std::time::Instant::now();
+        let range = 0.0;
+        let first_halo = (2.0 * spacing * 2.0 * spacing + range).sqrt();
+        let images = images_within(&domain, &own_sites, first_halo);
+        let points: Vec<Held> =
+            own.iter().copied().chain(images.iter().map(|m| Held::image(m, &domain, &own_sites, &own))).collect();
+        let mut width = first_halo;
+        let reach = loop {
+            let held = spread(comm, &domain, &blocks, &owner, &points, width, &mut report.sent)?;
+            let at: Vec<[f64; 3]> = held.iter().map(|h| h.at).collect();
+            let (reach, nearest) = coverage(&domain, &at, spacing, mine);
+            let mut most = [reach, if nearest > width { nearest } else { 0.0 }];
+            comm.max(&mut most)?;
+            if most[1] == 0.0 {
+                break most[0];
+            }
+            width = most[1] * (1.0 + 1e-6);
+            report.widened += 1;
+        };
+        drop(points);
+        let halo = 2.0 * ((reach * reach + range).sqrt() * (1.0 + 1e-9));
+        let outermost = if halo > first_halo { halo } else { first_halo };
+        let mut images = images_within(&domain, &own_sites, outermost);
+        let before = images.len();
+        images.extend(mirrors_within(&domain, &own_sites, &images, halo));
+        let mut tally = [images.len() as i64, (images.len() - before) as i64, wrapped as i64, on_walls as i64];
+        comm.sum(&mut tally)?;
+        let points: Vec<Held> =
+            own.iter().copied().chain(images.iter().map(|m| Held::image(m, &domain, &own_sites, &own))).collect();
+        drop(images);
+        timings.push("halo", clock.elapsed().as_secs_f64());
+
+        // Every point within the halo of this rank's blocks, in the one
+        // process's order; wider until each own site's list lies inside.
+        let (lo, hi) = frame_of(points.iter().map(|h| h.at));
+        let mut extremes = [0, 1, 2, 3, 4, 5].map(|k| if k < 3 { -lo[k] } else { hi[k - 3] });
+        comm.max(&mut extremes)?;
+        let frame = ([0, 1, 2].map(|a| -extremes[a]), [0, 1, 2].map(|a| extremes[a + 3]));
+        let mesh = domain.mesh(WHOLE_FRAME_TETS);
+        let diagram = ClippedVoronoi::new(&mesh, &own_sites)
+            .faces(self.faces)
+            .strategy(Strategy::Whole)
+            .k_site(self.k_site)
+            .backend(backend)
+            .memory_budget(self.memory_budget);
+        let k_site = diagram.resolved_k_site();
+        let mut width = halo * (1.0 + 1e-6);
+        let (held, answer) = loop {
+            let (held, t) = timed(|| spread(comm, &domain, &blocks, &owner, &points, width, &mut report.sent));
+            timings.add("exchange", t);
+            let mut held = held?;
+            let (answer, t) = timed(|| order(&domain, &blocks, &frame, &mut held, &mine));
+            timings.add("order", t);
+            let (need, t) = timed(|| list_reach(backend, &held, answer.clone(), k_site));
+            timings.add("lists", t);
+            let need = need?;
+            let mut most = [if need > width { need } else { 0.0 }];
+            comm.max(&mut most)?;
+            if most[0] == 0.0 {
+                break (held, answer);
+            }
+            width = most[0] * (1.0 + 1e-6);
+            report.widened += 1;
+        };
+        drop(points);
+        report.held = held.len() as u64;
+        report.halo = width;
+
+        // This rank's cells, folded, and each row to its reader.
+        let at: Vec<[f64; 3]> = held.iter().map(|h| h.at).collect();
+        let order: Vec<u32> = (0..held.len() as u32).collect();
+        let layout = Layout {
+            order: &order,
+            lo: frame.0,
+            hi: frame.1,
+            grid_sites: (total + tally[0] as u64) as usize,
+            answer: (answer.start, answer.end),
+        };
+        let whole = if answer.is_empty() {
+            Cells { k_site, strategy: Strategy::Whole, ..Default::default() }
+        } else {
+            ClippedVoronoi { sites: &at, ..diagram }.layout(layout).compute()?
+        };
+        let clock = std::time::Instant::now();
+        let mut seen = std::collections::HashSet::new();
+        let duplicates = held[answer.clone()].iter().filter(|h| !seen.insert(h.at.map(f64::to_bits))).count() as u64;
+        drop(seen);
+        // Every rank takes part in the exchange of halves, with cells or not.
+        let none = Adjacency { offsets: vec![0], ..Default::default() };
+        let faces = match (self.faces, whole.adjacency()) {
+            (true, a) => self_and_halves(comm, a.unwrap_or(&none), &held, answer.clone(), &mut report.sent)?,
+            (false, _) => vec![(Vec::new(), 0.0, [0.0; 3]); answer.len()],
+        };
+        let mut to = vec![Vec::new(); ranks];
+        for (u, (faces, wall, wall_vector)) in answer.clone().zip(faces) {
+            let h = held[u];
+            let (volume, energy, offset, centroid) = fold_site(&domain, h.at, &at, &whole, std::iter::once(u));
+            let row =
+                Row { site: h.site, volume, centroid, energy, offset, wall, wall_vector, faces: faces.len() as u64 };
+            let r = reader(h.site).ok_or_else(|| Error::Internal(format!("site {} beyond the input", h.site)))?;
+            let out: &mut Vec<u8> = &mut to[r];
+            out.extend_from_slice(bytemuck::bytes_of(&row));
+            for (neighbor, shift, area, normal) in faces {
+                let f = FaceRow { neighbor: neighbor as u64, shift, _pad: 0, area, normal };
+                out.extend_from_slice(bytemuck::bytes_of(&f));
+            }
+        }
+        report.sent += to.iter().enumerate().filter(|&(r, _)| r != rank).map(|(_, b)| b.len() as u64).sum::<u64>();
+        let got = comm.exchange(to)?;
+        let cells = rows_of(&got, first, self.sites.len(), &placed, self.faces)?;
+        timings.push("rows", clock.elapsed().as_secs_f64());
+
+        // The run's totals.
+        let mut counters = counter_words(&whole.counters);
+        counters.push(duplicates as i64);
+        counters.push(cells.0.volume.iter().filter(|&&v| v <= 0.0).count() as i64);
+        comm.sum(&mut counters)?;
+        let mut c = counters_of(&counters);
+        c.duplicate_sites = counters[counters.len() - 2] as u64;
+        c.empty_cells = counters[counters.len() - 1] as u64 - c.duplicate_sites;
+        let sums = gather_f64(comm, cells.0.volume.iter().sum())?;
+        let total_volume: f64 = sums.iter().sum();
+        let mesh_volume = domain.volume();
+        let (cells, offsets) = (
+            Cells {
+                total_volume,
+                mesh_volume,
+                e_vol: (total_volume - mesh_volume).abs() / mesh_volume,
+                strategy: Strategy::Whole,
+                pairing: whole.pairing,
+                k: whole.k,
+                k_site,
+                counters: c,
+                chunks: ranks as u64,
+                timings: Timings::default(),
+                ..cells.0
+            },
+            cells.1,
+        );
+        let mut cells = cells;
+        cells.timings = timings.clone();
+        for (name, t) in &whole.timings.phases {
+            cells.timings.add(name, *t);
+        }
+        report.timings = cells.timings.clone();
+        Ok((
+            PeriodicCells {
+                cells,
+                sites: placed,
+                offsets,
+                wrapped: tally[2] as usize,
+                images: tally[0] as usize,
+                mirrors: tally[1] as usize,
+                on_walls: tally[3] as usize,
+                halo,
+                lists: None,
+                reused: 0,
+            },
+            report,
+        ))
+    }
+}
+
+/// An error about a site, its index moved from this rank's rows to the
+/// input's.
+fn at_row(e: Error, first: u64) -> Error {
+    if first == 0 {
+        return e;
+    }
+    match e {
+        Error::InvalidInput(m) => Error::InvalidInput(format!("{m} (counting from row {first} of the input)")),
+        e => e,
+    }
+}
+
+/// Each block's rank: runs of blocks along the curve, each holding about
+/// a rank's share of the sites (a block goes to the rank whose share its
+/// middle site falls in).
+fn owners(blocks: &Blocks, counts: &[i64], ranks: usize) -> Vec<u32> {
+    let total = counts.iter().sum::<i64>().max(1) as f64;
+    let mut owner = vec![0u32; blocks.count()];
+    let mut before = 0i64;
+    for b in blocks.in_order() {
+        let middle = before as f64 + counts[b as usize] as f64 / 2.0;
+        owner[b as usize] = ((middle * ranks as f64 / total) as usize).min(ranks - 1) as u32;
+        before += counts[b as usize];
+    }
+    owner
+}
+
+/// The half of a face a cell sends the rank of the cell on its other side.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct Half {
+    /// The other side's site, and the cell's own.
+    site: u64,
+    neighbor: u64,
+    /// The cell's site's image, seen from the other side.
+    shift: [i32; 3],
+    _pad: u32,
+    area: f64,
+    normal: [f64; 3],
+}
+
+/// The faces of this rank's cells (`answer` of `held`), as the one process
+/// folds them (`fold_faces`): a face is half the area from each side, the
+/// cell's own first; a side whose neighbour has no cell here (a site of
+/// another rank, or an image) gets the other half from the rank that built
+/// the neighbour's cell. A wall sums the cell's faces with mirrors in the
+/// one process's order, and again (the mirrors' rows there).
+fn self_and_halves(
+    comm: &dyn Reduce,
+    a: &Adjacency,
+    held: &[Held],
+    answer: std::ops::Range<usize>,
+    sent: &mut u64,
+) -> Result<Vec<FoldedFaces>> {
+    let mut to = vec![Vec::new(); comm.size()];
+    let mut own: Vec<Vec<Face>> = Vec::with_capacity(answer.len());
+    let mut walls = Vec::with_capacity(answer.len());
+    for u in answer.clone() {
+        let (mut faces, mut mirrors) = (Vec::new(), Vec::new());
+        for (v, area, normal) in a.of(u) {
+            let h = held[v as usize];
+            if h.is_mirror() {
+                mirrors.push((h.mirror_order(), area, normal));
+                continue;
+            }
+            faces.push((h.site as u32, h.shift, area, normal));
+            if !answer.contains(&(v as usize)) {
+                to[h.rank as usize].push(Half {
+                    site: h.site,
+                    neighbor: held[u].site,
+                    shift: h.shift.map(|s| -s),
+                    _pad: 0,
+                    area,
+                    // The one process's, from the other side: exactly
+                    // opposite (a zero stays +0).
+                    normal: normal.map(|c| 0.0 - c),
+                });
+            }
+        }
+        mirrors.sort_by_key(|m| m.0);
+        let (mut wall, mut wall_vector, mut half, mut half_vector) = (0.0, [0.0; 3], 0.0, [0.0; 3]);
+        for &(_, area, normal) in &mirrors {
+            wall += area;
+            half += area;
+            for k in 0..3 {
+                wall_vector[k] += area * normal[k];
+                half_vector[k] -= area * (0.0 - normal[k]);
+            }
+        }
+        own.push(faces);
+        walls.push((wall + half, [0, 1, 2].map(|k| wall_vector[k] + half_vector[k])));
+    }
+    let me = comm.rank();
+    *sent +=
+        to.iter().enumerate().filter(|&(r, _)| r != me).map(|(_, h)| (h.len() * size_of::<Half>()) as u64).sum::<u64>();
+    let got = comm.exchange(to.into_iter().map(|h| bytemuck::cast_slice(&h).to_vec()).collect())?;
+    let place: std::collections::HashMap<u64, usize> =
+        answer.clone().enumerate().map(|(k, u)| (held[u].site, k)).collect();
+    for h in got.iter().flat_map(|b| records::<Half>(b)) {
+        let k = place.get(&h.site).ok_or_else(|| Error::Internal(format!("a face of site {} sent astray", h.site)))?;
+        own[*k].push((h.neighbor as u32, h.shift, h.area, h.normal));
+    }
+    Ok(own
+        .into_iter()
+        .zip(walls)
+        // Each side's half in the order met: the cell's own, then the
+        // other's (as `fold_faces` adds a site's row, then its images').
+        .map(|(faces, (wall, wall_vector))| (merge_faces(faces), wall, wall_vector))
+        .collect())
+}
+
+/// Sends each of `points` to every rank with a block within `width` of it
+/// (by its distance to the blocks' slabs: a few more than needed), and
+/// returns what this rank received.
+fn spread(
+    comm: &dyn Reduce,
+    domain: &PeriodicBox,
+    blocks: &Blocks,
+    owner: &[u32],
+    points: &[Held],
+    width: f64,
+    sent: &mut u64,
+) -> Result<Vec<Held>> {
+    let h = domain.heights();
+    let dims = blocks.dims.map(|d| d as i64);
+    let reach = [0, 1, 2].map(|a| width / h[a]);
+    let chunks: Vec<Vec<Vec<Held>>> = points
+        .par_chunks(1 << 14)
+        .map(|chunk| {
+            let mut to = vec![Vec::new(); comm.size()];
+            let mut ranks: Vec<u32> = Vec::new();
+            for p in chunk {
+                let s = domain.fractional(p.at);
+                let lo = [0, 1, 2].map(|a| (((s[a] - reach[a]) * dims[a] as f64).floor() as i64).max(0));
+                let hi = [0, 1, 2].map(|a| (((s[a] + reach[a]) * dims[a] as f64).floor() as i64).min(dims[a] - 1));
+                ranks.clear();
+                for z in lo[2]..=hi[2] {
+                    for y in lo[1]..=hi[1] {
+                        for x in lo[0]..=hi[0] {
+                            let r = owner[blocks.index([x as u32, y as u32, z as u32])];
+                            if !ranks.contains(&r) {
+                                ranks.push(r);
+                            }
+                        }
+                    }
+                }
+                for &r in &ranks {
+                    to[r as usize].push(*p);
+                }
+            }
+            to
+        })
+        .collect();
+    let mut to: Vec<Vec<Held>> = vec![Vec::new(); comm.size()];
+    for chunk in chunks {
+        for (r, part) in chunk.into_iter().enumerate() {
+            to[r].extend(part);
+        }
+    }
+    send(comm, to, sent)
+}
+
+/// Exchanges points between the ranks (see [`Reduce::exchange`]).
+fn send(comm: &dyn Reduce, to: Vec<Vec<Held>>, sent: &mut u64) -> Result<Vec<Held>> {
+    let me = comm.rank();
+    *sent +=
+        to.iter().enumerate().filter(|&(r, _)| r != me).map(|(_, p)| (p.len() * size_of::<Held>()) as u64).sum::<u64>();
+    let bytes: Vec<Vec<u8>> = to.into_iter().map(|p| bytemuck::cast_slice(&p).to_vec()).collect();
+    let got = comm.exchange(bytes)?;
+    Ok(got.iter().flat_map(|b| records::<Held>(b)).collect())
+}
+
+/// Sorts `held` in the one process's order ([`PointKey`]) and returns the
+/// places of this rank's own sites (a run of them).
+fn order(
+    domain: &PeriodicBox,
+    blocks: &Blocks,
+    frame: &([f64; 3], [f64; 3]),
+    held: &mut Vec<Held>,
+    mine: &(impl Fn([f64; 3]) -> bool + Sync),
+) -> std::ops::Range<usize> {
+    let key = |h: &Held| {
+        let image = (!h.is_site()).then_some((h.shift, h.wall as u8));
+        PointKey::of(domain, blocks, frame, h.at, h.site, image)
+    };
+    let mut keyed: Vec<(PointKey, Held)> = held.par_iter().map(|h| (key(h), *h)).collect();
+    keyed.par_sort_unstable_by(|a, b| a.0.cmp(&b.0));
+    *held = keyed.into_iter().map(|(_, h)| h).collect();
+    let start = held.iter().position(|h| h.is_site() && mine(h.at)).unwrap_or(0);
+    let end = start + held[start..].iter().take_while(|h| h.is_site() && mine(h.at)).count();
+    start..end
+}
+
+/// The largest distance from a site of `answer` to its `k`-th nearest
+/// other point of `held` (rounded up by the quantization), infinite if it
+/// has fewer.
+fn list_reach(backend: &dyn Backend, held: &[Held], answer: std::ops::Range<usize>, k: usize) -> Result<f64> {
+    if answer.is_empty() {
+        return Ok(0.0);
+    }
+    let at: Vec<[f64; 3]> = held.iter().map(|h| h.at).collect();
+    let queries = &at[answer];
+    let job = KnnJob::points(&at, queries, k + 1, KnnMethod::Grid)?;
+    let nn = backend.knn(&job)?;
+    let kk = nn.k;
+    if kk < k + 1 {
+        return Ok(f64::INFINITY);
+    }
+    let scale = job.quantizer.scale();
+    let most = (0..queries.len()).map(|q| nn.dist2[q * kk + kk - 1]).max().unwrap_or(0);
+    Ok(((most as f64).sqrt() + 4.0) / scale)
+}
+
+/// The cells of this rank's `len` rows from `first`, from the rows the
+/// ranks sent it.
+fn rows_of(
+    got: &[Vec<u8>],
+    first: u64,
+    len: usize,
+    placed: &[[f64; 3]],
+    faces: bool,
+) -> Result<(Cells, Vec<[f64; 3]>)> {
+    let mut rows: Vec<Option<(Row, Vec<FaceRow>)>> = vec![None; len];
+    for bytes in got {
+        let mut at = 0;
+        while at < bytes.len() {
+            let row: Row = bytemuck::pod_read_unaligned(&bytes[at..at + size_of::<Row>()]);
+            at += size_of::<Row>();
+            let n = row.faces as usize;
+            let f: Vec<FaceRow> = (0..n)
+                .map(|k| bytemuck::pod_read_unaligned(&bytes[at + k * size_of::<FaceRow>()..][..size_of::<FaceRow>()]))
+                .collect();
+            at += n * size_of::<FaceRow>();
+            let i = row.site.checked_sub(first).filter(|&i| (i as usize) < len);
+            let i = i.ok_or_else(|| Error::Internal(format!("row {} sent to the reader of {first}..", row.site)))?;
+            rows[i as usize] = Some((row, f));
+        }
+    }
+    let mut cells = Cells::default();
+    let mut offsets = Vec::with_capacity(len);
+    let mut adj = Adjacency { offsets: vec![0], ..Default::default() };
+    for (i, row) in rows.into_iter().enumerate() {
+        let (row, f) =
+            row.ok_or_else(|| Error::Internal(format!("no cell came back for site {}", first + i as u64)))?;
+        debug_assert_eq!(row.centroid == placed[i], row.volume <= 0.0 || row.centroid == placed[i]);
+        cells.volume.push(row.volume);
+        cells.centroid.push(row.centroid);
+        cells.energy.push(row.energy);
+        offsets.push(row.offset);
+        for face in f {
+            adj.neighbors.push(face.neighbor as u32);
+            adj.shifts.push(face.shift);
+            adj.areas.push(face.area);
+            adj.normals.push(face.normal);
+        }
+        adj.offsets.push(adj.neighbors.len());
+        adj.boundary.push(row.wall + 0.0);
+        adj.boundary_vector.push(row.wall_vector.map(|v| v + 0.0));
+    }
+    cells.adjacency = faces.then_some(adj);
+    Ok((cells, offsets))
+}
+
+/// The records of type `T` in `bytes`, one after another.
+fn records<T: Pod>(bytes: &[u8]) -> impl Iterator<Item = T> + '_ {
+    let size = size_of::<T>();
+    (0..bytes.len() / size).map(move |k| bytemuck::pod_read_unaligned(&bytes[k * size..][..size]))
+}
+
+/// Each rank's `value`, by rank.
+fn gather_u64(comm: &dyn Reduce, value: u64) -> Result<Vec<u64>> {
+    Ok(comm.all_gather(&value.to_le_bytes())?.iter().map(|b| bytemuck::pod_read_unaligned::<u64>(b)).collect())
+}
+
+/// Each rank's `value`, by rank.
+fn gather_f64(comm: &dyn Reduce, value: f64) -> Result<Vec<f64>> {
+    Ok(comm.all_gather(&value.to_le_bytes())?.iter().map(|b| bytemuck::pod_read_unaligned::<f64>(b)).collect())
+}
+
+/// The counters as numbers to add across ranks.
+fn counter_words(c: &Counters) -> Vec<i64> {
+    [
+        c.pairs,
+        c.nonempty,
+        c.filtered,
+        c.clips,
+        c.security_missed,
+        c.overflows,
+        c.broken,
+        c.walks,
+        c.second_pass,
+        c.unresolved,
+        c.missed_tets,
+        c.faces_redone,
+        c.out_of_halo,
+        c.whole_cells,
+        c.cut_cells,
+    ]
+    .map(|v| v as i64)
+    .to_vec()
+}
+
+/// [`counter_words`] back.
+fn counters_of(w: &[i64]) -> Counters {
+    let v = |i: usize| w[i].max(0) as u64;
+    Counters {
+        pairs: v(0),
+        nonempty: v(1),
+        filtered: v(2),
+        clips: v(3),
+        security_missed: v(4),
+        overflows: v(5),
+        broken: v(6),
+        walks: v(7),
+        second_pass: v(8),
+        unresolved: v(9),
+        missed_tets: v(10),
+        faces_redone: v(11),
+        out_of_halo: v(12),
+        whole_cells: v(13),
+        cut_cells: v(14),
+        duplicate_sites: 0,
+        empty_cells: 0,
+    }
+}

@@ -1,0 +1,131 @@
+//! A periodic box in parts (`PeriodicVoronoi::compute_in_parts`): ranks
+//! that each hold a run of the input rows, and only the sites near their
+//! blocks, give every cell to the bit as the whole diagram in one process
+//! — volumes, centroids, energies, faces with their neighbours, shifts and
+//! walls — for 1 to 5 ranks (threads of one process here; MPI's ranks in
+//! `cli/tests/mpi.rs`), on a crowd with a tight cluster in a triclinic
+//! cell, a lattice (every distance a tie), a slab with walls and a box
+//! with duplicated sites; and no rank holds all the sites.
+
+use cvd::backends::distributed::InProcess;
+use cvd::diagram::periodic_parts::PartsReport;
+use cvd::{geom::points, CpuBackend, PeriodicBox, PeriodicCells, PeriodicVoronoi};
+
+/// A crowd with a tight cluster (one tenth, 1e-2 of the cell across).
+fn crowd(b: &PeriodicBox, n: usize, seed: u64) -> Vec<[f64; 3]> {
+    let crowd = points::uniform(n - n / 10, seed);
+    let blob = points::clustered(n / 10, 1, 0.01, seed + 1);
+    crowd.iter().chain(&blob).map(|&s| b.cartesian(s)).collect()
+}
+
+/// The diagram of `sites` in `ranks` parts, each rank's rows its run of
+/// the input (rank `r` the rows `n r / ranks ..`), each on one thread.
+fn in_parts(b: PeriodicBox, sites: &[[f64; 3]], ranks: usize) -> Vec<(PeriodicCells, PartsReport)> {
+    let n = sites.len();
+    std::thread::scope(|scope| {
+        let handles: Vec<_> = InProcess::ranks(ranks)
+            .into_iter()
+            .enumerate()
+            .map(|(r, comm)| {
+                let rows = &sites[n * r / ranks..n * (r + 1) / ranks];
+                scope.spawn(move || {
+                    let cpu = CpuBackend::new(Some(1)).unwrap();
+                    PeriodicVoronoi::new(b, rows).faces(true).backend(&cpu).compute_in_parts(&comm).unwrap()
+                })
+            })
+            .collect();
+        handles.into_iter().map(|h| h.join().unwrap()).collect()
+    })
+}
+
+/// Every row of the parts, in order, equals the one process's, bit for bit.
+fn same_cells(name: &str, whole: &PeriodicCells, parts: &[(PeriodicCells, PartsReport)]) {
+    let a = whole.cells.adjacency().unwrap();
+    let mut i = 0;
+    for (part, report) in parts {
+        assert_eq!(report.first, i as u64, "{name}: rank {}'s first row", report.rank);
+        let p = part.cells.adjacency().unwrap();
+        for r in 0..part.cells.volume.len() {
+            let bits = |x: f64| x.to_bits();
+            assert_eq!(bits(part.cells.volume[r]), bits(whole.cells.volume[i]), "{name}: site {i}'s volume");
+            assert_eq!(part.cells.centroid[r].map(bits), whole.cells.centroid[i].map(bits), "{name}: site {i}");
+            assert_eq!(bits(part.cells.energy[r]), bits(whole.cells.energy[i]), "{name}: site {i}'s energy");
+            assert_eq!(part.offsets[r].map(bits), whole.offsets[i].map(bits), "{name}: site {i}'s offset");
+            assert_eq!(part.sites[r].map(bits), whole.sites[i].map(bits), "{name}: site {i} wrapped");
+            let (x, y) = (p.offsets[r]..p.offsets[r + 1], a.offsets[i]..a.offsets[i + 1]);
+            assert_eq!(p.neighbors[x.clone()], a.neighbors[y.clone()], "{name}: site {i}'s neighbours");
+            assert_eq!(p.shifts[x.clone()], a.shifts[y.clone()], "{name}: site {i}'s shifts");
+            let areas = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(areas(&p.areas[x.clone()]), areas(&a.areas[y.clone()]), "{name}: site {i}'s areas");
+            let normals = |v: &[[f64; 3]]| v.iter().map(|n| n.map(f64::to_bits)).collect::<Vec<_>>();
+            assert_eq!(normals(&p.normals[x]), normals(&a.normals[y]), "{name}: site {i}'s normals");
+            assert_eq!(bits(p.boundary[r]), bits(a.boundary[i]), "{name}: site {i}'s wall area");
+            assert_eq!(p.boundary_vector[r].map(bits), a.boundary_vector[i].map(bits), "{name}: site {i}");
+            i += 1;
+        }
+        assert_eq!(part.cells.counters, whole.cells.counters, "{name}: counters, rank {}", report.rank);
+        assert_eq!((part.images, part.mirrors, part.wrapped), (whole.images, whole.mirrors, whole.wrapped), "{name}");
+        assert_eq!(part.halo.to_bits(), whole.halo.to_bits(), "{name}: the halo");
+        assert!((part.cells.total_volume - whole.cells.total_volume).abs() <= 1e-12 * whole.cells.total_volume);
+    }
+    assert_eq!(i, whole.cells.volume.len(), "{name}: every row");
+}
+
+fn check(name: &str, b: PeriodicBox, sites: &[[f64; 3]], most_ranks: usize) {
+    let cpu = CpuBackend::new(Some(1)).unwrap();
+    let whole = PeriodicVoronoi::new(b, sites).faces(true).backend(&cpu).compute().unwrap();
+    for ranks in 1..=most_ranks {
+        let parts = in_parts(b, sites, ranks);
+        same_cells(&format!("{name}, {ranks} ranks"), &whole, &parts);
+        let owned: u64 = parts.iter().map(|p| p.1.owned).sum();
+        assert_eq!(owned, sites.len() as u64, "{name}: every site owned once");
+        if ranks > 1 {
+            for (_, r) in &parts {
+                assert!(r.held < sites.len() as u64 + whole.images as u64, "{name}: rank {} holds {}", r.rank, r.held);
+                assert!(r.owned < sites.len() as u64, "{name}: rank {} owns every site", r.rank);
+            }
+        }
+    }
+}
+
+#[test]
+fn a_crowd_with_a_cluster_in_a_triclinic_cell_in_parts_is_the_one_process_diagram() {
+    let n = 6000;
+    let l = (n as f64).cbrt();
+    let b = PeriodicBox::lammps([0.0; 3], [l; 3], [0.2 * l, -0.1 * l, 0.15 * l]).unwrap();
+    let mut sites = crowd(&b, n, 5);
+    // Some given outside the cell (wrapped), and a few duplicated.
+    for i in (0..n).step_by(97) {
+        sites[i] = b.shifted(sites[i], [1, -2, 0]);
+    }
+    for i in (1..n).step_by(501) {
+        sites[i] = sites[i - 1];
+    }
+    check("crowd", b, &sites, 5);
+}
+
+#[test]
+fn a_lattice_in_parts_is_the_one_process_diagram() {
+    // FCC, 12^3 cells: every site's neighbours at equal distances.
+    let m = 12;
+    let b = PeriodicBox::new([0.0; 3], [m as f64; 3]).unwrap();
+    let mut sites = Vec::new();
+    for z in 0..m {
+        for y in 0..m {
+            for x in 0..m {
+                for o in [[0.0, 0.0, 0.0], [0.5, 0.5, 0.0], [0.5, 0.0, 0.5], [0.0, 0.5, 0.5]] {
+                    sites.push([x as f64 + o[0], y as f64 + o[1], z as f64 + o[2]]);
+                }
+            }
+        }
+    }
+    check("fcc", b, &sites, 4);
+}
+
+#[test]
+fn a_slab_with_walls_in_parts_is_the_one_process_diagram() {
+    let n = 4000;
+    let b = PeriodicBox::new([0.0; 3], [20.0, 20.0, 10.0]).unwrap().with_periodic([true, true, false]);
+    let sites: Vec<[f64; 3]> = points::uniform(n, 8).iter().map(|p| b.cartesian(*p)).collect();
+    check("slab", b, &sites, 3);
+}
