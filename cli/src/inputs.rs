@@ -82,12 +82,15 @@ impl Inputs {
         }
         let name = match self.domain {
             Domain::Mesh(_) => self.name.as_str(),
-            Domain::Box(_) => "periodic",
+            Domain::Box(_) => PERIODIC_DIR,
         };
         let stem = Path::new(name).file_stem().map(|s| s.to_string_lossy().into_owned());
         Path::new("out").join(stem.filter(|s| !s.is_empty()).unwrap_or_else(|| "model".into()))
     }
 }
+
+/// The output folder's name for a periodic box (in `out/`).
+pub(crate) const PERIODIC_DIR: &str = "periodic";
 
 /// Refuses a run whose job of `sites` sites and `tets` tets would not fit
 /// in memory (`cvd::job::memory`), before its sites are made: against
@@ -276,7 +279,7 @@ pub fn per_site(path: &Path, what: &str, n_sites: usize) -> cvd::Result<Vec<f64>
 }
 
 /// The periodic box of `--periodic` / `--box`.
-fn periodic_box(args: &RunArgs) -> cvd::Result<PeriodicBox> {
+pub(crate) fn periodic_box(args: &RunArgs) -> cvd::Result<PeriodicBox> {
     let refuse = |what: &str| Err(cvd::Error::InvalidInput(format!("--periodic: {what}")));
     let given = [
         (args.mesh.is_some(), "--mesh"),

@@ -10,6 +10,7 @@ mod commands;
 mod frames;
 mod inputs;
 mod outputs;
+mod parts;
 mod progress;
 mod run;
 

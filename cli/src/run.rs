@@ -48,6 +48,17 @@ pub fn run(args: &RunArgs) -> cvd::Result<u8> {
     if let Some(file) = &args.particles {
         return crate::frames::run(args, file);
     }
+    // A periodic box started by an MPI launcher: in parts, each rank with
+    // its own rows.
+    if args.periodic() {
+        let (comm, warning) = cvd::backends::distributed::launched_comm()?;
+        if let Some(warning) = warning {
+            eprintln!("cvd: {warning}");
+        }
+        if let Some(comm) = comm {
+            return crate::parts::run(args, comm.as_ref());
+        }
+    }
     let inputs = Inputs::read(args)?;
     let dir = inputs.out_dir(args);
     let (run_backend, why) = backend::open(args)?;
@@ -330,7 +341,7 @@ fn create_dir(dir: &std::path::Path) -> cvd::Result<()> {
 
 /// Sends this process's standard output to nowhere: the ranks of a
 /// distributed run other than 0 compute without speaking.
-fn quiet_stdout() {
+pub(crate) fn quiet_stdout() {
     #[cfg(unix)]
     if let Ok(null) = std::fs::OpenOptions::new().write(true).open("/dev/null") {
         use std::os::fd::AsRawFd;

@@ -36,12 +36,23 @@ impl Rng {
         let v = self.unit();
         (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
     }
+
+    /// The generator `n` draws on (SplitMix64 counts: a jump is one step).
+    pub fn skipped(seed: u64, n: u64) -> Self {
+        Self(seed.wrapping_add(n.wrapping_mul(0x9E37_79B9_7F4A_7C15)))
+    }
 }
 
 /// `n` points uniform in the unit cube.
 pub fn uniform(n: usize, seed: u64) -> Vec<[f64; 3]> {
-    let mut rng = Rng::new(seed);
-    (0..n).map(|_| [rng.unit(), rng.unit(), rng.unit()]).collect()
+    uniform_rows(0..n as u64, seed)
+}
+
+/// The points `rows` of [`uniform`]`(n, seed)` for any `n` past them,
+/// without making the others (a part of a run in parts makes its own).
+pub fn uniform_rows(rows: std::ops::Range<u64>, seed: u64) -> Vec<[f64; 3]> {
+    let mut rng = Rng::skipped(seed, 3 * rows.start);
+    rows.map(|_| [rng.unit(), rng.unit(), rng.unit()]).collect()
 }
 
 /// `n` points in `blobs` tight Gaussian blobs (standard deviation `sigma`)

@@ -47,6 +47,15 @@ pub fn available() -> Option<u64> {
     Some(kib.saturating_mul(1024))
 }
 
+/// The most memory this process has held so far (Linux: `VmHWM` in
+/// `/proc/self/status`), if it can tell.
+pub fn peak() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = text.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib.saturating_mul(1024))
+}
+
 /// Refuses `needed` bytes for `what` over `budget` (a limit the caller
 /// set, e.g. `--memory-budget`), or else over the memory the machine has
 /// available ([`available`]; unknown: not refused).

@@ -83,13 +83,41 @@ pub fn read_values(path: &Path) -> Result<Vec<f64>> {
 /// each coordinate written so that it reads back exactly (the shortest
 /// decimal that parses to the same f64).
 pub fn write_sites_xyz(path: &Path, sites: &[[f64; 3]]) -> Result<()> {
-    write_file(path, |w| {
-        writeln!(w, "{}", sites.len())?;
-        write_rows(w, sites.len(), |i, t| {
-            let [x, y, z] = sites[i];
-            writeln!(t, "{x} {y} {z}")
-        })
+    write_file(path, |w| write_sites_xyz_rows(w, sites, Rows::whole(sites.len())))
+}
+
+/// Writes the `rows` of a sites `.xyz` that `sites` are (a part of a run in
+/// parts; the count line, `rows.total`, with the first part's).
+pub fn write_sites_xyz_rows(w: &mut dyn Write, sites: &[[f64; 3]], rows: Rows) -> std::io::Result<()> {
+    if rows.first == 0 {
+        writeln!(w, "{}", rows.total)?;
+    }
+    write_rows(w, sites.len(), |i, t| {
+        let [x, y, z] = sites[i];
+        writeln!(t, "{x} {y} {z}")
     })
+}
+
+/// Which rows of a table file a writer writes: from `first` (the header
+/// with the rows from 0), of `total` in the file — a whole file, or one
+/// part of it in a run in parts, whose parts laid end to end are the file
+/// one process writes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Rows {
+    /// The first row's index in the file.
+    pub first: u64,
+    /// Rows in the whole file.
+    pub total: u64,
+    /// A periodic box's file (neighbours with shifts) even where this part
+    /// holds no face.
+    pub periodic: bool,
+}
+
+impl Rows {
+    /// All `n` rows of a file.
+    pub fn whole(n: usize) -> Self {
+        Self { first: 0, total: n as u64, periodic: false }
+    }
 }
 
 /// Writes one value per line (as [`read_values`] reads them back, exactly:

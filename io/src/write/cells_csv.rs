@@ -8,7 +8,7 @@
 //! volume 0 and the site as its centroid). Numbers are written so that
 //! they read back exactly.
 
-use crate::read::{write_file, write_rows};
+use crate::read::{write_file, write_rows, Rows};
 use cvd::diagram::voronoi::Cells;
 use cvd::error::{Error, Result};
 use cvd::{ParticleCells, INDEX_ORDERS};
@@ -67,28 +67,41 @@ pub fn write_cells_csv_with(
     particles: Option<&ParticleCells>,
     ids: Option<&[u64]>,
 ) -> Result<()> {
-    write_file(path, |w| {
-        let faces = cells.adjacency();
+    let rows = Rows::whole(cells.volume.len());
+    write_file(path, |w| write_cells_csv_rows(w, cells, particles, ids, rows))
+}
+
+/// Writes the `rows` of `cells.csv` that `cells` holds (a part of a run in
+/// parts: its rows from `rows.first`, the header with the first part's).
+pub fn write_cells_csv_rows(
+    w: &mut dyn Write,
+    cells: &Cells,
+    particles: Option<&ParticleCells>,
+    ids: Option<&[u64]>,
+    rows: Rows,
+) -> std::io::Result<()> {
+    let faces = cells.adjacency();
+    if rows.first == 0 {
         write!(w, "{}", if faces.is_some() { HEADER_FACES } else { HEADER })?;
         match particles {
             Some(_) => writeln!(w, ",{PARTICLE_COLUMNS}")?,
             None => writeln!(w)?,
         }
-        write_rows(w, cells.volume.len(), |i, t| {
-            let (v, c, e) = (cells.volume[i], cells.centroid[i], cells.energy[i]);
-            let site = ids.map_or(i as u64, |ids| ids[i]);
-            write!(t, "{site},{v:e},{},{},{},{e:e}", c[0], c[1], c[2])?;
-            if let Some(a) = faces {
-                write!(t, ",{:e},{}", a.surface_area(i), a.offsets[i + 1] - a.offsets[i])?;
+    }
+    write_rows(w, cells.volume.len(), |i, t| {
+        let (v, c, e) = (cells.volume[i], cells.centroid[i], cells.energy[i]);
+        let site = ids.map_or(rows.first + i as u64, |ids| ids[i]);
+        write!(t, "{site},{v:e},{},{},{},{e:e}", c[0], c[1], c[2])?;
+        if let Some(a) = faces {
+            write!(t, ",{:e},{}", a.surface_area(i), a.offsets[i + 1] - a.offsets[i])?;
+        }
+        if let Some(p) = particles {
+            write!(t, ",{},{}", p.coordination[i], p.max_face_order[i])?;
+            for n in p.index[i] {
+                write!(t, ",{n}")?;
             }
-            if let Some(p) = particles {
-                write!(t, ",{},{}", p.coordination[i], p.max_face_order[i])?;
-                for n in p.index[i] {
-                    write!(t, ",{n}")?;
-                }
-            }
-            writeln!(t)
-        })
+        }
+        writeln!(t)
     })
 }
 

@@ -24,12 +24,14 @@ pub mod view;
 pub mod vtu;
 pub mod walls_ply;
 
-pub use cells_csv::{read_cells_csv, write_cells_csv, write_cells_csv_with, CellRow, ParticleRow};
+pub use cells_csv::{
+    read_cells_csv, write_cells_csv, write_cells_csv_rows, write_cells_csv_with, CellRow, ParticleRow,
+};
 pub use cells_vtu::write_cells_vtu;
-pub use neighbors_csv::write_neighbors_csv;
+pub use neighbors_csv::{write_neighbors_csv, write_neighbors_csv_rows};
 pub use picture::{write_section_png, Section};
 pub use plot::{write_chart_png, write_line_chart_png, Axes, Series};
-pub use summary::{CvtRecord, ParticlesRecord, PeriodicRecord, Summary, Times, TransportRecord};
+pub use summary::{CvtRecord, ParticlesRecord, PeriodicRecord, RankRecord, Summary, Times, TransportRecord};
 pub use trajectory::{FrameRecord, TrajectorySummary};
 pub use view::write_cells_view_png;
 pub use vtu::write_pieces_vtu;

@@ -9,7 +9,7 @@
 //! face is shared with (its site plus that many box lengths; see
 //! [`Adjacency::shifts`]), and there is no boundary.
 
-use crate::read::{write_file, write_rows};
+use crate::read::{write_file, write_rows, Rows};
 use cvd::error::Result;
 use cvd::passes::faces::Adjacency;
 use std::io::Write;
@@ -23,31 +23,39 @@ pub const SHIFT_HEADER: &str = "shift_x,shift_y,shift_z";
 
 /// Writes `adjacency` as `neighbors.csv`.
 pub fn write_neighbors_csv(path: &Path, adjacency: &Adjacency) -> Result<()> {
-    write_file(path, |w| {
-        let periodic = !adjacency.shifts.is_empty();
+    write_file(path, |w| write_neighbors_csv_rows(w, adjacency, Rows::whole(adjacency.len())))
+}
+
+/// Writes the rows of `neighbors.csv` of the cells `adjacency` holds (a
+/// part of a run in parts: its sites from `rows.first`, the header with the
+/// first part's).
+pub fn write_neighbors_csv_rows(w: &mut dyn Write, adjacency: &Adjacency, rows: Rows) -> std::io::Result<()> {
+    let periodic = !adjacency.shifts.is_empty() || rows.periodic;
+    if rows.first == 0 {
         if periodic {
             writeln!(w, "{HEADER},{SHIFT_HEADER}")?;
         } else {
             writeln!(w, "{HEADER}")?;
         }
-        write_rows(w, adjacency.len(), |i, t| {
-            for (e, (j, area, n)) in (adjacency.offsets[i]..).zip(adjacency.of(i)) {
-                write!(t, "{i},{j},{area:e},{},{},{}", n[0], n[1], n[2])?;
-                if periodic {
-                    let s = adjacency.shift(e);
-                    write!(t, ",{},{},{}", s[0], s[1], s[2])?;
-                }
-                writeln!(t)?;
+    }
+    write_rows(w, adjacency.len(), |i, t| {
+        let site = rows.first + i as u64;
+        for (e, (j, area, n)) in (adjacency.offsets[i]..).zip(adjacency.of(i)) {
+            write!(t, "{site},{j},{area:e},{},{},{}", n[0], n[1], n[2])?;
+            if periodic {
+                let s = adjacency.shift(e);
+                write!(t, ",{},{},{}", s[0], s[1], s[2])?;
             }
-            let (b, v) = (adjacency.boundary[i], adjacency.boundary_vector[i]);
-            if b > 0.0 {
-                // The boundary part's mean outward normal, made unit.
-                let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-                let n = if len > 0.0 { v.map(|c| c / len) } else { [0.0; 3] };
-                writeln!(t, "{i},-1,{b:e},{},{},{}", n[0], n[1], n[2])?;
-            }
-            Ok(())
-        })
+            writeln!(t)?;
+        }
+        let (b, v) = (adjacency.boundary[i], adjacency.boundary_vector[i]);
+        if b > 0.0 {
+            // The boundary part's mean outward normal, made unit.
+            let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            let n = if len > 0.0 { v.map(|c| c / len) } else { [0.0; 3] };
+            writeln!(t, "{site},-1,{b:e},{},{},{}", n[0], n[1], n[2])?;
+        }
+        Ok(())
     })
 }
 

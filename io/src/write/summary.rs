@@ -72,6 +72,33 @@ pub struct Summary {
     /// The particles' quantities (`--voronoi-index`; absent otherwise).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub particles: Option<ParticlesRecord>,
+    /// A periodic box in parts over MPI: what each rank held and did
+    /// (absent otherwise).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ranks: Option<Vec<RankRecord>>,
+}
+
+/// One rank of a periodic box in parts.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct RankRecord {
+    /// The rank.
+    pub rank: usize,
+    /// The input rows it read (and wrote).
+    pub rows: u64,
+    /// The blocks of the box it took.
+    pub blocks: u64,
+    /// The sites whose cells it built.
+    pub owned: u64,
+    /// The points it held for them (its sites and its halo's).
+    pub held: u64,
+    /// The halo's width.
+    pub halo: f64,
+    /// Bytes it sent to other ranks.
+    pub sent_bytes: u64,
+    /// Seconds from reading its rows to its rows written.
+    pub seconds: f64,
+    /// The most memory the process held (`VmHWM`; 0 where unknown).
+    pub peak_memory_bytes: u64,
 }
 
 /// The particles' quantities over all cells: the thresholds, the mean
@@ -321,6 +348,7 @@ impl Summary {
             periodic: None,
             parts: None,
             particles: None,
+            ranks: None,
         }
     }
 

@@ -1,0 +1,205 @@
+//! `mpirun -np P cvd run --periodic ...`: a periodic box in parts. Each
+//! rank reads (or makes) only its own rows of the sites, computes the cells
+//! of its blocks of the box (`PeriodicVoronoi::compute_in_parts`) and
+//! writes its rows of `cells.csv`, `neighbors.csv` and `sites.xyz` at
+//! their place in the file: the same bytes as one process. Rank 0 writes
+//! `summary.json`, with every rank's numbers.
+
+use crate::args::RunArgs;
+use cvd::backends::distributed::Reduce;
+use cvd::{CpuBackend, PeriodicVoronoi};
+use cvd_io::{RankRecord, Rows, Summary};
+use std::path::Path;
+
+/// Runs a periodic box in parts over `comm`'s ranks.
+pub fn run(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
+    refuse_what_parts_lack(args)?;
+    let clock = std::time::Instant::now();
+    let (rank, ranks) = (comm.rank(), comm.size());
+    let domain = crate::inputs::periodic_box(args)?;
+    let dir = args.out.clone().unwrap_or_else(|| Path::new("out").join(crate::inputs::PERIODIC_DIR));
+    if rank == 0 {
+        std::fs::create_dir_all(&dir)
+            .map_err(|source| cvd::Error::Write { path: dir.display().to_string(), source })?;
+    } else {
+        crate::run::quiet_stdout();
+    }
+    // This rank's rows: its part of the file, or of the sites made.
+    let (sites, total) = match &args.sites_file {
+        Some(path) => {
+            let mut part = cvd_io::read_sites_part(path, rank, ranks)?;
+            let summaries = comm.all_gather(&part.summary().to_bytes())?;
+            let summaries: Vec<cvd_io::SitesPartSummary> = summaries
+                .iter()
+                .map(|b| cvd_io::SitesPartSummary::from_bytes(b))
+                .collect::<Option<_>>()
+                .ok_or_else(|| cvd::Error::Internal("a rank's part summary did not come through".into()))?;
+            part.join(path, &summaries, rank)?;
+            let total = part.total.ok_or_else(|| cvd::Error::Internal("a part without its file's count".into()))?;
+            (part.sites, total)
+        }
+        None => {
+            let n = args.sites.unwrap_or(5000) as u64;
+            let rows = n * rank as u64 / ranks as u64..n * (rank as u64 + 1) / ranks as u64;
+            let unit = cvd::geom::points::uniform_rows(rows, args.seed);
+            (unit.iter().map(|&p| domain.cartesian(p)).collect(), n)
+        }
+    };
+    println!(
+        "periodic box {:?} to {:?}: {total} sites in parts over {}, whole cells on {} CPU thread(s) per rank",
+        domain.lo(),
+        domain.hi(),
+        comm.describe(),
+        args.backend.threads.map_or("all".to_string(), |t| t.to_string())
+    );
+    let cpu = CpuBackend::new(args.backend.threads)?;
+    let faces = !args.no_neighbors;
+    let (out, report) = PeriodicVoronoi::new(domain, &sites)
+        .k_site(args.k_site)
+        .faces(faces)
+        .memory_budget(args.cpu_memory_budget())
+        .backend(&cpu)
+        .compute_in_parts(comm)?;
+    drop(sites);
+    let rows = Rows { first: report.first, total, periodic: true };
+    let mut written = vec!["cells.csv"];
+    write_part(comm, &dir.join("cells.csv"), |w| cvd_io::write_cells_csv_rows(w, &out.cells, None, None, rows))?;
+    if let Some(a) = out.cells.adjacency() {
+        write_part(comm, &dir.join("neighbors.csv"), |w| cvd_io::write_neighbors_csv_rows(w, a, rows))?;
+        written.push("neighbors.csv");
+    }
+    write_part(comm, &dir.join("sites.xyz"), |w| cvd_io::write_sites_xyz_rows(w, &out.sites, rows))?;
+    written.push("sites.xyz");
+
+    // The run's numbers: totals from every rank, each rank's record.
+    let energies = comm.all_gather(&out.cells.energy.iter().sum::<f64>().to_le_bytes())?;
+    let mine = RankRecord {
+        rank,
+        rows: report.read,
+        blocks: report.blocks[1],
+        owned: report.owned,
+        held: report.held,
+        halo: report.halo,
+        sent_bytes: report.sent,
+        seconds: clock.elapsed().as_secs_f64(),
+        peak_memory_bytes: cvd::job::memory::peak().unwrap_or(0),
+    };
+    let records = comm.all_gather(&record_bytes(&mine))?;
+    if rank != 0 {
+        return Ok(0);
+    }
+    let mesh = domain.mesh(cvd::diagram::periodic::WHOLE_FRAME_TETS);
+    let mut summary = Summary::new("periodic box", &mesh, total as usize, out.cells.strategy, &cpu, &out.cells);
+    summary.energy = energies.iter().map(|b| f64::from_le_bytes(b[..8].try_into().unwrap_or([0; 8]))).sum();
+    summary.periodic = Some(cvd_io::PeriodicRecord::of(&domain, &out));
+    summary.ranks = Some(records.iter().map(|b| record_of(b)).collect());
+    summary.write_json(&dir.join("summary.json"))?;
+    written.push("summary.json");
+    print!("{summary}");
+    for r in summary.ranks.iter().flatten() {
+        println!(
+            "rank {}: {} rows read, {} sites owned in {} blocks, {} points held (halo {:.3}), {} sent, {:.2} s, peak memory {}",
+            r.rank,
+            r.rows,
+            r.owned,
+            r.blocks,
+            r.held,
+            r.halo,
+            cvd::error::human(r.sent_bytes),
+            r.seconds,
+            cvd::error::human(r.peak_memory_bytes)
+        );
+    }
+    println!("wrote {}: {}", dir.display(), written.join(", "));
+    Ok(0)
+}
+
+/// The options a periodic box in parts does not take yet, refused by name.
+fn refuse_what_parts_lack(args: &RunArgs) -> cvd::Result<()> {
+    let lacking = [
+        (args.iterations > 0, "--iterations (Lloyd in parts moves sites between ranks: not yet)"),
+        (args.transports(), "optimal transport"),
+        (args.weights.is_some() || args.radii.is_some(), "weights and radii (power cells)"),
+        (args.voronoi_index, "--voronoi-index (the cells' polyhedra)"),
+        (args.parts.is_some(), "--parts (the ranks are the parts)"),
+        (args.backend.backend == cvd::BackendChoice::Vulkan, "--backend vulkan (parts run on the CPU)"),
+        (args.strategy.is_some_and(|s| s != cvd::Strategy::Whole), "--strategy other than whole"),
+        (args.output.is_some() || args.json.is_some(), "--output and --json (the folder holds the files)"),
+    ];
+    match lacking.iter().find(|(asked, _)| *asked) {
+        Some((_, what)) => Err(cvd::Error::InvalidInput(format!(
+            "a periodic box in parts over MPI does not take {what}; run it in one process (without mpirun)"
+        ))),
+        None => Ok(()),
+    }
+}
+
+/// Writes this rank's part of a file (what `body` writes) at its place:
+/// after the parts of the ranks before it. Rank 0 makes the file first;
+/// every rank has written its part when this returns.
+fn write_part(
+    comm: &dyn Reduce,
+    path: &Path,
+    body: impl FnOnce(&mut dyn std::io::Write) -> std::io::Result<()>,
+) -> cvd::Result<()> {
+    let io = |source| cvd::Error::Write { path: path.display().to_string(), source };
+    let mut bytes = Vec::new();
+    body(&mut bytes).map_err(io)?;
+    let lengths = comm.all_gather(&(bytes.len() as u64).to_le_bytes())?;
+    let lengths: Vec<u64> = lengths.iter().map(|b| u64::from_le_bytes(b[..8].try_into().unwrap_or([0; 8]))).collect();
+    let at: u64 = lengths[..comm.rank()].iter().sum();
+    // Every rank learns whether rank 0 made the file, and stops together.
+    let mut made = [0i64];
+    if comm.rank() == 0 {
+        let made_here = std::fs::File::create(path).and_then(|f| f.set_len(lengths.iter().sum()));
+        made[0] = made_here.is_err() as i64;
+        made_here.map_err(io)?;
+    }
+    comm.sum(&mut made)?;
+    if made[0] != 0 {
+        return Err(cvd::Error::InvalidInput(format!("{}: rank 0 could not make the file", path.display())));
+    }
+    let mut failed = [0i64];
+    let wrote = std::fs::OpenOptions::new().write(true).open(path).and_then(|f| {
+        use std::os::unix::fs::FileExt;
+        f.write_all_at(&bytes, at)
+    });
+    failed[0] = wrote.is_err() as i64;
+    comm.sum(&mut failed)?;
+    wrote.map_err(io)?;
+    if failed[0] != 0 {
+        return Err(cvd::Error::InvalidInput(format!("{}: another rank could not write its part", path.display())));
+    }
+    Ok(())
+}
+
+/// A rank's record as bytes (numbers in a fixed order), and back.
+fn record_bytes(r: &RankRecord) -> Vec<u8> {
+    let words = [
+        r.rank as u64,
+        r.rows,
+        r.blocks,
+        r.owned,
+        r.held,
+        r.halo.to_bits(),
+        r.sent_bytes,
+        r.seconds.to_bits(),
+        r.peak_memory_bytes,
+    ];
+    words.iter().flat_map(|w| w.to_le_bytes()).collect()
+}
+
+fn record_of(b: &[u8]) -> RankRecord {
+    let w = |k: usize| b.get(8 * k..8 * k + 8).map_or(0, |s| u64::from_le_bytes(s.try_into().unwrap_or([0; 8])));
+    RankRecord {
+        rank: w(0) as usize,
+        rows: w(1),
+        blocks: w(2),
+        owned: w(3),
+        held: w(4),
+        halo: f64::from_bits(w(5)),
+        sent_bytes: w(6),
+        seconds: f64::from_bits(w(7)),
+        peak_memory_bytes: w(8),
+    }
+}
