@@ -36,18 +36,28 @@ const JOB: &[&str] =
     &["run", "--model", "cube", "--resolution", "10", "--backend", "cpu", "--no-geometry", "--no-neighbors"];
 
 fn cvd(out: &Path, args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_cvd")).args(JOB).args(args).arg("--out").arg(out).output().unwrap()
+    cvd_job(JOB, out, args)
+}
+
+/// One process running `job` with `args`.
+fn cvd_job(job: &[&str], out: &Path, args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_cvd")).args(job).args(args).arg("--out").arg(out).output().unwrap()
 }
 
 /// `ranks` ranks of one thread each (Open MPI: more ranks than cores, and
 /// as root in containers, when asked).
 fn mpirun(ranks: usize, out: &Path, args: &[&str]) -> Output {
+    mpirun_job(JOB, ranks, out, args)
+}
+
+/// [`mpirun`] of `job` with `args`.
+fn mpirun_job(job: &[&str], ranks: usize, out: &Path, args: &[&str]) -> Output {
     Command::new("mpirun")
         .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
         .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
         .env("OMPI_MCA_rmaps_base_oversubscribe", "1")
         .args(["-np", &ranks.to_string(), env!("CARGO_BIN_EXE_cvd")])
-        .args(JOB)
+        .args(job)
         .args(["--threads", "1"])
         .args(args)
         .arg("--out")
@@ -111,4 +121,123 @@ fn lloyd_over_mpi_moves_the_sites_of_one_process() {
     for file in ["sites.xyz", "cells.csv"] {
         assert_eq!(read(&one.join(file)), read(&out.join(file)), "{file}");
     }
+}
+
+/// A periodic box's run, without pictures.
+const BOX: &[&str] = &["run", "--periodic", "--no-picture"];
+
+/// `summary.json` of a run.
+fn summary(out: &Path) -> serde_json::Value {
+    serde_json::from_slice(&read(&out.join("summary.json"))).unwrap()
+}
+
+#[test]
+fn mpirun_gives_a_periodic_box_in_parts_byte_for_byte() {
+    if !mpi_here() {
+        return;
+    }
+    let dir = temp_dir("periodic");
+    // A crowd with a tight cluster in a triclinic cell, some given outside
+    // it, as an .npy; a slab with walls as text; sites made by each rank.
+    let cell = cvd::PeriodicBox::lammps([0.0; 3], [30.0, 25.0, 28.0], [4.0, -3.0, 2.0]).unwrap();
+    let crowd = cvd::geom::points::uniform(18_000, 3);
+    let blob = cvd::geom::points::clustered(2_000, 1, 0.01, 4);
+    let mut sites: Vec<[f64; 3]> = crowd.iter().chain(&blob).map(|&s| cell.cartesian(s)).collect();
+    for i in (0..sites.len()).step_by(89) {
+        sites[i] = cell.shifted(sites[i], [2, 0, -1]);
+    }
+    let npy = dir.join("crowd.npy");
+    cvd_io::write_sites_npy(&npy, &sites).unwrap();
+    let slab: Vec<[f64; 3]> =
+        cvd::geom::points::uniform(12_000, 5).iter().map(|p| [40.0 * p[0], 30.0 * p[1], 10.0 * p[2]]).collect();
+    let xyz = dir.join("slab.xyz");
+    cvd_io::write_sites_xyz(&xyz, &slab).unwrap();
+    let (npy, xyz) = (npy.to_str().unwrap(), xyz.to_str().unwrap());
+    let cases: [(&str, Vec<&str>, usize); 3] = [
+        ("crowd", vec!["--box", "0,0,0,30,25,28", "--tilt", "4,-3,2", "--sites-file", npy], 20_000),
+        ("slab", vec!["--box", "0,0,0,40,30,10", "--periodic-axes", "xy", "--sites-file", xyz], 12_000),
+        ("made", vec!["--box", "0,0,0,20,30,25", "--sites", "15000", "--seed", "9"], 15_000),
+    ];
+    for (name, args, n) in &cases {
+        let one = dir.join(format!("{name}-one"));
+        ok(&cvd_job(BOX, &one, args), &format!("{name}: one process"));
+        // The points of the whole job: the sites and their images.
+        let whole = *n as u64 + summary(&one)["periodic"]["images"].as_u64().unwrap();
+        for ranks in 1..=4 {
+            let out = dir.join(format!("{name}-{ranks}"));
+            let o = mpirun_job(BOX, ranks, &out, args);
+            ok(&o, &format!("{name}: {ranks} ranks"));
+            for file in ["cells.csv", "neighbors.csv", "sites.xyz"] {
+                assert!(read(&one.join(file)) == read(&out.join(file)), "{name}, {ranks} ranks: {file} differs");
+            }
+            let s = summary(&out);
+            let records = s["ranks"].as_array().unwrap();
+            assert_eq!(records.len(), ranks, "{name}: a record per rank");
+            let sum = |key: &str| records.iter().map(|r| r[key].as_u64().unwrap()).sum::<u64>();
+            assert_eq!((sum("rows"), sum("owned")), (*n as u64, *n as u64), "{name}, {ranks} ranks: every row once");
+            for r in records {
+                // Each rank read its share of the rows, and held a part of
+                // the job's points.
+                assert!(r["rows"].as_u64().unwrap() <= (*n / ranks + 1) as u64, "{name}: {r}");
+                if ranks > 1 {
+                    assert!(r["held"].as_u64().unwrap() < whole, "{name}: a rank held the whole job: {r}");
+                }
+            }
+            assert_eq!(s["volume_sum"].as_f64().map(|v| v > 0.0), Some(true));
+            // Rank 0 alone speaks.
+            let said = String::from_utf8_lossy(&o.stdout);
+            assert_eq!(said.matches("wrote ").count(), 1, "{said}");
+        }
+    }
+    // What parts do not do yet is refused by name.
+    let o = mpirun_job(BOX, 2, &dir.join("refused"), &["--box", "0,0,0,9,9,9", "--sites", "900", "--iterations", "2"]);
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("--iterations"));
+}
+
+#[test]
+fn a_job_too_large_for_one_process_runs_in_parts_that_fit() {
+    if !mpi_here() {
+        return;
+    }
+    // A budget the whole job exceeds and each of 4 ranks' parts fits: one
+    // process refuses it, the ranks read their rows and run.
+    let dir = temp_dir("budget");
+    let n = 200_000;
+    let sites: Vec<[f64; 3]> = cvd::geom::points::uniform(n, 7).iter().map(|p| p.map(|c| 60.0 * c)).collect();
+    let npy = dir.join("sites.npy");
+    cvd_io::write_sites_npy(&npy, &sites).unwrap();
+    let whole = cvd::job::memory::JobSize { sites: 2 * n as u64, tets: 6, k_site: 48, faces: true }.bytes();
+    let budget = (whole / 2 >> 20).to_string();
+    let args = ["--box", "0,0,0,60,60,60", "--sites-file", npy.to_str().unwrap(), "--memory-budget", &budget];
+    let o = cvd_job(BOX, &dir.join("one"), &args);
+    assert_eq!(o.status.code(), Some(2), "one process: {}", String::from_utf8_lossy(&o.stdout));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("memory budget"), "{}", String::from_utf8_lossy(&o.stderr));
+    ok(&mpirun_job(BOX, 4, &dir.join("four"), &args), "4 ranks under the budget");
+    assert_eq!(cvd_io::read_cells_csv(&dir.join("four").join("cells.csv")).unwrap().len(), n);
+}
+
+#[test]
+fn ranks_hold_a_fraction_of_one_process_memory() {
+    if !mpi_here() {
+        return;
+    }
+    // 10^6 sites: each rank's peak against one process's (both on one
+    // thread), measured by the processes themselves (VmHWM).
+    let dir = temp_dir("memory");
+    let args = ["--box", "0,0,0,100,100,100", "--sites", "1000000", "--threads", "1"];
+    let one = dir.join("one");
+    ok(&cvd_job(BOX, &one, &args), "one process");
+    let peak = summary(&one)["peak_memory_bytes"].as_f64().unwrap();
+    assert!(peak > 0.0, "the peak is measured here");
+    for (ranks, most) in [(2, 0.6), (4, 0.35)] {
+        let out = dir.join(format!("ranks{ranks}"));
+        ok(&mpirun_job(BOX, ranks, &out, &args[..4]), &format!("{ranks} ranks"));
+        assert!(read(&one.join("cells.csv")) == read(&out.join("cells.csv")), "{ranks} ranks: cells.csv differs");
+        for r in summary(&out)["ranks"].as_array().unwrap() {
+            let share = r["peak_memory_bytes"].as_f64().unwrap() / peak;
+            eprintln!("{ranks} ranks: rank {} peak {:.3} of one process's", r["rank"], share);
+            assert!(share <= most, "{ranks} ranks: rank {} peaked at {share:.3} of one process's", r["rank"]);
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
 }

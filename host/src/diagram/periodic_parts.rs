@@ -32,10 +32,10 @@
 //!   back to the rank that read its site.
 
 use crate::backend::Backend;
-use crate::backends::distributed::Reduce;
+use crate::backends::distributed::{Parcels, Reduce};
 use crate::diagram::periodic::{
-    coverage, fold_site, frame_of, images_within, merge_faces, mirrors_within, place_sites, Blocks, Face, FoldedFaces,
-    Image, PeriodicCells, PeriodicVoronoi, PointKey, NO_WALL, WHOLE_FRAME_TETS,
+    coverage, fold_site, frame_of, images_within, merge_faces, mirrors_within, place_sites, Blocks, FoldedFaces, Image,
+    PeriodicCells, PeriodicVoronoi, PointKey, NO_WALL, WHOLE_FRAME_TETS,
 };
 use crate::diagram::voronoi::{Cells, ClippedVoronoi, Counters};
 use crate::error::{Error, Result};
@@ -321,12 +321,17 @@ impl PeriodicVoronoi<'_> {
         drop(seen);
         // Every rank takes part in the exchange of halves, with cells or not.
         let none = Adjacency { offsets: vec![0], ..Default::default() };
-        let faces = match (self.faces, whole.adjacency()) {
-            (true, a) => self_and_halves(comm, a.unwrap_or(&none), &held, answer.clone(), &mut report.sent)?,
-            (false, _) => vec![(Vec::new(), 0.0, [0.0; 3]); answer.len()],
+        let a = whole.adjacency().filter(|_| self.faces).unwrap_or(&none);
+        let halves = match self.faces {
+            true => halves(comm, a, &held, answer.clone(), &mut report.sent)?,
+            false => Default::default(),
         };
         let mut to = vec![Vec::new(); ranks];
-        for (u, (faces, wall, wall_vector)) in answer.clone().zip(faces) {
+        for u in answer.clone() {
+            let (faces, wall, wall_vector) = match self.faces {
+                true => faces_of(a, &held, u, halves.get(&held[u].site)),
+                false => (Vec::new(), 0.0, [0.0; 3]),
+            };
             let h = held[u];
             let (volume, energy, offset, centroid) = fold_site(&domain, h.at, &at, &whole, std::iter::once(u));
             let row =
@@ -339,13 +344,17 @@ impl PeriodicVoronoi<'_> {
                 out.extend_from_slice(bytemuck::bytes_of(&f));
             }
         }
-        report.sent += to.iter().enumerate().filter(|&(r, _)| r != rank).map(|(_, b)| b.len() as u64).sum::<u64>();
+        let (counted, pairing, k, phases) = (whole.counters, whole.pairing, whole.k, whole.timings.phases.clone());
+        drop((whole, held, at));
+        let to = Parcels::of(to);
+        report.sent += (0..ranks).filter(|&r| r != rank).map(|r| to.get(r).len() as u64).sum::<u64>();
         let got = comm.exchange(to)?;
-        let cells = rows_of(&got, first, self.sites.len(), &placed, self.faces)?;
+        let cells = rows_of(&got, first, self.sites.len(), self.faces)?;
+        drop(got);
         timings.push("rows", clock.elapsed().as_secs_f64());
 
         // The run's totals.
-        let mut counters = counter_words(&whole.counters);
+        let mut counters = counter_words(&counted);
         counters.push(duplicates as i64);
         counters.push(cells.0.volume.iter().filter(|&&v| v <= 0.0).count() as i64);
         comm.sum(&mut counters)?;
@@ -361,8 +370,8 @@ impl PeriodicVoronoi<'_> {
                 mesh_volume,
                 e_vol: (total_volume - mesh_volume).abs() / mesh_volume,
                 strategy: Strategy::Whole,
-                pairing: whole.pairing,
-                k: whole.k,
+                pairing,
+                k,
                 k_site,
                 counters: c,
                 chunks: ranks as u64,
@@ -373,7 +382,7 @@ impl PeriodicVoronoi<'_> {
         );
         let mut cells = cells;
         cells.timings = timings.clone();
-        for (name, t) in &whole.timings.phases {
+        for (name, t) in &phases {
             cells.timings.add(name, *t);
         }
         report.timings = cells.timings.clone();
@@ -436,32 +445,22 @@ struct Half {
     normal: [f64; 3],
 }
 
-/// The faces of this rank's cells (`answer` of `held`), as the one process
-/// folds them (`fold_faces`): a face is half the area from each side, the
-/// cell's own first; a side whose neighbour has no cell here (a site of
-/// another rank, or an image) gets the other half from the rank that built
-/// the neighbour's cell. A wall sums the cell's faces with mirrors in the
-/// one process's order, and again (the mirrors' rows there).
-fn self_and_halves(
+/// The faces of this rank's cells (`answer` of `held`) seen from their
+/// other side where that side is not built here (a site of another rank, or
+/// an image): each sent to the rank that built the cell on that side, and
+/// those sent to this rank returned, by site.
+fn halves(
     comm: &dyn Reduce,
     a: &Adjacency,
     held: &[Held],
     answer: std::ops::Range<usize>,
     sent: &mut u64,
-) -> Result<Vec<FoldedFaces>> {
+) -> Result<std::collections::HashMap<u64, Vec<Half>>> {
     let mut to = vec![Vec::new(); comm.size()];
-    let mut own: Vec<Vec<Face>> = Vec::with_capacity(answer.len());
-    let mut walls = Vec::with_capacity(answer.len());
     for u in answer.clone() {
-        let (mut faces, mut mirrors) = (Vec::new(), Vec::new());
         for (v, area, normal) in a.of(u) {
             let h = held[v as usize];
-            if h.is_mirror() {
-                mirrors.push((h.mirror_order(), area, normal));
-                continue;
-            }
-            faces.push((h.site as u32, h.shift, area, normal));
-            if !answer.contains(&(v as usize)) {
+            if !h.is_mirror() && !answer.contains(&(v as usize)) {
                 to[h.rank as usize].push(Half {
                     site: h.site,
                     neighbor: held[u].site,
@@ -474,36 +473,45 @@ fn self_and_halves(
                 });
             }
         }
-        mirrors.sort_by_key(|m| m.0);
-        let (mut wall, mut wall_vector, mut half, mut half_vector) = (0.0, [0.0; 3], 0.0, [0.0; 3]);
-        for &(_, area, normal) in &mirrors {
-            wall += area;
-            half += area;
-            for k in 0..3 {
-                wall_vector[k] += area * normal[k];
-                half_vector[k] -= area * (0.0 - normal[k]);
-            }
-        }
-        own.push(faces);
-        walls.push((wall + half, [0, 1, 2].map(|k| wall_vector[k] + half_vector[k])));
     }
     let me = comm.rank();
     *sent +=
         to.iter().enumerate().filter(|&(r, _)| r != me).map(|(_, h)| (h.len() * size_of::<Half>()) as u64).sum::<u64>();
-    let got = comm.exchange(to.into_iter().map(|h| bytemuck::cast_slice(&h).to_vec()).collect())?;
-    let place: std::collections::HashMap<u64, usize> =
-        answer.clone().enumerate().map(|(k, u)| (held[u].site, k)).collect();
-    for h in got.iter().flat_map(|b| records::<Half>(b)) {
-        let k = place.get(&h.site).ok_or_else(|| Error::Internal(format!("a face of site {} sent astray", h.site)))?;
-        own[*k].push((h.neighbor as u32, h.shift, h.area, h.normal));
+    let got = comm.exchange(Parcels::of(to.into_iter().map(|h| bytemuck::cast_slice(&h).to_vec()).collect()))?;
+    let mut by_site: std::collections::HashMap<u64, Vec<Half>> = Default::default();
+    for h in records::<Half>(&got.bytes) {
+        by_site.entry(h.site).or_default().push(h);
     }
-    Ok(own
-        .into_iter()
-        .zip(walls)
-        // Each side's half in the order met: the cell's own, then the
-        // other's (as `fold_faces` adds a site's row, then its images').
-        .map(|(faces, (wall, wall_vector))| (merge_faces(faces), wall, wall_vector))
-        .collect())
+    Ok(by_site)
+}
+
+/// The faces of cell `u` of `held` as the one process folds them
+/// (`fold_faces`): a face is half the area from each side, the cell's own
+/// first, then the other side's (from this rank's cells, or `halves` from
+/// another's); a wall sums the cell's faces with mirrors in the one
+/// process's order, and again (the mirrors' rows there).
+fn faces_of(a: &Adjacency, held: &[Held], u: usize, halves: Option<&Vec<Half>>) -> FoldedFaces {
+    let (mut faces, mut mirrors) = (Vec::new(), Vec::new());
+    for (v, area, normal) in a.of(u) {
+        let h = held[v as usize];
+        if h.is_mirror() {
+            mirrors.push((h.mirror_order(), area, normal));
+        } else {
+            faces.push((h.site as u32, h.shift, area, normal));
+        }
+    }
+    faces.extend(halves.into_iter().flatten().map(|h| (h.neighbor as u32, h.shift, h.area, h.normal)));
+    mirrors.sort_by_key(|m| m.0);
+    let (mut wall, mut wall_vector, mut half, mut half_vector) = (0.0, [0.0; 3], 0.0, [0.0; 3]);
+    for &(_, area, normal) in &mirrors {
+        wall += area;
+        half += area;
+        for k in 0..3 {
+            wall_vector[k] += area * normal[k];
+            half_vector[k] -= area * (0.0 - normal[k]);
+        }
+    }
+    (merge_faces(faces), wall + half, [0, 1, 2].map(|k| wall_vector[k] + half_vector[k]))
 }
 
 /// Sends each of `points` to every rank with a block within `width` of it
@@ -562,9 +570,8 @@ fn send(comm: &dyn Reduce, to: Vec<Vec<Held>>, sent: &mut u64) -> Result<Vec<Hel
     let me = comm.rank();
     *sent +=
         to.iter().enumerate().filter(|&(r, _)| r != me).map(|(_, p)| (p.len() * size_of::<Held>()) as u64).sum::<u64>();
-    let bytes: Vec<Vec<u8>> = to.into_iter().map(|p| bytemuck::cast_slice(&p).to_vec()).collect();
-    let got = comm.exchange(bytes)?;
-    Ok(got.iter().flat_map(|b| records::<Held>(b)).collect())
+    let bytes = Parcels::of(to.into_iter().map(|p| bytemuck::cast_slice(&p).to_vec()).collect());
+    Ok(records::<Held>(&comm.exchange(bytes)?.bytes).collect())
 }
 
 /// Sorts `held` in the one process's order ([`PointKey`]) and returns the
@@ -610,36 +617,27 @@ fn list_reach(backend: &dyn Backend, held: &[Held], answer: std::ops::Range<usiz
 
 /// The cells of this rank's `len` rows from `first`, from the rows the
 /// ranks sent it.
-fn rows_of(
-    got: &[Vec<u8>],
-    first: u64,
-    len: usize,
-    placed: &[[f64; 3]],
-    faces: bool,
-) -> Result<(Cells, Vec<[f64; 3]>)> {
-    let mut rows: Vec<Option<(Row, Vec<FaceRow>)>> = vec![None; len];
-    for bytes in got {
-        let mut at = 0;
-        while at < bytes.len() {
-            let row: Row = bytemuck::pod_read_unaligned(&bytes[at..at + size_of::<Row>()]);
-            at += size_of::<Row>();
-            let n = row.faces as usize;
-            let f: Vec<FaceRow> = (0..n)
-                .map(|k| bytemuck::pod_read_unaligned(&bytes[at + k * size_of::<FaceRow>()..][..size_of::<FaceRow>()]))
-                .collect();
-            at += n * size_of::<FaceRow>();
-            let i = row.site.checked_sub(first).filter(|&i| (i as usize) < len);
-            let i = i.ok_or_else(|| Error::Internal(format!("row {} sent to the reader of {first}..", row.site)))?;
-            rows[i as usize] = Some((row, f));
-        }
+fn rows_of(got: &Parcels, first: u64, len: usize, faces: bool) -> Result<(Cells, Vec<[f64; 3]>)> {
+    // Where each row's record starts in the parcels, then the rows in order.
+    let bytes = &got.bytes;
+    let mut starts = vec![usize::MAX; len];
+    let mut at = 0;
+    while at < bytes.len() {
+        let row: Row = bytemuck::pod_read_unaligned(&bytes[at..at + size_of::<Row>()]);
+        let i = row.site.checked_sub(first).filter(|&i| (i as usize) < len);
+        let i = i.ok_or_else(|| Error::Internal(format!("row {} sent to the reader of {first}..", row.site)))?;
+        starts[i as usize] = at;
+        at += size_of::<Row>() + row.faces as usize * size_of::<FaceRow>();
     }
     let mut cells = Cells::default();
     let mut offsets = Vec::with_capacity(len);
     let mut adj = Adjacency { offsets: vec![0], ..Default::default() };
-    for (i, row) in rows.into_iter().enumerate() {
-        let (row, f) =
-            row.ok_or_else(|| Error::Internal(format!("no cell came back for site {}", first + i as u64)))?;
-        debug_assert_eq!(row.centroid == placed[i], row.volume <= 0.0 || row.centroid == placed[i]);
+    for (i, &at) in starts.iter().enumerate() {
+        if at == usize::MAX {
+            return Err(Error::Internal(format!("no cell came back for site {}", first + i as u64)));
+        }
+        let row: Row = bytemuck::pod_read_unaligned(&bytes[at..at + size_of::<Row>()]);
+        let f = records::<FaceRow>(&bytes[at + size_of::<Row>()..][..row.faces as usize * size_of::<FaceRow>()]);
         cells.volume.push(row.volume);
         cells.centroid.push(row.centroid);
         cells.energy.push(row.energy);

@@ -72,6 +72,10 @@ pub struct Summary {
     /// The particles' quantities (`--voronoi-index`; absent otherwise).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub particles: Option<ParticlesRecord>,
+    /// The most memory this process held up to the summary (`VmHWM`;
+    /// rank 0's in a run in parts, every rank's in `ranks`; 0 where
+    /// unknown).
+    pub peak_memory_bytes: u64,
     /// A periodic box in parts over MPI: what each rank held and did
     /// (absent otherwise).
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -348,6 +352,7 @@ impl Summary {
             periodic: None,
             parts: None,
             particles: None,
+            peak_memory_bytes: cvd::job::memory::peak().unwrap_or(0),
             ranks: None,
         }
     }

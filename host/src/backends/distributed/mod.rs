@@ -51,11 +51,50 @@ pub trait Reduce: Send + Sync {
     fn max(&self, values: &mut [f64]) -> Result<()>;
     /// Every rank's `mine`, by rank (the same on every rank).
     fn all_gather(&self, mine: &[u8]) -> Result<Vec<Vec<u8>>>;
-    /// Sends `to[q]` to rank `q` (one buffer per rank) and returns what each
-    /// rank sent this one, by rank.
-    fn exchange(&self, to: Vec<Vec<u8>>) -> Result<Vec<Vec<u8>>>;
+    /// Sends each rank its parcel of `to` and returns what each rank sent
+    /// this one.
+    fn exchange(&self, to: Parcels) -> Result<Parcels>;
     /// What the ranks are, for reports (e.g. `MPI, 4 ranks`).
     fn describe(&self) -> String;
+}
+
+/// A buffer of bytes for (or from) each rank, laid end to end in one
+/// allocation: what an exchange between ranks sends and receives.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Parcels {
+    /// Every parcel's bytes, rank 0's first.
+    pub bytes: Vec<u8>,
+    /// Where each rank's parcel ends in `bytes`.
+    pub ends: Vec<usize>,
+}
+
+impl Parcels {
+    /// The parcels `parts`, one per rank, laid end to end.
+    pub fn of(parts: Vec<Vec<u8>>) -> Self {
+        let ends = parts.iter().scan(0, |at, p| Some(std::mem::replace(at, *at + p.len()) + p.len())).collect();
+        Self { bytes: parts.concat(), ends }
+    }
+
+    /// Ranks.
+    pub fn len(&self) -> usize {
+        self.ends.len()
+    }
+
+    /// Whether there is no rank.
+    pub fn is_empty(&self) -> bool {
+        self.ends.is_empty()
+    }
+
+    /// Rank `r`'s parcel.
+    pub fn get(&self, r: usize) -> &[u8] {
+        let start = if r == 0 { 0 } else { self.ends[r - 1] };
+        &self.bytes[start..self.ends[r]]
+    }
+
+    /// Each parcel's length.
+    pub fn lengths(&self) -> Vec<u64> {
+        (0..self.len()).map(|r| self.get(r).len() as u64).collect()
+    }
 }
 
 /// One process: nothing to add.
@@ -78,9 +117,9 @@ impl Reduce for OneProcess {
     fn all_gather(&self, mine: &[u8]) -> Result<Vec<Vec<u8>>> {
         Ok(vec![mine.to_vec()])
     }
-    fn exchange(&self, to: Vec<Vec<u8>>) -> Result<Vec<Vec<u8>>> {
+    fn exchange(&self, to: Parcels) -> Result<Parcels> {
         if to.len() != 1 {
-            return Err(Error::Internal(format!("{} buffers exchanged in one process", to.len())));
+            return Err(Error::Internal(format!("{} parcels exchanged in one process", to.len())));
         }
         Ok(to)
     }
@@ -98,7 +137,7 @@ pub struct InProcess {
 
 /// What the ranks of [`InProcess`] share: a slot per rank, and a barrier.
 struct Shared {
-    slots: Mutex<Vec<Vec<Vec<u8>>>>,
+    slots: Mutex<Vec<Parcels>>,
     barrier: std::sync::Barrier,
 }
 
@@ -106,19 +145,19 @@ impl InProcess {
     /// The `size` ranks, to be moved each to its own thread.
     pub fn ranks(size: usize) -> Vec<Self> {
         let shared = std::sync::Arc::new(Shared {
-            slots: Mutex::new(vec![Vec::new(); size]),
+            slots: Mutex::new(vec![Parcels::default(); size]),
             barrier: std::sync::Barrier::new(size),
         });
         (0..size).map(|rank| Self { rank, shared: shared.clone() }).collect()
     }
 
-    /// Puts `mine` (a buffer per rank) in this rank's slot and returns
-    /// every rank's buffer for this one.
-    fn swap(&self, mine: Vec<Vec<u8>>, each: bool) -> Vec<Vec<u8>> {
+    /// Puts `mine` (a parcel per rank, or one for all) in this rank's
+    /// slot and returns every rank's parcel for this one.
+    fn swap(&self, mine: Parcels, each: bool) -> Vec<Vec<u8>> {
         let lock = || self.shared.slots.lock().unwrap_or_else(|e| e.into_inner());
         lock()[self.rank] = mine;
         self.shared.barrier.wait();
-        let got = lock().iter().map(|s| s[if each { self.rank } else { 0 }].clone()).collect();
+        let got = lock().iter().map(|s| s.get(if each { self.rank } else { 0 }).to_vec()).collect();
         self.shared.barrier.wait();
         got
     }
@@ -132,7 +171,7 @@ impl Reduce for InProcess {
         self.shared.barrier_size()
     }
     fn sum(&self, values: &mut [i64]) -> Result<()> {
-        let all = self.swap(vec![bytemuck::cast_slice(values).to_vec()], false);
+        let all = self.swap(Parcels::of(vec![bytemuck::cast_slice(values).to_vec()]), false);
         values.fill(0);
         for b in all {
             for (v, w) in values.iter_mut().zip(b.as_chunks::<8>().0) {
@@ -142,7 +181,7 @@ impl Reduce for InProcess {
         Ok(())
     }
     fn max(&self, values: &mut [f64]) -> Result<()> {
-        let all = self.swap(vec![bytemuck::cast_slice(values).to_vec()], false);
+        let all = self.swap(Parcels::of(vec![bytemuck::cast_slice(values).to_vec()]), false);
         for b in all {
             for (v, w) in values.iter_mut().zip(b.as_chunks::<8>().0) {
                 *v = v.max(f64::from_ne_bytes(*w));
@@ -151,13 +190,13 @@ impl Reduce for InProcess {
         Ok(())
     }
     fn all_gather(&self, mine: &[u8]) -> Result<Vec<Vec<u8>>> {
-        Ok(self.swap(vec![mine.to_vec()], false))
+        Ok(self.swap(Parcels::of(vec![mine.to_vec()]), false))
     }
-    fn exchange(&self, to: Vec<Vec<u8>>) -> Result<Vec<Vec<u8>>> {
+    fn exchange(&self, to: Parcels) -> Result<Parcels> {
         if to.len() != self.size() {
-            return Err(Error::Internal(format!("{} buffers exchanged among {} ranks", to.len(), self.size())));
+            return Err(Error::Internal(format!("{} parcels exchanged among {} ranks", to.len(), self.size())));
         }
-        Ok(self.swap(to, true))
+        Ok(Parcels::of(self.swap(to, true)))
     }
     fn describe(&self) -> String {
         format!("{} ranks in one process", self.size())

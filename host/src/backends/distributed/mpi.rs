@@ -1,7 +1,7 @@
 //! The ranks of an MPI run (`mpirun -np P cvd run ...`), through the `mpi`
 //! crate over the system's MPI library.
 
-use super::Reduce;
+use super::{Parcels, Reduce};
 use crate::error::{Error, Result};
 use mpi::collective::SystemOperation;
 use mpi::datatype::{Partition, PartitionMut};
@@ -104,25 +104,24 @@ impl Reduce for Mpi {
         Ok(split(all, &lengths))
     }
 
-    fn exchange(&self, to: Vec<Vec<u8>>) -> Result<Vec<Vec<u8>>> {
+    fn exchange(&self, to: Parcels) -> Result<Parcels> {
         if to.len() != self.size {
-            return Err(Error::Internal(format!("{} buffers exchanged among {} ranks", to.len(), self.size)));
+            return Err(Error::Internal(format!("{} parcels exchanged among {} ranks", to.len(), self.size)));
         }
         let world = &self.inner.lock().unwrap_or_else(|e| e.into_inner()).1;
-        let sent: Vec<u64> = to.iter().map(|b| b.len() as u64).collect();
+        let sent = to.lengths();
         let mut got = vec![0u64; self.size];
         world.all_to_all_into(&sent[..], &mut got[..]);
         let (send_counts, send_displs) = counts_of(&sent, "sent")?;
         let (counts, displs) = counts_of(&got, "received")?;
-        let flat: Vec<u8> = to.concat();
-        drop(to);
         let mut all = vec![0u8; got.iter().sum::<u64>() as usize];
         {
-            let from = Partition::new(&flat[..], &send_counts[..], &send_displs[..]);
+            let from = Partition::new(&to.bytes[..], &send_counts[..], &send_displs[..]);
             let mut into = PartitionMut::new(&mut all[..], &counts[..], &displs[..]);
             world.all_to_all_varcount_into(&from, &mut into);
         }
-        Ok(split(all, &got))
+        let ends = got.iter().scan(0, |at, &l| Some(std::mem::replace(at, *at + l as usize) + l as usize)).collect();
+        Ok(Parcels { bytes: all, ends })
     }
 
     fn describe(&self) -> String {
