@@ -207,7 +207,7 @@ fn a_job_too_large_for_one_process_runs_in_parts_that_fit() {
     let npy = dir.join("sites.npy");
     cvd_io::write_sites_npy(&npy, &sites).unwrap();
     let whole = cvd::job::memory::JobSize { sites: 2 * n as u64, tets: 6, k_site: 48, faces: true }.bytes();
-    let budget = (whole / 2 >> 20).to_string();
+    let budget = ((whole / 2) >> 20).to_string();
     let args = ["--box", "0,0,0,60,60,60", "--sites-file", npy.to_str().unwrap(), "--memory-budget", &budget];
     let o = cvd_job(BOX, &dir.join("one"), &args);
     assert_eq!(o.status.code(), Some(2), "one process: {}", String::from_utf8_lossy(&o.stdout));
