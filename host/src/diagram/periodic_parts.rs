@@ -43,7 +43,6 @@ use crate::exec::CpuBackend;
 use crate::geom::periodic_box::PeriodicBox;
 use crate::geom::timing::{timed, Timings};
 use crate::job::clip::Strategy;
-use crate::job::knn::{KnnJob, KnnMethod};
 use crate::job::sites::Layout;
 use crate::passes::faces::Adjacency;
 use bytemuck::{Pod, Zeroable};
@@ -279,19 +278,33 @@ impl PeriodicVoronoi<'_> {
             .memory_budget(self.memory_budget);
         let k_site = diagram.resolved_k_site();
         let mut width = halo * (1.0 + 1e-6);
-        let (held, answer) = loop {
+        let grid_sites = (total + tally[0] as u64) as usize;
+        let (whole, held, at, answer) = loop {
             let (held, t) = timed(|| spread(comm, &domain, &blocks, &owner, &points, width, &mut report.sent));
             timings.add("exchange", t);
             let mut held = held?;
             let (answer, t) = timed(|| order(&domain, &blocks, &frame, &mut held, &mine));
             timings.add("order", t);
-            let (need, t) = timed(|| list_reach(backend, &held, answer.clone(), k_site));
-            timings.add("lists", t);
-            let need = need?;
+            // This rank's cells, each site's list kept to check its reach.
+            let at: Vec<[f64; 3]> = held.iter().map(|h| h.at).collect();
+            let order: Vec<u32> = (0..held.len() as u32).collect();
+            let layout =
+                Layout { order: &order, lo: frame.0, hi: frame.1, grid_sites, answer: (answer.start, answer.end) };
+            let mut whole = if answer.is_empty() {
+                Cells { k_site, strategy: Strategy::Whole, ..Default::default() }
+            } else {
+                ClippedVoronoi { sites: &at, ..diagram }.layout(layout).keep_lists(Some(k_site)).compute()?
+            };
+            // Each list is the one process's if its k-th entry lies within
+            // the halo (its distance plus the quantization's rounding, the
+            // gap between a list's last entry and its reach, twice).
+            let need = whole.kept.take().map_or(0.0, |kept| {
+                (0..kept.kth.len()).map(|u| kept.kth[u] + 2.0 * (kept.kth[u] - kept.reach[u])).fold(0.0, f64::max)
+            });
             let mut most = [if need > width { need } else { 0.0 }];
             comm.max(&mut most)?;
             if most[0] == 0.0 {
-                break (held, answer);
+                break (whole, held, at, answer);
             }
             width = most[0] * (1.0 + 1e-6);
             report.widened += 1;
@@ -301,20 +314,6 @@ impl PeriodicVoronoi<'_> {
         report.halo = width;
 
         // This rank's cells, folded, and each row to its reader.
-        let at: Vec<[f64; 3]> = held.iter().map(|h| h.at).collect();
-        let order: Vec<u32> = (0..held.len() as u32).collect();
-        let layout = Layout {
-            order: &order,
-            lo: frame.0,
-            hi: frame.1,
-            grid_sites: (total + tally[0] as u64) as usize,
-            answer: (answer.start, answer.end),
-        };
-        let whole = if answer.is_empty() {
-            Cells { k_site, strategy: Strategy::Whole, ..Default::default() }
-        } else {
-            ClippedVoronoi { sites: &at, ..diagram }.layout(layout).compute()?
-        };
         let clock = std::time::Instant::now();
         let mut seen = std::collections::HashSet::new();
         let duplicates = held[answer.clone()].iter().filter(|h| !seen.insert(h.at.map(f64::to_bits))).count() as u64;
@@ -593,26 +592,6 @@ fn order(
     let start = held.iter().position(|h| h.is_site() && mine(h.at)).unwrap_or(0);
     let end = start + held[start..].iter().take_while(|h| h.is_site() && mine(h.at)).count();
     start..end
-}
-
-/// The largest distance from a site of `answer` to its `k`-th nearest
-/// other point of `held` (rounded up by the quantization), infinite if it
-/// has fewer.
-fn list_reach(backend: &dyn Backend, held: &[Held], answer: std::ops::Range<usize>, k: usize) -> Result<f64> {
-    if answer.is_empty() {
-        return Ok(0.0);
-    }
-    let at: Vec<[f64; 3]> = held.iter().map(|h| h.at).collect();
-    let queries = &at[answer];
-    let job = KnnJob::points(&at, queries, k + 1, KnnMethod::Grid)?;
-    let nn = backend.knn(&job)?;
-    let kk = nn.k;
-    if kk < k + 1 {
-        return Ok(f64::INFINITY);
-    }
-    let scale = job.quantizer.scale();
-    let most = (0..queries.len()).map(|q| nn.dist2[q * kk + kk - 1]).max().unwrap_or(0);
-    Ok(((most as f64).sqrt() + 4.0) / scale)
 }
 
 /// The cells of this rank's `len` rows from `first`, from the rows the

@@ -437,8 +437,8 @@ impl<'a> ClippedVoronoi<'a> {
             site_knn = site_knn.with_grid_for(&frame_points, l.grid_sites);
         }
         site_knn = site_knn.answering(listed.clone());
-        if self.keep.is_some() && listed.start > 0 {
-            return Err(Error::Internal("lists are kept for the first sites only".into()));
+        if self.candidates.is_some() && listed.start > 0 {
+            return Err(Error::Internal("candidates are taken for the first sites only".into()));
         }
         let keep = self.keep.filter(|_| strategy == Strategy::Whole).map(|kk| Keep {
             k: kk.max(site_knn.params.k as usize).min(n.saturating_sub(1)) as u32,

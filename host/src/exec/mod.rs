@@ -459,7 +459,7 @@ impl CpuBackend {
                 rows.zip(&mut local.reused).enumerate().for_each_init(
                     || vec![0u64; kk as usize],
                     |d2, (u, (((list, last2), kth2), reused))| {
-                        let q = job.queries[u];
+                        let q = job.queries[p.query_base as usize + u];
                         let at = [q[0], q[1], q[2]];
                         *reused = keep.candidates.as_ref().is_some_and(|c| {
                             let below2 = c.below2.get(u).copied().unwrap_or(0);
