@@ -96,7 +96,8 @@ impl Reduce for Mpi {
         let mut lengths = vec![0u64; self.size];
         world.all_gather_into(&(mine.len() as u64), &mut lengths[..]);
         let (counts, displs) = counts_of(&lengths, "gathered")?;
-        let mut all = vec![0u8; lengths.iter().sum::<u64>() as usize];
+        // A byte more: never an empty buffer whose pointer may be `mine`'s.
+        let mut all = vec![0u8; lengths.iter().sum::<u64>() as usize + 1];
         {
             let mut to = PartitionMut::new(&mut all[..], &counts[..], &displs[..]);
             world.all_gather_varcount_into(mine, &mut to);
@@ -112,13 +113,44 @@ impl Reduce for Mpi {
         let sent = to.lengths();
         let mut got = vec![0u64; self.size];
         world.all_to_all_into(&sent[..], &mut got[..]);
-        let (send_counts, send_displs) = counts_of(&sent, "sent")?;
-        let (counts, displs) = counts_of(&got, "received")?;
+        // MPI's counts and displacements are `int`s: at most `per_pair`
+        // bytes between two ranks in one call, in as many rounds as the
+        // largest parcel of any rank needs.
+        let per_pair = round_bytes(self.size);
+        let most = sent.iter().chain(&got).copied().max().unwrap_or(0);
+        let mut rounds = 0u64;
+        world.all_reduce_into(&most.div_ceil(per_pair), &mut rounds, SystemOperation::max());
+        let starts = |lengths: &[u64]| -> Vec<u64> {
+            lengths.iter().scan(0, |at, &l| Some(std::mem::replace(at, *at + l))).collect()
+        };
+        let (send_starts, recv_starts) = (starts(&sent), starts(&got));
         let mut all = vec![0u8; got.iter().sum::<u64>() as usize];
-        {
-            let from = Partition::new(&to.bytes[..], &send_counts[..], &send_displs[..]);
-            let mut into = PartitionMut::new(&mut all[..], &counts[..], &displs[..]);
-            world.all_to_all_varcount_into(&from, &mut into);
+        for round in 0..rounds {
+            let part = |len: u64| len.saturating_sub(round * per_pair).min(per_pair);
+            let (out, back): (Vec<u64>, Vec<u64>) =
+                (sent.iter().map(|&l| part(l)).collect(), got.iter().map(|&l| part(l)).collect());
+            let mut send = Vec::with_capacity(out.iter().sum::<u64>() as usize);
+            for (q, &n) in out.iter().enumerate().filter(|&(_, &n)| n > 0) {
+                let from = (send_starts[q] + round * per_pair) as usize;
+                send.extend_from_slice(&to.bytes[from..from + n as usize]);
+            }
+            let (send_counts, send_displs) = counts_of(&out, "sent")?;
+            let (counts, displs) = counts_of(&back, "received")?;
+            // Never two empty buffers: their pointers would be the same,
+            // which MPI takes for one buffer sent in place.
+            send.push(0);
+            let mut recv = vec![0u8; back.iter().sum::<u64>() as usize + 1];
+            {
+                let from = Partition::new(&send[..], &send_counts[..], &send_displs[..]);
+                let mut into = PartitionMut::new(&mut recv[..], &counts[..], &displs[..]);
+                world.all_to_all_varcount_into(&from, &mut into);
+            }
+            let mut at = 0;
+            for (q, &n) in back.iter().enumerate().filter(|&(_, &n)| n > 0) {
+                let into = (recv_starts[q] + round * per_pair) as usize;
+                all[into..into + n as usize].copy_from_slice(&recv[at..at + n as usize]);
+                at += n as usize;
+            }
         }
         let ends = got.iter().scan(0, |at, &l| Some(std::mem::replace(at, *at + l as usize) + l as usize)).collect();
         Ok(Parcels { bytes: all, ends })
@@ -127,6 +159,16 @@ impl Reduce for Mpi {
     fn describe(&self) -> String {
         format!("MPI, {} ranks: {}", self.size, self.library)
     }
+}
+
+/// The most bytes one exchange sends between two ranks in one MPI call:
+/// what an `int` count allows among `ranks`, or less where the environment
+/// says (`CVD_MPI_ROUND_BYTES`, which the tests set to exchange in many
+/// rounds).
+fn round_bytes(ranks: usize) -> u64 {
+    let most = (Count::MAX as u64 / ranks.max(1) as u64).max(1);
+    let asked = std::env::var("CVD_MPI_ROUND_BYTES").ok().and_then(|v| v.parse::<u64>().ok());
+    asked.map_or(most, |a| a.clamp(1, most))
 }
 
 /// MPI's counts and displacements (`int`s) of buffers of `lengths` bytes,
