@@ -238,6 +238,14 @@ fn ranks_hold_a_fraction_of_one_process_memory() {
     // 10^6 sites: each rank's peak against one process's (both on one
     // thread), measured by the processes themselves (VmHWM).
     let dir = temp_dir("memory");
+    // Its files (gigabytes of neighbours) go, whatever the outcome.
+    struct Removed(PathBuf);
+    impl Drop for Removed {
+        fn drop(&mut self) {
+            let _ = std::fs::remove_dir_all(&self.0);
+        }
+    }
+    let _removed = Removed(dir.clone());
     let args = ["--box", "0,0,0,100,100,100", "--sites", "1000000", "--threads", "1"];
     let one = dir.join("one");
     ok(&cvd_job(BOX, &one, &args), "one process");
@@ -252,6 +260,6 @@ fn ranks_hold_a_fraction_of_one_process_memory() {
             eprintln!("{ranks} ranks: rank {} peak {:.3} of one process's", r["rank"], share);
             assert!(share <= most, "{ranks} ranks: rank {} peaked at {share:.3} of one process's", r["rank"]);
         }
+        let _ = std::fs::remove_dir_all(&out);
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }

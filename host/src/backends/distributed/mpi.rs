@@ -124,7 +124,20 @@ impl Reduce for Mpi {
             lengths.iter().scan(0, |at, &l| Some(std::mem::replace(at, *at + l))).collect()
         };
         let (send_starts, recv_starts) = (starts(&sent), starts(&got));
-        let mut all = vec![0u8; got.iter().sum::<u64>() as usize];
+        // A byte more: never two empty buffers, whose pointers could be the
+        // same, which MPI takes for one buffer sent in place.
+        let mut all = vec![0u8; got.iter().sum::<u64>() as usize + 1];
+        let ends = got.iter().scan(0, |at, &l| Some(std::mem::replace(at, *at + l as usize) + l as usize)).collect();
+        if rounds <= 1 {
+            // One call, from the parcels and into the result: no copy.
+            let (send_counts, send_displs) = counts_of(&sent, "sent")?;
+            let (counts, displs) = counts_of(&got, "received")?;
+            let from = Partition::new(&to.bytes[..], &send_counts[..], &send_displs[..]);
+            let mut into = PartitionMut::new(&mut all[..], &counts[..], &displs[..]);
+            world.all_to_all_varcount_into(&from, &mut into);
+            all.pop();
+            return Ok(Parcels { bytes: all, ends });
+        }
         for round in 0..rounds {
             let part = |len: u64| len.saturating_sub(round * per_pair).min(per_pair);
             let (out, back): (Vec<u64>, Vec<u64>) =
@@ -136,8 +149,6 @@ impl Reduce for Mpi {
             }
             let (send_counts, send_displs) = counts_of(&out, "sent")?;
             let (counts, displs) = counts_of(&back, "received")?;
-            // Never two empty buffers: their pointers would be the same,
-            // which MPI takes for one buffer sent in place.
             send.push(0);
             let mut recv = vec![0u8; back.iter().sum::<u64>() as usize + 1];
             {
@@ -152,7 +163,7 @@ impl Reduce for Mpi {
                 at += n as usize;
             }
         }
-        let ends = got.iter().scan(0, |at, &l| Some(std::mem::replace(at, *at + l as usize) + l as usize)).collect();
+        all.pop();
         Ok(Parcels { bytes: all, ends })
     }
 
