@@ -11,8 +11,19 @@ use cvd::{CpuBackend, PeriodicVoronoi};
 use cvd_io::{RankRecord, Rows, Summary};
 use std::path::Path;
 
-/// Runs a periodic box in parts over `comm`'s ranks.
+/// Runs a periodic box in parts over `comm`'s ranks. An error on one rank
+/// (a bad line in its part of the file) ends them all, after it is said:
+/// the others would wait for it.
 pub fn run(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
+    in_parts(args, comm).inspect_err(|e| {
+        if comm.size() > 1 {
+            eprintln!("cvd: rank {}: {e}", comm.rank());
+            comm.abort(if e.is_input_error() { 2 } else { 1 });
+        }
+    })
+}
+
+fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     refuse_what_parts_lack(args)?;
     let clock = std::time::Instant::now();
     let (rank, ranks) = (comm.rank(), comm.size());

@@ -203,6 +203,27 @@ fn mpirun_gives_a_periodic_box_in_parts_byte_for_byte() {
     for file in ["cells.csv", "neighbors.csv", "sites.xyz"] {
         assert!(read(&one.join(file)) == read(&out.join(file)), "in rounds: {file} differs");
     }
+    // A bad line in one rank's part: it says so, and every rank ends (none
+    // waits for it), within a bound.
+    let bad = dir.join("bad.xyz");
+    let mut text = String::new();
+    for (i, p) in slab.iter().enumerate() {
+        text += &if i == 9_000 { "1.0 2.0 x\n".to_string() } else { format!("{} {} {}\n", p[0], p[1], p[2]) };
+    }
+    std::fs::write(&bad, text).unwrap();
+    let o = Command::new("timeout")
+        .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
+        .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
+        .env("OMPI_MCA_rmaps_base_oversubscribe", "1")
+        .args(["300", "mpirun", "-np", "3", env!("CARGO_BIN_EXE_cvd")])
+        .args(BOX)
+        .args(["--box", "0,0,0,40,30,10", "--sites-file", bad.to_str().unwrap(), "--out"])
+        .arg(dir.join("bad"))
+        .output()
+        .unwrap();
+    let said = String::from_utf8_lossy(&o.stderr);
+    assert_ne!(o.status.code(), Some(124), "the ranks waited for the one that failed: {said}");
+    assert!(!o.status.success() && said.contains("bad.xyz") && said.contains("byte"), "{said}");
     // What parts do not do yet is refused by name.
     let o = mpirun_job(BOX, 2, &dir.join("refused"), &["--box", "0,0,0,9,9,9", "--sites", "900", "--iterations", "2"]);
     assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("--iterations"));

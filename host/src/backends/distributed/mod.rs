@@ -56,6 +56,10 @@ pub trait Reduce: Send + Sync {
     fn exchange(&self, to: Parcels) -> Result<Parcels>;
     /// What the ranks are, for reports (e.g. `MPI, 4 ranks`).
     fn describe(&self) -> String;
+    /// Ends every rank with exit status `code`, where the ranks are
+    /// processes that would otherwise wait for this one in their next
+    /// collective (MPI's); elsewhere nothing (the error returns as usual).
+    fn abort(&self, _code: i32) {}
 }
 
 /// A buffer of bytes for (or from) each rank, laid end to end in one

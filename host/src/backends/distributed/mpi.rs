@@ -170,6 +170,17 @@ impl Reduce for Mpi {
     fn describe(&self) -> String {
         format!("MPI, {} ranks: {}", self.size, self.library)
     }
+
+    fn abort(&self, code: i32) {
+        if self.size > 1 {
+            // Not through the lock: another thread may hold it, waiting.
+            // SAFETY: MPI_Abort on the world communicator, which ends
+            // every process of the run; it does not return.
+            unsafe {
+                mpi::ffi::MPI_Abort(mpi::ffi::RSMPI_COMM_WORLD, code);
+            }
+        }
+    }
 }
 
 /// The most bytes one exchange sends between two ranks in one MPI call:
