@@ -33,7 +33,7 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
         std::fs::create_dir_all(&dir)
             .map_err(|source| cvd::Error::Write { path: dir.display().to_string(), source })?;
     } else {
-        crate::run::quiet_stdout();
+        crate::progress::quiet_stdout();
     }
     // This rank's rows: its part of the file, or of the sites made.
     let (sites, total) = match &args.sites_file {

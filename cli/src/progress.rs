@@ -71,3 +71,16 @@ pub fn with_frames<T>(frames: Option<usize>, f: impl FnOnce(&mut dyn FnMut(usize
     bar.finish_and_clear();
     out
 }
+
+/// Sends this process's standard output to nowhere: the ranks of a
+/// distributed run other than 0 compute without speaking.
+pub(crate) fn quiet_stdout() {
+    #[cfg(unix)]
+    if let Ok(null) = std::fs::OpenOptions::new().write(true).open("/dev/null") {
+        use std::os::fd::AsRawFd;
+        // SAFETY: redirecting fd 1 to a file opened here; both stay valid.
+        unsafe {
+            libc::dup2(null.as_raw_fd(), 1);
+        }
+    }
+}

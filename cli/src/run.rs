@@ -6,7 +6,7 @@ use crate::args::RunArgs;
 use crate::backend::{self, RunBackend};
 use crate::inputs::{per_site, Domain, Inputs};
 use crate::outputs::{self, Results};
-use crate::progress::{with_iterations, with_spinner};
+use crate::progress::{quiet_stdout, with_iterations, with_spinner};
 use cvd::cvt::transport::{Transport, VolumeLaw};
 use cvd::cvt::SiteDiagram;
 use cvd::exec::CpuBackend;
@@ -337,17 +337,4 @@ fn particles(args: &RunArgs, cells: &Cells, n: usize) -> cvd::Result<Option<Part
 
 fn create_dir(dir: &std::path::Path) -> cvd::Result<()> {
     std::fs::create_dir_all(dir).map_err(|source| cvd::Error::Write { path: dir.display().to_string(), source })
-}
-
-/// Sends this process's standard output to nowhere: the ranks of a
-/// distributed run other than 0 compute without speaking.
-pub(crate) fn quiet_stdout() {
-    #[cfg(unix)]
-    if let Ok(null) = std::fs::OpenOptions::new().write(true).open("/dev/null") {
-        use std::os::fd::AsRawFd;
-        // SAFETY: redirecting fd 1 to a file opened here; both stay valid.
-        unsafe {
-            libc::dup2(null.as_raw_fd(), 1);
-        }
-    }
 }
