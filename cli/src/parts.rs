@@ -171,9 +171,10 @@ fn write_part(
         return Err(cvd::Error::InvalidInput(format!("{}: rank 0 could not make the file", path.display())));
     }
     let mut failed = [0i64];
-    let wrote = std::fs::OpenOptions::new().write(true).open(path).and_then(|f| {
-        use std::os::unix::fs::FileExt;
-        f.write_all_at(&bytes, at)
+    let wrote = std::fs::OpenOptions::new().write(true).open(path).and_then(|mut f| {
+        use std::io::{Seek, Write};
+        f.seek(std::io::SeekFrom::Start(at))?;
+        f.write_all(&bytes)
     });
     failed[0] = wrote.is_err() as i64;
     comm.sum(&mut failed)?;
