@@ -325,8 +325,9 @@ impl PeriodicVoronoi<'_> {
             true => halves(comm, a, &held, answer.clone(), &mut report.sent)?,
             false => Default::default(),
         };
-        let mut to = vec![Vec::new(); ranks];
-        for u in answer.clone() {
+        // Rows made in chunks on every core, each chunk's for each reader,
+        // then laid end to end by reader (the reader puts them in order).
+        let row_bytes = |u: usize, out: &mut [Vec<u8>]| -> Result<()> {
             let (faces, wall, wall_vector) = match self.faces {
                 true => faces_of(a, &held, u, halves.get(&held[u].site)),
                 false => (Vec::new(), 0.0, [0.0; 3]),
@@ -336,11 +337,27 @@ impl PeriodicVoronoi<'_> {
             let row =
                 Row { site: h.site, volume, centroid, energy, offset, wall, wall_vector, faces: faces.len() as u64 };
             let r = reader(h.site).ok_or_else(|| Error::Internal(format!("site {} beyond the input", h.site)))?;
-            let out: &mut Vec<u8> = &mut to[r];
-            out.extend_from_slice(bytemuck::bytes_of(&row));
+            out[r].extend_from_slice(bytemuck::bytes_of(&row));
             for (neighbor, shift, area, normal) in faces {
                 let f = FaceRow { neighbor: neighbor as u64, shift, _pad: 0, area, normal };
-                out.extend_from_slice(bytemuck::bytes_of(&f));
+                out[r].extend_from_slice(bytemuck::bytes_of(&f));
+            }
+            Ok(())
+        };
+        let chunks: Vec<Vec<Vec<u8>>> = answer
+            .clone()
+            .into_par_iter()
+            .chunks(1 << 12)
+            .map(|us| {
+                let mut out = vec![Vec::new(); ranks];
+                us.into_iter().try_for_each(|u| row_bytes(u, &mut out)).map(|()| out)
+            })
+            .collect::<Result<_>>()?;
+        let mut to: Vec<Vec<u8>> =
+            (0..ranks).map(|r| Vec::with_capacity(chunks.iter().map(|c| c[r].len()).sum())).collect();
+        for chunk in chunks {
+            for (r, bytes) in chunk.into_iter().enumerate() {
+                to[r].extend_from_slice(&bytes);
             }
         }
         let (counted, pairing, k, phases) = (whole.counters, whole.pairing, whole.k, whole.timings.phases.clone());
