@@ -78,6 +78,7 @@ def clipped_voronoi(
     faces=False,
     polyhedra=False,
     weights=None,
+    memory_budget=None,
 ):
     """The Voronoi cells of `sites` ((n, 3)) clipped to `mesh`.
 
@@ -91,6 +92,9 @@ def clipped_voronoi(
     polyhedra: also each cell as one closed polyhedron (`cells.polyhedra`).
     weights: one per site for power (Laguerre) cells: site i's cell is where
     |x - x_i|² - w_i is least (cells may be empty), or None.
+    memory_budget: most bytes the job may hold (default: the memory the
+    machine has available); a larger job raises MemoryError before
+    anything is allocated, naming both numbers.
 
     Returns a Cells with numpy arrays `volume`, `centroid`, `energy`, and
     `e_vol`, `mesh_volume`, `counters`, `timings`.
@@ -105,10 +109,11 @@ def clipped_voronoi(
         bool(faces),
         bool(polyhedra),
         _values(weights, "weights"),
+        _budget(memory_budget),
     )
 
 
-def periodic_voronoi(sites, lo, hi, *, backend="auto", faces=False, weights=None):
+def periodic_voronoi(sites, lo, hi, *, backend="auto", faces=False, weights=None, memory_budget=None):
     """The cells of `sites` ((n, 3)) in the periodic box `lo..hi` (three
     numbers each): each site's Voronoi cell (power cell with `weights`) in
     the space the box tiles, cut into the box. Sites outside the box are
@@ -119,12 +124,25 @@ def periodic_voronoi(sites, lo, hi, *, backend="auto", faces=False, weights=None
     adjacency also has `shifts`, an (m, 3) int array: the face is shared
     with that neighbour's image, its site plus that many box lengths, and
     there is no boundary), and the sites wrapped, an (n, 3) array.
+    memory_budget: as clipped_voronoi's.
     """
     lo = [float(x) for x in lo]
     hi = [float(x) for x in hi]
     if len(lo) != 3 or len(hi) != 3:
         raise ValueError(f"lo and hi must have three numbers each, not {len(lo)} and {len(hi)}")
-    return _cvd.periodic_voronoi(_points(sites, "sites"), lo, hi, backend, bool(faces), _values(weights, "weights"))
+    return _cvd.periodic_voronoi(
+        _points(sites, "sites"), lo, hi, backend, bool(faces), _values(weights, "weights"), _budget(memory_budget)
+    )
+
+
+def _budget(memory_budget):
+    """A memory budget in bytes, checked (None: the memory available)."""
+    if memory_budget is None:
+        return None
+    b = int(memory_budget)
+    if b <= 0:
+        raise ValueError(f"memory_budget must be a positive number of bytes, not {memory_budget}")
+    return b
 
 
 def _cell(box, origin):
@@ -233,7 +251,8 @@ def particle_voronoi(points, box, *, origin=None, periodic=True, radii=None, **o
     The options (voronoi_index=True, edge_threshold=0.0,
     relative_edge_threshold=0.0, face_threshold=0.0,
     relative_face_threshold=0.0, polyhedra=False, faces=True,
-    backend="auto") are ParticleVoronoi's.
+    backend="auto", memory_budget=None: as clipped_voronoi's) are
+    ParticleVoronoi's.
 
     Returns a ParticleCells. For the frames of a trajectory, see
     ParticleVoronoi: each frame starts from the last one's neighbours.
@@ -271,6 +290,7 @@ class ParticleVoronoi:
         faces=True,
         backend="auto",
         reuse=True,
+        memory_budget=None,
     ):
         self.voronoi_index = bool(voronoi_index)
         self.thresholds = (
@@ -283,6 +303,7 @@ class ParticleVoronoi:
         self.faces = bool(faces)
         self.backend = backend
         self.reuse = bool(reuse)
+        self.memory_budget = _budget(memory_budget)
         self.reused = 0
         self._lists = None
 
@@ -306,6 +327,7 @@ class ParticleVoronoi:
             self.faces,
             self.reuse,
             self._lists if self.reuse else None,
+            self.memory_budget,
         )
         self._lists = lists
         self.reused = reused

@@ -46,6 +46,7 @@ def clipped_voronoi(
     faces: bool = False,
     polyhedra: bool = False,
     weights: Optional[npt.ArrayLike] = None,
+    memory_budget: Optional[int] = None,
 ) -> Cells: ...
 class ParticleCells:
     cells: Cells
@@ -81,6 +82,7 @@ def particle_voronoi(
     polyhedra: bool = False,
     faces: bool = True,
     backend: str = "auto",
+    memory_budget: Optional[int] = None,
 ) -> ParticleCells: ...
 
 class ParticleVoronoi:
@@ -103,6 +105,7 @@ class ParticleVoronoi:
         faces: bool = True,
         backend: str = "auto",
         reuse: bool = True,
+        memory_budget: Optional[int] = None,
     ) -> None: ...
     def compute(
         self,
@@ -121,6 +124,7 @@ def periodic_voronoi(
     backend: str = "auto",
     faces: bool = False,
     weights: Optional[npt.ArrayLike] = None,
+    memory_budget: Optional[int] = None,
 ) -> tuple[Cells, npt.NDArray[np.float64]]: ...
 def lloyd(
     mesh: Mesh,

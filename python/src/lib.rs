@@ -11,14 +11,17 @@ use cvd::cvt::SiteDiagram;
 use numpy::{
     IntoPyArray, PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods,
 };
-use pyo3::exceptions::{PyKeyboardInterrupt, PyRuntimeError, PyValueError};
+use pyo3::exceptions::{PyKeyboardInterrupt, PyMemoryError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use std::path::PathBuf;
 
 /// The library's error as a Python exception.
 fn err(e: cvd::Error) -> PyErr {
-    if e.is_input_error() {
+    if matches!(e, cvd::Error::TooLarge { .. }) {
+        // Refused before allocating: what it needs and what there is.
+        PyMemoryError::new_err(e.to_string())
+    } else if e.is_input_error() {
         PyValueError::new_err(e.to_string())
     } else {
         PyRuntimeError::new_err(e.to_string())
@@ -321,7 +324,7 @@ fn to_python(py: Python<'_>, cells: cvd::Cells) -> PyResult<Cells> {
 
 /// The clipped Voronoi diagram of `sites` (`(n, 3)` float64) in `mesh`.
 #[pyfunction]
-#[pyo3(signature = (mesh, sites, backend="auto", strategy="auto", pairing="auto", density=None, faces=false, polyhedra=false, weights=None))]
+#[pyo3(signature = (mesh, sites, backend="auto", strategy="auto", pairing="auto", density=None, faces=false, polyhedra=false, weights=None, memory_budget=None))]
 #[allow(clippy::too_many_arguments)]
 fn clipped_voronoi(
     py: Python<'_>,
@@ -334,6 +337,7 @@ fn clipped_voronoi(
     faces: bool,
     polyhedra: bool,
     weights: Option<PyReadonlyArray1<'_, f64>>,
+    memory_budget: Option<u64>,
 ) -> PyResult<Cells> {
     let sites = rows3(&sites, "sites")?;
     let strategy = match strategy {
@@ -357,7 +361,8 @@ fn clipped_voronoi(
             let mut cv = cvd::ClippedVoronoi::new(&mesh.inner, &sites)
                 .strategy(strategy)
                 .density(density.as_deref())
-                .faces(faces);
+                .faces(faces)
+                .memory_budget(memory_budget);
             if let Some(p) = pairing {
                 cv = cv.pairing(p);
             }
@@ -379,7 +384,8 @@ fn clipped_voronoi(
 /// power) cells in the space the box tiles, cut into the box; with the
 /// sites wrapped into it.
 #[pyfunction]
-#[pyo3(signature = (sites, lo, hi, backend="auto", faces=false, weights=None))]
+#[pyo3(signature = (sites, lo, hi, backend="auto", faces=false, weights=None, memory_budget=None))]
+#[allow(clippy::too_many_arguments)]
 fn periodic_voronoi<'py>(
     py: Python<'py>,
     sites: PyReadonlyArray2<'_, f64>,
@@ -388,6 +394,7 @@ fn periodic_voronoi<'py>(
     backend: &str,
     faces: bool,
     weights: Option<PyReadonlyArray1<'_, f64>>,
+    memory_budget: Option<u64>,
 ) -> PyResult<(Cells, Bound<'py, PyArray2<f64>>)> {
     let sites = rows3(&sites, "sites")?;
     let weights: Option<Vec<f64>> = weights.map(|w| w.as_array().to_vec());
@@ -396,7 +403,8 @@ fn periodic_voronoi<'py>(
         .detach(|| -> cvd::Result<cvd::PeriodicCells> {
             let domain = cvd::PeriodicBox::new(lo, hi)?;
             let b = cvd::backends::open(&options)?;
-            let mut pv = cvd::PeriodicVoronoi::new(domain, &sites).faces(faces).backend(b.as_ref());
+            let mut pv =
+                cvd::PeriodicVoronoi::new(domain, &sites).faces(faces).backend(b.as_ref()).memory_budget(memory_budget);
             if let Some(w) = &weights {
                 pv = pv.weights(w);
             }
@@ -424,7 +432,7 @@ struct FrameLists(cvd::FrameLists);
 /// `index`; returns (cells, with their faces if `faces`, wrapped points, a
 /// dict of the particles' arrays or None).
 #[pyfunction]
-#[pyo3(signature = (points, origin, vectors, periodic, radii=None, backend="auto", index=true, thresholds=(0.0, 0.0, 0.0, 0.0), polyhedra=false, faces=true, keep=false, last=None))]
+#[pyo3(signature = (points, origin, vectors, periodic, radii=None, backend="auto", index=true, thresholds=(0.0, 0.0, 0.0, 0.0), polyhedra=false, faces=true, keep=false, last=None, memory_budget=None))]
 #[allow(clippy::too_many_arguments)]
 fn particle_voronoi<'py>(
     py: Python<'py>,
@@ -440,6 +448,7 @@ fn particle_voronoi<'py>(
     faces: bool,
     keep: bool,
     last: Option<PyRef<'_, FrameLists>>,
+    memory_budget: Option<u64>,
 ) -> PyResult<ParticleResult<'py>> {
     let last = last.as_deref().map(|l| &l.0);
     let points = rows3(&points, "points")?;
@@ -467,7 +476,8 @@ fn particle_voronoi<'py>(
                 .faces(faces)
                 .backend(b.as_ref())
                 .keep_lists(keep)
-                .after(last);
+                .after(last)
+                .memory_budget(memory_budget);
             if let Some(w) = &weights {
                 pv = pv.weights(w);
             }

@@ -86,6 +86,22 @@ def test_bad_sites_raise_value_error(mesh, sites, message):
         cvd.clipped_voronoi(mesh, sites, backend="cpu")
 
 
+def test_a_job_over_its_memory_budget_raises_memory_error(mesh):
+    # Refused before anything is allocated, naming what it needs and the
+    # budget; under a budget that holds it, the same cells.
+    sites = cvd.sample(mesh, 20000, seed=3)
+    with pytest.raises(MemoryError, match=r"needs about .* budget"):
+        cvd.clipped_voronoi(mesh, sites, backend="cpu", memory_budget=1 << 20)
+    with pytest.raises(MemoryError, match="needs about"):
+        cvd.periodic_voronoi(np.random.default_rng(1).random((20000, 3)), [0, 0, 0], [1, 1, 1], memory_budget=1 << 20)
+    with pytest.raises(MemoryError, match="needs about"):
+        cvd.particle_voronoi(np.random.default_rng(2).random((20000, 3)), (1, 1, 1), memory_budget=1 << 20)
+    with pytest.raises(ValueError, match="memory_budget"):
+        cvd.clipped_voronoi(mesh, sites, memory_budget=0)
+    whole = cvd.clipped_voronoi(mesh, sites, backend="cpu", memory_budget=1 << 32)
+    assert np.array_equal(whole.volume, cvd.clipped_voronoi(mesh, sites, backend="cpu").volume)
+
+
 def test_bad_meshes_raise_value_error():
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=float)
     with pytest.raises(ValueError, match="outside"):
