@@ -227,6 +227,7 @@ fn mpirun_gives_a_periodic_box_in_parts_byte_for_byte() {
     // What parts do not do yet is refused by name.
     let o = mpirun_job(BOX, 2, &dir.join("refused"), &["--box", "0,0,0,9,9,9", "--sites", "900", "--iterations", "2"]);
     assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("--iterations"));
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -249,6 +250,7 @@ fn a_job_too_large_for_one_process_runs_in_parts_that_fit() {
     assert!(String::from_utf8_lossy(&o.stderr).contains("memory budget"), "{}", String::from_utf8_lossy(&o.stderr));
     ok(&mpirun_job(BOX, 4, &dir.join("four"), &args), "4 ranks under the budget");
     assert_eq!(cvd_io::read_cells_csv(&dir.join("four").join("cells.csv")).unwrap().len(), n);
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
