@@ -56,8 +56,11 @@ fn mpirun_job(job: &[&str], ranks: usize, out: &Path, args: &[&str]) -> Output {
 }
 
 /// [`mpirun_job`] with environment variables for the ranks.
+/// Every run is bounded (coreutils' `timeout`, status 124): ranks that wait
+/// for one another forever fail the test instead of hanging it.
 fn mpirun_env(job: &[&str], ranks: usize, out: &Path, args: &[&str], env: &[(&str, &str)]) -> Output {
-    Command::new("mpirun")
+    Command::new("timeout")
+        .args(["600", "mpirun"])
         .envs(env.iter().copied())
         .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
         .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
@@ -211,16 +214,7 @@ fn mpirun_gives_a_periodic_box_in_parts_byte_for_byte() {
         text += &if i == 9_000 { "1.0 2.0 x\n".to_string() } else { format!("{} {} {}\n", p[0], p[1], p[2]) };
     }
     std::fs::write(&bad, text).unwrap();
-    let o = Command::new("timeout")
-        .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
-        .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
-        .env("OMPI_MCA_rmaps_base_oversubscribe", "1")
-        .args(["300", "mpirun", "-np", "3", env!("CARGO_BIN_EXE_cvd")])
-        .args(BOX)
-        .args(["--box", "0,0,0,40,30,10", "--sites-file", bad.to_str().unwrap(), "--out"])
-        .arg(dir.join("bad"))
-        .output()
-        .unwrap();
+    let o = mpirun_job(BOX, 3, &dir.join("bad"), &["--box", "0,0,0,40,30,10", "--sites-file", bad.to_str().unwrap()]);
     let said = String::from_utf8_lossy(&o.stderr);
     assert_ne!(o.status.code(), Some(124), "the ranks waited for the one that failed: {said}");
     assert!(!o.status.success() && said.contains("bad.xyz") && said.contains("byte"), "{said}");

@@ -327,7 +327,9 @@ impl<'a> PeriodicVoronoi<'a> {
         let whole_cells = diagram.resolved_strategy() == Strategy::Whole;
         // Whole cells in the order and frame a part of the box would lay
         // them out in (`crate::diagram::periodic_parts`): the same bits.
-        let frame = frame_of(all.iter().copied());
+        // The frame: the points' bounding box (a part's, combined with the
+        // others' by their extremes, is the same).
+        let frame = crate::geom::vec3::bounding_box(&all);
         let order: Vec<u32> = if whole_cells {
             let blocks = Blocks::of(&domain, n);
             let key = |u: usize| match u.checked_sub(n).map(|k| images[k]) {
@@ -646,19 +648,6 @@ impl Blocks {
         all.sort_unstable();
         all.into_iter().map(|(_, i)| i).collect()
     }
-}
-
-/// The frame of a periodic job: the bounding box of its points (each
-/// part's, combined by their extremes, give the whole job's).
-pub(super) fn frame_of(points: impl Iterator<Item = [f64; 3]>) -> ([f64; 3], [f64; 3]) {
-    let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
-    for p in points {
-        for a in 0..3 {
-            lo[a] = lo[a].min(p[a]);
-            hi[a] = hi[a].max(p[a]);
-        }
-    }
-    (lo, hi)
 }
 
 /// What orders a periodic job's points ([`crate::job::sites::Layout`]):

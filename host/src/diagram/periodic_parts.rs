@@ -34,7 +34,7 @@
 use crate::backend::Backend;
 use crate::backends::distributed::{Parcels, Reduce};
 use crate::diagram::periodic::{
-    coverage, fold_site, frame_of, images_within, merge_faces, mirrors_within, place_sites, Blocks, FoldedFaces, Image,
+    coverage, fold_site, images_within, merge_faces, mirrors_within, place_sites, Blocks, FoldedFaces, Image,
     PeriodicCells, PeriodicVoronoi, PointKey, NO_WALL, WHOLE_FRAME_TETS,
 };
 use crate::diagram::voronoi::{Cells, ClippedVoronoi, Counters};
@@ -265,7 +265,7 @@ impl PeriodicVoronoi<'_> {
 
         // Every point within the halo of this rank's blocks, in the one
         // process's order; wider until each own site's list lies inside.
-        let (lo, hi) = frame_of(points.iter().map(|h| h.at));
+        let (lo, hi) = crate::geom::vec3::bounding_box(points.iter().map(|h| &h.at));
         let mut extremes = [0, 1, 2, 3, 4, 5].map(|k| if k < 3 { -lo[k] } else { hi[k - 3] });
         comm.max(&mut extremes)?;
         let frame = ([0, 1, 2].map(|a| -extremes[a]), [0, 1, 2].map(|a| extremes[a + 3]));
