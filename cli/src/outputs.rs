@@ -55,11 +55,9 @@ pub const OUTPUTS: &[Output] = &[
         file: "energy.png",
         holds: "the CVT energy against the iteration",
         when: |r| r.summary.cvt.is_some(),
-        write: |path, r, _| {
-            let Some(record) = &r.summary.cvt else { return Ok(()) };
-            let series =
-                [cvd_io::Series { name: &record.optimizer, values: &record.energy, x: &[], rgb: [200, 40, 40] }];
-            cvd_io::write_line_chart_png(path, "cvt energy", &series)
+        write: |path, r, _| match &r.summary.cvt {
+            Some(record) => write_energy_chart(path, record),
+            None => Ok(()),
         },
         slow: false,
     },
@@ -153,6 +151,12 @@ pub const OUTPUTS: &[Output] = &[
         slow: false,
     },
 ];
+
+/// energy.png: the CVT energy against the iteration.
+pub fn write_energy_chart(path: &Path, record: &cvd_io::CvtRecord) -> cvd::Result<()> {
+    let series = [cvd_io::Series { name: &record.optimizer, values: &record.energy, x: &[], rgb: [200, 40, 40] }];
+    cvd_io::write_line_chart_png(path, "cvt energy", &series)
+}
 
 /// `--out`'s long help: the folder and what it receives, from the table.
 pub fn help() -> String {

@@ -1,14 +1,19 @@
 //! `mpirun -np P cvd run --periodic ...`: a periodic box in parts. Each
-//! rank reads (or makes) only its own rows of the sites, computes the cells
-//! of its blocks of the box (`PeriodicVoronoi::compute_in_parts`) and
+//! rank reads (or makes) only its own rows of the sites, moves them by the
+//! CVT iterations asked for (`PeriodicInParts`: the steps of one process),
+//! computes the cells of its blocks of the box
+//! (`PeriodicVoronoi::compute_in_parts`) and
 //! writes its rows of `cells.csv`, `neighbors.csv` and `sites.xyz` at
 //! their place in the file: the same bytes as one process. Rank 0 writes
 //! `summary.json`, with every rank's numbers.
 
 use crate::args::RunArgs;
+use crate::progress::with_iterations;
 use cvd::backends::distributed::Reduce;
+use cvd::cvt::periodic::PeriodicInParts;
+use cvd::geom::exact_sum::ExactSum;
 use cvd::{CpuBackend, PeriodicVoronoi};
-use cvd_io::{RankRecord, Rows, Summary};
+use cvd_io::{CvtRecord, RankRecord, Rows, Summary};
 use std::path::Path;
 
 /// Runs a periodic box in parts over `comm`'s ranks. An error on one rank
@@ -64,6 +69,20 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
         args.backend.threads.map_or("all".to_string(), |t| t.to_string())
     );
     let cpu = CpuBackend::new(args.backend.threads)?;
+    // The iterations, each rank moving its own rows.
+    let (sites, cvt) = match args.iterations {
+        0 => (sites, None),
+        iterations => {
+            let diagram = PeriodicVoronoi::new(domain, &sites)
+                .k_site(args.k_site)
+                .memory_budget(args.cpu_memory_budget())
+                .backend(&cpu);
+            let parts = PeriodicInParts::new(diagram, comm);
+            let name = args.optimizer.name();
+            let run = with_iterations(name, iterations, |show| args.optimizer.run(&parts, iterations, show))?;
+            (run.sites, Some(CvtRecord::of(name, &run.iterations)))
+        }
+    };
     let faces = !args.no_neighbors;
     let (out, report) = PeriodicVoronoi::new(domain, &sites)
         .k_site(args.k_site)
@@ -83,7 +102,9 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     written.push("sites.xyz");
 
     // The run's numbers: totals from every rank, each rank's record.
-    let energies = comm.all_gather(&out.cells.energy.iter().sum::<f64>().to_le_bytes())?;
+    let mut energy = ExactSum::of(&out.cells.energy).words();
+    comm.sum(&mut energy)?;
+    let energy = ExactSum::from_words(&energy).map(|s| s.value()).unwrap_or(f64::NAN);
     let mine = RankRecord {
         rank,
         rows: report.read,
@@ -101,7 +122,12 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     }
     let mesh = domain.mesh(cvd::diagram::periodic::WHOLE_FRAME_TETS);
     let mut summary = Summary::new("periodic box", &mesh, total as usize, out.cells.strategy, &cpu, &out.cells);
-    summary.energy = energies.iter().map(|b| f64::from_le_bytes(b[..8].try_into().unwrap_or([0; 8]))).sum();
+    summary.energy = energy;
+    if let Some(record) = cvt {
+        crate::outputs::write_energy_chart(&dir.join("energy.png"), &record)?;
+        written.insert(0, "energy.png");
+        summary.cvt = Some(record);
+    }
     summary.periodic = Some(cvd_io::PeriodicRecord::of(&domain, &out));
     summary.ranks = Some(records.iter().map(|b| record_of(b)).collect());
     summary.write_json(&dir.join("summary.json"))?;
@@ -128,7 +154,6 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
 /// The options a periodic box in parts does not take yet, refused by name.
 fn refuse_what_parts_lack(args: &RunArgs) -> cvd::Result<()> {
     let lacking = [
-        (args.iterations > 0, "--iterations (Lloyd in parts moves sites between ranks: not yet)"),
         (args.transports(), "optimal transport"),
         (args.weights.is_some() || args.radii.is_some(), "weights and radii (power cells)"),
         (args.voronoi_index, "--voronoi-index (the cells' polyhedra)"),

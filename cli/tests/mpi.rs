@@ -219,8 +219,41 @@ fn mpirun_gives_a_periodic_box_in_parts_byte_for_byte() {
     assert_ne!(o.status.code(), Some(124), "the ranks waited for the one that failed: {said}");
     assert!(!o.status.success() && said.contains("bad.xyz") && said.contains("byte"), "{said}");
     // What parts do not do yet is refused by name.
-    let o = mpirun_job(BOX, 2, &dir.join("refused"), &["--box", "0,0,0,9,9,9", "--sites", "900", "--iterations", "2"]);
-    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("--iterations"));
+    let o = mpirun_job(BOX, 2, &dir.join("refused"), &["--box", "0,0,0,9,9,9", "--sites", "900", "--transport"]);
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("optimal transport"));
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn mpirun_moves_the_sites_as_one_process_does() {
+    if !mpi_here() {
+        return;
+    }
+    // Lloyd and L-BFGS in parts: each rank moves its own rows, every sum is
+    // exact, so the steps are one process's. Few sites for the ranks: at 3
+    // and 4 ranks some own no block of the box (and send nothing).
+    let dir = temp_dir("cvt");
+    for optimizer in ["lloyd", "lbfgs"] {
+        let args = ["--box", "0,0,0,14,16,12", "--sites", "3000", "--iterations", "3", "--optimizer", optimizer];
+        let one = dir.join(format!("{optimizer}-one"));
+        ok(&cvd_job(BOX, &one, &args), &format!("{optimizer}: one process"));
+        let energies = |dir: &Path| summary(dir)["cvt"]["energy"].clone();
+        assert_eq!(energies(&one).as_array().map(|e| e.len()), Some(3), "{optimizer}: one process's record");
+        let mut idle = 0;
+        for ranks in 2..=4 {
+            let out = dir.join(format!("{optimizer}-{ranks}"));
+            ok(&mpirun_job(BOX, ranks, &out, &args), &format!("{optimizer}: {ranks} ranks"));
+            for file in ["cells.csv", "neighbors.csv", "sites.xyz"] {
+                assert!(read(&one.join(file)) == read(&out.join(file)), "{optimizer}, {ranks} ranks: {file} differs");
+            }
+            assert_eq!(energies(&out), energies(&one), "{optimizer}, {ranks} ranks: the energies");
+            assert_eq!(summary(&out)["energy"], summary(&one)["energy"], "{optimizer}, {ranks} ranks");
+            assert!(out.join("energy.png").is_file(), "{optimizer}, {ranks} ranks: energy.png");
+            let s = summary(&out);
+            idle += s["ranks"].as_array().unwrap().iter().filter(|r| r["blocks"].as_u64() == Some(0)).count();
+        }
+        assert!(idle > 0, "{optimizer}: every rank had blocks; the case of a rank without is not tested");
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }
 

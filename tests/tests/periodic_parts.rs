@@ -5,9 +5,13 @@
 //! walls — for 1 to 5 ranks (threads of one process here; MPI's ranks in
 //! `cli/tests/mpi.rs`), on a crowd with a tight cluster in a triclinic
 //! cell, a lattice (every distance a tie), a slab with walls and a box
-//! with duplicated sites; and no rank holds all the sites.
+//! with duplicated sites; and no rank holds all the sites. Lloyd and
+//! L-BFGS in parts (`PeriodicInParts`) take the one process's steps: the
+//! same sites and energies, to the bit.
 
 use cvd::backends::distributed::InProcess;
+use cvd::cvt::periodic::PeriodicInParts;
+use cvd::cvt::{CvtRun, Optimizer};
 use cvd::diagram::periodic_parts::PartsReport;
 use cvd::{geom::points, CpuBackend, PeriodicBox, PeriodicCells, PeriodicVoronoi};
 
@@ -18,23 +22,33 @@ fn crowd(b: &PeriodicBox, n: usize, seed: u64) -> Vec<[f64; 3]> {
     crowd.iter().chain(&blob).map(|&s| b.cartesian(s)).collect()
 }
 
-/// The diagram of `sites` in `ranks` parts, each rank's rows its run of
-/// the input (rank `r` the rows `n r / ranks ..`), each on one thread.
-fn in_parts(b: PeriodicBox, sites: &[[f64; 3]], ranks: usize) -> Vec<(PeriodicCells, PartsReport)> {
+/// `job` on `ranks` ranks (threads of this process), each with its run of
+/// the rows of `sites` (rank `r` the rows `n r / ranks ..`) and a CPU
+/// backend of one thread; what each rank returned, by rank.
+fn on_ranks<T: Send>(
+    sites: &[[f64; 3]],
+    ranks: usize,
+    job: impl Fn(&InProcess, &[[f64; 3]], &CpuBackend) -> T + Sync,
+) -> Vec<T> {
     let n = sites.len();
+    let job = &job;
     std::thread::scope(|scope| {
         let handles: Vec<_> = InProcess::ranks(ranks)
             .into_iter()
             .enumerate()
             .map(|(r, comm)| {
                 let rows = &sites[n * r / ranks..n * (r + 1) / ranks];
-                scope.spawn(move || {
-                    let cpu = CpuBackend::new(Some(1)).unwrap();
-                    PeriodicVoronoi::new(b, rows).faces(true).backend(&cpu).compute_in_parts(&comm).unwrap()
-                })
+                scope.spawn(move || job(&comm, rows, &CpuBackend::new(Some(1)).unwrap()))
             })
             .collect();
         handles.into_iter().map(|h| h.join().unwrap()).collect()
+    })
+}
+
+/// The diagram of `sites` in `ranks` parts.
+fn in_parts(b: PeriodicBox, sites: &[[f64; 3]], ranks: usize) -> Vec<(PeriodicCells, PartsReport)> {
+    on_ranks(sites, ranks, |comm, rows, cpu| {
+        PeriodicVoronoi::new(b, rows).faces(true).backend(cpu).compute_in_parts(comm).unwrap()
     })
 }
 
@@ -128,4 +142,58 @@ fn a_slab_with_walls_in_parts_is_the_one_process_diagram() {
     let b = PeriodicBox::new([0.0; 3], [20.0, 20.0, 10.0]).unwrap().with_periodic([true, true, false]);
     let sites: Vec<[f64; 3]> = points::uniform(n, 8).iter().map(|p| b.cartesian(*p)).collect();
     check("slab", b, &sites, 3);
+}
+
+/// `iterations` of `optimizer` in one process and in 1 to `most_ranks`
+/// parts: the same sites, energies and counters, to the bit (the sums
+/// the optimisers take are exact, so their order does not matter).
+fn same_steps(name: &str, b: PeriodicBox, sites: &[[f64; 3]], most_ranks: usize) {
+    let cpu = CpuBackend::new(Some(1)).unwrap();
+    for optimizer in [Optimizer::Lloyd, Optimizer::Lbfgs] {
+        // The one process's iterations with faces, the parts' without.
+        let one = PeriodicVoronoi::new(b, sites).faces(true).backend(&cpu);
+        let whole = optimizer.run(&one, 3, &mut |_, _| {}).unwrap();
+        assert_eq!(whole.iterations.len(), 3);
+        let bits = |run: &CvtRun| run.iterations.iter().map(|i| i.energy.to_bits()).collect::<Vec<_>>();
+        for ranks in 1..=most_ranks {
+            let what = format!("{name}, {}, {ranks} ranks", optimizer.name());
+            let runs = on_ranks(sites, ranks, |comm, rows, cpu| {
+                let diagram = PeriodicInParts::new(PeriodicVoronoi::new(b, rows).backend(cpu), comm);
+                optimizer.run(&diagram, 3, &mut |_, _| {}).unwrap()
+            });
+            let moved: Vec<[u64; 3]> = runs.iter().flat_map(|r| &r.sites).map(|p| p.map(f64::to_bits)).collect();
+            let expected: Vec<[u64; 3]> = whole.sites.iter().map(|p| p.map(f64::to_bits)).collect();
+            assert_eq!(moved.len(), expected.len(), "{what}: every site");
+            if let Some(i) = (0..moved.len()).find(|&i| moved[i] != expected[i]) {
+                panic!("{what}: site {i} moved to {:?}, in one process to {:?}", runs_site(&runs, i), whole.sites[i]);
+            }
+            for run in &runs {
+                assert_eq!(bits(run), bits(&whole), "{what}: the energies");
+                let counts =
+                    |r: &CvtRun| r.iterations.iter().map(|i| (i.empty_cells, i.unresolved)).collect::<Vec<_>>();
+                assert_eq!(counts(run), counts(&whole), "{what}: empty cells and unresolved");
+            }
+        }
+        let e = &whole.iterations;
+        assert!(e[2].energy < e[0].energy, "{name}: {} did not lower the energy", optimizer.name());
+    }
+}
+
+fn runs_site(runs: &[CvtRun], i: usize) -> [f64; 3] {
+    runs.iter().flat_map(|r| &r.sites).nth(i).copied().unwrap_or_default()
+}
+
+#[test]
+fn lloyd_and_lbfgs_in_parts_take_the_one_process_steps() {
+    let n = 3000;
+    let l = (n as f64).cbrt();
+    let b = PeriodicBox::lammps([0.0; 3], [l; 3], [0.2 * l, -0.1 * l, 0.15 * l]).unwrap();
+    let mut sites = crowd(&b, n, 11);
+    for i in (1..n).step_by(501) {
+        sites[i] = sites[i - 1];
+    }
+    same_steps("crowd", b, &sites, 4);
+    let slab = PeriodicBox::new([0.0; 3], [15.0, 15.0, 8.0]).unwrap().with_periodic([true, true, false]);
+    let sites: Vec<[f64; 3]> = points::uniform(1800, 3).iter().map(|p| slab.cartesian(*p)).collect();
+    same_steps("slab", slab, &sites, 3);
 }

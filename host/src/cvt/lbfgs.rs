@@ -21,7 +21,12 @@ pub fn run<D: SiteDiagram + ?Sized>(
 ) -> Result<CvtRun> {
     let sites = diagram.starting_sites();
     let evaluate = |x: &[f64]| diagram.evaluate(x);
-    let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
+    // Exact dot products: the same steps in parts as in one process.
+    let dot = |a: &[f64], b: &[f64]| -> Result<f64> {
+        let mut sum = [crate::geom::exact_sum::dot(a, b)];
+        diagram.total(&mut sum)?;
+        Ok(sum[0].value())
+    };
     let mut x: Vec<f64> = sites.iter().flatten().copied().collect();
     let (mut at, mut seconds) = evaluate(&x)?;
     let mut memory: Vec<(Vec<f64>, Vec<f64>, f64)> = Vec::new();
@@ -31,20 +36,20 @@ pub fn run<D: SiteDiagram + ?Sized>(
         let mut d: Vec<f64> = at.gradient.iter().map(|g| -g).collect();
         let mut alphas = Vec::with_capacity(memory.len());
         for (s, y, rho) in memory.iter().rev() {
-            let a = rho * dot(s, &d);
+            let a = rho * dot(s, &d)?;
             d.iter_mut().zip(y).for_each(|(di, yi)| *di -= a * yi);
             alphas.push(a);
         }
         d.iter_mut().zip(&at.precondition).for_each(|(di, h)| *di *= h);
         for ((s, y, rho), a) in memory.iter().zip(alphas.iter().rev()) {
-            let b = rho * dot(y, &d);
+            let b = rho * dot(y, &d)?;
             d.iter_mut().zip(s).for_each(|(di, si)| *di += (a - b) * si);
         }
-        let mut slope = dot(&at.gradient, &d);
+        let mut slope = dot(&at.gradient, &d)?;
         if slope >= 0.0 {
             // Not a descent direction: fall back to the Lloyd step.
             d = at.gradient.iter().zip(&at.precondition).map(|(g, h)| -g * h).collect();
-            slope = dot(&at.gradient, &d);
+            slope = dot(&at.gradient, &d)?;
             memory.clear();
         }
         let record = Iteration {
@@ -76,7 +81,7 @@ pub fn run<D: SiteDiagram + ?Sized>(
         };
         let s: Vec<f64> = trial.iter().zip(&x).map(|(a, b)| a - b).collect();
         let y: Vec<f64> = eval.gradient.iter().zip(&at.gradient).map(|(a, b)| a - b).collect();
-        let sy = dot(&s, &y);
+        let sy = dot(&s, &y)?;
         if sy > 0.0 {
             if memory.len() == LBFGS_MEMORY {
                 memory.remove(0);

@@ -29,7 +29,7 @@ pub fn by_diagrams<D: SiteDiagram + ?Sized>(
     for it in 0..iterations {
         let clock = Instant::now();
         let c = diagram.cells_at(&sites)?;
-        let energy = c.energy_total();
+        let energy = super::total_of(diagram, &c.energy)?;
         for (s, (&centroid, &m)) in sites.iter_mut().zip(c.centroid.iter().zip(&c.volume)) {
             if m > 0.0 {
                 *s = centroid;

@@ -22,6 +22,7 @@ pub mod transport;
 
 use crate::diagram::voronoi::Cells;
 use crate::error::Result;
+use crate::geom::exact_sum::ExactSum;
 
 /// One iteration, as reported.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -100,6 +101,15 @@ pub trait SiteDiagram: Sync {
     /// (a diagram without faces), and the seconds the diagram took.
     fn evaluate(&self, x: &[f64]) -> Result<(Evaluation, f64)>;
 
+    /// Adds up each of `sums` over every process that holds a share of
+    /// the sites (a diagram in parts), in place: each process passes the
+    /// sums of its own share (an energy, a dot product) and gets the
+    /// totals, the same bits on every process and as one process holding
+    /// every site. A diagram in one process has nothing to add.
+    fn total(&self, _sums: &mut [ExactSum]) -> Result<()> {
+        Ok(())
+    }
+
     /// `iterations` Lloyd iterations (see [`lloyd`]), calling `progress`
     /// with the iterations done and the energy the last one started from.
     /// By default one diagram per iteration ([`lloyd::by_diagrams`]); a
@@ -150,6 +160,14 @@ impl Optimizer {
             Optimizer::Lbfgs => diagram.lbfgs(iterations, progress),
         }
     }
+}
+
+/// The exact sum of `terms` over every process `diagram` runs on (see
+/// [`SiteDiagram::total`]).
+pub(crate) fn total_of(diagram: &(impl SiteDiagram + ?Sized), terms: &[f64]) -> Result<f64> {
+    let mut sum = [ExactSum::of(terms)];
+    diagram.total(&mut sum)?;
+    Ok(sum[0].value())
 }
 
 /// Flat `x, y, z` coordinates as points.

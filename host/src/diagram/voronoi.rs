@@ -127,7 +127,7 @@ impl Cells {
 
     /// The CVT energy `Σ_i ∫ |x - x_i|²`.
     pub fn energy_total(&self) -> f64 {
-        self.energy.iter().sum()
+        crate::geom::exact_sum::ExactSum::of(&self.energy).value()
     }
 }
 

@@ -100,7 +100,7 @@ impl Reduce for Mpi {
         let mut all = vec![0u8; lengths.iter().sum::<u64>() as usize + 1];
         {
             let mut to = PartitionMut::new(&mut all[..], &counts[..], &displs[..]);
-            world.all_gather_varcount_into(mine, &mut to);
+            world.all_gather_varcount_into(sendable(mine), &mut to);
         }
         Ok(split(all, &lengths))
     }
@@ -132,7 +132,7 @@ impl Reduce for Mpi {
             // One call, from the parcels and into the result: no copy.
             let (send_counts, send_displs) = counts_of(&sent, "sent")?;
             let (counts, displs) = counts_of(&got, "received")?;
-            let from = Partition::new(&to.bytes[..], &send_counts[..], &send_displs[..]);
+            let from = Partition::new(sendable(&to.bytes), &send_counts[..], &send_displs[..]);
             let mut into = PartitionMut::new(&mut all[..], &counts[..], &displs[..]);
             world.all_to_all_varcount_into(&from, &mut into);
             all.pop();
@@ -221,4 +221,18 @@ fn split(all: Vec<u8>, lengths: &[u64]) -> Vec<Vec<u8>> {
             part
         })
         .collect()
+}
+
+/// `bytes` as a send buffer MPI cannot take for `MPI_IN_PLACE`: Open
+/// MPI's `MPI_IN_PLACE` is the address 1, which is also where an empty
+/// `Vec<u8>` points. A rank sending nothing through it would run the
+/// in-place algorithm while the others do not, and the ranks would wait
+/// for one another forever. Nothing is read from it (its counts are 0).
+fn sendable(bytes: &[u8]) -> &[u8] {
+    static NOTHING: [u8; 1] = [0];
+    if bytes.is_empty() {
+        &NOTHING
+    } else {
+        bytes
+    }
 }
