@@ -9,7 +9,7 @@
 
 use crate::args::RunArgs;
 use crate::progress::with_iterations;
-use cvd::backends::distributed::Reduce;
+use cvd::backends::distributed::{Parcels, Reduce};
 use cvd::cvt::periodic::PeriodicInParts;
 use cvd::geom::exact_sum::ExactSum;
 use cvd::{CpuBackend, PeriodicVoronoi};
@@ -61,6 +61,24 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
             (unit.iter().map(|&p| domain.cartesian(p)).collect(), n)
         }
     };
+    // This rank's weights: its rows of --weights, or of --radii squared.
+    let weights = match (&args.weights, &args.radii) {
+        (Some(path), _) => Some(values_for_rows(comm, path, "weights", sites.len(), total)?),
+        (None, Some(path)) => {
+            let radii = values_for_rows(comm, path, "radii", sites.len(), total)?;
+            let first: u64 = gather_u64(comm, sites.len() as u64)?[..rank].iter().sum();
+            Some(cvd::diagram::particles::radii_weights(&radii).map_err(|_| {
+                let i = radii.iter().position(|r| !(r.is_finite() && *r >= 0.0)).unwrap_or(0);
+                cvd::Error::InvalidInput(format!(
+                    "{}: particle {}'s radius is {}; radii must be numbers >= 0",
+                    path.display(),
+                    first + i as u64,
+                    radii[i]
+                ))
+            })?)
+        }
+        (None, None) => None,
+    };
     println!(
         "periodic box {:?} to {:?}: {total} sites in parts over {}, whole cells on {} CPU thread(s) per rank",
         domain.lo(),
@@ -84,12 +102,15 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
         }
     };
     let faces = !args.no_neighbors;
-    let (out, report) = PeriodicVoronoi::new(domain, &sites)
+    let diagram = PeriodicVoronoi::new(domain, &sites)
         .k_site(args.k_site)
         .faces(faces)
         .memory_budget(args.cpu_memory_budget())
-        .backend(&cpu)
-        .compute_in_parts(comm)?;
+        .backend(&cpu);
+    let (out, report) = match &weights {
+        Some(w) => diagram.weights(w).compute_in_parts(comm)?,
+        None => diagram.compute_in_parts(comm)?,
+    };
     drop(sites);
     let rows = Rows { first: report.first, total, periodic: true };
     let mut written = vec!["cells.csv"];
@@ -155,7 +176,10 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
 fn refuse_what_parts_lack(args: &RunArgs) -> cvd::Result<()> {
     let lacking = [
         (args.transports(), "optimal transport"),
-        (args.weights.is_some() || args.radii.is_some(), "weights and radii (power cells)"),
+        (
+            args.weights.is_some() && args.iterations > 0,
+            "--weights with --iterations (CVT iterations keep power weights only with --transport)",
+        ),
         (args.voronoi_index, "--voronoi-index (the cells' polyhedra)"),
         (args.parts.is_some(), "--parts (the ranks are the parts)"),
         (args.backend.backend == cvd::BackendChoice::Vulkan, "--backend vulkan (parts run on the CPU)"),
@@ -168,6 +192,46 @@ fn refuse_what_parts_lack(args: &RunArgs) -> cvd::Result<()> {
         ))),
         None => Ok(()),
     }
+}
+
+/// This rank's `len` rows of a file of one value per site (`what`: weights,
+/// radii) for `total` sites: each rank reads a part of the file's bytes
+/// (`cvd_io::read_values_part`), and each value goes to the rank that
+/// holds its site's row.
+fn values_for_rows(comm: &dyn Reduce, path: &Path, what: &str, len: usize, total: u64) -> cvd::Result<Vec<f64>> {
+    let (rank, ranks) = (comm.rank(), comm.size());
+    let read = cvd_io::read_values_part(path, rank, ranks)?;
+    let counts = gather_u64(comm, read.len() as u64)?;
+    let found: u64 = counts.iter().sum();
+    if found != total {
+        return Err(cvd::Error::InvalidInput(format!("{}: {found} {what} for {total} sites", path.display())));
+    }
+    // Each rank's rows of the sites, and where this rank's values start.
+    let rows = gather_u64(comm, len as u64)?;
+    let starts: Vec<u64> = rows.iter().scan(0, |at, &n| Some(std::mem::replace(at, *at + n))).collect();
+    let at: u64 = counts[..rank].iter().sum();
+    let mut to = vec![Vec::new(); ranks];
+    for (r, (&start, &n)) in starts.iter().zip(&rows).enumerate() {
+        // The values read here that are rank r's rows.
+        let (first, end) = (at.max(start), (at + read.len() as u64).min(start + n));
+        if first < end {
+            let from = (first - at) as usize;
+            to[r] = read[from..from + (end - first) as usize].iter().flat_map(|v| v.to_le_bytes()).collect();
+        }
+    }
+    let got = comm.exchange(Parcels::of(to))?;
+    let values: Vec<f64> =
+        got.bytes.chunks_exact(8).map(|b| f64::from_le_bytes(b.try_into().unwrap_or([0; 8]))).collect();
+    if values.len() != len {
+        return Err(cvd::Error::Internal(format!("{} of {len} {what} came to rank {rank}", values.len())));
+    }
+    Ok(values)
+}
+
+/// Each rank's `value`, by rank.
+fn gather_u64(comm: &dyn Reduce, value: u64) -> cvd::Result<Vec<u64>> {
+    let all = comm.all_gather(&value.to_le_bytes())?;
+    Ok(all.iter().map(|b| u64::from_le_bytes(b[..8].try_into().unwrap_or([0; 8]))).collect())
 }
 
 /// Writes this rank's part of a file (what `body` writes) at its place:

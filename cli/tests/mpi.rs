@@ -258,6 +258,57 @@ fn mpirun_moves_the_sites_as_one_process_does() {
 }
 
 #[test]
+fn mpirun_gives_power_cells_in_parts_byte_for_byte() {
+    if !mpi_here() {
+        return;
+    }
+    // Polydisperse particles (radii, voro++'s radical cells) in a triclinic
+    // cell, and weights in a slab with walls: each rank reads a part of
+    // the values file and sends each value to its site's rank.
+    let dir = temp_dir("power");
+    let n = 6000;
+    let unit = cvd::geom::points::uniform(n, 31);
+    let radii: String = unit.iter().map(|p| format!("{}\n", 0.2 + 0.5 * p[0] * p[1])).collect();
+    let weights: String = unit.iter().map(|p| format!("{}\n", p[2] - 0.5)).collect();
+    let (r, w) = (dir.join("radii.txt"), dir.join("weights.txt"));
+    std::fs::write(&r, format!("# radii\n{radii}")).unwrap();
+    std::fs::write(&w, weights).unwrap();
+    let (r, w) = (r.to_str().unwrap(), w.to_str().unwrap());
+    let n = n.to_string();
+    let cases: [(&str, Vec<&str>); 2] = [
+        ("radii", vec!["--box", "0,0,0,18,17,19", "--tilt", "2,-1,3", "--sites", &n, "--radii", r]),
+        ("weights", vec!["--box", "0,0,0,30,25,8", "--periodic-axes", "xy", "--sites", &n, "--weights", w]),
+    ];
+    for (name, args) in &cases {
+        let one = dir.join(format!("{name}-one"));
+        ok(&cvd_job(BOX, &one, args), &format!("{name}: one process"));
+        for ranks in [2, 4] {
+            let out = dir.join(format!("{name}-{ranks}"));
+            ok(&mpirun_job(BOX, ranks, &out, args), &format!("{name}: {ranks} ranks"));
+            for file in ["cells.csv", "neighbors.csv", "sites.xyz"] {
+                assert!(read(&one.join(file)) == read(&out.join(file)), "{name}, {ranks} ranks: {file} differs");
+            }
+        }
+    }
+    // Too few values, and a bad radius named by its particle's row.
+    let short = dir.join("short.txt");
+    std::fs::write(&short, &radii[..radii.len() / 2]).unwrap();
+    let args = ["--box", "0,0,0,18,17,19", "--sites", &n, "--radii", short.to_str().unwrap()];
+    let o = mpirun_job(BOX, 3, &dir.join("short"), &args);
+    let said = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && said.contains("short.txt") && said.contains("radii for 6000 sites"), "{said}");
+    let bad = dir.join("bad.txt");
+    let mut lines: Vec<String> = radii.lines().map(str::to_string).collect();
+    lines[5000] = "-0.5".into();
+    std::fs::write(&bad, lines.join("\n")).unwrap();
+    let args = ["--box", "0,0,0,18,17,19", "--sites", &n, "--radii", bad.to_str().unwrap()];
+    let o = mpirun_job(BOX, 3, &dir.join("bad"), &args);
+    let said = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && said.contains("particle 5000's radius is -0.5"), "{said}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
 fn a_job_too_large_for_one_process_runs_in_parts_that_fit() {
     if !mpi_here() {
         return;

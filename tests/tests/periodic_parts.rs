@@ -7,9 +7,10 @@
 //! cell, a lattice (every distance a tie), a slab with walls and a box
 //! with duplicated sites; and no rank holds all the sites. Lloyd and
 //! L-BFGS in parts (`PeriodicInParts`) take the one process's steps: the
-//! same sites and energies, to the bit.
+//! same sites and energies, to the bit. Power cells (weights) in parts are
+//! the one process's too.
 
-use cvd::backends::distributed::InProcess;
+use cvd::backends::distributed::{InProcess, Reduce};
 use cvd::cvt::periodic::PeriodicInParts;
 use cvd::cvt::{CvtRun, Optimizer};
 use cvd::diagram::periodic_parts::PartsReport;
@@ -45,15 +46,27 @@ fn on_ranks<T: Send>(
     })
 }
 
-/// The diagram of `sites` in `ranks` parts.
-fn in_parts(b: PeriodicBox, sites: &[[f64; 3]], ranks: usize) -> Vec<(PeriodicCells, PartsReport)> {
+/// The diagram of `sites` (power cells with `weights`) in `ranks` parts.
+fn in_parts(
+    b: PeriodicBox,
+    sites: &[[f64; 3]],
+    weights: Option<&[f64]>,
+    ranks: usize,
+) -> Vec<(PeriodicCells, PartsReport)> {
+    let n = sites.len();
     on_ranks(sites, ranks, |comm, rows, cpu| {
-        PeriodicVoronoi::new(b, rows).faces(true).backend(cpu).compute_in_parts(comm).unwrap()
+        let diagram = PeriodicVoronoi::new(b, rows).faces(true).backend(cpu);
+        let first = n * comm.rank() / ranks;
+        match weights {
+            Some(w) => diagram.weights(&w[first..first + rows.len()]).compute_in_parts(comm),
+            None => diagram.compute_in_parts(comm),
+        }
+        .unwrap()
     })
 }
 
 /// Every row of the parts, in order, equals the one process's, bit for bit.
-fn same_cells(name: &str, whole: &PeriodicCells, parts: &[(PeriodicCells, PartsReport)]) {
+fn same_cells(name: &str, whole: &PeriodicCells, parts: &[(PeriodicCells, PartsReport)], weighted: bool) {
     let a = whole.cells.adjacency().unwrap();
     let mut i = 0;
     for (part, report) in parts {
@@ -77,7 +90,16 @@ fn same_cells(name: &str, whole: &PeriodicCells, parts: &[(PeriodicCells, PartsR
             assert_eq!(p.boundary_vector[r].map(bits), a.boundary_vector[i].map(bits), "{name}: site {i}");
             i += 1;
         }
-        assert_eq!(part.cells.counters, whole.cells.counters, "{name}: counters, rank {}", report.rank);
+        // With weights, a part bounds the weights near a cell from those it
+        // holds (all that can cut its cells), on a grid of its own: the
+        // same cells, proved final after a few more or fewer grid walks.
+        let (mut counted, mut expected) = (part.cells.counters, whole.cells.counters);
+        if weighted {
+            let (a, b) = (counted.walks as f64, expected.walks as f64);
+            assert!((a - b).abs() <= 0.01 * b + 2.0, "{name}: {a} walks, one process {b}");
+            (counted.walks, expected.walks) = (0, 0);
+        }
+        assert_eq!(counted, expected, "{name}: counters, rank {}", report.rank);
         assert_eq!((part.images, part.mirrors, part.wrapped), (whole.images, whole.mirrors, whole.wrapped), "{name}");
         assert_eq!(part.halo.to_bits(), whole.halo.to_bits(), "{name}: the halo");
         assert!((part.cells.total_volume - whole.cells.total_volume).abs() <= 1e-12 * whole.cells.total_volume);
@@ -86,11 +108,20 @@ fn same_cells(name: &str, whole: &PeriodicCells, parts: &[(PeriodicCells, PartsR
 }
 
 fn check(name: &str, b: PeriodicBox, sites: &[[f64; 3]], most_ranks: usize) {
+    check_weighted(name, b, sites, None, most_ranks)
+}
+
+fn check_weighted(name: &str, b: PeriodicBox, sites: &[[f64; 3]], weights: Option<&[f64]>, most_ranks: usize) {
     let cpu = CpuBackend::new(Some(1)).unwrap();
-    let whole = PeriodicVoronoi::new(b, sites).faces(true).backend(&cpu).compute().unwrap();
+    let one = PeriodicVoronoi::new(b, sites).faces(true).backend(&cpu);
+    let whole = match weights {
+        Some(w) => one.weights(w).compute(),
+        None => one.compute(),
+    }
+    .unwrap();
     for ranks in 1..=most_ranks {
-        let parts = in_parts(b, sites, ranks);
-        same_cells(&format!("{name}, {ranks} ranks"), &whole, &parts);
+        let parts = in_parts(b, sites, weights, ranks);
+        same_cells(&format!("{name}, {ranks} ranks"), &whole, &parts, weights.is_some());
         let owned: u64 = parts.iter().map(|p| p.1.owned).sum();
         assert_eq!(owned, sites.len() as u64, "{name}: every site owned once");
         if ranks > 1 {
@@ -142,6 +173,25 @@ fn a_slab_with_walls_in_parts_is_the_one_process_diagram() {
     let b = PeriodicBox::new([0.0; 3], [20.0, 20.0, 10.0]).unwrap().with_periodic([true, true, false]);
     let sites: Vec<[f64; 3]> = points::uniform(n, 8).iter().map(|p| b.cartesian(*p)).collect();
     check("slab", b, &sites, 3);
+}
+
+#[test]
+fn power_cells_in_parts_are_the_one_process_cells() {
+    // Polydisperse particles (radii 0.3 to 1.2 of the spacing, weights r²,
+    // as voro++'s radical cells) in a triclinic cell with a cluster, and
+    // in a slab with walls.
+    let n = 5000;
+    let l = (n as f64).cbrt();
+    let b = PeriodicBox::lammps([0.0; 3], [l; 3], [0.15 * l, 0.1 * l, -0.2 * l]).unwrap();
+    let sites = crowd(&b, n, 21);
+    let radii = |n: usize, seed: u64| -> Vec<f64> {
+        points::uniform(n, seed).iter().map(|p| (0.3 + 0.9 * p[0]).powi(2)).collect()
+    };
+    let w = radii(n, 22);
+    check_weighted("power crowd", b, &sites, Some(&w), 4);
+    let slab = PeriodicBox::new([0.0; 3], [18.0, 16.0, 9.0]).unwrap().with_periodic([true, false, true]);
+    let sites: Vec<[f64; 3]> = points::uniform(2500, 23).iter().map(|p| slab.cartesian(*p)).collect();
+    check_weighted("power slab", slab, &sites, Some(&radii(2500, 24)), 3);
 }
 
 /// `iterations` of `optimizer` in one process and in 1 to `most_ranks`

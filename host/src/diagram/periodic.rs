@@ -349,6 +349,7 @@ impl<'a> PeriodicVoronoi<'a> {
                 hi: frame.1,
                 grid_sites: all.len(),
                 answer: (0, n),
+                weights: None,
             });
         }
         let last = self.last.filter(|l| whole_cells && l.fits(&domain, &sites, self.weights));

@@ -55,6 +55,8 @@ struct Held {
     at: [f64; 3],
     /// The site's input index.
     site: u64,
+    /// The site's power weight (0 without weights).
+    weight: f64,
     shift: [i32; 3],
     /// The wall it is mirrored in, or `NO_WALL`.
     wall: u32,
@@ -64,8 +66,8 @@ struct Held {
 }
 
 impl Held {
-    fn site(at: [f64; 3], site: u64, rank: usize) -> Self {
-        Self { at, site, shift: [0; 3], wall: NO_WALL as u32, rank: rank as u32, _pad: 0 }
+    fn site(at: [f64; 3], site: u64, weight: f64, rank: usize) -> Self {
+        Self { at, site, weight, shift: [0; 3], wall: NO_WALL as u32, rank: rank as u32, _pad: 0 }
     }
 
     fn image(m: &Image, domain: &PeriodicBox, sites: &[[f64; 3]], ids: &[Held]) -> Self {
@@ -154,14 +156,11 @@ impl PeriodicVoronoi<'_> {
     /// on. Returns the cells of this rank's rows — the same bits as the
     /// diagram of all the sites in one process, neighbours by input index —
     /// with the run's totals (counters, total volume, images), and what
-    /// the part did. Whole cells on the CPU; no weights, no polyhedra, no
-    /// kept lists yet.
+    /// the part did. Whole cells on the CPU; with weights
+    /// ([`PeriodicVoronoi::weights`]: this rank's rows' own, on every rank
+    /// or on none), power cells (the `walks` counter may differ from one
+    /// process's). No polyhedra, no kept lists yet.
     pub fn compute_in_parts(&self, comm: &dyn Reduce) -> Result<(PeriodicCells, PartsReport)> {
-        if self.weights.is_some() {
-            return Err(Error::InvalidInput(
-                "power cells (weights or radii) are not computed in parts yet: run them in one process".into(),
-            ));
-        }
         if self.strategy.is_some_and(|s| s != Strategy::Whole) {
             return Err(Error::InvalidInput("a periodic box in parts is computed with whole cells".into()));
         }
@@ -191,7 +190,21 @@ impl PeriodicVoronoi<'_> {
                 site < at
             })
         };
-        crate::job::sites::check_sites(self.sites, None).map_err(|e| at_row(e, first))?;
+        crate::job::sites::check_sites(self.sites, self.weights).map_err(|e| at_row(e, first))?;
+        // The weights' range over all rows (the halo widens with it), as
+        // the one process takes it; whether the ranks agree on weights.
+        let (lo, hi) = self
+            .weights
+            .unwrap_or_default()
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
+        let weighted = self.weights.is_some() as u8 as f64;
+        let mut span = [-lo, hi, weighted, -weighted];
+        comm.max(&mut span)?;
+        if span[2] != -span[3] {
+            return Err(Error::InvalidInput("some ranks have weights and some do not".into()));
+        }
+        let range = if span[2] > 0.0 { span[1] - -span[0] } else { 0.0 };
         let (placed, on_walls) = place_sites(&domain, self.sites).map_err(|e| at_row(e, first))?;
         let wrapped = placed.iter().zip(self.sites).filter(|(a, b)| a != b).count() - on_walls;
         let spacing = (domain.volume() / total as f64).cbrt();
@@ -220,7 +233,8 @@ impl PeriodicVoronoi<'_> {
         let mut to = vec![Vec::new(); ranks];
         for (i, &p) in placed.iter().enumerate() {
             let r = owner[blocks.index(blocks.of_point(&domain, p))] as usize;
-            to[r].push(Held::site(p, first + i as u64, r));
+            let weight = self.weights.map_or(0.0, |w| w[i]);
+            to[r].push(Held::site(p, first + i as u64, weight, r));
         }
         let mut own: Vec<Held> = send(comm, to, &mut report.sent)?;
         own.sort_unstable_by_key(|h| h.site);
@@ -232,7 +246,6 @@ impl PeriodicVoronoi<'_> {
         // rank's blocks, each with every point within its nearest's
         // distance.
         let clock = std::time::Instant::now();
-        let range = 0.0;
         let first_halo = (2.0 * spacing * 2.0 * spacing + range).sqrt();
         let images = images_within(&domain, &own_sites, first_halo);
         let points: Vec<Held> =
@@ -265,6 +278,21 @@ impl PeriodicVoronoi<'_> {
 
         // Every point within the halo of this rank's blocks, in the one
         // process's order; wider until each own site's list lies inside.
+        // The weights as the one process shifts them: from the smallest of
+        // a site that owns its cell (of duplicates, the largest weight's).
+        let kept_span = match self.weights {
+            Some(_) => {
+                let mut largest: std::collections::HashMap<[u64; 3], f64> = Default::default();
+                for h in &own {
+                    let w = largest.entry(h.at.map(f64::to_bits)).or_insert(h.weight);
+                    *w = w.max(h.weight);
+                }
+                let mut span = [-largest.values().copied().fold(f64::INFINITY, f64::min), span[1]];
+                comm.max(&mut span)?;
+                [-span[0], span[1]]
+            }
+            None => [0.0; 2],
+        };
         let (lo, hi) = crate::geom::vec3::bounding_box(points.iter().map(|h| &h.at));
         let mut extremes = [0, 1, 2, 3, 4, 5].map(|k| if k < 3 { -lo[k] } else { hi[k - 3] });
         comm.max(&mut extremes)?;
@@ -288,12 +316,23 @@ impl PeriodicVoronoi<'_> {
             // This rank's cells, each site's list kept to check its reach.
             let at: Vec<[f64; 3]> = held.iter().map(|h| h.at).collect();
             let order: Vec<u32> = (0..held.len() as u32).collect();
-            let layout =
-                Layout { order: &order, lo: frame.0, hi: frame.1, grid_sites, answer: (answer.start, answer.end) };
+            let layout = Layout {
+                order: &order,
+                lo: frame.0,
+                hi: frame.1,
+                grid_sites,
+                answer: (answer.start, answer.end),
+                weights: self.weights.map(|_| kept_span),
+            };
+            let weights: Option<Vec<f64>> = self.weights.map(|_| held.iter().map(|h| h.weight).collect());
             let mut whole = if answer.is_empty() {
                 Cells { k_site, strategy: Strategy::Whole, ..Default::default() }
             } else {
-                ClippedVoronoi { sites: &at, ..diagram }.layout(layout).keep_lists(Some(k_site)).compute()?
+                let part = ClippedVoronoi { sites: &at, ..diagram }.layout(layout).keep_lists(Some(k_site));
+                match &weights {
+                    Some(w) => part.weights(w).compute()?,
+                    None => part.compute()?,
+                }
             };
             // Each list is the one process's if its k-th entry lies within
             // the halo (its distance plus the quantization's rounding, the

@@ -393,9 +393,17 @@ impl<'a> ClippedVoronoi<'a> {
         let sites: Vec<[f64; 3]> = inputs.iter().map(|&i| frame.to_local(self.sites[i as usize])).collect();
         // Weights in the frame's squared units, shifted so that the
         // smallest is 0 (a constant changes no cell): all in 0..=range.
-        let w_min = inputs.iter().map(|&i| weight(i as usize)).fold(f64::INFINITY, f64::min);
+        let span = self.layout.as_ref().and_then(|l| l.weights);
+        let w_min = match span {
+            Some([lo, _]) => lo,
+            None => inputs.iter().map(|&i| weight(i as usize)).fold(f64::INFINITY, f64::min),
+        };
         let local_weight = |u: usize| (weight(inputs[u] as usize) - w_min) / (frame.scale * frame.scale);
-        let weight_range = (0..inputs.len()).map(local_weight).fold(0.0, f64::max);
+        // (x - w_min) / s² grows with x: the largest weight's is the largest.
+        let weight_range = match span {
+            Some([_, hi]) => ((hi - w_min) / (frame.scale * frame.scale)).max(0.0),
+            None => (0..inputs.len()).map(local_weight).fold(0.0, f64::max),
+        };
         if !weight_range.is_finite() || weight_range > 1e30 {
             return Err(Error::InvalidInput(format!(
                 "the weights span {:e}, too wide for the domain's size {:e}",

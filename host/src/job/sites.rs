@@ -155,6 +155,9 @@ pub(crate) struct Layout<'a> {
     /// The places (in `order`) of the sites that get cells: from the
     /// first, up to the second.
     pub answer: (usize, usize),
+    /// The whole job's smallest and largest weight of a site that owns a
+    /// cell (a part's sites hold only some weights); `None`: the job's own.
+    pub weights: Option<[f64; 2]>,
 }
 
 /// [`unique_in_morton_order`] for a [`Layout`]: the sites in its order,

@@ -169,13 +169,7 @@ impl SitesPart {
 /// [`read_sites`]: super::read_sites
 pub fn read_sites_part(path: &Path, part: usize, parts: usize) -> Result<SitesPart> {
     let name = path.display().to_string();
-    if part >= parts {
-        let expected = match parts {
-            0 => "at least 1 part".to_string(),
-            _ => format!("a part from 0 to {}", parts - 1),
-        };
-        return Err(Error::InvalidInput(format!("{name}: part {part} of {parts}: expected {expected}")));
-    }
+    check_part(&name, part, parts)?;
     let Some(format) = formats::find(SITES, path) else {
         return Err(formats::unknown(SITES, "sites", path));
     };
@@ -183,6 +177,50 @@ pub fn read_sites_part(path: &Path, part: usize, parts: usize) -> Result<SitesPa
     if !npy && !format.fallback {
         return Err(Error::InvalidInput(format!("{name}: {} sites files cannot be read by parts", format.name)));
     }
+    let (file, size) = open_regular(path)?;
+    if npy {
+        let (first, sites, total) = npy::read_npy_part(&file, size, &name, part, parts)?;
+        return Ok(SitesPart { first: Some(first), sites, total: Some(total), count_line: None });
+    }
+    let (sites, count_line) = match text_part(&file, size, &name, part, parts)? {
+        Some((offset, bytes, skip)) => xyz::parse_xyz_part(&bytes[skip..], offset, &name)?,
+        None => (Vec::new(), None),
+    };
+    Ok(SitesPart { first: None, sites, total: None, count_line })
+}
+
+/// Reads part `part` of `parts` (0-based) of a file of one number per line
+/// (weights, radii: what [`read_values`](super::read_values) reads), only
+/// that part's bytes: the values of the lines that start in the bytes
+/// `len * part / parts .. len * (part + 1) / parts`. Concatenated in order,
+/// the parts' values are exactly those `read_values` reads; a part's first
+/// row is the number of values of the parts before it (an all-gather of
+/// their counts). Errors name the file and the line's byte offset.
+pub fn read_values_part(path: &Path, part: usize, parts: usize) -> Result<Vec<f64>> {
+    let name = path.display().to_string();
+    check_part(&name, part, parts)?;
+    let (file, size) = open_regular(path)?;
+    match text_part(&file, size, &name, part, parts)? {
+        Some((offset, bytes, skip)) => xyz::parse_values_part(&bytes[skip..], offset, &name),
+        None => Ok(Vec::new()),
+    }
+}
+
+/// Refuses a part that is not one of `parts`.
+fn check_part(name: &str, part: usize, parts: usize) -> Result<()> {
+    if part < parts {
+        return Ok(());
+    }
+    let expected = match parts {
+        0 => "at least 1 part".to_string(),
+        _ => format!("a part from 0 to {}", parts - 1),
+    };
+    Err(Error::InvalidInput(format!("{name}: part {part} of {parts}: expected {expected}")))
+}
+
+/// The file at `path` and its size; refused unless a regular file.
+fn open_regular(path: &Path) -> Result<(std::fs::File, u64)> {
+    let name = path.display().to_string();
     let io = |source| Error::Io { path: name.clone(), source };
     let file = std::fs::File::open(path).map_err(io)?;
     let meta = file.metadata().map_err(io)?;
@@ -191,15 +229,7 @@ pub fn read_sites_part(path: &Path, part: usize, parts: usize) -> Result<SitesPa
             "{name}: not a regular file: reading by parts needs the file's size before it is read"
         )));
     }
-    if npy {
-        let (first, sites, total) = npy::read_npy_part(&file, meta.len(), &name, part, parts)?;
-        return Ok(SitesPart { first: Some(first), sites, total: Some(total), count_line: None });
-    }
-    let (sites, count_line) = match text_part(&file, meta.len(), &name, part, parts)? {
-        Some((offset, bytes, skip)) => xyz::parse_xyz_part(&bytes[skip..], offset, &name)?,
-        None => (Vec::new(), None),
-    };
-    Ok(SitesPart { first: None, sites, total: None, count_line })
+    Ok((file, meta.len()))
 }
 
 /// Part `part` of `parts` of `0..n`: `n * part / parts .. n * (part + 1) / parts`.
@@ -508,6 +538,32 @@ mod tests {
         let mut part = SitesPart { first: None, sites: vec![], total: None, count_line: None };
         assert!(part.join(&file.0, &[], 0).is_err());
         assert!(part.join(&file.0, &[SitesPartSummary { sites: 1, count_line: None }], 0).is_err());
+    }
+
+    #[test]
+    fn values_read_by_parts_as_whole() {
+        let texts = ["1\n2.5\n-3e-2\n", "# radii\n0.5\n\n  0.75  \r\n1 # big\n0.25", "", "\n\n# nothing\n", "7\n"];
+        let many: String = (0..997).map(|i| format!("{}\n", (i as f64 * 0.37).sin())).collect();
+        for (i, text) in texts.iter().copied().chain([many.as_str()]).enumerate() {
+            let file = Temp::new(&format!("parts_values_{i}.txt"), text.as_bytes());
+            let whole = crate::read::read_values(&file.0).unwrap();
+            for parts in 1..=7 {
+                let joined: Vec<f64> = (0..parts).flat_map(|k| read_values_part(&file.0, k, parts).unwrap()).collect();
+                let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&joined), bits(&whole), "text {i} in {parts} parts");
+            }
+        }
+        // A bad line, named by its byte in the part that reads it.
+        let file = Temp::new("parts_values_bad.txt", b"1.0\n2.0\n3.0 4.0\n5.0\n");
+        // 20 bytes in 2 parts: the line at byte 8 starts in part 0.
+        let m = read_values_part(&file.0, 0, 2).unwrap_err().to_string();
+        assert!(
+            m.contains("parts_values_bad.txt") && m.contains("the line at byte 8") && m.contains("one number"),
+            "{m}"
+        );
+        assert_eq!(read_values_part(&file.0, 1, 2).unwrap(), vec![5.0], "the second part holds no bad line");
+        let m = read_values_part(&file.0, 2, 2).unwrap_err().to_string();
+        assert!(m.contains("part 2 of 2"), "{m}");
     }
 
     #[test]

@@ -255,6 +255,20 @@ fn at_byte(e: Error, bytes: &[u8], offset: u64, path: &str) -> Error {
     }
 }
 
+/// The values of a part of a file of one number per line: `bytes` from
+/// byte `offset` of the file, whole lines. Errors name the file and the
+/// line's byte offset (a part does not know its lines' numbers).
+pub(super) fn parse_values_part(bytes: &[u8], offset: u64, path: &str) -> Result<Vec<f64>> {
+    let text = text(bytes);
+    let mut lex = Lexer::new(&text, path);
+    let mut values = Vec::new();
+    while let Some(line) = lex.line() {
+        let value = line.expect_len(1, "one number").and_then(|()| line.first().f64("a value"));
+        values.push(value.map_err(|e| at_byte(e, bytes, offset, path))?);
+    }
+    Ok(values)
+}
+
 /// Parses one number per line (per-vertex values such as a density); `#`
 /// starts a comment and blank lines are ignored.
 pub fn parse_values(text: &str, path: &str) -> Result<Vec<f64>> {
