@@ -220,8 +220,7 @@ fn values_for_rows(comm: &dyn Reduce, path: &Path, what: &str, len: usize, total
         }
     }
     let got = comm.exchange(Parcels::of(to))?;
-    let values: Vec<f64> =
-        got.bytes.chunks_exact(8).map(|b| f64::from_le_bytes(b.try_into().unwrap_or([0; 8]))).collect();
+    let values: Vec<f64> = got.bytes.as_chunks::<8>().0.iter().map(|b| f64::from_le_bytes(*b)).collect();
     if values.len() != len {
         return Err(cvd::Error::Internal(format!("{} of {len} {what} came to rank {rank}", values.len())));
     }
