@@ -9,6 +9,7 @@
 
 use crate::args::RunArgs;
 use crate::progress::with_iterations;
+use crate::run::Optimised;
 use cvd::backends::distributed::{Parcels, Reduce};
 use cvd::cvt::periodic::PeriodicInParts;
 use cvd::geom::exact_sum::ExactSum;
@@ -61,12 +62,12 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
             (unit.iter().map(|&p| domain.cartesian(p)).collect(), n)
         }
     };
+    let first: u64 = gather_u64(comm, sites.len() as u64)?[..rank].iter().sum();
     // This rank's weights: its rows of --weights, or of --radii squared.
     let weights = match (&args.weights, &args.radii) {
         (Some(path), _) => Some(values_for_rows(comm, path, "weights", sites.len(), total)?),
         (None, Some(path)) => {
             let radii = values_for_rows(comm, path, "radii", sites.len(), total)?;
-            let first: u64 = gather_u64(comm, sites.len() as u64)?[..rank].iter().sum();
             Some(cvd::diagram::particles::radii_weights(&radii).map_err(|_| {
                 let i = radii.iter().position(|r| !(r.is_finite() && *r >= 0.0)).unwrap_or(0);
                 cvd::Error::InvalidInput(format!(
@@ -87,20 +88,28 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
         args.backend.threads.map_or("all".to_string(), |t| t.to_string())
     );
     let cpu = CpuBackend::new(args.backend.threads)?;
-    // The iterations, each rank moving its own rows.
-    let (sites, cvt) = match args.iterations {
-        0 => (sites, None),
-        iterations => {
-            let diagram = PeriodicVoronoi::new(domain, &sites)
-                .k_site(args.k_site)
-                .memory_budget(args.cpu_memory_budget())
-                .backend(&cpu);
-            let parts = PeriodicInParts::new(diagram, comm);
-            let name = args.optimizer.name();
-            let run = with_iterations(name, iterations, |show| args.optimizer.run(&parts, iterations, show))?;
-            (run.sites, Some(CvtRecord::of(name, &run.iterations)))
-        }
+    // The optimiser, each rank moving its own rows (and finding their
+    // weights): the steps of one process.
+    let iterated =
+        PeriodicVoronoi::new(domain, &sites).k_site(args.k_site).memory_budget(args.cpu_memory_budget()).backend(&cpu);
+    let iterated = PeriodicInParts::new(iterated, comm);
+    let optimised = if args.transports() {
+        let capacities = match (&args.capacities, args.volumes) {
+            (Some(p), _) => Some(values_for_rows(comm, p, "capacities", sites.len(), total)?),
+            (None, Some(law)) => Some(law.draw_rows(first..first + sites.len() as u64, args.seed)),
+            (None, None) => None,
+        };
+        crate::run::transport(args, iterated, weights.as_deref(), capacities)?
+    } else if args.iterations > 0 {
+        let (name, iterations) = (args.optimizer.name(), args.iterations);
+        let run = with_iterations(name, iterations, |show| args.optimizer.run(&iterated, iterations, show))?;
+        let cvt = Some(CvtRecord::of(name, &run.iterations));
+        Optimised { sites: run.sites, cvt, weights, transport: None }
+    } else {
+        Optimised { sites: sites.clone(), cvt: None, weights, transport: None }
     };
+    drop(sites);
+    let Optimised { sites, cvt, weights, transport } = optimised;
     let faces = !args.no_neighbors;
     let diagram = PeriodicVoronoi::new(domain, &sites)
         .k_site(args.k_site)
@@ -121,6 +130,10 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     }
     write_part(comm, &dir.join("sites.xyz"), |w| cvd_io::write_sites_xyz_rows(w, &out.sites, rows))?;
     written.push("sites.xyz");
+    if let (Some(w), Some(_)) = (&weights, &transport) {
+        write_part(comm, &dir.join("weights.txt"), |out| cvd_io::write_values_rows(out, w))?;
+        written.push("weights.txt");
+    }
 
     // The run's numbers: totals from every rank, each rank's record.
     let mut energy = ExactSum::of(&out.cells.energy).words();
@@ -138,8 +151,12 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
         peak_memory_bytes: cvd::job::memory::peak().unwrap_or(0),
     };
     let records = comm.all_gather(&record_bytes(&mine))?;
+    let status = match &transport {
+        Some(t) if !t.converged => crate::run::NOT_CONVERGED,
+        _ => 0,
+    };
     if rank != 0 {
-        return Ok(0);
+        return Ok(status);
     }
     let mesh = domain.mesh(cvd::diagram::periodic::WHOLE_FRAME_TETS);
     let mut summary = Summary::new("periodic box", &mesh, total as usize, out.cells.strategy, &cpu, &out.cells);
@@ -149,6 +166,7 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
         written.insert(0, "energy.png");
         summary.cvt = Some(record);
     }
+    summary.transport = transport;
     summary.periodic = Some(cvd_io::PeriodicRecord::of(&domain, &out));
     summary.ranks = Some(records.iter().map(|b| record_of(b)).collect());
     summary.write_json(&dir.join("summary.json"))?;
@@ -169,15 +187,14 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
         );
     }
     println!("wrote {}: {}", dir.display(), written.join(", "));
-    Ok(0)
+    Ok(status)
 }
 
 /// The options a periodic box in parts does not take yet, refused by name.
 fn refuse_what_parts_lack(args: &RunArgs) -> cvd::Result<()> {
     let lacking = [
-        (args.transports(), "optimal transport"),
         (
-            args.weights.is_some() && args.iterations > 0,
+            args.weights.is_some() && args.iterations > 0 && !args.transports(),
             "--weights with --iterations (CVT iterations keep power weights only with --transport)",
         ),
         (args.voronoi_index, "--voronoi-index (the cells' polyhedra)"),

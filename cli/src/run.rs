@@ -14,15 +14,15 @@ use cvd::{Backend, Cells, ClippedVoronoi, JobShape, ParticleCells, PeriodicVoron
 use cvd_io::{CvtRecord, ParticlesRecord, PeriodicRecord, Summary, TransportRecord};
 
 /// What the optimiser gives the final diagram.
-struct Optimised {
+pub(crate) struct Optimised {
     /// The sites: as given, or moved by the iterations.
-    sites: Vec<[f64; 3]>,
+    pub sites: Vec<[f64; 3]>,
     /// The iterations' record.
-    cvt: Option<CvtRecord>,
+    pub cvt: Option<CvtRecord>,
     /// The weights: `--weights`, or those optimal transport found.
-    weights: Option<Vec<f64>>,
+    pub weights: Option<Vec<f64>>,
     /// Optimal transport's record.
-    transport: Option<TransportRecord>,
+    pub transport: Option<TransportRecord>,
 }
 
 /// The final diagram.
@@ -184,7 +184,13 @@ fn optimise_on<D: SiteDiagram>(
 ) -> cvd::Result<Optimised> {
     let weights = inputs.weights.clone();
     if args.transports() {
-        return transport(args, transported, weights.as_deref());
+        let n = inputs.sites.len();
+        let capacities = match (&args.capacities, args.volumes) {
+            (Some(p), _) => Some(per_site(p, "capacities", n)?),
+            (None, Some(law)) => Some(law.draw(n, args.seed)),
+            (None, None) => None,
+        };
+        return transport(args, transported, weights.as_deref(), capacities);
     }
     if args.iterations == 0 {
         return Ok(Optimised { sites: inputs.sites.clone(), cvt: None, weights, transport: None });
@@ -204,19 +210,21 @@ fn optimise_on<D: SiteDiagram>(
 /// weights `start` (if any): the weights that give every cell its target
 /// mass, with the solve's record; with `--iterations`, the
 /// capacity-constrained CVT first (its moved sites and record). Prints
-/// each Newton step of a single solve.
-fn transport<D: SiteDiagram>(args: &RunArgs, diagram: D, start: Option<&[f64]>) -> cvd::Result<Optimised> {
+/// each Newton step of a single solve. `capacities`: the sites' (or, in
+/// parts, this rank's rows').
+pub(crate) fn transport<D: SiteDiagram>(
+    args: &RunArgs,
+    diagram: D,
+    start: Option<&[f64]>,
+    capacities: Option<Vec<f64>>,
+) -> cvd::Result<Optimised> {
     if args.optimizer != cvd::cvt::Optimizer::Lloyd {
         return Err(cvd::Error::InvalidInput(
             "--transport with --optimizer lbfgs: the capacity-constrained CVT moves sites by Lloyd steps".into(),
         ));
     }
     let sites = diagram.starting_sites().to_vec();
-    let capacities = match (&args.capacities, args.volumes) {
-        (Some(p), _) => Some(per_site(p, "capacities", sites.len())?),
-        (None, Some(law)) => Some(law.draw(sites.len(), args.seed)),
-        (None, None) => None,
-    };
+    let speaks = diagram.comm().is_none_or(|c| c.rank() == 0);
     let mut ot = Transport::new(diagram).tolerance(args.tolerance).max_steps(args.newton_steps);
     if let Some(c) = &capacities {
         ot = ot.capacities(c);
@@ -246,7 +254,7 @@ fn transport<D: SiteDiagram>(args: &RunArgs, diagram: D, start: Option<&[f64]>) 
         (sites, None, run)
     };
     let record = TransportRecord::of(&targets, args.tolerance, &run);
-    if !run.converged {
+    if !run.converged && speaks {
         eprintln!(
             "transport: the masses came within {:.2e} of their targets, not {:.0e}: {}",
             record.max_error, args.tolerance, run.stopped

@@ -219,8 +219,8 @@ fn mpirun_gives_a_periodic_box_in_parts_byte_for_byte() {
     assert_ne!(o.status.code(), Some(124), "the ranks waited for the one that failed: {said}");
     assert!(!o.status.success() && said.contains("bad.xyz") && said.contains("byte"), "{said}");
     // What parts do not do yet is refused by name.
-    let o = mpirun_job(BOX, 2, &dir.join("refused"), &["--box", "0,0,0,9,9,9", "--sites", "900", "--transport"]);
-    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("optimal transport"));
+    let o = mpirun_job(BOX, 2, &dir.join("refused"), &["--box", "0,0,0,9,9,9", "--sites", "900", "--voronoi-index"]);
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("--voronoi-index"));
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -305,6 +305,44 @@ fn mpirun_gives_power_cells_in_parts_byte_for_byte() {
     let o = mpirun_job(BOX, 3, &dir.join("bad"), &args);
     let said = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success() && said.contains("particle 5000's radius is -0.5"), "{said}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn mpirun_solves_optimal_transport_as_one_process() {
+    if !mpi_here() {
+        return;
+    }
+    // Each rank its rows of the weights; the Newton system's Laplacian and
+    // its conjugate gradients across ranks (a row's neighbours on other
+    // ranks fetched each iteration), every sum exact: the same weights,
+    // steps and files. Capacities read by parts, volumes drawn by rows,
+    // and the capacity-constrained CVT.
+    let dir = temp_dir("transport");
+    let capacities: String =
+        cvd::geom::points::uniform(3000, 51).iter().map(|p| format!("{}\n", 1.0 + 3.0 * p[0])).collect();
+    let c = dir.join("capacities.txt");
+    std::fs::write(&c, capacities).unwrap();
+    let c = c.to_str().unwrap();
+    let cases: [(&str, Vec<&str>); 3] = [
+        ("capacities", vec!["--box", "0,0,0,14,16,12", "--tilt", "1,2,-1", "--sites", "3000", "--capacities", c]),
+        ("volumes", vec!["--box", "0,0,0,14,16,12", "--sites", "3000", "--volumes", "lognormal:0,0.3"]),
+        ("ccvt", vec!["--box", "0,0,0,10,11,12", "--sites", "1500", "--transport", "--iterations", "1"]),
+    ];
+    for (name, args) in &cases {
+        let one = dir.join(format!("{name}-one"));
+        ok(&cvd_job(BOX, &one, args), &format!("{name}: one process"));
+        let steps = |dir: &Path| summary(dir)["transport"]["step_max_error"].clone();
+        assert!(steps(&one).as_array().is_some_and(|s| s.len() > 1), "{name}: one process's record");
+        for ranks in [2, 3] {
+            let out = dir.join(format!("{name}-{ranks}"));
+            ok(&mpirun_job(BOX, ranks, &out, args), &format!("{name}: {ranks} ranks"));
+            for file in ["cells.csv", "neighbors.csv", "sites.xyz", "weights.txt"] {
+                assert!(read(&one.join(file)) == read(&out.join(file)), "{name}, {ranks} ranks: {file} differs");
+            }
+            assert_eq!(steps(&out), steps(&one), "{name}, {ranks} ranks: the Newton steps");
+        }
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }
 

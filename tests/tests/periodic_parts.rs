@@ -8,10 +8,12 @@
 //! with duplicated sites; and no rank holds all the sites. Lloyd and
 //! L-BFGS in parts (`PeriodicInParts`) take the one process's steps: the
 //! same sites and energies, to the bit. Power cells (weights) in parts are
-//! the one process's too.
+//! the one process's too, and so is optimal transport in parts (each rank
+//! its rows of the weights; the Laplacian's neighbours across ranks).
 
 use cvd::backends::distributed::{InProcess, Reduce};
 use cvd::cvt::periodic::PeriodicInParts;
+use cvd::cvt::transport::{Transport, TransportRun};
 use cvd::cvt::{CvtRun, Optimizer};
 use cvd::diagram::periodic_parts::PartsReport;
 use cvd::{geom::points, CpuBackend, PeriodicBox, PeriodicCells, PeriodicVoronoi};
@@ -246,4 +248,41 @@ fn lloyd_and_lbfgs_in_parts_take_the_one_process_steps() {
     let slab = PeriodicBox::new([0.0; 3], [15.0, 15.0, 8.0]).unwrap().with_periodic([true, true, false]);
     let sites: Vec<[f64; 3]> = points::uniform(1800, 3).iter().map(|p| slab.cartesian(*p)).collect();
     same_steps("slab", slab, &sites, 3);
+}
+
+#[test]
+fn optimal_transport_in_parts_finds_the_one_process_weights() {
+    // Capacities spanning a factor 4 on sites in a triclinic cell: the
+    // same weights, steps and masses, to the bit.
+    let n = 2000;
+    let l = (n as f64).cbrt();
+    let b = PeriodicBox::lammps([0.0; 3], [l; 3], [0.1 * l, 0.2 * l, -0.1 * l]).unwrap();
+    let sites: Vec<[f64; 3]> = points::uniform(n, 41).iter().map(|p| b.cartesian(*p)).collect();
+    let capacities: Vec<f64> = points::uniform(n, 42).iter().map(|p| 1.0 + 3.0 * p[0]).collect();
+    let cpu = CpuBackend::new(Some(1)).unwrap();
+    let one = Transport::new(PeriodicVoronoi::new(b, &sites).backend(&cpu)).capacities(&capacities);
+    let whole = one.solve(&mut |_| true).unwrap();
+    assert!(whole.converged, "one process: {}", whole.stopped);
+    let steps = |r: &TransportRun| {
+        r.steps
+            .iter()
+            .map(|s| (s.max_error.to_bits(), s.step.to_bits(), s.cg_iterations, s.diagrams))
+            .collect::<Vec<_>>()
+    };
+    for ranks in 2..=4 {
+        let runs = on_ranks(&sites, ranks, |comm, rows, cpu| {
+            let first = n * comm.rank() / ranks;
+            let diagram = PeriodicInParts::new(PeriodicVoronoi::new(b, rows).backend(cpu), comm);
+            Transport::new(diagram).capacities(&capacities[first..first + rows.len()]).solve(&mut |_| true).unwrap()
+        });
+        for run in &runs {
+            assert_eq!(steps(run), steps(&whole), "{ranks} ranks: the Newton steps");
+            assert_eq!(run.stopped, whole.stopped);
+        }
+        let weights: Vec<u64> = runs.iter().flat_map(|r| &r.weights).map(|w| w.to_bits()).collect();
+        let expected: Vec<u64> = whole.weights.iter().map(|w| w.to_bits()).collect();
+        assert!(weights == expected, "{ranks} ranks: the weights differ from one process's");
+        let masses: Vec<u64> = runs.iter().flat_map(|r| &r.cells.volume).map(|m| m.to_bits()).collect();
+        assert!(masses == whole.cells.volume.iter().map(|m| m.to_bits()).collect::<Vec<_>>(), "{ranks} ranks: masses");
+    }
 }

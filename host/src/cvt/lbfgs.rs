@@ -22,11 +22,8 @@ pub fn run<D: SiteDiagram + ?Sized>(
     let sites = diagram.starting_sites();
     let evaluate = |x: &[f64]| diagram.evaluate(x);
     // Exact dot products: the same steps in parts as in one process.
-    let dot = |a: &[f64], b: &[f64]| -> Result<f64> {
-        let mut sum = [crate::geom::exact_sum::dot(a, b)];
-        diagram.total(&mut sum)?;
-        Ok(sum[0].value())
-    };
+    let across = super::across::Across::of(diagram, 3 * sites.len())?;
+    let dot = |a: &[f64], b: &[f64]| across.dot(a, b);
     let mut x: Vec<f64> = sites.iter().flatten().copied().collect();
     let (mut at, mut seconds) = evaluate(&x)?;
     let mut memory: Vec<(Vec<f64>, Vec<f64>, f64)> = Vec::new();

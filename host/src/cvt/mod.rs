@@ -13,7 +13,10 @@
 //!   every cell a prescribed mass, by damped Newton steps.
 //!
 //! [`Optimizer`] names them: a new optimiser is a file here and a variant.
+//! Each takes its sums over all sites through `across`, so that a diagram
+//! in parts ([`SiteDiagram::comm`]) takes one process's steps to the bit.
 
+pub(crate) mod across;
 pub mod clipped;
 pub mod lbfgs;
 pub mod lloyd;
@@ -22,7 +25,6 @@ pub mod transport;
 
 use crate::diagram::voronoi::Cells;
 use crate::error::Result;
-use crate::geom::exact_sum::ExactSum;
 
 /// One iteration, as reported.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -101,13 +103,13 @@ pub trait SiteDiagram: Sync {
     /// (a diagram without faces), and the seconds the diagram took.
     fn evaluate(&self, x: &[f64]) -> Result<(Evaluation, f64)>;
 
-    /// Adds up each of `sums` over every process that holds a share of
-    /// the sites (a diagram in parts), in place: each process passes the
-    /// sums of its own share (an energy, a dot product) and gets the
-    /// totals, the same bits on every process and as one process holding
-    /// every site. A diagram in one process has nothing to add.
-    fn total(&self, _sums: &mut [ExactSum]) -> Result<()> {
-        Ok(())
+    /// The processes that each hold a run of the sites' rows (a diagram in
+    /// parts: its sites, cells and weights are this process's rows, its
+    /// neighbours by global row), or `None` (one process holds them all).
+    /// The optimisers take every sum over all sites through `across`:
+    /// exact, so each process takes one process's steps to the bit.
+    fn comm(&self) -> Option<&dyn crate::backends::distributed::Reduce> {
+        None
     }
 
     /// `iterations` Lloyd iterations (see [`lloyd`]), calling `progress`
@@ -163,11 +165,9 @@ impl Optimizer {
 }
 
 /// The exact sum of `terms` over every process `diagram` runs on (see
-/// [`SiteDiagram::total`]).
+/// [`SiteDiagram::comm`]).
 pub(crate) fn total_of(diagram: &(impl SiteDiagram + ?Sized), terms: &[f64]) -> Result<f64> {
-    let mut sum = [ExactSum::of(terms)];
-    diagram.total(&mut sum)?;
-    Ok(sum[0].value())
+    across::Across::of(diagram, terms.len())?.sum(terms)
 }
 
 /// Flat `x, y, z` coordinates as points.

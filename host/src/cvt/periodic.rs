@@ -8,8 +8,7 @@ use super::{to_points, Evaluation, SiteDiagram};
 use crate::backends::distributed::Reduce;
 use crate::diagram::periodic::{PeriodicCells, PeriodicVoronoi};
 use crate::diagram::voronoi::Cells;
-use crate::error::{Error, Result};
-use crate::geom::exact_sum::ExactSum;
+use crate::error::Result;
 use std::time::Instant;
 
 impl SiteDiagram for PeriodicVoronoi<'_> {
@@ -47,8 +46,8 @@ impl SiteDiagram for PeriodicVoronoi<'_> {
 /// and moves them, and every sum the optimisers take is the total over
 /// the ranks ([`SiteDiagram::total`]), so that Lloyd and L-BFGS take on
 /// every rank the steps one process takes with every site, to the bit.
-/// The iterations' cells have no faces. (Optimal transport is not solved
-/// in parts yet.)
+/// The iterations' cells have no faces; optimal transport's power cells
+/// do (each row's faces, neighbours by global row).
 pub struct PeriodicInParts<'a> {
     diagram: PeriodicVoronoi<'a>,
     comm: &'a dyn Reduce,
@@ -83,8 +82,8 @@ impl SiteDiagram for PeriodicInParts<'_> {
         Ok(self.cells(sites)?.cells)
     }
 
-    fn power_cells_at(&self, _sites: &[[f64; 3]], _weights: &[f64]) -> Result<Cells> {
-        Err(Error::InvalidInput("optimal transport is not solved in parts yet: run it in one process".into()))
+    fn power_cells_at(&self, sites: &[[f64; 3]], weights: &[f64]) -> Result<Cells> {
+        Ok(self.diagram.sites(sites).weights(weights).faces(true).compute_in_parts(self.comm)?.0.cells)
     }
 
     fn evaluate(&self, x: &[f64]) -> Result<(Evaluation, f64)> {
@@ -95,13 +94,8 @@ impl SiteDiagram for PeriodicInParts<'_> {
         Ok((evaluation(&out, energy), seconds))
     }
 
-    fn total(&self, sums: &mut [ExactSum]) -> Result<()> {
-        let mut words: Vec<i64> = sums.iter().flat_map(|s| s.words()).collect();
-        self.comm.sum(&mut words)?;
-        for (s, w) in sums.iter_mut().zip(words.chunks(ExactSum::WORDS)) {
-            *s = ExactSum::from_words(w).ok_or_else(|| Error::Internal("a sum's words did not come through".into()))?;
-        }
-        Ok(())
+    fn comm(&self) -> Option<&dyn Reduce> {
+        Some(self.comm)
     }
 }
 

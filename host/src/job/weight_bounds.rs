@@ -23,6 +23,11 @@ const ROUNDS: usize = 3;
 /// cell's farthest vertex is about one away; pieces start larger).
 const CAPS: [f64; 3] = [1.0, 1.5, 2.5];
 
+/// The most grid cells a site's bound reads (beyond, the largest weight
+/// of all is its bound): 9 reads a site, so the bounds never cost more
+/// than a few thousand reads per site, whatever the weights' spread.
+const MOST_CELLS: usize = 1 << 12;
+
 /// The side of the grid's cells, in mean site spacings.
 const CELL_SPACINGS: f64 = 2.0;
 
@@ -48,6 +53,11 @@ pub(crate) fn local_bounds(sites: &[SplitPoint], range: f64, volume: f64) -> Vec
     }
     let box_max = |p: &[f64; 3], radius: f64| {
         let (a, b) = ([0, 1, 2].map(|k| cell_of(p[k] - radius, k)), [0, 1, 2].map(|k| cell_of(p[k] + radius, k)));
+        // A ball over much of the grid (weights spread far wider than the
+        // spacing) bounds nothing below the largest weight: no walk.
+        if (0..3).map(|k| b[k] - a[k] + 1).product::<usize>() > MOST_CELLS {
+            return f64::INFINITY;
+        }
         let mut m = f64::NEG_INFINITY;
         for z in a[2]..=b[2] {
             for y in a[1]..=b[1] {
@@ -85,4 +95,53 @@ pub(crate) fn local_bounds(sites: &[SplitPoint], range: f64, volume: f64) -> Vec
             }
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sites(n: usize, spread: f64) -> Vec<SplitPoint> {
+        let p = crate::geom::points::uniform(n, 7);
+        let w = crate::geom::points::uniform(n, 8);
+        p.iter().zip(&w).map(|(p, w)| SplitPoint::site(p.map(|c| 10.0 * c), spread * w[0])).collect()
+    }
+
+    #[test]
+    fn each_bound_holds_the_weights_within_its_reach() {
+        // Weights spread over a few spacings²: local bounds, each at least
+        // the largest weight of the sites it lets reach its first radius.
+        let s = sites(3000, 2.0);
+        let range = s.iter().map(SplitPoint::value).fold(0.0, f64::max);
+        let bounds = local_bounds(&s, range, 1000.0);
+        let spacing = (1000.0f64 / 3000.0).cbrt();
+        let mut below_range = 0;
+        for (i, b) in bounds.iter().enumerate() {
+            let (p, w) = (s[i].to_f64(), s[i].value());
+            let r2 = b.hi[1] as f64;
+            // The bound is its own: no site within reach(R, W - w_i) is heavier.
+            let reach = r2.sqrt() + (r2 + (b.hi[0] as f64 - w).max(0.0)).sqrt();
+            let near = s
+                .iter()
+                .filter(|q| (0..3).map(|a| (q.to_f64()[a] - p[a]).powi(2)).sum::<f64>().sqrt() <= reach)
+                .map(SplitPoint::value)
+                .fold(f64::NEG_INFINITY, f64::max);
+            assert!(b.hi[0] as f64 >= near, "site {i}: bound {} below a weight {near} within its reach", b.hi[0]);
+            assert!(b.hi[0] as f64 <= range * (1.0 + 1e-6) && r2 <= (spacing * spacing) * 1.0001);
+            below_range += (b.hi[0] as f64 + 1e-3 < range) as usize;
+        }
+        assert!(below_range > 0, "no bound below the largest weight: nothing local");
+    }
+
+    #[test]
+    fn weights_spread_far_wider_than_the_spacing_are_bounded_by_the_largest() {
+        // A ball over much of the grid reads no cell (it would read them
+        // all, for every site): its bound is the largest weight.
+        let s = sites(3000, 1e6);
+        let range = s.iter().map(SplitPoint::value).fold(0.0, f64::max);
+        let bounds = local_bounds(&s, range, 1000.0);
+        for b in &bounds {
+            assert!(b.hi[0] as f64 >= range && b.lo[0] as f64 >= range, "{b:?} below {range}");
+        }
+    }
 }

@@ -123,12 +123,16 @@ impl Rows {
 /// Writes one value per line (as [`read_values`] reads them back, exactly:
 /// the shortest decimal that parses to the same f64).
 pub fn write_values(path: &Path, values: &[f64]) -> Result<()> {
-    write_file(path, |w| {
-        for v in values {
-            writeln!(w, "{v}")?;
-        }
-        Ok(())
-    })
+    write_file(path, |w| write_values_rows(w, values))
+}
+
+/// Writes `values` one per line: a file of values, or one part of it in a
+/// run in parts (the parts laid end to end are the whole file).
+pub fn write_values_rows(w: &mut dyn Write, values: &[f64]) -> std::io::Result<()> {
+    for v in values {
+        writeln!(w, "{v}")?;
+    }
+    Ok(())
 }
 
 /// Writes a mesh as Medit ASCII `.mesh` (references 0 for vertices, 1 for
