@@ -116,14 +116,33 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
         .faces(faces)
         .memory_budget(args.cpu_memory_budget())
         .backend(&cpu);
-    let (out, report) = match &weights {
-        Some(w) => diagram.weights(w).compute_in_parts(comm)?,
-        None => diagram.compute_in_parts(comm)?,
+    let diagram = match &weights {
+        Some(w) => diagram.weights(w),
+        None => diagram,
+    };
+    // With --voronoi-index, each cell's polyhedron measured where it is
+    // built; its numbers travel with its row.
+    let (out, particles, report) = match args.voronoi_index {
+        true => {
+            let thresholds = args.index_thresholds()?;
+            let (out, particles, report) = diagram.compute_in_parts_with_index(comm, &cpu, &thresholds)?;
+            println!(
+                "in parts: the Voronoi index in cells.csv; no cells.vtu or walls.ply (each rank holds the \
+                 polyhedra of the cells it built)"
+            );
+            (out, Some(particles), report)
+        }
+        false => {
+            let (out, report) = diagram.compute_in_parts(comm)?;
+            (out, None, report)
+        }
     };
     drop(sites);
     let rows = Rows { first: report.first, total, periodic: true };
     let mut written = vec!["cells.csv"];
-    write_part(comm, &dir.join("cells.csv"), |w| cvd_io::write_cells_csv_rows(w, &out.cells, None, None, rows))?;
+    let cells_csv =
+        |w: &mut dyn std::io::Write| cvd_io::write_cells_csv_rows(w, &out.cells, particles.as_ref(), None, rows);
+    write_part(comm, &dir.join("cells.csv"), cells_csv)?;
     if let Some(a) = out.cells.adjacency() {
         write_part(comm, &dir.join("neighbors.csv"), |w| cvd_io::write_neighbors_csv_rows(w, a, rows))?;
         written.push("neighbors.csv");
@@ -197,7 +216,6 @@ fn refuse_what_parts_lack(args: &RunArgs) -> cvd::Result<()> {
             args.weights.is_some() && args.iterations > 0 && !args.transports(),
             "--weights with --iterations (CVT iterations keep power weights only with --transport)",
         ),
-        (args.voronoi_index, "--voronoi-index (the cells' polyhedra)"),
         (args.parts.is_some(), "--parts (the ranks are the parts)"),
         (args.backend.backend == cvd::BackendChoice::Vulkan, "--backend vulkan (parts run on the CPU)"),
         (args.strategy.is_some_and(|s| s != cvd::Strategy::Whole), "--strategy other than whole"),

@@ -16,7 +16,7 @@ use cvd::cvt::periodic::PeriodicInParts;
 use cvd::cvt::transport::{Transport, TransportRun};
 use cvd::cvt::{CvtRun, Optimizer};
 use cvd::diagram::periodic_parts::PartsReport;
-use cvd::{geom::points, CpuBackend, PeriodicBox, PeriodicCells, PeriodicVoronoi};
+use cvd::{geom::points, CpuBackend, IndexThresholds, ParticleCells, PeriodicBox, PeriodicCells, PeriodicVoronoi};
 
 /// A crowd with a tight cluster (one tenth, 1e-2 of the cell across).
 fn crowd(b: &PeriodicBox, n: usize, seed: u64) -> Vec<[f64; 3]> {
@@ -284,5 +284,60 @@ fn optimal_transport_in_parts_finds_the_one_process_weights() {
         assert!(weights == expected, "{ranks} ranks: the weights differ from one process's");
         let masses: Vec<u64> = runs.iter().flat_map(|r| &r.cells.volume).map(|m| m.to_bits()).collect();
         assert!(masses == whole.cells.volume.iter().map(|m| m.to_bits()).collect::<Vec<_>>(), "{ranks} ranks: masses");
+    }
+}
+
+#[test]
+fn the_voronoi_index_in_parts_is_the_one_process_index() {
+    // Each cell's polyhedron built and measured on the rank that built the
+    // cell: the same areas, coordinations and indices as one process's
+    // polyhedra, on a crowd with a cluster in a triclinic cell, a slab with
+    // walls (a wall one face) and power cells; OVITO's thresholds on.
+    let thresholds = IndexThresholds { relative_face: 0.01, ..Default::default() };
+    let n = 3000;
+    let l = (n as f64).cbrt();
+    let tilted = PeriodicBox::lammps([0.0; 3], [l; 3], [0.2 * l, 0.1 * l, -0.1 * l]).unwrap();
+    let slab = PeriodicBox::new([0.0; 3], [14.0, 15.0, 13.0]).unwrap().with_periodic([true, true, false]);
+    let radii: Vec<f64> = points::uniform(n, 62).iter().map(|p| (0.3 + 0.5 * p[0]).powi(2)).collect();
+    let cases = [
+        ("crowd", tilted, crowd(&tilted, n, 61), None),
+        ("slab", slab, points::uniform(n, 63).iter().map(|p| slab.cartesian(*p)).collect(), None),
+        ("power", tilted, crowd(&tilted, n, 64), Some(radii)),
+    ];
+    let cpu = CpuBackend::new(Some(1)).unwrap();
+    for (name, b, sites, weights) in &cases {
+        let one = PeriodicVoronoi::new(*b, sites).backend(&cpu);
+        let one = match weights {
+            Some(w) => one.weights(w),
+            None => one,
+        };
+        let whole = one.compute_with_polyhedra(&cpu).unwrap();
+        let expected = ParticleCells::of(n, whole.cells.polyhedra().unwrap(), &thresholds);
+        assert!(expected.coordination.iter().filter(|&&c| c > 0).count() > n * 9 / 10, "{name}: cells counted");
+        for ranks in [2, 3] {
+            let parts = on_ranks(sites, ranks, |comm, rows, cpu| {
+                let first = n * comm.rank() / ranks;
+                let diagram = PeriodicVoronoi::new(*b, rows).backend(cpu);
+                let diagram = match weights {
+                    Some(w) => diagram.weights(&w[first..first + rows.len()]),
+                    None => diagram,
+                };
+                diagram.compute_in_parts_with_index(comm, cpu, &thresholds).unwrap()
+            });
+            let area: Vec<u64> = parts.iter().flat_map(|p| &p.1.area).map(|a| a.to_bits()).collect();
+            assert!(area == expected.area.iter().map(|a| a.to_bits()).collect::<Vec<_>>(), "{name}, {ranks}: areas");
+            let counts = |q: &ParticleCells| (q.coordination.clone(), q.index.clone(), q.max_face_order.clone());
+            let got = parts.iter().fold((Vec::new(), Vec::new(), Vec::new()), |mut acc, p| {
+                let c = counts(&p.1);
+                acc.0.extend(c.0);
+                acc.1.extend(c.1);
+                acc.2.extend(c.2);
+                acc
+            });
+            assert!(got == counts(&expected), "{name}, {ranks} ranks: coordination, index or orders differ");
+            // Every cell's polyhedron once, on the rank that built it.
+            let built: usize = parts.iter().map(|p| p.0.cells.polyhedra().map_or(0, |v| v.len())).sum();
+            assert_eq!(built, whole.cells.polyhedra().unwrap().len(), "{name}, {ranks} ranks: polyhedra");
+        }
     }
 }

@@ -33,6 +33,7 @@
 
 use crate::backend::Backend;
 use crate::backends::distributed::{Parcels, Reduce};
+use crate::diagram::particles::{IndexThresholds, ParticleCells, INDEX_ORDERS};
 use crate::diagram::periodic::{
     coverage, fold_site, images_within, merge_faces, mirrors_within, place_sites, Blocks, FoldedFaces, Image,
     PeriodicCells, PeriodicVoronoi, PointKey, NO_WALL, WHOLE_FRAME_TETS,
@@ -45,6 +46,8 @@ use crate::geom::timing::{timed, Timings};
 use crate::job::clip::Strategy;
 use crate::job::sites::Layout;
 use crate::passes::faces::Adjacency;
+use crate::passes::pieces::ON_BOUNDARY;
+use crate::passes::polyhedra::{merge_pieces, CellPolyhedron};
 use bytemuck::{Pod, Zeroable};
 use rayon::prelude::*;
 
@@ -105,6 +108,10 @@ struct Row {
     wall: f64,
     wall_vector: [f64; 3],
     faces: u64,
+    /// The cell's particle quantities (zero unless asked for): surface
+    /// area, then coordination, the Voronoi index and the largest order.
+    area: f64,
+    counts: [u32; INDEX_ORDERS + 2],
 }
 
 /// A face of a row.
@@ -161,14 +168,42 @@ impl PeriodicVoronoi<'_> {
     /// or on none), power cells (the `walks` counter may differ from one
     /// process's). No polyhedra, no kept lists yet.
     pub fn compute_in_parts(&self, comm: &dyn Reduce) -> Result<(PeriodicCells, PartsReport)> {
+        let (cells, _, report) = self.in_parts(comm, None)?;
+        Ok((cells, report))
+    }
+
+    /// [`Self::compute_in_parts`] with the particles' quantities of this
+    /// rank's rows (their cells' polyhedra measured with `thresholds`, as
+    /// [`ParticleCells::of`] measures them in one process: the same bits),
+    /// on `cpu`. The cells' [`Cells::polyhedra`] are those of the cells this
+    /// rank built (the sites of its blocks, by input index), not its rows'.
+    pub fn compute_in_parts_with_index(
+        &self,
+        comm: &dyn Reduce,
+        cpu: &CpuBackend,
+        thresholds: &IndexThresholds,
+    ) -> Result<(PeriodicCells, ParticleCells, PartsReport)> {
+        let (cells, particles, report) = self.in_parts(comm, Some((cpu, thresholds)))?;
+        let particles = particles.ok_or_else(|| Error::Internal("no particle quantities came back".into()))?;
+        Ok((cells, particles, report))
+    }
+
+    fn in_parts(
+        &self,
+        comm: &dyn Reduce,
+        index: Option<(&CpuBackend, &IndexThresholds)>,
+    ) -> Result<(PeriodicCells, Option<ParticleCells>, PartsReport)> {
         if self.strategy.is_some_and(|s| s != Strategy::Whole) {
             return Err(Error::InvalidInput("a periodic box in parts is computed with whole cells".into()));
         }
         let own_cpu;
-        let backend: &dyn Backend = match self.backend {
-            Some(b) if b.kind() == crate::job::BackendKind::Cpu => b,
-            Some(_) => return Err(Error::InvalidInput("a periodic box in parts runs on the CPU backend".into())),
-            None => {
+        let backend: &dyn Backend = match (index, self.backend) {
+            (Some((cpu, _)), _) => cpu,
+            (None, Some(b)) if b.kind() == crate::job::BackendKind::Cpu => b,
+            (None, Some(_)) => {
+                return Err(Error::InvalidInput("a periodic box in parts runs on the CPU backend".into()))
+            }
+            (None, None) => {
                 own_cpu = CpuBackend::new(None)?;
                 &own_cpu
             }
@@ -307,7 +342,7 @@ impl PeriodicVoronoi<'_> {
         let k_site = diagram.resolved_k_site();
         let mut width = halo * (1.0 + 1e-6);
         let grid_sites = (total + tally[0] as u64) as usize;
-        let (whole, held, at, answer) = loop {
+        let (whole, pieces, held, at, answer) = loop {
             let (held, t) = timed(|| spread(comm, &domain, &blocks, &owner, &points, width, &mut report.sent));
             timings.add("exchange", t);
             let mut held = held?;
@@ -325,13 +360,16 @@ impl PeriodicVoronoi<'_> {
                 weights: self.weights.map(|_| kept_span),
             };
             let weights: Option<Vec<f64>> = self.weights.map(|_| held.iter().map(|h| h.weight).collect());
-            let mut whole = if answer.is_empty() {
-                Cells { k_site, strategy: Strategy::Whole, ..Default::default() }
+            let (mut whole, pieces) = if answer.is_empty() {
+                (Cells { k_site, strategy: Strategy::Whole, ..Default::default() }, None)
             } else {
-                let part = ClippedVoronoi { sites: &at, ..diagram }.layout(layout).keep_lists(Some(k_site));
-                match &weights {
-                    Some(w) => part.weights(w).compute()?,
-                    None => part.compute()?,
+                let mut part = ClippedVoronoi { sites: &at, ..diagram }.layout(layout).keep_lists(Some(k_site));
+                if let Some(w) = &weights {
+                    part = part.weights(w);
+                }
+                match index {
+                    Some((cpu, _)) => part.compute_with_pieces(cpu).map(|(c, p)| (c, Some(p)))?,
+                    None => (part.compute()?, None),
                 }
             };
             // Each list is the one process's if its k-th entry lies within
@@ -343,7 +381,7 @@ impl PeriodicVoronoi<'_> {
             let mut most = [if need > width { need } else { 0.0 }];
             comm.max(&mut most)?;
             if most[0] == 0.0 {
-                break (whole, held, at, answer);
+                break (whole, pieces, held, at, answer);
             }
             width = most[0] * (1.0 + 1e-6);
             report.widened += 1;
@@ -357,6 +395,15 @@ impl PeriodicVoronoi<'_> {
         let mut seen = std::collections::HashSet::new();
         let duplicates = held[answer.clone()].iter().filter(|h| !seen.insert(h.at.map(f64::to_bits))).count() as u64;
         drop(seen);
+        // The polyhedra of this rank's cells, and their particle quantities.
+        let (polyhedra, quantities) = match (pieces, index) {
+            (Some(pieces), Some((_, thresholds))) => {
+                let (p, q, t) = polyhedra_of(pieces, &held, thresholds);
+                timings.push("polyhedra", t);
+                (Some(p), Some(q))
+            }
+            _ => (index.map(|_| Vec::new()), None),
+        };
         // Every rank takes part in the exchange of halves, with cells or not.
         let none = Adjacency { offsets: vec![0], ..Default::default() };
         let a = whole.adjacency().filter(|_| self.faces).unwrap_or(&none);
@@ -373,8 +420,16 @@ impl PeriodicVoronoi<'_> {
             };
             let h = held[u];
             let (volume, energy, offset, centroid) = fold_site(&domain, h.at, &at, &whole, std::iter::once(u));
+            let (area, counts) = quantities.as_ref().map_or((0.0, [0; INDEX_ORDERS + 2]), |q| {
+                let mut counts = [0; INDEX_ORDERS + 2];
+                counts[0] = q.coordination[u];
+                counts[1..=INDEX_ORDERS].copy_from_slice(&q.index[u]);
+                counts[INDEX_ORDERS + 1] = q.max_face_order[u];
+                (q.area[u], counts)
+            });
+            let faces_n = faces.len() as u64;
             let row =
-                Row { site: h.site, volume, centroid, energy, offset, wall, wall_vector, faces: faces.len() as u64 };
+                Row { site: h.site, volume, centroid, energy, offset, wall, wall_vector, faces: faces_n, area, counts };
             let r = reader(h.site).ok_or_else(|| Error::Internal(format!("site {} beyond the input", h.site)))?;
             out[r].extend_from_slice(bytemuck::bytes_of(&row));
             for (neighbor, shift, area, normal) in faces {
@@ -404,7 +459,8 @@ impl PeriodicVoronoi<'_> {
         let to = Parcels::of(to);
         report.sent += (0..ranks).filter(|&r| r != rank).map(|r| to.get(r).len() as u64).sum::<u64>();
         let got = comm.exchange(to)?;
-        let cells = rows_of(&got, first, self.sites.len(), self.faces)?;
+        let (cells, particles) = rows_of(&got, first, self.sites.len(), self.faces)?;
+        let particles = index.map(|_| particles);
         drop(got);
         timings.push("rows", clock.elapsed().as_secs_f64());
 
@@ -436,6 +492,7 @@ impl PeriodicVoronoi<'_> {
             cells.1,
         );
         let mut cells = cells;
+        cells.polyhedra = polyhedra;
         cells.timings = timings.clone();
         for (name, t) in &phases {
             cells.timings.add(name, *t);
@@ -454,6 +511,7 @@ impl PeriodicVoronoi<'_> {
                 lists: None,
                 reused: 0,
             },
+            particles,
             report,
         ))
     }
@@ -652,7 +710,7 @@ fn order(
 
 /// The cells of this rank's `len` rows from `first`, from the rows the
 /// ranks sent it.
-fn rows_of(got: &Parcels, first: u64, len: usize, faces: bool) -> Result<(Cells, Vec<[f64; 3]>)> {
+fn rows_of(got: &Parcels, first: u64, len: usize, faces: bool) -> Result<((Cells, Vec<[f64; 3]>), ParticleCells)> {
     // Where each row's record starts in the parcels, then the rows in order.
     let bytes = &got.bytes;
     let mut starts = vec![usize::MAX; len];
@@ -666,6 +724,7 @@ fn rows_of(got: &Parcels, first: u64, len: usize, faces: bool) -> Result<(Cells,
     }
     let mut cells = Cells::default();
     let mut offsets = Vec::with_capacity(len);
+    let mut particles = ParticleCells::default();
     let mut adj = Adjacency { offsets: vec![0], ..Default::default() };
     for (i, &at) in starts.iter().enumerate() {
         if at == usize::MAX {
@@ -673,6 +732,10 @@ fn rows_of(got: &Parcels, first: u64, len: usize, faces: bool) -> Result<(Cells,
         }
         let row: Row = bytemuck::pod_read_unaligned(&bytes[at..at + size_of::<Row>()]);
         let f = records::<FaceRow>(&bytes[at + size_of::<Row>()..][..row.faces as usize * size_of::<FaceRow>()]);
+        particles.area.push(row.area);
+        particles.coordination.push(row.counts[0]);
+        particles.index.push(row.counts[1..=INDEX_ORDERS].try_into().unwrap_or([0; INDEX_ORDERS]));
+        particles.max_face_order.push(row.counts[INDEX_ORDERS + 1]);
         cells.volume.push(row.volume);
         cells.centroid.push(row.centroid);
         cells.energy.push(row.energy);
@@ -688,7 +751,40 @@ fn rows_of(got: &Parcels, first: u64, len: usize, faces: bool) -> Result<(Cells,
         adj.boundary_vector.push(row.wall_vector.map(|v| v + 0.0));
     }
     cells.adjacency = faces.then_some(adj);
-    Ok((cells, offsets))
+    Ok(((cells, offsets), particles))
+}
+
+/// The polyhedra of the cells in `pieces` (a part's job over `held`), as
+/// one process's: each by its site's input index, a face across another
+/// cell by that cell's site (an image's: its site's), a wall's made of its
+/// mirrors' faces as one face ([`ON_BOUNDARY`]); with their particle
+/// quantities by place in `held`, and the seconds taken.
+fn polyhedra_of(
+    mut pieces: crate::passes::pieces::Pieces,
+    held: &[Held],
+    thresholds: &IndexThresholds,
+) -> (Vec<CellPolyhedron>, ParticleCells, f64) {
+    let clock = std::time::Instant::now();
+    let n = held.len() as i64;
+    pieces.map_makers(|m| match usize::try_from(m).ok().and_then(|u| held.get(u)) {
+        Some(h) if h.is_mirror() => n + h.wall as i64,
+        _ => m,
+    });
+    let mut polyhedra = merge_pieces(&pieces);
+    drop(pieces);
+    let quantities = ParticleCells::of(held.len(), &polyhedra, thresholds);
+    polyhedra.par_iter_mut().for_each(|p| {
+        p.site = held[p.site as usize].site as u32;
+        for m in &mut p.face_neighbors {
+            *m = match usize::try_from(*m).ok().and_then(|u| held.get(u)) {
+                Some(h) if !h.is_mirror() => h.site as i64,
+                Some(_) => ON_BOUNDARY,
+                None if *m >= n => ON_BOUNDARY,
+                None => *m,
+            };
+        }
+    });
+    (polyhedra, quantities, clock.elapsed().as_secs_f64())
 }
 
 /// The records of type `T` in `bytes`, one after another.

@@ -159,13 +159,13 @@ fn merge_cell(pieces: &Pieces, range: std::ops::Range<usize>) -> CellPolyhedron 
             polygons.push((wall, ring));
         }
     }
-    polygons.sort_by_key(|(wall, _)| *wall);
+    group_walls(&mut polygons);
     let mut faces = join_walls(&points, &polygons);
     if !open_edges(&faces).is_empty() {
         // Rare: copies of a point the weld left apart; made one, then the
         // walls joined again.
         close_cracks(&mut points, &mut polygons, tolerance * (CRACK / WELD_TOLERANCE));
-        polygons.sort_by_key(|(wall, _)| *wall);
+        group_walls(&mut polygons);
         faces = join_walls(&points, &polygons);
     }
     let (repaired, open) = close_holes(&mut faces);
@@ -239,7 +239,30 @@ fn whole_cell(pieces: &Pieces, k: usize) -> Option<CellPolyhedron> {
     Some(cell)
 }
 
-/// Each wall's polygons (sorted by wall) joined into its faces (see
+/// The polygons grouped by wall, the walls in the order they first
+/// appear (stable): the order of the pieces' faces, not of the numbers the
+/// makers go by, so that a cell's faces come out in one order however its
+/// job numbered the sites (one process, or a part of a box in parts).
+fn group_walls(polygons: &mut [(Wall, Vec<u32>)]) {
+    let mut seen: Vec<Wall> = Vec::new();
+    let mut rank = |w: Wall| match seen.iter().position(|&s| s == w) {
+        Some(k) => k,
+        None => {
+            seen.push(w);
+            seen.len() - 1
+        }
+    };
+    let ranks: Vec<usize> = polygons.iter().map(|(w, _)| rank(*w)).collect();
+    let mut order: Vec<usize> = (0..polygons.len()).collect();
+    order.sort_by_key(|&k| ranks[k]);
+    let sorted: Vec<(Wall, Vec<u32>)> =
+        order.iter().map(|&k| (polygons[k].0, std::mem::take(&mut polygons[k].1))).collect();
+    for (p, s) in polygons.iter_mut().zip(sorted) {
+        *p = s;
+    }
+}
+
+/// Each wall's polygons (grouped by wall) joined into its faces (see
 /// [`join`]; a wall that cannot be keeps its polygons).
 fn join_walls(points: &[[f64; 3]], polygons: &[(Wall, Vec<u32>)]) -> Vec<(Wall, Vec<u32>)> {
     let mut faces = Vec::new();
