@@ -9,6 +9,7 @@ mod backend;
 mod commands;
 mod frames;
 mod inputs;
+mod optimise;
 mod outputs;
 mod parts;
 mod progress;

@@ -8,8 +8,8 @@
 //! `summary.json`, with every rank's numbers.
 
 use crate::args::RunArgs;
+use crate::optimise::Optimised;
 use crate::progress::with_iterations;
-use crate::run::Optimised;
 use cvd::backends::distributed::{Parcels, Reduce};
 use cvd::cvt::periodic::PeriodicInParts;
 use cvd::geom::exact_sum::ExactSum;
@@ -99,7 +99,7 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
             (None, Some(law)) => Some(law.draw_rows(first..first + sites.len() as u64, args.seed)),
             (None, None) => None,
         };
-        crate::run::transport(args, iterated, weights.as_deref(), capacities)?
+        crate::optimise::transport(args, iterated, weights.as_deref(), capacities)?
     } else if args.iterations > 0 {
         let (name, iterations) = (args.optimizer.name(), args.iterations);
         let run = with_iterations(name, iterations, |show| args.optimizer.run(&iterated, iterations, show))?;
@@ -171,7 +171,7 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     };
     let records = comm.all_gather(&record_bytes(&mine))?;
     let status = match &transport {
-        Some(t) if !t.converged => crate::run::NOT_CONVERGED,
+        Some(t) if !t.converged => crate::optimise::NOT_CONVERGED,
         _ => 0,
     };
     if rank != 0 {

@@ -5,25 +5,13 @@
 use crate::args::RunArgs;
 use crate::backend::{self, RunBackend};
 use crate::inputs::{per_site, Domain, Inputs};
+use crate::optimise::{transport, Optimised, NOT_CONVERGED};
 use crate::outputs::{self, Results};
 use crate::progress::{quiet_stdout, with_iterations, with_spinner};
-use cvd::cvt::transport::{Transport, VolumeLaw};
 use cvd::cvt::SiteDiagram;
 use cvd::exec::CpuBackend;
 use cvd::{Backend, Cells, ClippedVoronoi, JobShape, ParticleCells, PeriodicVoronoi, Pieces};
-use cvd_io::{CvtRecord, ParticlesRecord, PeriodicRecord, Summary, TransportRecord};
-
-/// What the optimiser gives the final diagram.
-pub(crate) struct Optimised {
-    /// The sites: as given, or moved by the iterations.
-    pub sites: Vec<[f64; 3]>,
-    /// The iterations' record.
-    pub cvt: Option<CvtRecord>,
-    /// The weights: `--weights`, or those optimal transport found.
-    pub weights: Option<Vec<f64>>,
-    /// Optimal transport's record.
-    pub transport: Option<TransportRecord>,
-}
+use cvd_io::{CvtRecord, ParticlesRecord, PeriodicRecord, Summary};
 
 /// The final diagram.
 struct Diagram {
@@ -38,10 +26,6 @@ struct Diagram {
     /// The particles' quantities (`--voronoi-index`).
     particles: Option<ParticleCells>,
 }
-
-/// Exit status of a run whose optimal transport did not reach its
-/// tolerance (its outputs written all the same).
-pub const NOT_CONVERGED: u8 = 3;
 
 /// Runs `cvd run`; the exit status: 0, or [`NOT_CONVERGED`].
 pub fn run(args: &RunArgs) -> cvd::Result<u8> {
@@ -204,63 +188,6 @@ fn optimise_on<D: SiteDiagram>(
         println!("{name}: {unresolved} pieces unresolved over the iterations (their volume was missing)");
     }
     Ok(Optimised { sites: run.sites, cvt: Some(record), weights, transport: None })
-}
-
-/// The optimal transport the arguments ask for on `diagram`, from the
-/// weights `start` (if any): the weights that give every cell its target
-/// mass, with the solve's record; with `--iterations`, the
-/// capacity-constrained CVT first (its moved sites and record). Prints
-/// each Newton step of a single solve. `capacities`: the sites' (or, in
-/// parts, this rank's rows').
-pub(crate) fn transport<D: SiteDiagram>(
-    args: &RunArgs,
-    diagram: D,
-    start: Option<&[f64]>,
-    capacities: Option<Vec<f64>>,
-) -> cvd::Result<Optimised> {
-    if args.optimizer != cvd::cvt::Optimizer::Lloyd {
-        return Err(cvd::Error::InvalidInput(
-            "--transport with --optimizer lbfgs: the capacity-constrained CVT moves sites by Lloyd steps".into(),
-        ));
-    }
-    let sites = diagram.starting_sites().to_vec();
-    let speaks = diagram.comm().is_none_or(|c| c.rank() == 0);
-    let mut ot = Transport::new(diagram).tolerance(args.tolerance).max_steps(args.newton_steps);
-    if let Some(c) = &capacities {
-        ot = ot.capacities(c);
-    }
-    if let Some(w) = start {
-        ot = ot.start(w);
-    }
-    let targets = match (&args.capacities, args.volumes) {
-        (Some(_), _) => "capacities".to_string(),
-        (None, Some(VolumeLaw::LogNormal { mu, sigma })) => format!("lognormal:{mu},{sigma}"),
-        (None, None) => "uniform".to_string(),
-    };
-    let (sites, cvt, run) = if args.iterations > 0 {
-        let what = "capacity-constrained CVT";
-        let (cvt, run) = with_iterations(what, args.iterations, |show| ot.cvt(args.iterations, show))?;
-        let record = CvtRecord::of("lloyd-transport", &cvt.iterations);
-        (cvt.sites, Some(record), run)
-    } else {
-        let mut step = 0;
-        let run = ot.solve(&mut |s| {
-            if s.step > 0.0 {
-                step += 1;
-                println!("transport: Newton step {step}: {s}");
-            }
-            true
-        })?;
-        (sites, None, run)
-    };
-    let record = TransportRecord::of(&targets, args.tolerance, &run);
-    if !run.converged && speaks {
-        eprintln!(
-            "transport: the masses came within {:.2e} of their targets, not {:.0e}: {}",
-            record.max_error, args.tolerance, run.stopped
-        );
-    }
-    Ok(Optimised { sites, cvt, weights: Some(run.weights), transport: Some(record) })
 }
 
 /// The diagram of the optimised sites: its cells, and on a mesh, unless
