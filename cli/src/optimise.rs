@@ -1,5 +1,5 @@
-//! The optimiser's result, shared by one process (`crate::run`) and a
-//! periodic box in parts (`crate::parts`): the sites it moved, the weights
+//! The optimiser's result, shared by one process (`cvd run`) and a
+//! periodic box in parts (under `mpirun`): the sites it moved, the weights
 //! it found and their records; and optimal transport as both run it.
 
 use crate::args::RunArgs;
