@@ -708,9 +708,13 @@ fn order(
     start..end
 }
 
+/// The cells of a rank's rows with their centroids' offsets, and their
+/// particle quantities (zero unless asked for).
+type RowsBack = ((Cells, Vec<[f64; 3]>), ParticleCells);
+
 /// The cells of this rank's `len` rows from `first`, from the rows the
 /// ranks sent it.
-fn rows_of(got: &Parcels, first: u64, len: usize, faces: bool) -> Result<((Cells, Vec<[f64; 3]>), ParticleCells)> {
+fn rows_of(got: &Parcels, first: u64, len: usize, faces: bool) -> Result<RowsBack> {
     // Where each row's record starts in the parcels, then the rows in order.
     let bytes = &got.bytes;
     let mut starts = vec![usize::MAX; len];
