@@ -130,7 +130,8 @@ pub(crate) struct Ghosts<'a> {
 impl<'a> Ghosts<'a> {
     /// Renumbers `rows` (rows of all processes, by their global index) to
     /// local slots: an own row `r` to `r - first`, another process's to
-    /// `len + k`, `k` counting such rows in order of first reference.
+    /// `len + k`, `k` counting such rows once each, by the process that
+    /// holds them, then in the order first referred to.
     pub fn of(across: Across<'a>, rows: &mut [u32]) -> Result<Self> {
         let Some(comm) = across.comm else {
             return Ok(Self { across, asked: Vec::new(), count: 0 });
@@ -180,7 +181,7 @@ impl<'a> Ghosts<'a> {
             .map(|q| {
                 let bytes = got.get(q);
                 let rows: Vec<u32> =
-                    bytes.chunks(4).map(|b| bytemuck::pod_read_unaligned::<u32>(b) - across.first as u32).collect();
+                    bytes.chunks(4).map(|b| bytemuck::pod_read_unaligned::<u32>(b).wrapping_sub(across.first as u32)).collect();
                 rows
             })
             .collect::<Vec<_>>();
