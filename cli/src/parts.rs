@@ -36,8 +36,9 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     let domain = crate::inputs::periodic_box(args)?;
     let dir = args.out.clone().unwrap_or_else(|| Path::new("out").join(crate::inputs::PERIODIC_DIR));
     if rank == 0 {
-        std::fs::create_dir_all(&dir)
-            .map_err(|source| cvd::Error::Write { path: dir.display().to_string(), source })?;
+        let made = if args.voronoi_index { dir.join("cells") } else { dir.clone() };
+        std::fs::create_dir_all(&made)
+            .map_err(|source| cvd::Error::Write { path: made.display().to_string(), source })?;
     } else {
         crate::progress::quiet_stdout();
     }
@@ -122,19 +123,15 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     };
     // With --voronoi-index, each cell's polyhedron measured where it is
     // built; its numbers travel with its row.
-    let (out, particles, report) = match args.voronoi_index {
+    let (out, particles, built, report) = match args.voronoi_index {
         true => {
             let thresholds = args.index_thresholds()?;
-            let (out, particles, report) = diagram.compute_in_parts_with_index(comm, &cpu, &thresholds)?;
-            println!(
-                "in parts: the Voronoi index in cells.csv; no cells.vtu or walls.ply (each rank holds the \
-                 polyhedra of the cells it built)"
-            );
-            (out, Some(particles), report)
+            let parts = diagram.compute_in_parts_with_index(comm, &cpu, &thresholds)?;
+            (parts.cells, Some(parts.particles), Some(parts.built), parts.report)
         }
         false => {
             let (out, report) = diagram.compute_in_parts(comm)?;
-            (out, None, report)
+            (out, None, None, report)
         }
     };
     drop(sites);
@@ -149,6 +146,24 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     }
     write_part(comm, &dir.join("sites.xyz"), |w| cvd_io::write_sites_xyz_rows(w, &out.sites, rows))?;
     written.push("sites.xyz");
+    // The cells' polyhedra: each rank's as a piece, cells.pvtu the whole.
+    if let Some(built) = &built {
+        let piece = format!("cells/{rank}.vtu");
+        let numbers = |k: usize| built.numbers[k];
+        let wrote = cvd_io::write_cells_vtu_with(&dir.join(&piece), &built.polyhedra, &numbers, &mut |_, _| {});
+        let mut failed = [wrote.is_err() as i64];
+        comm.sum(&mut failed)?;
+        wrote?;
+        if failed[0] != 0 {
+            return Err(cvd::Error::InvalidInput("another rank could not write its piece of cells.pvtu".into()));
+        }
+        if rank == 0 {
+            let pieces: Vec<String> = (0..ranks).map(|r| format!("cells/{r}.vtu")).collect();
+            cvd_io::write_cells_pvtu(&dir.join("cells.pvtu"), &pieces)?;
+            println!("in parts: cells.pvtu holds each rank's cells.vtu (cells/RANK.vtu); no walls.ply");
+        }
+        written.push("cells.pvtu");
+    }
     if let (Some(w), Some(_)) = (&weights, &transport) {
         write_part(comm, &dir.join("weights.txt"), |out| cvd_io::write_values_rows(out, w))?;
         written.push("weights.txt");

@@ -258,6 +258,19 @@ fn mpirun_moves_the_sites_as_one_process_does() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// Whether `python3` with VTK runs here (skipped with the reason; under
+/// `CI=true` its absence fails).
+fn vtk_here() -> bool {
+    match Command::new("python3").args(["-c", "import vtk"]).output() {
+        Ok(o) if o.status.success() => true,
+        _ if std::env::var("CI").is_ok_and(|v| v == "true") => panic!("CI=true: python3 with vtk is needed"),
+        _ => {
+            eprintln!("skipped: python3 with vtk is not here (pip install vtk)");
+            false
+        }
+    }
+}
+
 #[test]
 fn mpirun_gives_power_cells_in_parts_byte_for_byte() {
     if !mpi_here() {
@@ -305,7 +318,36 @@ fn mpirun_gives_power_cells_in_parts_byte_for_byte() {
         for file in ["cells.csv", "neighbors.csv"] {
             assert!(read(&index.join(file)) == read(&out.join(file)), "--voronoi-index, {ranks} ranks: {file} differs");
         }
-        assert!(String::from_utf8_lossy(&o.stdout).contains("no cells.vtu"), "the missing files are said");
+        assert!(String::from_utf8_lossy(&o.stdout).contains("no walls.ply"), "the missing file is said");
+        // VTK reads the pieces as one grid: every cell once, each as one
+        // process wrote it (the same stored volume, VTK's measure of it).
+        let cells = |path: &Path| -> Vec<(i64, f64, f64, i64)> {
+            let script = env!("CARGO_MANIFEST_DIR").to_string() + "/../tests/scripts/read_cells_vtu.py";
+            let o = Command::new("python3").arg(script).arg(path).output().unwrap();
+            assert!(o.status.success(), "VTK on {}: {}", path.display(), String::from_utf8_lossy(&o.stderr));
+            let json: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+            let mut cells: Vec<(i64, f64, f64, i64)> = json["cells"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|c| {
+                    let f = |k: &str| c[k].as_f64().unwrap();
+                    (c["site"].as_i64().unwrap(), f("volume"), f("vtk_volume"), c["faces"].as_i64().unwrap())
+                })
+                .collect();
+            cells.sort_by_key(|c| c.0);
+            cells
+        };
+        if vtk_here() {
+            let (whole, parts) = (cells(&index.join("cells.vtu")), cells(&out.join("cells.pvtu")));
+            // (Radical cells: a small particle beside large ones may have none.)
+            assert!(whole.len() > 5900, "one process's cells.vtu: {} cells", whole.len());
+            assert_eq!(parts.len(), whole.len(), "{ranks} ranks: cells in cells.pvtu");
+            for (a, b) in whole.iter().zip(&parts) {
+                assert_eq!((a.0, a.1.to_bits(), a.3), (b.0, b.1.to_bits(), b.3), "{ranks} ranks: a cell");
+                assert!((a.2 - b.2).abs() <= 1e-12 * a.2.abs(), "{ranks} ranks: VTK's volume of site {}", a.0);
+            }
+        }
     }
     // Too few values, and a bad radius named by its particle's row.
     let short = dir.join("short.txt");

@@ -1,4 +1,4 @@
-"""Reads a cells.vtu with VTK and prints, as JSON, what VTK sees: the
+"""Reads a cells.vtu (or a cells.pvtu of pieces) with VTK and prints, as JSON, what VTK sees: the
 number of cells, each cell's site and stored volume, and its volume as
 VTK's own vtkMassProperties measures it on the cell's faces (triangulated
 by vtkTriangleFilter). Usage: read_cells_vtu.py cells.vtu"""
@@ -9,7 +9,10 @@ import sys
 import vtk
 from vtk.util.numpy_support import vtk_to_numpy
 
-reader = vtk.vtkXMLUnstructuredGridReader()
+if sys.argv[1].endswith(".pvtu"):
+    reader = vtk.vtkXMLPUnstructuredGridReader()
+else:
+    reader = vtk.vtkXMLUnstructuredGridReader()
 reader.SetFileName(sys.argv[1])
 reader.Update()
 grid = reader.GetOutput()

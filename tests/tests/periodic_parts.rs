@@ -324,11 +324,11 @@ fn the_voronoi_index_in_parts_is_the_one_process_index() {
                 };
                 diagram.compute_in_parts_with_index(comm, cpu, &thresholds).unwrap()
             });
-            let area: Vec<u64> = parts.iter().flat_map(|p| &p.1.area).map(|a| a.to_bits()).collect();
+            let area: Vec<u64> = parts.iter().flat_map(|p| &p.particles.area).map(|a| a.to_bits()).collect();
             assert!(area == expected.area.iter().map(|a| a.to_bits()).collect::<Vec<_>>(), "{name}, {ranks}: areas");
             let counts = |q: &ParticleCells| (q.coordination.clone(), q.index.clone(), q.max_face_order.clone());
             let got = parts.iter().fold((Vec::new(), Vec::new(), Vec::new()), |mut acc, p| {
-                let c = counts(&p.1);
+                let c = counts(&p.particles);
                 acc.0.extend(c.0);
                 acc.1.extend(c.1);
                 acc.2.extend(c.2);
@@ -336,8 +336,16 @@ fn the_voronoi_index_in_parts_is_the_one_process_index() {
             });
             assert!(got == counts(&expected), "{name}, {ranks} ranks: coordination, index or orders differ");
             // Every cell's polyhedron once, on the rank that built it.
-            let built: usize = parts.iter().map(|p| p.0.cells.polyhedra().map_or(0, |v| v.len())).sum();
+            // with its cell's numbers.
+            let built: usize = parts.iter().map(|p| p.built.polyhedra.len()).sum();
             assert_eq!(built, whole.cells.polyhedra().unwrap().len(), "{name}, {ranks} ranks: polyhedra");
+            for p in &parts {
+                for (poly, &(volume, centroid, _)) in p.built.polyhedra.iter().zip(&p.built.numbers) {
+                    let i = poly.site as usize;
+                    assert_eq!(volume.to_bits(), whole.cells.volume[i].to_bits(), "{name}: site {i}'s volume");
+                    assert_eq!(centroid.map(f64::to_bits), whole.cells.centroid[i].map(f64::to_bits), "{name}");
+                }
+            }
         }
     }
 }

@@ -180,8 +180,10 @@ impl<'a> Ghosts<'a> {
         let asked = (0..comm.size())
             .map(|q| {
                 let bytes = got.get(q);
-                let rows: Vec<u32> =
-                    bytes.chunks(4).map(|b| bytemuck::pod_read_unaligned::<u32>(b).wrapping_sub(across.first as u32)).collect();
+                let rows: Vec<u32> = bytes
+                    .chunks(4)
+                    .map(|b| bytemuck::pod_read_unaligned::<u32>(b).wrapping_sub(across.first as u32))
+                    .collect();
                 rows
             })
             .collect::<Vec<_>>();

@@ -168,31 +168,31 @@ impl PeriodicVoronoi<'_> {
     /// or on none), power cells (the `walks` counter may differ from one
     /// process's). No polyhedra, no kept lists yet.
     pub fn compute_in_parts(&self, comm: &dyn Reduce) -> Result<(PeriodicCells, PartsReport)> {
-        let (cells, _, report) = self.in_parts(comm, None)?;
-        Ok((cells, report))
+        let out = self.in_parts(comm, None)?;
+        Ok((out.cells, out.report))
     }
 
     /// [`Self::compute_in_parts`] with the particles' quantities of this
     /// rank's rows (their cells' polyhedra measured with `thresholds`, as
     /// [`ParticleCells::of`] measures them in one process: the same bits),
-    /// on `cpu`. The cells' [`Cells::polyhedra`] are those of the cells this
-    /// rank built (the sites of its blocks, by input index), not its rows'.
+    /// on `cpu`; and the polyhedra of the cells this rank built (the sites
+    /// of its blocks, not its rows) with their numbers.
     pub fn compute_in_parts_with_index(
         &self,
         comm: &dyn Reduce,
         cpu: &CpuBackend,
         thresholds: &IndexThresholds,
-    ) -> Result<(PeriodicCells, ParticleCells, PartsReport)> {
-        let (cells, particles, report) = self.in_parts(comm, Some((cpu, thresholds)))?;
-        let particles = particles.ok_or_else(|| Error::Internal("no particle quantities came back".into()))?;
-        Ok((cells, particles, report))
+    ) -> Result<IndexInParts> {
+        let out = self.in_parts(comm, Some((cpu, thresholds)))?;
+        match (out.particles, out.built) {
+            (Some(particles), Some(built)) => {
+                Ok(IndexInParts { cells: out.cells, particles, built, report: out.report })
+            }
+            _ => Err(Error::Internal("no particle quantities came back".into())),
+        }
     }
 
-    fn in_parts(
-        &self,
-        comm: &dyn Reduce,
-        index: Option<(&CpuBackend, &IndexThresholds)>,
-    ) -> Result<(PeriodicCells, Option<ParticleCells>, PartsReport)> {
+    fn in_parts(&self, comm: &dyn Reduce, index: Option<(&CpuBackend, &IndexThresholds)>) -> Result<PartsOut> {
         if self.strategy.is_some_and(|s| s != Strategy::Whole) {
             return Err(Error::InvalidInput("a periodic box in parts is computed with whole cells".into()));
         }
@@ -396,13 +396,21 @@ impl PeriodicVoronoi<'_> {
         let duplicates = held[answer.clone()].iter().filter(|h| !seen.insert(h.at.map(f64::to_bits))).count() as u64;
         drop(seen);
         // The polyhedra of this rank's cells, and their particle quantities.
-        let (polyhedra, quantities) = match (pieces, index) {
+        let (built, quantities) = match (pieces, index) {
             (Some(pieces), Some((_, thresholds))) => {
-                let (p, q, t) = polyhedra_of(pieces, &held, thresholds);
+                let (polyhedra, places, q, t) = polyhedra_of(pieces, &held, thresholds);
                 timings.push("polyhedra", t);
-                (Some(p), Some(q))
+                let numbers = places
+                    .par_iter()
+                    .map(|&u| {
+                        let (volume, energy, _, centroid) =
+                            fold_site(&domain, held[u].at, &at, &whole, std::iter::once(u));
+                        (volume, centroid, energy)
+                    })
+                    .collect();
+                (Some(BuiltCells { polyhedra, numbers }), Some(q))
             }
-            _ => (index.map(|_| Vec::new()), None),
+            _ => (index.map(|_| BuiltCells::default()), None),
         };
         // Every rank takes part in the exchange of halves, with cells or not.
         let none = Adjacency { offsets: vec![0], ..Default::default() };
@@ -492,14 +500,13 @@ impl PeriodicVoronoi<'_> {
             cells.1,
         );
         let mut cells = cells;
-        cells.polyhedra = polyhedra;
         cells.timings = timings.clone();
         for (name, t) in &phases {
             cells.timings.add(name, *t);
         }
         report.timings = cells.timings.clone();
-        Ok((
-            PeriodicCells {
+        Ok(PartsOut {
+            cells: PeriodicCells {
                 cells,
                 sites: placed,
                 offsets,
@@ -512,9 +519,42 @@ impl PeriodicVoronoi<'_> {
                 reused: 0,
             },
             particles,
+            built,
             report,
-        ))
+        })
     }
+}
+
+/// What [`PeriodicVoronoi::compute_in_parts_with_index`] gives a rank.
+#[derive(Clone, Debug)]
+pub struct IndexInParts {
+    /// The cells of its rows, as [`PeriodicVoronoi::compute_in_parts`]'s.
+    pub cells: PeriodicCells,
+    /// Its rows' particle quantities (Voronoi index and all).
+    pub particles: ParticleCells,
+    /// The cells it built, with their polyhedra.
+    pub built: BuiltCells,
+    /// What the part did.
+    pub report: PartsReport,
+}
+
+/// The cells one rank of a diagram in parts built (the sites of its
+/// blocks), as polyhedra: sites and neighbours by input index, a wall's
+/// face [`ON_BOUNDARY`].
+#[derive(Clone, Debug, Default)]
+pub struct BuiltCells {
+    /// The polyhedra, one per cell with volume.
+    pub polyhedra: Vec<CellPolyhedron>,
+    /// Each polyhedron's cell's volume, centroid and energy.
+    pub numbers: Vec<(f64, [f64; 3], f64)>,
+}
+
+/// What a part gives back, before it is taken apart.
+struct PartsOut {
+    cells: PeriodicCells,
+    particles: Option<ParticleCells>,
+    built: Option<BuiltCells>,
+    report: PartsReport,
 }
 
 /// An error about a site, its index moved from this rank's rows to the
@@ -762,12 +802,13 @@ fn rows_of(got: &Parcels, first: u64, len: usize, faces: bool) -> Result<RowsBac
 /// one process's: each by its site's input index, a face across another
 /// cell by that cell's site (an image's: its site's), a wall's made of its
 /// mirrors' faces as one face ([`ON_BOUNDARY`]); with their particle
-/// quantities by place in `held`, and the seconds taken.
+/// quantities by place in `held`, each polyhedron's place in `held`, and
+/// the seconds taken.
 fn polyhedra_of(
     mut pieces: crate::passes::pieces::Pieces,
     held: &[Held],
     thresholds: &IndexThresholds,
-) -> (Vec<CellPolyhedron>, ParticleCells, f64) {
+) -> (Vec<CellPolyhedron>, Vec<usize>, ParticleCells, f64) {
     let clock = std::time::Instant::now();
     let n = held.len() as i64;
     pieces.map_makers(|m| match usize::try_from(m).ok().and_then(|u| held.get(u)) {
@@ -777,6 +818,7 @@ fn polyhedra_of(
     let mut polyhedra = merge_pieces(&pieces);
     drop(pieces);
     let quantities = ParticleCells::of(held.len(), &polyhedra, thresholds);
+    let places = polyhedra.iter().map(|p| p.site as usize).collect();
     polyhedra.par_iter_mut().for_each(|p| {
         p.site = held[p.site as usize].site as u32;
         for m in &mut p.face_neighbors {
@@ -788,7 +830,7 @@ fn polyhedra_of(
             };
         }
     });
-    (polyhedra, quantities, clock.elapsed().as_secs_f64())
+    (polyhedra, places, quantities, clock.elapsed().as_secs_f64())
 }
 
 /// The records of type `T` in `bytes`, one after another.

@@ -26,11 +26,31 @@ const VTK_POLYHEDRON: u8 = 42;
 /// Uncompressed bytes per zlib block.
 const BLOCK: usize = 1 << 20;
 
+/// A cell's numbers in `cells.vtu`: its volume, centroid and energy.
+pub type CellNumbers = (f64, [f64; 3], f64);
+
 /// Writes `polyhedra` (with their cells' numbers from `cells`) to `path`,
 /// reporting progress in arrays written.
 pub fn write_cells_vtu(path: &Path, cells: &Cells, polyhedra: &[CellPolyhedron], progress: Progress<'_>) -> Result<()> {
-    let mut order: Vec<&CellPolyhedron> = polyhedra.iter().collect();
-    order.sort_by_key(|p| (p.vertices.len(), p.site));
+    let numbers = |k: usize| {
+        let i = polyhedra[k].site as usize;
+        (cells.volume[i], cells.centroid[i], cells.energy[i])
+    };
+    write_cells_vtu_with(path, polyhedra, &numbers, progress)
+}
+
+/// [`write_cells_vtu`] with the numbers of the cell of `polyhedra[k]`
+/// given by `numbers(k)`: a piece of a run in parts (the cells one rank
+/// built, their sites by input index).
+pub fn write_cells_vtu_with(
+    path: &Path,
+    polyhedra: &[CellPolyhedron],
+    numbers: &(dyn Fn(usize) -> CellNumbers + Sync),
+    progress: Progress<'_>,
+) -> Result<()> {
+    let mut keyed: Vec<usize> = (0..polyhedra.len()).collect();
+    keyed.sort_by_key(|&k| (polyhedra[k].vertices.len(), polyhedra[k].site));
+    let order: Vec<&CellPolyhedron> = keyed.iter().map(|&k| &polyhedra[k]).collect();
     let n_points: usize = order.iter().map(|p| p.vertices.len()).sum();
 
     // Each array compressed as soon as it is made: (type, name,
@@ -86,12 +106,12 @@ pub fn write_cells_vtu(path: &Path, cells: &Cells, polyhedra: &[CellPolyhedron],
     push(id_type, "faces", 1, ids(&mut faces.into_iter()));
     push(id_type, "faceoffsets", 1, ids(&mut faceoffsets.into_iter()));
 
-    let site = |p: &&CellPolyhedron| p.site as usize;
     push("Int32", "site", 1, order.iter().flat_map(|p| (p.site as i32).to_le_bytes()).collect());
     let f64s = |values: &mut dyn Iterator<Item = f64>| values.flat_map(|v| v.to_le_bytes()).collect::<Vec<u8>>();
-    push("Float64", "volume", 1, f64s(&mut order.iter().map(|p| cells.volume[site(p)])));
-    push("Float64", "centroid", 3, f64s(&mut order.iter().flat_map(|p| cells.centroid[site(p)])));
-    push("Float64", "energy", 1, f64s(&mut order.iter().map(|p| cells.energy[site(p)])));
+    let numbers: Vec<CellNumbers> = keyed.iter().map(|&k| numbers(k)).collect();
+    push("Float64", "volume", 1, f64s(&mut numbers.iter().map(|n| n.0)));
+    push("Float64", "centroid", 3, f64s(&mut numbers.iter().flat_map(|n| n.1)));
+    push("Float64", "energy", 1, f64s(&mut numbers.iter().map(|n| n.2)));
     let neighbors = |p: &&CellPolyhedron| {
         let mut n: Vec<i64> = p.face_neighbors.iter().copied().filter(|&j| j >= 0).collect();
         n.sort_unstable();
@@ -136,6 +156,31 @@ pub fn write_cells_vtu(path: &Path, cells: &Cells, polyhedra: &[CellPolyhedron],
         w.flush()
     };
     body().map_err(io)
+}
+
+/// Writes `cells.pvtu`: the pieces (`cells.vtu` files, named relative to
+/// it) as one grid, as VTK and ParaView read a grid written in parts.
+pub fn write_cells_pvtu(path: &Path, pieces: &[String]) -> Result<()> {
+    let mut text = String::from(
+        "<?xml version=\"1.0\"?>\n<VTKFile type=\"PUnstructuredGrid\" version=\"1.0\" \
+         byte_order=\"LittleEndian\" header_type=\"UInt64\">\n<PUnstructuredGrid GhostLevel=\"0\">\n\
+         <PCellData Scalars=\"site\">\n",
+    );
+    for (kind, name, components) in [
+        ("Int32", "site", 1),
+        ("Float64", "volume", 1),
+        ("Float64", "centroid", 3),
+        ("Float64", "energy", 1),
+        ("Int32", "neighbors", 1),
+    ] {
+        text += &format!("<PDataArray type=\"{kind}\" Name=\"{name}\" NumberOfComponents=\"{components}\"/>\n");
+    }
+    text += "</PCellData>\n<PPoints>\n<PDataArray type=\"Float64\" NumberOfComponents=\"3\"/>\n</PPoints>\n";
+    for piece in pieces {
+        text += &format!("<Piece Source=\"{piece}\"/>\n");
+    }
+    text += "</PUnstructuredGrid>\n</VTKFile>\n";
+    std::fs::write(path, text).map_err(|source| Error::Write { path: path.display().to_string(), source })
 }
 
 /// `raw` as VTK's zlib blocks: the header `[blocks, block size, last

@@ -27,7 +27,7 @@ pub mod walls_ply;
 pub use cells_csv::{
     read_cells_csv, write_cells_csv, write_cells_csv_rows, write_cells_csv_with, CellRow, ParticleRow,
 };
-pub use cells_vtu::write_cells_vtu;
+pub use cells_vtu::{write_cells_pvtu, write_cells_vtu, write_cells_vtu_with, CellNumbers};
 pub use neighbors_csv::{write_neighbors_csv, write_neighbors_csv_rows};
 pub use picture::{write_section_png, Section};
 pub use plot::{write_chart_png, write_line_chart_png, Axes, Series};
