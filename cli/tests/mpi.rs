@@ -84,6 +84,13 @@ fn ok(o: &Output, what: &str) {
     );
 }
 
+/// `files` of the run in `out` are byte for byte those of the run in `one`.
+fn same_files(one: &Path, out: &Path, files: &[&str], what: &str) {
+    for file in files {
+        assert!(read(&one.join(file)) == read(&out.join(file)), "{what}: {file} differs");
+    }
+}
+
 fn read(path: &Path) -> Vec<u8> {
     std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
@@ -127,9 +134,7 @@ fn lloyd_over_mpi_moves_the_sites_of_one_process() {
     ok(&cvd(&one, &args[..6]), "one process");
     let out = dir.join("three");
     ok(&mpirun(3, &out, &args), "3 ranks x 2 parts");
-    for file in ["sites.xyz", "cells.csv"] {
-        assert_eq!(read(&one.join(file)), read(&out.join(file)), "{file}");
-    }
+    same_files(&one, &out, &["sites.xyz", "cells.csv"], "3 ranks x 2 parts");
 }
 
 /// A periodic box's run, without pictures.
@@ -176,9 +181,7 @@ fn mpirun_gives_a_periodic_box_in_parts_byte_for_byte() {
             let out = dir.join(format!("{name}-{ranks}"));
             let o = mpirun_job(BOX, ranks, &out, args);
             ok(&o, &format!("{name}: {ranks} ranks"));
-            for file in ["cells.csv", "neighbors.csv", "sites.xyz"] {
-                assert!(read(&one.join(file)) == read(&out.join(file)), "{name}, {ranks} ranks: {file} differs");
-            }
+            same_files(&one, &out, &["cells.csv", "neighbors.csv", "sites.xyz"], &format!("{name}, {ranks} ranks"));
             let s = summary(&out);
             let records = s["ranks"].as_array().unwrap();
             assert_eq!(records.len(), ranks, "{name}: a record per rank");
@@ -203,9 +206,7 @@ fn mpirun_gives_a_periodic_box_in_parts_byte_for_byte() {
     let (one, out) = (dir.join("made-one"), dir.join("made-rounds"));
     let o = mpirun_env(BOX, 3, &out, &cases[2].1, &[("CVD_MPI_ROUND_BYTES", "4096")]);
     ok(&o, "3 ranks, exchanges of 4096 bytes per pair and call");
-    for file in ["cells.csv", "neighbors.csv", "sites.xyz"] {
-        assert!(read(&one.join(file)) == read(&out.join(file)), "in rounds: {file} differs");
-    }
+    same_files(&one, &out, &["cells.csv", "neighbors.csv", "sites.xyz"], "in rounds");
     // A bad line in one rank's part: it says so, and every rank ends (none
     // waits for it), within a bound.
     let bad = dir.join("bad.xyz");
@@ -244,9 +245,12 @@ fn mpirun_moves_the_sites_as_one_process_does() {
         for ranks in 2..=4 {
             let out = dir.join(format!("{optimizer}-{ranks}"));
             ok(&mpirun_job(BOX, ranks, &out, &args), &format!("{optimizer}: {ranks} ranks"));
-            for file in ["cells.csv", "neighbors.csv", "sites.xyz"] {
-                assert!(read(&one.join(file)) == read(&out.join(file)), "{optimizer}, {ranks} ranks: {file} differs");
-            }
+            same_files(
+                &one,
+                &out,
+                &["cells.csv", "neighbors.csv", "sites.xyz"],
+                &format!("{optimizer}, {ranks} ranks"),
+            );
             assert_eq!(energies(&out), energies(&one), "{optimizer}, {ranks} ranks: the energies");
             assert_eq!(summary(&out)["energy"], summary(&one)["energy"], "{optimizer}, {ranks} ranks");
             assert!(out.join("energy.png").is_file(), "{optimizer}, {ranks} ranks: energy.png");
@@ -299,9 +303,7 @@ fn mpirun_gives_power_cells_in_parts_byte_for_byte() {
         for ranks in [2, 4] {
             let out = dir.join(format!("{name}-{ranks}"));
             ok(&mpirun_job(BOX, ranks, &out, args), &format!("{name}: {ranks} ranks"));
-            for file in ["cells.csv", "neighbors.csv", "sites.xyz"] {
-                assert!(read(&one.join(file)) == read(&out.join(file)), "{name}, {ranks} ranks: {file} differs");
-            }
+            same_files(&one, &out, &["cells.csv", "neighbors.csv", "sites.xyz"], &format!("{name}, {ranks} ranks"));
         }
     }
     // The Voronoi index of each radical cell, measured on the rank that
@@ -315,9 +317,7 @@ fn mpirun_gives_power_cells_in_parts_byte_for_byte() {
         let out = dir.join(format!("index-{ranks}"));
         let o = mpirun_job(BOX, ranks, &out, &args);
         ok(&o, &format!("--voronoi-index: {ranks} ranks"));
-        for file in ["cells.csv", "neighbors.csv"] {
-            assert!(read(&index.join(file)) == read(&out.join(file)), "--voronoi-index, {ranks} ranks: {file} differs");
-        }
+        same_files(&index, &out, &["cells.csv", "neighbors.csv"], &format!("--voronoi-index, {ranks} ranks"));
         assert!(String::from_utf8_lossy(&o.stdout).contains("no walls.ply"), "the missing file is said");
         // VTK reads the pieces as one grid: every cell once, each as one
         // process wrote it (the same stored volume, VTK's measure of it).
@@ -396,9 +396,8 @@ fn mpirun_solves_optimal_transport_as_one_process() {
         for ranks in [2, 3] {
             let out = dir.join(format!("{name}-{ranks}"));
             ok(&mpirun_job(BOX, ranks, &out, args), &format!("{name}: {ranks} ranks"));
-            for file in ["cells.csv", "neighbors.csv", "sites.xyz", "weights.txt"] {
-                assert!(read(&one.join(file)) == read(&out.join(file)), "{name}, {ranks} ranks: {file} differs");
-            }
+            let files = ["cells.csv", "neighbors.csv", "sites.xyz", "weights.txt"];
+            same_files(&one, &out, &files, &format!("{name}, {ranks} ranks"));
             assert_eq!(steps(&out), steps(&one), "{name}, {ranks} ranks: the Newton steps");
         }
     }
