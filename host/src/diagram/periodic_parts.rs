@@ -30,6 +30,11 @@
 //! - the whole cells of its own sites, in the one process's order and
 //!   frame, folded as the one process folds them; each cell's row goes
 //!   back to the rank that read its site.
+//!
+//! Power cells carry their weights with their points (the halo widens
+//! with the whole job's range, the job shifts them by its smallest); with
+//! the Voronoi index, each part merges and measures the polyhedra of the
+//! cells it built ([`PeriodicVoronoi::compute_in_parts_with_index`]).
 
 use crate::backend::Backend;
 use crate::backends::distributed::{Parcels, Reduce};
@@ -166,7 +171,8 @@ impl PeriodicVoronoi<'_> {
     /// the part did. Whole cells on the CPU; with weights
     /// ([`PeriodicVoronoi::weights`]: this rank's rows' own, on every rank
     /// or on none), power cells (the `walks` counter may differ from one
-    /// process's). No polyhedra, no kept lists yet.
+    /// process's). The polyhedra: [`Self::compute_in_parts_with_index`]; no
+    /// kept lists yet.
     pub fn compute_in_parts(&self, comm: &dyn Reduce) -> Result<(PeriodicCells, PartsReport)> {
         let out = self.in_parts(comm, None)?;
         Ok((out.cells, out.report))
