@@ -79,3 +79,19 @@ pub fn open(args: &RunArgs) -> cvd::Result<(RunBackend, String)> {
     }
     Ok((RunBackend::Parts(Box::new(d)), why))
 }
+
+/// What to say when `--threads` asks for more threads than the cores this
+/// process may run on (its CPU affinity, as the OS reports it): an MPI
+/// launcher binds each rank to one core unless told (Open MPI's default
+/// for a few ranks), and the threads then share that core.
+pub fn threads_beyond_cores(threads: Option<usize>) -> Option<String> {
+    let threads = threads?;
+    let cores = std::thread::available_parallelism().ok()?.get();
+    (threads > cores).then(|| {
+        format!(
+            "--threads {threads}, but this process may run on {cores} core(s) only (its CPU affinity: an MPI \
+             launcher binds each rank to one core unless told); start it with `mpirun --bind-to none` or \
+             `mpirun --map-by slot:PE={threads}` (Slurm: --cpus-per-task={threads})"
+        )
+    })
+}

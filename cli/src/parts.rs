@@ -89,6 +89,9 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
         args.backend.threads.map_or("all".to_string(), |t| t.to_string())
     );
     let cpu = CpuBackend::new(args.backend.threads)?;
+    if let Some(warning) = crate::backend::threads_beyond_cores(args.backend.threads).filter(|_| rank == 0) {
+        eprintln!("cvd: {warning}");
+    }
     // The optimiser, each rank moving its own rows (and finding their
     // weights): the steps of one process.
     let iterated =

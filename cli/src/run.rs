@@ -52,6 +52,9 @@ pub fn run(args: &RunArgs) -> cvd::Result<u8> {
     if !writes {
         quiet_stdout();
     }
+    if let Some(warning) = backend::threads_beyond_cores(args.backend.threads).filter(|_| writes) {
+        eprintln!("cvd: {warning}");
+    }
     // Before the long part: a folder that cannot be made fails now.
     if writes {
         create_dir(&dir)?;

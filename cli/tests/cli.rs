@@ -670,3 +670,30 @@ fn jobs_too_large_for_the_memory_are_refused_before_they_start() {
     std::fs::OpenOptions::new().write(true).open(&npy).unwrap().set_len(padded as u64 + n * 24).unwrap();
     refused(&["--sites-file", "huge.npy"], &["huge.npy", &format!("the {n} sites"), "available"]);
 }
+
+#[test]
+fn more_threads_than_the_process_may_use_are_said() {
+    // A process bound to one core (as an MPI launcher binds a rank) asked
+    // for 2 threads: said, with the way out; the run goes on.
+    let dir = temp_dir("bound");
+    let out = dir.join("out");
+    let args = ["-c", "0", env!("CARGO_BIN_EXE_cvd"), "run", "--periodic", "--box", "0,0,0,9,9,9"];
+    let run =
+        match Command::new("taskset").args(args).args(["--sites", "700", "--threads", "2", "--out"]).arg(&out).output()
+        {
+            Ok(run) => run,
+            Err(e) if std::env::var("CI").is_ok_and(|v| v == "true") => panic!("CI=true: taskset is needed: {e}"),
+            Err(e) => return eprintln!("skipped: no taskset ({e})"),
+        };
+    assert!(run.status.success(), "{}", text(&run.stderr));
+    let said = text(&run.stderr);
+    assert!(said.contains("--threads 2") && said.contains("1 core") && said.contains("--bind-to none"), "{said}");
+    // Within the cores it may use: nothing said.
+    let run = Command::new(env!("CARGO_BIN_EXE_cvd"))
+        .args(["run", "--periodic", "--box", "0,0,0,9,9,9", "--sites", "700", "--threads", "1", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(run.status.success() && !text(&run.stderr).contains("core(s) only"), "{}", text(&run.stderr));
+    let _ = std::fs::remove_dir_all(&dir);
+}
