@@ -103,17 +103,17 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
             (None, Some(law)) => Some(law.draw_rows(first..first + sites.len() as u64, args.seed)),
             (None, None) => None,
         };
-        crate::optimise::transport(args, iterated, weights.as_deref(), capacities)?
+        Some(crate::optimise::transport(args, iterated, weights.as_deref(), capacities)?)
     } else if args.iterations > 0 {
         let (name, iterations) = (args.optimizer.name(), args.iterations);
         let run = with_iterations(name, iterations, |show| args.optimizer.run(&iterated, iterations, show))?;
         let cvt = Some(CvtRecord::of(name, &run.iterations));
-        Optimised { sites: run.sites, cvt, weights, transport: None }
+        Some(Optimised { sites: run.sites, cvt, weights: weights.clone(), transport: None })
     } else {
-        Optimised { sites: sites.clone(), cvt: None, weights, transport: None }
+        None
     };
-    drop(sites);
-    let Optimised { sites, cvt, weights, transport } = optimised;
+    let Optimised { sites, cvt, weights, transport } =
+        optimised.unwrap_or(Optimised { sites, cvt: None, weights, transport: None });
     let faces = !args.no_neighbors;
     let diagram = PeriodicVoronoi::new(domain, &sites)
         .k_site(args.k_site)
