@@ -163,9 +163,27 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
         if rank == 0 {
             let pieces: Vec<String> = (0..ranks).map(|r| format!("cells/{r}.vtu")).collect();
             cvd_io::write_cells_pvtu(&dir.join("cells.pvtu"), &pieces)?;
-            println!("in parts: cells.pvtu holds each rank's cells.vtu (cells/RANK.vtu); no walls.ply");
+            println!("in parts: cells.pvtu holds each rank's cells.vtu (cells/RANK.vtu)");
         }
         written.push("cells.pvtu");
+        // walls.ply: each rank's walls (a shared face from the cell of the
+        // lower site, as one process writes it), its points and faces after
+        // the ranks' before it, the header from rank 0.
+        let walls = cvd_io::Walls::of(&built.polyhedra);
+        let counts =
+            comm.all_gather(&[walls.points.len() as u64, walls.faces.len() as u64].map(u64::to_le_bytes).concat())?;
+        let count = |b: &Vec<u8>, k: usize| u64::from_le_bytes(b[8 * k..8 * k + 8].try_into().unwrap_or([0; 8]));
+        let (points, faces) = (counts.iter().map(|b| count(b, 0)).sum(), counts.iter().map(|b| count(b, 1)).sum());
+        let first_point: u64 = counts[..rank].iter().map(|b| count(b, 0)).sum();
+        let path = dir.join("walls.ply");
+        write_part(comm, &path, |w| {
+            if rank == 0 {
+                w.write_all(cvd_io::Walls::header(points, faces).as_bytes())?;
+            }
+            walls.write_points(w)
+        })?;
+        write_section(comm, &path, true, |w| walls.write_faces(w, first_point))?;
+        written.push("walls.ply");
     }
     if let (Some(w), Some(_)) = (&weights, &transport) {
         write_part(comm, &dir.join("weights.txt"), |out| cvd_io::write_values_rows(out, w))?;
@@ -294,23 +312,49 @@ fn write_part(
     path: &Path,
     body: impl FnOnce(&mut dyn std::io::Write) -> std::io::Result<()>,
 ) -> cvd::Result<()> {
+    write_section(comm, path, false, body)
+}
+
+/// [`write_part`] of a section of the file: the file made anew, or (with
+/// `append`) the section after what the file holds.
+fn write_section(
+    comm: &dyn Reduce,
+    path: &Path,
+    append: bool,
+    body: impl FnOnce(&mut dyn std::io::Write) -> std::io::Result<()>,
+) -> cvd::Result<()> {
     let io = |source| cvd::Error::Write { path: path.display().to_string(), source };
     let mut bytes = Vec::new();
     body(&mut bytes).map_err(io)?;
     let lengths = comm.all_gather(&(bytes.len() as u64).to_le_bytes())?;
     let lengths: Vec<u64> = lengths.iter().map(|b| u64::from_le_bytes(b[..8].try_into().unwrap_or([0; 8]))).collect();
-    let at: u64 = lengths[..comm.rank()].iter().sum();
-    // Every rank learns whether rank 0 made the file, and stops together.
-    let mut made = [0i64];
+    let total: u64 = lengths.iter().sum();
+    // Rank 0 makes (or lengthens) the file; every rank learns whether it
+    // could, and where the section starts, and stops together.
+    let mut made = [0i64; 2];
+    let mut failure = None;
     if comm.rank() == 0 {
-        let made_here = std::fs::File::create(path).and_then(|f| f.set_len(lengths.iter().sum()));
-        made[0] = made_here.is_err() as i64;
-        made_here.map_err(io)?;
+        let sized = if append {
+            std::fs::OpenOptions::new().write(true).open(path).and_then(|f| {
+                let base = f.metadata()?.len();
+                f.set_len(base + total).map(|()| base)
+            })
+        } else {
+            std::fs::File::create(path).and_then(|f| f.set_len(total)).map(|()| 0)
+        };
+        match sized {
+            Ok(base) => made[1] = base as i64,
+            Err(e) => (made[0], failure) = (1, Some(e)),
+        }
     }
     comm.sum(&mut made)?;
+    if let Some(e) = failure {
+        return Err(io(e));
+    }
     if made[0] != 0 {
         return Err(cvd::Error::InvalidInput(format!("{}: rank 0 could not make the file", path.display())));
     }
+    let at = made[1] as u64 + lengths[..comm.rank()].iter().sum::<u64>();
     let mut failed = [0i64];
     let wrote = std::fs::OpenOptions::new().write(true).open(path).and_then(|mut f| {
         use std::io::{Seek, Write};

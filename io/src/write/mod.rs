@@ -35,7 +35,7 @@ pub use summary::{CvtRecord, ParticlesRecord, PeriodicRecord, RankRecord, Summar
 pub use trajectory::{FrameRecord, TrajectorySummary};
 pub use view::write_cells_view_png;
 pub use vtu::write_pieces_vtu;
-pub use walls_ply::write_walls_ply;
+pub use walls_ply::{write_walls_ply, Walls};
 
 /// A progress report: `(done, total)`, in units the writer chooses.
 pub type Progress<'a> = &'a mut dyn FnMut(u64, u64);
