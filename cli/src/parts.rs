@@ -63,7 +63,7 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
             (unit.iter().map(|&p| domain.cartesian(p)).collect(), n)
         }
     };
-    let first: u64 = gather_u64(comm, sites.len() as u64)?[..rank].iter().sum();
+    let first: u64 = comm.gather_u64(sites.len() as u64)?[..rank].iter().sum();
     // This rank's weights: its rows of --weights, or of --radii squared.
     let weights = match (&args.weights, &args.radii) {
         (Some(path), _) => Some(values_for_rows(comm, path, "weights", sites.len(), total)?),
@@ -191,9 +191,7 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     }
 
     // The run's numbers: totals from every rank, each rank's record.
-    let mut energy = ExactSum::of(&out.cells.energy).words();
-    comm.sum(&mut energy)?;
-    let energy = ExactSum::from_words(&energy).map(|s| s.value()).unwrap_or(f64::NAN);
+    let energy = comm.exact_total(&ExactSum::of(&out.cells.energy))?.value();
     let mine = RankRecord {
         rank,
         rows: report.read,
@@ -272,13 +270,13 @@ fn refuse_what_parts_lack(args: &RunArgs) -> cvd::Result<()> {
 fn values_for_rows(comm: &dyn Reduce, path: &Path, what: &str, len: usize, total: u64) -> cvd::Result<Vec<f64>> {
     let (rank, ranks) = (comm.rank(), comm.size());
     let read = cvd_io::read_values_part(path, rank, ranks)?;
-    let counts = gather_u64(comm, read.len() as u64)?;
+    let counts = comm.gather_u64(read.len() as u64)?;
     let found: u64 = counts.iter().sum();
     if found != total {
         return Err(cvd::Error::InvalidInput(format!("{}: {found} {what} for {total} sites", path.display())));
     }
     // Each rank's rows of the sites, and where this rank's values start.
-    let rows = gather_u64(comm, len as u64)?;
+    let rows = comm.gather_u64(len as u64)?;
     let starts: Vec<u64> = rows.iter().scan(0, |at, &n| Some(std::mem::replace(at, *at + n))).collect();
     let at: u64 = counts[..rank].iter().sum();
     let mut to = vec![Vec::new(); ranks];
@@ -296,12 +294,6 @@ fn values_for_rows(comm: &dyn Reduce, path: &Path, what: &str, len: usize, total
         return Err(cvd::Error::Internal(format!("{} of {len} {what} came to rank {rank}", values.len())));
     }
     Ok(values)
-}
-
-/// Each rank's `value`, by rank.
-fn gather_u64(comm: &dyn Reduce, value: u64) -> cvd::Result<Vec<u64>> {
-    let all = comm.all_gather(&value.to_le_bytes())?;
-    Ok(all.iter().map(|b| u64::from_le_bytes(b[..8].try_into().unwrap_or([0; 8]))).collect())
 }
 
 /// Writes this rank's part of a file (what `body` writes) at its place:
@@ -326,8 +318,7 @@ fn write_section(
     let io = |source| cvd::Error::Write { path: path.display().to_string(), source };
     let mut bytes = Vec::new();
     body(&mut bytes).map_err(io)?;
-    let lengths = comm.all_gather(&(bytes.len() as u64).to_le_bytes())?;
-    let lengths: Vec<u64> = lengths.iter().map(|b| u64::from_le_bytes(b[..8].try_into().unwrap_or([0; 8]))).collect();
+    let lengths = comm.gather_u64(bytes.len() as u64)?;
     let total: u64 = lengths.iter().sum();
     // Rank 0 makes (or lengthens) the file; every rank learns whether it
     // could, and where the section starts, and stops together.

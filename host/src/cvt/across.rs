@@ -31,7 +31,7 @@ impl<'a> Across<'a> {
     /// together, in parts).
     pub fn of(diagram: &'a (impl SiteDiagram + ?Sized), len: usize) -> Result<Self> {
         let Some(comm) = diagram.comm() else { return Ok(Self::alone(len)) };
-        let counts = counts(comm, len)?;
+        let counts = comm.gather_u64(len as u64)?;
         let first = counts[..comm.rank()].iter().sum();
         Ok(Self { comm: Some(comm), first, len, total: counts.iter().sum() })
     }
@@ -49,10 +49,8 @@ impl<'a> Across<'a> {
     /// Each of `sums` over every process, in place.
     pub fn totals(&self, sums: &mut [ExactSum]) -> Result<()> {
         let Some(comm) = self.comm else { return Ok(()) };
-        let mut words: Vec<i64> = sums.iter().flat_map(|s| s.words()).collect();
-        comm.sum(&mut words)?;
-        for (s, w) in sums.iter_mut().zip(words.chunks(ExactSum::WORDS)) {
-            *s = ExactSum::from_words(w).ok_or_else(|| Error::Internal("a sum's words did not come through".into()))?;
+        for s in sums {
+            *s = comm.exact_total(s)?;
         }
         Ok(())
     }
@@ -107,12 +105,6 @@ fn exact(n: usize, term: impl Fn(usize) -> f64 + Sync) -> ExactSum {
         })
 }
 
-/// Each process's `len`, by rank.
-fn counts(comm: &dyn Reduce, len: usize) -> Result<Vec<u64>> {
-    let all = comm.all_gather(&(len as u64).to_le_bytes())?;
-    Ok(all.iter().map(|b| bytemuck::pod_read_unaligned::<u64>(&b[..8])).collect())
-}
-
 /// The rows other processes hold that this one's rows refer to (their
 /// neighbours), and how to fetch values at them: [`Ghosts::of`] numbers
 /// each referred row locally — this process's own rows first, `0..len`,
@@ -136,7 +128,7 @@ impl<'a> Ghosts<'a> {
         let Some(comm) = across.comm else {
             return Ok(Self { across, asked: Vec::new(), count: 0 });
         };
-        let lens = counts(comm, across.len)?;
+        let lens = comm.gather_u64(across.len as u64)?;
         let starts: Vec<u64> = std::iter::once(0)
             .chain(lens.iter().scan(0, |at, &n| {
                 *at += n;

@@ -46,6 +46,7 @@ use crate::diagram::periodic::{
 use crate::diagram::voronoi::{Cells, ClippedVoronoi, Counters};
 use crate::error::{Error, Result};
 use crate::exec::CpuBackend;
+use crate::geom::exact_sum::ExactSum;
 use crate::geom::periodic_box::PeriodicBox;
 use crate::geom::timing::{timed, Timings};
 use crate::job::clip::Strategy;
@@ -218,7 +219,7 @@ impl PeriodicVoronoi<'_> {
         let (rank, ranks) = (comm.rank(), comm.size());
         let mut timings = Timings::default();
         let clock = std::time::Instant::now();
-        let counts = gather_u64(comm, self.sites.len() as u64)?;
+        let counts = comm.gather_u64(self.sites.len() as u64)?;
         let first: u64 = counts[..rank].iter().sum();
         let total: u64 = counts.iter().sum();
         if total == 0 {
@@ -486,8 +487,7 @@ impl PeriodicVoronoi<'_> {
         let mut c = counters_of(&counters);
         c.duplicate_sites = counters[counters.len() - 2] as u64;
         c.empty_cells = counters[counters.len() - 1] as u64 - c.duplicate_sites;
-        let sums = gather_f64(comm, cells.0.volume.iter().sum())?;
-        let total_volume: f64 = sums.iter().sum();
+        let total_volume = comm.exact_total(&ExactSum::of(&cells.0.volume))?.value();
         let mesh_volume = domain.volume();
         let (cells, offsets) = (
             Cells {
@@ -843,16 +843,6 @@ fn polyhedra_of(
 fn records<T: Pod>(bytes: &[u8]) -> impl Iterator<Item = T> + '_ {
     let size = size_of::<T>();
     (0..bytes.len() / size).map(move |k| bytemuck::pod_read_unaligned(&bytes[k * size..][..size]))
-}
-
-/// Each rank's `value`, by rank.
-fn gather_u64(comm: &dyn Reduce, value: u64) -> Result<Vec<u64>> {
-    Ok(comm.all_gather(&value.to_le_bytes())?.iter().map(|b| bytemuck::pod_read_unaligned::<u64>(b)).collect())
-}
-
-/// Each rank's `value`, by rank.
-fn gather_f64(comm: &dyn Reduce, value: f64) -> Result<Vec<f64>> {
-    Ok(comm.all_gather(&value.to_le_bytes())?.iter().map(|b| bytemuck::pod_read_unaligned::<f64>(b)).collect())
 }
 
 /// The counters as numbers to add across ranks.

@@ -205,14 +205,6 @@ impl Extend<f64> for ExactSum {
     }
 }
 
-/// The exact sum of the products `a[i] * b[i]` (each product rounded, as
-/// `f64` multiplies it): the same bits whatever the order or split.
-pub fn dot(a: &[f64], b: &[f64]) -> ExactSum {
-    let mut s = ExactSum::new();
-    s.extend(a.iter().zip(b).map(|(x, y)| x * y));
-    s
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -306,6 +298,8 @@ mod tests {
         }
         let exact = (n as u128) * ((1u128 << 53) - 1); // in units of 2^-53
         assert_eq!(s.value(), exact as f64 * pow2(-53));
-        assert_eq!(dot(&[1.0, 2.0, 3.0], &[4.0, -5.0, 6.0]).value(), 12.0);
+        let mut products = ExactSum::new();
+        products.extend([1.0f64, 2.0, 3.0].iter().zip([4.0, -5.0, 6.0]).map(|(x, y)| x * y));
+        assert_eq!(products.value(), 12.0);
     }
 }

@@ -28,6 +28,7 @@ pub mod mpi;
 use crate::backend::Backend;
 use crate::error::{Error, Result};
 use crate::exec::CpuBackend;
+use crate::geom::exact_sum::ExactSum;
 use crate::geom::timing::{timed, Timings};
 use crate::job::clip::{ClipJob, ClipOutput, JobShape, Pairing, Strategy};
 use crate::job::held::HeldCells;
@@ -56,6 +57,23 @@ pub trait Reduce: Send + Sync {
     fn exchange(&self, to: Parcels) -> Result<Parcels>;
     /// What the ranks are, for reports (e.g. `MPI, 4 ranks`).
     fn describe(&self) -> String;
+    /// Every rank's `value`, by rank (the same on every rank).
+    fn gather_u64(&self, value: u64) -> Result<Vec<u64>> {
+        let all = self.all_gather(&value.to_le_bytes())?;
+        Ok(all
+            .iter()
+            .map(|b| u64::from_le_bytes(b.get(..8).and_then(|b| b.try_into().ok()).unwrap_or([0; 8])))
+            .collect())
+    }
+
+    /// The exact sum of every rank's terms (`mine`: this rank's), the same
+    /// bits on every rank whatever the split: one integer sum of words.
+    fn exact_total(&self, mine: &ExactSum) -> Result<ExactSum> {
+        let mut words = mine.words();
+        self.sum(&mut words)?;
+        ExactSum::from_words(&words).ok_or_else(|| Error::Internal("a sum's words did not come through".into()))
+    }
+
     /// Ends every rank with exit status `code`, where the ranks are
     /// processes that would otherwise wait for this one in their next
     /// collective (MPI's); elsewhere nothing (the error returns as usual).
