@@ -5,36 +5,79 @@
 //! particle ids where it has them) and one `summary.json` for the run.
 //! Each frame starts from the last one's neighbour lists
 //! (`cvd::diagram::trajectory`) unless `--rebuild-frames`.
+//!
+//! Under `mpirun`, every frame in parts: each rank parses only its share
+//! of each frame's atom lines (`FrameReader::read_parts`), the ranks put
+//! the rows in order of their ids together (`sort_across`), and the frame's
+//! cells are a periodic box in parts (`PeriodicVoronoi::compute_in_parts`),
+//! each rank writing its rows of the frame's `cells.csv` at their place:
+//! the same files as one process.
 
 use crate::args::{FrameRange, RunArgs};
 use crate::progress::with_frames;
+use cvd::backends::distributed::{sort_across, Reduce};
 use cvd::{CpuBackend, ParticleCells, PeriodicVoronoi};
-use cvd_io::{FrameRecord, TrajectorySummary};
+use cvd_io::{FrameRecord, ParticleFrame, TrajectorySummary};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-/// Runs `cvd run --particles`.
+/// Runs `cvd run --particles`: in one process, or in parts over the ranks
+/// of an MPI launch.
 pub fn run(args: &RunArgs, file: &Path) -> cvd::Result<u8> {
+    let (comm, warning) = cvd::backends::distributed::launched_comm()?;
+    if let Some(warning) = warning {
+        eprintln!("cvd: {warning}");
+    }
+    match comm {
+        Some(comm) => crate::parts::ending_together(comm.as_ref(), |comm| frames(args, file, Some(comm))),
+        None => frames(args, file, None),
+    }
+}
+
+/// One frame's cells as written: the record for the summary.
+struct FrameCells {
+    particles: usize,
+    images: usize,
+    reused: u64,
+    cells: cvd::Cells,
+}
+
+/// The cells of every frame asked for, in one process (`comm`: none) or in
+/// parts.
+fn frames(args: &RunArgs, file: &Path, comm: Option<&dyn Reduce>) -> cvd::Result<u8> {
     let range = args.frames.unwrap_or(FrameRange { start: 0, end: None, step: 1 });
     let thresholds = args.index_thresholds()?;
     let name = file.file_stem().and_then(|s| s.to_str()).unwrap_or("particles").to_string();
     let dir = args.out.clone().unwrap_or_else(|| PathBuf::from("out").join(&name));
     let frames_dir = dir.join("frames");
-    std::fs::create_dir_all(&frames_dir)
-        .map_err(|source| cvd::Error::Write { path: frames_dir.display().to_string(), source })?;
+    let rank = comm.map_or(0, |c| c.rank());
+    if comm.is_some() {
+        crate::parts::refuse_what_parts_lack(args)?;
+        if rank != 0 {
+            crate::progress::quiet_stdout();
+        }
+    }
+    if rank == 0 {
+        std::fs::create_dir_all(&frames_dir)
+            .map_err(|source| cvd::Error::Write { path: frames_dir.display().to_string(), source })?;
+    }
     let mut reader = cvd_io::open_particles(file)?;
+    if let Some(comm) = comm {
+        reader.read_parts(comm.rank(), comm.size());
+    }
     let cpu = CpuBackend::new(args.backend.threads)?;
     let clock = Instant::now();
     let mut records = Vec::new();
     let mut diagram_seconds = 0.0;
     let mut last = None;
     println!(
-        "{}: frames {}..{} every {}, on the CPU with {} threads",
+        "{}: frames {}..{} every {}, on the CPU with {} threads{}",
         file.display(),
         range.start,
         range.end.map_or("the end".to_string(), |e| e.to_string()),
         range.step,
-        cpu.threads()
+        cpu.threads(),
+        comm.map_or(String::new(), |c| format!(" per rank, each frame in parts over {}", c.describe()))
     );
     with_frames(range.count(), |show| -> cvd::Result<()> {
         loop {
@@ -50,37 +93,50 @@ pub fn run(args: &RunArgs, file: &Path) -> cvd::Result<u8> {
             }
             let Some(frame) = reader.next() else { return Ok(()) };
             let frame = frame?;
-            let weights = frame.radii.as_deref().map(cvd::diagram::particles::radii_weights).transpose()?;
+            let (timestep, periodic) = (frame.timestep, frame.domain.periodic());
             let started = Instant::now();
-            let mut pv = PeriodicVoronoi::new(frame.domain, &frame.positions)
-                .faces(!args.no_neighbors)
-                .strategy(args.strategy)
-                .backend(&cpu)
-                .keep_lists(!args.rebuild_frames)
-                .after(last.as_ref());
-            if let Some(w) = &weights {
-                pv = pv.weights(w);
-            }
-            let mut out = if args.voronoi_index { pv.compute_with_polyhedra(&cpu)? } else { pv.compute()? };
-            last = out.lists.take();
-            let particles = out.cells.polyhedra().map(|p| ParticleCells::of(frame.positions.len(), p, &thresholds));
+            let file = format!("cells.{index:06}.csv");
+            let out = match comm {
+                None => {
+                    let weights = frame.radii.as_deref().map(cvd::diagram::particles::radii_weights).transpose()?;
+                    let mut pv = PeriodicVoronoi::new(frame.domain, &frame.positions)
+                        .faces(!args.no_neighbors)
+                        .strategy(args.strategy)
+                        .backend(&cpu)
+                        .keep_lists(!args.rebuild_frames)
+                        .after(last.as_ref());
+                    if let Some(w) = &weights {
+                        pv = pv.weights(w);
+                    }
+                    let mut out = if args.voronoi_index { pv.compute_with_polyhedra(&cpu)? } else { pv.compute()? };
+                    last = out.lists.take();
+                    let particles =
+                        out.cells.polyhedra().map(|p| ParticleCells::of(frame.positions.len(), p, &thresholds));
+                    cvd_io::write_cells_csv_with(
+                        &frames_dir.join(&file),
+                        &out.cells,
+                        particles.as_ref(),
+                        frame.ids.as_deref(),
+                    )?;
+                    FrameCells {
+                        particles: frame.positions.len(),
+                        images: out.images,
+                        reused: out.reused as u64,
+                        cells: out.cells,
+                    }
+                }
+                Some(comm) => frame_in_parts(args, comm, &cpu, frame, &frames_dir.join(&file), &thresholds)?,
+            };
             let seconds = started.elapsed().as_secs_f64();
             diagram_seconds += seconds;
-            let file = format!("cells.{index:06}.csv");
-            cvd_io::write_cells_csv_with(
-                &frames_dir.join(&file),
-                &out.cells,
-                particles.as_ref(),
-                frame.ids.as_deref(),
-            )?;
             let c = &out.cells.counters;
             records.push(FrameRecord {
                 frame: index,
-                timestep: frame.timestep,
-                particles: frame.positions.len(),
-                periodic: frame.domain.periodic(),
+                timestep,
+                particles: out.particles,
+                periodic,
                 images: out.images,
-                reused_cells: out.reused as u64,
+                reused_cells: out.reused,
                 e_vol: out.cells.e_vol,
                 empty_cells: c.empty_cells,
                 second_pass: c.second_pass,
@@ -88,7 +144,7 @@ pub fn run(args: &RunArgs, file: &Path) -> cvd::Result<u8> {
                 seconds,
                 file: format!("frames/{file}"),
             });
-            show(records.len(), frame.positions.len());
+            show(records.len(), out.particles);
         }
     })?;
     if records.is_empty() {
@@ -101,6 +157,9 @@ pub fn run(args: &RunArgs, file: &Path) -> cvd::Result<u8> {
         )));
     }
     let total = clock.elapsed().as_secs_f64();
+    if rank != 0 {
+        return Ok(0);
+    }
     let summary = TrajectorySummary {
         particles_file: file.display().to_string(),
         frames_per_second: records.len() as f64 / total,
@@ -130,4 +189,70 @@ pub fn run(args: &RunArgs, file: &Path) -> cvd::Result<u8> {
     let worst = summary.frames.iter().map(|f| f.e_vol).fold(0.0, f64::max);
     println!("E_vol at most {worst:.1e}; wrote {}: frames/cells.*.csv ({n}), summary.json", dir.display());
     Ok(0)
+}
+
+/// An atom of a frame read in parts, on its way to the rank of its row:
+/// its id, the line it was read from, its position and radius (bits).
+type Atom = [u64; 6];
+
+/// A frame's cells in parts: this rank's part of its atom lines put in
+/// order of their ids with the other ranks' (as one process sorts them),
+/// the cells of its rows computed as a periodic box in parts, and its rows
+/// of the frame's `cells.csv` written at their place in `path`.
+fn frame_in_parts(
+    args: &RunArgs,
+    comm: &dyn Reduce,
+    cpu: &CpuBackend,
+    mut frame: ParticleFrame,
+    path: &Path,
+    thresholds: &cvd::IndexThresholds,
+) -> cvd::Result<FrameCells> {
+    let part = frame.part.ok_or_else(|| cvd::Error::Internal("a frame read in parts without its part".into()))?;
+    let (positions, radii, ids) = match frame.ids.take() {
+        None => (frame.positions, frame.radii, None),
+        Some(ids) => {
+            let atoms: Vec<Atom> = (0..frame.positions.len())
+                .map(|i| {
+                    let [x, y, z] = frame.positions[i].map(f64::to_bits);
+                    let radius = frame.radii.as_ref().map_or(0.0, |r| r[i]).to_bits();
+                    [ids[i], (part.first_line + i) as u64, x, y, z, radius]
+                })
+                .collect();
+            let atoms = sort_across(comm, atoms, |a| a[0])?;
+            // Equal ids meet on one rank, in the file's order.
+            if let Some(w) = atoms.windows(2).find(|w| w[0][0] == w[1][0]) {
+                return Err(cvd::Error::Parse {
+                    path: args.particles.as_ref().map_or(String::new(), |p| p.display().to_string()),
+                    line: w[1][1] as usize,
+                    message: format!(
+                        "frame {}: atom id {} again (it is on line {} too)",
+                        frame.index, w[0][0], w[0][1]
+                    ),
+                });
+            }
+            let at = |a: &Atom| [a[2], a[3], a[4]].map(f64::from_bits);
+            let radii = frame.radii.is_some().then(|| atoms.iter().map(|a| f64::from_bits(a[5])).collect());
+            (atoms.iter().map(at).collect(), radii, Some(atoms.iter().map(|a| a[0]).collect::<Vec<u64>>()))
+        }
+    };
+    let weights = radii.as_deref().map(cvd::diagram::particles::radii_weights).transpose()?;
+    let mut pv = PeriodicVoronoi::new(frame.domain, &positions).faces(!args.no_neighbors).backend(cpu);
+    if let Some(w) = &weights {
+        pv = pv.weights(w);
+    }
+    let (out, particles, report) = match args.voronoi_index {
+        true => {
+            let parts = pv.compute_in_parts_with_index(comm, cpu, thresholds)?;
+            (parts.cells, Some(parts.particles), parts.report)
+        }
+        false => {
+            let (out, report) = pv.compute_in_parts(comm)?;
+            (out, None, report)
+        }
+    };
+    let rows = cvd_io::Rows { first: report.first, total: part.total as u64, periodic: true };
+    crate::parts::write_part(comm, path, |w| {
+        cvd_io::write_cells_csv_rows(w, &out.cells, particles.as_ref(), ids.as_deref(), rows)
+    })?;
+    Ok(FrameCells { particles: part.total, images: out.images, reused: 0, cells: out.cells })
 }

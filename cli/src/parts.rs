@@ -17,11 +17,16 @@ use cvd::{CpuBackend, PeriodicVoronoi};
 use cvd_io::{CvtRecord, RankRecord, Rows, Summary};
 use std::path::Path;
 
-/// Runs a periodic box in parts over `comm`'s ranks. An error on one rank
-/// (a bad line in its part of the file) ends them all, after it is said:
-/// the others would wait for it.
+/// Runs a periodic box in parts over `comm`'s ranks.
 pub fn run(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
-    in_parts(args, comm).inspect_err(|e| {
+    ending_together(comm, |comm| in_parts(args, comm))
+}
+
+/// Runs `job` on this rank of `comm`. An error on one rank (a bad line in
+/// its part of the file) ends them all, after it is said: the others would
+/// wait for it.
+pub(crate) fn ending_together(comm: &dyn Reduce, job: impl FnOnce(&dyn Reduce) -> cvd::Result<u8>) -> cvd::Result<u8> {
+    job(comm).inspect_err(|e| {
         if comm.size() > 1 {
             eprintln!("cvd: rank {}: {e}", comm.rank());
             comm.abort(if e.is_input_error() { 2 } else { 1 });
@@ -199,6 +204,7 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
         owned: report.owned,
         held: report.held,
         halo: report.halo,
+        grid_cells: report.grid_cells,
         sent_bytes: report.sent,
         seconds: clock.elapsed().as_secs_f64(),
         peak_memory_bytes: cvd::job::memory::peak().unwrap_or(0),
@@ -227,13 +233,16 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     print!("{summary}");
     for r in summary.ranks.iter().flatten() {
         println!(
-            "rank {}: {} rows read, {} sites owned in {} blocks, {} points held (halo {:.3}), {} sent, {:.2} s, peak memory {}",
+            "rank {}: {} rows read, {} sites owned in {} blocks, {} points held (halo {:.3}; grid cells {} of {}), {} \
+             sent, {:.2} s, peak memory {}",
             r.rank,
             r.rows,
             r.owned,
             r.blocks,
             r.held,
             r.halo,
+            r.grid_cells[0],
+            r.grid_cells[1],
             cvd::error::human(r.sent_bytes),
             r.seconds,
             cvd::error::human(r.peak_memory_bytes)
@@ -244,7 +253,7 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
 }
 
 /// The options a periodic box in parts does not take yet, refused by name.
-fn refuse_what_parts_lack(args: &RunArgs) -> cvd::Result<()> {
+pub(crate) fn refuse_what_parts_lack(args: &RunArgs) -> cvd::Result<()> {
     let lacking = [
         (
             args.weights.is_some() && args.iterations > 0 && !args.transports(),
@@ -299,7 +308,7 @@ fn values_for_rows(comm: &dyn Reduce, path: &Path, what: &str, len: usize, total
 /// Writes this rank's part of a file (what `body` writes) at its place:
 /// after the parts of the ranks before it. Rank 0 makes the file first;
 /// every rank has written its part when this returns.
-fn write_part(
+pub(crate) fn write_part(
     comm: &dyn Reduce,
     path: &Path,
     body: impl FnOnce(&mut dyn std::io::Write) -> std::io::Result<()>,
@@ -373,6 +382,8 @@ fn record_bytes(r: &RankRecord) -> Vec<u8> {
         r.sent_bytes,
         r.seconds.to_bits(),
         r.peak_memory_bytes,
+        r.grid_cells[0],
+        r.grid_cells[1],
     ];
     words.iter().flat_map(|w| w.to_le_bytes()).collect()
 }
@@ -389,5 +400,6 @@ fn record_of(b: &[u8]) -> RankRecord {
         sent_bytes: w(6),
         seconds: f64::from_bits(w(7)),
         peak_memory_bytes: w(8),
+        grid_cells: [w(9), w(10)],
     }
 }

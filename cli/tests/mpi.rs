@@ -226,6 +226,117 @@ fn mpirun_gives_a_periodic_box_in_parts_byte_for_byte() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// A LAMMPS dump of `frames` frames of `n` atoms each: ids a shuffled
+/// sparse set, a radius column; frame 0 a periodic box, frame 1 walls
+/// along z, frame 2 a triclinic cell (its bounds the tilted cell's
+/// bounding box, as LAMMPS writes them), each atom moved a little between
+/// frames.
+fn dump(n: usize, frames: usize) -> String {
+    use std::fmt::Write;
+    let l = (n as f64).cbrt() * 1.1;
+    let mut state = 11u64;
+    let mut next = || {
+        state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        (state >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let mut ids: Vec<u64> = (0..n as u64).map(|i| 7 * i + 3).collect();
+    for i in (1..n).rev() {
+        ids.swap(i, (next() * (i + 1) as f64) as usize);
+    }
+    let mut at: Vec<[f64; 3]> = (0..n).map(|_| [next() * l, next() * l, next() * l]).collect();
+    let radii: Vec<f64> = (0..n).map(|_| 0.3 + 0.2 * next()).collect();
+    let mut out = String::new();
+    for f in 0..frames {
+        let bounds = match f % 3 {
+            0 => format!("ITEM: BOX BOUNDS pp pp pp\n0 {l}\n0 {l}\n0 {l}\n"),
+            1 => format!("ITEM: BOX BOUNDS pp pp ff\n0 {l}\n0 {l}\n0 {l}\n"),
+            _ => format!("ITEM: BOX BOUNDS xy xz yz pp pp pp\n0 {} 1\n-0.5 {l} 0.5\n0 {l} -0.5\n", l + 1.5),
+        };
+        write!(
+            out,
+            "ITEM: TIMESTEP\n{}\nITEM: NUMBER OF ATOMS\n{n}\n{bounds}ITEM: ATOMS id type x y z radius\n",
+            100 * f
+        )
+        .unwrap();
+        for i in 0..n {
+            for c in &mut at[i] {
+                *c = (*c + 0.05 * (next() - 0.5)).clamp(0.0, l);
+            }
+            let [x, y, z] = at[i];
+            writeln!(out, "{} 1 {x} {y} {z} {}", ids[i], radii[i]).unwrap();
+        }
+    }
+    out
+}
+
+#[test]
+fn mpirun_gives_a_trajectorys_frames_byte_for_byte() {
+    if !mpi_here() {
+        return;
+    }
+    let dir = temp_dir("frames");
+    let path = dir.join("dump.atoms");
+    std::fs::write(&path, dump(4000, 3)).unwrap();
+    let file = path.to_str().unwrap();
+    // An extended XYZ without ids (the file's order), in a periodic cell.
+    let xyz = dir.join("particles.extxyz");
+    let mut text = String::new();
+    for f in 0..2 {
+        let sites = cvd::geom::points::uniform(3000, 20 + f);
+        text += &format!("3000\nLattice=\"14 0 0 0 15 0 0 0 16\" Properties=species:S:1:pos:R:3 pbc=\"T T T\"\n");
+        for p in sites {
+            text += &format!("Ar {} {} {}\n", 14.0 * p[0], 15.0 * p[1], 16.0 * p[2]);
+        }
+    }
+    std::fs::write(&xyz, text).unwrap();
+    let frames = |n: usize| (0..n).map(|f| format!("frames/cells.{f:06}.csv")).collect::<Vec<_>>();
+    let cases: [(&str, Vec<&str>, usize); 3] = [
+        ("dump", vec!["--particles", file], 3),
+        ("index", vec!["--particles", file, "--frames", "1:3", "--voronoi-index"], 0),
+        ("extxyz", vec!["--particles", xyz.to_str().unwrap()], 2),
+    ];
+    for (name, args, n) in &cases {
+        let files = match *name {
+            "index" => vec!["frames/cells.000001.csv".to_string(), "frames/cells.000002.csv".to_string()],
+            _ => frames(*n),
+        };
+        let files: Vec<&str> = files.iter().map(String::as_str).collect();
+        let one = dir.join(format!("{name}-one"));
+        ok(&cvd_job(&["run"], &one, args), &format!("{name}: one process"));
+        for ranks in [2, 3] {
+            let out = dir.join(format!("{name}-{ranks}"));
+            let o = mpirun_job(&["run"], ranks, &out, args);
+            ok(&o, &format!("{name}: {ranks} ranks"));
+            same_files(&one, &out, &files, &format!("{name}, {ranks} ranks"));
+            let (a, b) = (summary(&one), summary(&out));
+            for f in 0..files.len() {
+                for key in ["frame", "timestep", "particles", "periodic", "images", "empty_cells", "file"] {
+                    assert_eq!(a["frames"][f][key], b["frames"][f][key], "{name}, {ranks} ranks: frame {f}'s {key}");
+                }
+            }
+            let said = String::from_utf8_lossy(&o.stdout);
+            assert!(said.contains("in parts over MPI") && said.matches("wrote ").count() == 1, "{said}");
+        }
+    }
+    // An id twice, in the parts of two ranks: named by its lines, exit 2.
+    let text = std::fs::read_to_string(&path).unwrap();
+    let lines: Vec<&str> = text.lines().collect();
+    let (first, again) = (9, 9 + 3000);
+    let id = lines[first].split(' ').next().unwrap().to_string();
+    let moved = lines[again].splitn(2, ' ').nth(1).unwrap().to_string();
+    let mut bad: Vec<String> = lines.iter().map(|l| l.to_string()).collect();
+    bad[again] = format!("{id} {moved}");
+    let bad_path = dir.join("bad.lammpstrj");
+    std::fs::write(&bad_path, bad.join("\n") + "\n").unwrap();
+    let o = mpirun_job(&["run"], 3, &dir.join("bad"), &["--particles", bad_path.to_str().unwrap()]);
+    let said = String::from_utf8_lossy(&o.stderr);
+    let expected =
+        format!("bad.lammpstrj:{}: frame 0: atom id {id} again (it is on line {} too)", again + 1, first + 1);
+    assert_ne!(o.status.code(), Some(124), "the ranks waited for the one that failed: {said}");
+    assert!(!o.status.success() && said.contains(&expected), "{:?}: {said}", o.status.code());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 #[test]
 fn mpirun_moves_the_sites_as_one_process_does() {
     if !mpi_here() {

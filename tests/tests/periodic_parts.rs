@@ -130,7 +130,15 @@ fn check_weighted(name: &str, b: PeriodicBox, sites: &[[f64; 3]], weights: Optio
             for (_, r) in &parts {
                 assert!(r.held < sites.len() as u64 + whole.images as u64, "{name}: rank {} holds {}", r.rank, r.held);
                 assert!(r.owned < sites.len() as u64, "{name}: rank {} owns every site", r.rank);
+                // Its grid's table: a window of the whole grid, never left.
+                assert_eq!(r.windows_dropped, 0, "{name}: rank {}", r.rank);
+                assert!(r.grid_cells[0] <= r.grid_cells[1], "{name}: rank {}: {:?}", r.rank, r.grid_cells);
             }
+        }
+        if ranks >= 3 {
+            let held: u64 = parts.iter().map(|p| p.1.grid_cells[0]).sum();
+            let whole_grid: u64 = parts.iter().map(|p| p.1.grid_cells[1]).sum();
+            assert!(held < whole_grid, "{name}, {ranks} ranks: every rank's table the whole grid ({held} cells)");
         }
     }
 }

@@ -350,6 +350,7 @@ impl<'a> PeriodicVoronoi<'a> {
                 grid_sites: all.len(),
                 answer: (0, n),
                 weights: None,
+                window: false,
             });
         }
         let last = self.last.filter(|l| whole_cells && l.fits(&domain, &sites, self.weights));
@@ -858,6 +859,7 @@ fn fold(
         k_site: whole.k_site,
         counters,
         chunks: whole.chunks,
+        grid_cells: whole.grid_cells,
         timings: Default::default(),
         adjacency,
         polyhedra: None,

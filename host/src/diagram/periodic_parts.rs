@@ -156,6 +156,12 @@ pub struct PartsReport {
     pub halo: f64,
     /// Times the ranks widened the halo.
     pub widened: u32,
+    /// The cells of the grid's table this rank held (a window of the whole
+    /// job's grid around its points), and the whole grid's.
+    pub grid_cells: [u64; 2],
+    /// Times the ranks searched the whole grid again because a walk would
+    /// have left a window (0 expected).
+    pub windows_dropped: u32,
     /// Bytes this rank sent to the others (itself excluded).
     pub sent: u64,
     /// Time per phase.
@@ -349,6 +355,10 @@ impl PeriodicVoronoi<'_> {
         let k_site = diagram.resolved_k_site();
         let mut width = halo * (1.0 + 1e-6);
         let grid_sites = (total + tally[0] as u64) as usize;
+        // A window of the grid around each part's points; the whole grid
+        // for all if a walk would leave a window (none should: the halo
+        // holds every point that can cut a cell).
+        let mut window = true;
         let (whole, pieces, held, at, answer) = loop {
             let (held, t) = timed(|| spread(comm, &domain, &blocks, &owner, &points, width, &mut report.sent));
             timings.add("exchange", t);
@@ -365,6 +375,7 @@ impl PeriodicVoronoi<'_> {
                 grid_sites,
                 answer: (answer.start, answer.end),
                 weights: self.weights.map(|_| kept_span),
+                window,
             };
             let weights: Option<Vec<f64>> = self.weights.map(|_| held.iter().map(|h| h.weight).collect());
             let (mut whole, pieces) = if answer.is_empty() {
@@ -385,14 +396,21 @@ impl PeriodicVoronoi<'_> {
             let need = whole.kept.take().map_or(0.0, |kept| {
                 (0..kept.kth.len()).map(|u| kept.kth[u] + 2.0 * (kept.kth[u] - kept.reach[u])).fold(0.0, f64::max)
             });
-            let mut most = [if need > width { need } else { 0.0 }];
+            let mut most = [if need > width { need } else { 0.0 }, whole.counters.out_of_halo as f64];
             comm.max(&mut most)?;
-            if most[0] == 0.0 {
+            if most == [0.0; 2] {
                 break (whole, pieces, held, at, answer);
             }
-            width = most[0] * (1.0 + 1e-6);
-            report.widened += 1;
+            if most[1] > 0.0 {
+                window = false;
+                report.windows_dropped += 1;
+            }
+            if most[0] > 0.0 {
+                width = most[0] * (1.0 + 1e-6);
+                report.widened += 1;
+            }
         };
+        report.grid_cells = whole.grid_cells;
         drop(points);
         report.held = held.len() as u64;
         report.halo = width;

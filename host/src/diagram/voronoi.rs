@@ -97,6 +97,9 @@ pub struct Cells {
     pub counters: Counters,
     /// Parts the backend split the job into (see [`ClipOutput::chunks`]).
     pub chunks: u64,
+    /// The site grid's cells the job's table held, and the whole grid's
+    /// (fewer in a part that searched a window of the grid).
+    pub grid_cells: [u64; 2],
     /// Time per phase.
     pub timings: Timings,
     /// The cells' faces and neighbours, when asked for
@@ -444,6 +447,17 @@ impl<'a> ClippedVoronoi<'a> {
         if let Some(l) = &self.layout {
             site_knn = site_knn.with_grid_for(&frame_points, l.grid_sites);
         }
+        // A part searches the window of the whole grid around its sites
+        // (a cell more on every side for the walks' margins).
+        let grid = site_knn.params.grid;
+        let window = match &self.layout {
+            Some(l) if l.window => {
+                let (job, window) = site_knn.windowed(2);
+                site_knn = job;
+                window
+            }
+            _ => None,
+        };
         site_knn = site_knn.answering(listed.clone());
         if self.candidates.is_some() && listed.start > 0 {
             return Err(Error::Internal("candidates are taken for the first sites only".into()));
@@ -528,18 +542,18 @@ impl<'a> ClippedVoronoi<'a> {
         let lo = q.origin();
         let refine = RefineParams {
             clip: params,
-            grid: site_knn.params.grid,
+            grid,
             grid_lo_x: lo[0] as f32,
             grid_lo_y: lo[1] as f32,
             grid_lo_z: lo[2] as f32,
-            cell_len: (site_knn.params.grid.cell_size as f64 / q.scale()) as f32,
-            // Every site is held.
-            held_lo_x: 0,
-            held_lo_y: 0,
-            held_lo_z: 0,
-            held_dim_x: site_knn.params.grid.dim_x,
-            held_dim_y: site_knn.params.grid.dim_y,
-            held_dim_z: site_knn.params.grid.dim_z,
+            cell_len: (grid.cell_size as f64 / q.scale()) as f32,
+            // The window's cells, or every cell.
+            held_lo_x: window.map_or(0, |w| w.lo[0]),
+            held_lo_y: window.map_or(0, |w| w.lo[1]),
+            held_lo_z: window.map_or(0, |w| w.lo[2]),
+            held_dim_x: window.map_or(grid.dim_x, |w| w.dim[0]),
+            held_dim_y: window.map_or(grid.dim_y, |w| w.dim[1]),
+            held_dim_z: window.map_or(grid.dim_z, |w| w.dim[2]),
             _pad: [0; 2],
         };
         let verts: Vec<SplitPoint> = local_mesh
@@ -763,6 +777,7 @@ fn finish(
         strategy: job.strategy,
         pairing: job.pairing,
         chunks: out.chunks,
+        grid_cells: [job.site_knn.params.grid.n_cells as u64, job.refine.grid.n_cells as u64],
         k: job.params.k_tet as usize,
         k_site: job.params.k_site as usize,
         ..Default::default()

@@ -202,14 +202,21 @@ impl ClipJob {
         let v = self.tets[t].map(|i| self.verts[i as usize].to_f64());
         let c = [0, 1, 2].map(|a| (v[0][a] + v[1][a] + v[2][a] + v[3][a]) / 4.0);
         let q = self.site_knn.quantizer.quantize(c, t as u32);
-        match self.held {
-            // Outside the held cells' corner: at it (not certified).
-            Some(h) => {
-                let s = h.shift();
-                [q[0].saturating_sub(s[0]), q[1].saturating_sub(s[1]), q[2].saturating_sub(s[2]), q[3]]
-            }
-            None => q,
-        }
+        // In the held cells' coordinates (a part's, or a window's: see
+        // `RefineParams::held_lo_x`); outside their corner, at it (a part's
+        // lists are not certified there).
+        let r = &self.refine;
+        let cell = self.refine.grid.cell_size;
+        let s = [r.held_lo_x, r.held_lo_y, r.held_lo_z].map(|c| c * cell);
+        [q[0].saturating_sub(s[0]), q[1].saturating_sub(s[1]), q[2].saturating_sub(s[2]), q[3]]
+    }
+
+    /// Whether the job holds a window of its grid's cells only (a part's:
+    /// [`Self::held`], or [`crate::job::knn::KnnJob::windowed`]).
+    pub fn is_windowed(&self) -> bool {
+        let r = &self.refine;
+        [r.held_lo_x, r.held_lo_y, r.held_lo_z] != [0; 3]
+            || [r.held_dim_x, r.held_dim_y, r.held_dim_z] != [r.grid.dim_x, r.grid.dim_y, r.grid.dim_z]
     }
 
     /// The tets' k-NN job with its queries, every tet's centroid.
@@ -465,7 +472,10 @@ mod tests {
         // A part whose box starts one cell in: shifted by a cell, at 0
         // below it.
         let g = job.site_knn.params.grid;
-        job.held = Some(HeldCells::around([1, 1, 1], [1, 1, 1], 0, [g.dim_x, g.dim_y, g.dim_z], g.cell_size));
+        let held = HeldCells::around([1, 1, 1], [1, 1, 1], 0, [g.dim_x, g.dim_y, g.dim_z], g.cell_size);
+        job.held = Some(held);
+        [job.refine.held_lo_x, job.refine.held_lo_y, job.refine.held_lo_z] = held.lo;
+        [job.refine.held_dim_x, job.refine.held_dim_y, job.refine.held_dim_z] = held.dim;
         let cs = g.cell_size;
         let (mut below, mut beyond) = (false, false);
         for t in 0..job.tets.len() {

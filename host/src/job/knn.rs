@@ -123,6 +123,44 @@ impl KnnJob {
         self
     }
 
+    /// The same job over the window of its grid that holds its sites,
+    /// widened by `pad` cells on every side: the sites' quantized
+    /// coordinates shifted by the window's corner (whole cells, so every
+    /// distance is the same integer and every site in the same cell), the
+    /// grid the window's cells. Returns the window too, or `None` when it
+    /// is the whole grid (the job unchanged). A part of a job laid out by
+    /// its caller (`with_grid_for`) holds only the sites near it: its
+    /// grid's table is then its window's size, not the whole job's, and a
+    /// walk that would leave the window gives up instead
+    /// (`RefineParams::held_lo_x`).
+    pub fn windowed(mut self, pad: u32) -> (Self, Option<crate::job::held::HeldCells>) {
+        let g = self.params.grid;
+        if self.sites.is_empty() {
+            return (self, None);
+        }
+        let (mut lo, mut hi) = ([u32::MAX; 3], [0u32; 3]);
+        for s in self.sites.iter() {
+            let c = cvd_kernels::grid::cell_coords(&g, [s[0], s[1], s[2]]);
+            for a in 0..3 {
+                lo[a] = lo[a].min(c[a]);
+                hi[a] = hi[a].max(c[a]);
+            }
+        }
+        let window = crate::job::held::HeldCells::around(lo, hi, pad, [g.dim_x, g.dim_y, g.dim_z], g.cell_size);
+        if window.is_whole() {
+            return (self, None);
+        }
+        let shift = window.shift();
+        let moved = |p: &Points| -> Points {
+            p.iter().map(|q| [q[0] - shift[0], q[1] - shift[1], q[2] - shift[2], q[3]]).collect::<Vec<_>>().into()
+        };
+        let shared = std::sync::Arc::ptr_eq(&self.sites, &self.queries);
+        self.sites = moved(&self.sites);
+        self.queries = if shared { self.sites.clone() } else { moved(&self.queries) };
+        self.params.grid = window.grid_params(g.n_sites as usize);
+        (self, Some(window))
+    }
+
     /// The same job answering only its sites `range`, in index order (a
     /// periodic box's whole cells in parts: the sites of a part).
     pub fn answering(mut self, range: std::ops::Range<usize>) -> Self {

@@ -158,6 +158,11 @@ pub(crate) struct Layout<'a> {
     /// The whole job's smallest and largest weight of a site that owns a
     /// cell (a part's sites hold only some weights); `None`: the job's own.
     pub weights: Option<[f64; 2]>,
+    /// A part of the job, holding only the sites near its own: its grid's
+    /// table is the window of the whole job's grid around its sites
+    /// ([`crate::job::knn::KnnJob::windowed`]), and a walk that would
+    /// leave the window gives up (counted in `Counters::out_of_halo`).
+    pub window: bool,
 }
 
 /// [`unique_in_morton_order`] for a [`Layout`]: the sites in its order,

@@ -40,6 +40,8 @@ pub struct ExtxyzReader<R> {
     lines: Lines<R>,
     index: usize,
     done: bool,
+    /// This reader's part of every frame (`read_parts`), or `None`.
+    part: Option<(usize, usize)>,
 }
 
 impl ExtxyzReader<BufReader<std::fs::File>> {
@@ -60,7 +62,7 @@ struct Info {
 impl<R: BufRead> ExtxyzReader<R> {
     /// A reader of the file `reader` holds; `path` names it in errors.
     pub fn new(reader: R, path: impl Into<String>) -> Self {
-        Self { lines: Lines::new(reader, path.into()), index: 0, done: false }
+        Self { lines: Lines::new(reader, path.into()), index: 0, done: false, part: None }
     }
 
     /// The next frame's atom count and its line, `None` at the end of the
@@ -87,7 +89,7 @@ impl<R: BufRead> ExtxyzReader<R> {
         lines.expect(Self::comment_what(count_line))?;
         let info = info(lines)?;
         let atoms = Atoms { count, count_line, count_name: "the atom count", stop: None };
-        let rows = read_atoms(lines, &info.columns, &atoms, &info.domain)?;
+        let (rows, part) = read_atoms(lines, &info.columns, &atoms, &info.domain, self.part)?;
         let frame = ParticleFrame {
             index: self.index,
             timestep: info.timestep,
@@ -95,6 +97,7 @@ impl<R: BufRead> ExtxyzReader<R> {
             positions: rows.positions,
             ids: rows.ids,
             radii: rows.radii,
+            part,
         };
         self.index += 1;
         Ok(Some(frame))

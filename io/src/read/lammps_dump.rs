@@ -46,6 +46,8 @@ pub struct LammpsDumpReader<R> {
     lines: Lines<R>,
     index: usize,
     done: bool,
+    /// This reader's part of every frame (`read_parts`), or `None`.
+    part: Option<(usize, usize)>,
 }
 
 impl LammpsDumpReader<BufReader<std::fs::File>> {
@@ -78,7 +80,7 @@ enum BoxKind {
 impl<R: BufRead> LammpsDumpReader<R> {
     /// A reader of the dump `reader` holds; `path` names it in errors.
     pub fn new(reader: R, path: impl Into<String>) -> Self {
-        Self { lines: Lines::new(reader, path.into()), index: 0, done: false }
+        Self { lines: Lines::new(reader, path.into()), index: 0, done: false, part: None }
     }
 
     /// The next frame, or `None` at the end of the file.
@@ -89,7 +91,7 @@ impl<R: BufRead> LammpsDumpReader<R> {
         };
         let (count, count_line) = header.count;
         let atoms = Atoms { count, count_line, count_name: "ITEM: NUMBER OF ATOMS", stop: Some("ITEM:") };
-        let rows = read_atoms(&mut self.lines, &columns, &atoms, &domain)?;
+        let (rows, part) = read_atoms(&mut self.lines, &columns, &atoms, &domain, self.part)?;
         let frame = ParticleFrame {
             index: self.index,
             timestep: header.timestep,
@@ -97,6 +99,7 @@ impl<R: BufRead> LammpsDumpReader<R> {
             positions: rows.positions,
             ids: rows.ids,
             radii: rows.radii,
+            part,
         };
         self.index += 1;
         Ok(Some(frame))
@@ -292,6 +295,7 @@ super::particles::frame_reader!(LammpsDumpReader);
 #[cfg(test)]
 pub(crate) mod tests {
     use super::super::particles::tests::{fails_at, read_all_frames, replace_line};
+    use super::super::particles::FramePart;
     use super::super::tests::{no_panic_on_mutations, parse_err};
     use super::*;
     use std::fmt::Write;
@@ -497,6 +501,61 @@ ITEM: ATOMS id type xs ys zs
         // Two rows of id 3, on lines 10 and 12.
         fails(&with_line(12, "3 1 9 9 4 1"), 12, 0, "atom id 3 again (it is on line 10 too)");
         fails(&with_line(23, "2 Ar 0.25 0 0.75"), 23, 1, "atom id 2 again (it is on line 22 too)");
+    }
+
+    #[test]
+    fn frames_read_in_parts_are_the_frames_rows_in_the_files_order() {
+        // Frame 0: 3 atoms on lines 10-12; frame 1: 2 atoms on lines 22-23.
+        let whole: Vec<ParticleFrame> = read_all(VALID).unwrap();
+        for parts in 1..=4 {
+            let mut joined: Vec<Vec<(u64, [f64; 3], Option<f64>)>> = vec![Vec::new(); 2];
+            for p in 0..parts {
+                let mut reader = LammpsDumpReader::new(VALID.as_bytes(), "t.dump");
+                reader.read_parts(p, parts);
+                let frames: Vec<ParticleFrame> = reader.by_ref().collect::<Result<_>>().unwrap();
+                assert_eq!(frames.len(), 2);
+                for (f, first_line) in frames.iter().zip([10, 22]) {
+                    let n = whole[f.index].len();
+                    let (lo, hi) = (n * p / parts, n * (p + 1) / parts);
+                    assert_eq!(f.part, Some(FramePart { total: n, first: lo, first_line: first_line + lo }));
+                    assert_eq!(
+                        (f.len(), f.domain, f.timestep),
+                        (hi - lo, whole[f.index].domain, whole[f.index].timestep)
+                    );
+                    let ids = f.ids.as_ref().unwrap();
+                    for i in 0..f.len() {
+                        joined[f.index].push((ids[i], f.positions[i], f.radii.as_ref().map(|r| r[i])));
+                    }
+                }
+            }
+            // The parts' rows laid end to end are the file's; sorted by id,
+            // the whole frame's.
+            assert_eq!(joined[0].iter().map(|r| r.0).collect::<Vec<_>>(), [3, 1, 2], "{parts} parts");
+            for (f, mut rows) in whole.iter().zip(joined) {
+                rows.sort_by_key(|r| r.0);
+                assert_eq!(rows.iter().map(|r| r.0).collect::<Vec<_>>(), *f.ids.as_ref().unwrap());
+                assert_eq!(rows.iter().map(|r| r.1).collect::<Vec<_>>(), f.positions);
+                assert_eq!(rows.iter().map(|r| r.2).collect::<Option<Vec<_>>>(), f.radii);
+            }
+        }
+        // A bad atom line is the error of the part that reads it, at its
+        // line; the other parts pass over it.
+        let bad = with_line(11, "1 2 0.5 oops -1 0.25");
+        let read = |p: usize| {
+            let mut reader = LammpsDumpReader::new(bad.as_bytes(), "t.dump");
+            reader.read_parts(p, 3);
+            reader.collect::<Result<Vec<_>>>()
+        };
+        assert!(read(0).is_ok() && read(2).is_ok());
+        fails_at(read(1), "t.dump", 11, 0, "expected y of atom 2");
+        // A frame cut short fails in every part.
+        let cut = VALID.lines().take(22).collect::<Vec<_>>().join("\n");
+        for p in 0..3 {
+            let mut reader = LammpsDumpReader::new(cut.as_bytes(), "t.dump");
+            reader.read_parts(p, 3);
+            let err = reader.collect::<Result<Vec<_>>>().unwrap_err().to_string();
+            assert!(err.contains("expected 2 atom lines"), "part {p}: {err}");
+        }
     }
 
     #[test]

@@ -44,7 +44,7 @@ pub use lammps_dump::LammpsDumpReader;
 pub use medit::parse_medit;
 pub use meshb::parse_meshb;
 pub use npy::{parse_npy, write_sites_npy};
-pub use particles::{open_particles, FrameReader, ParticleFrame};
+pub use particles::{open_particles, FramePart, FrameReader, ParticleFrame};
 pub use parts::{read_sites_part, read_values_part, CountLine, SitesPart, SitesPartSummary};
 pub use surface::{parse_obj, parse_off, parse_ply, parse_stl, read_surface};
 pub use tet::parse_tet;

@@ -39,6 +39,22 @@ pub struct ParticleFrame {
     /// The particles' radii (a `radius` column or property, or extended
     /// XYZ's `radii`) when given.
     pub radii: Option<Vec<f64>>,
+    /// Read in parts ([`FrameReader::read_parts`]): which of the frame's
+    /// atoms these rows are. `None`: all of them, sorted by id.
+    pub part: Option<FramePart>,
+}
+
+/// The rows of a frame one part of a run read ([`FrameReader::read_parts`]):
+/// atoms `first..first + len` of the file's order, not sorted by id.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FramePart {
+    /// The frame's atoms in all.
+    pub total: usize,
+    /// The first row's place among the frame's atom lines, from 0.
+    pub first: usize,
+    /// The line the first row was read from (row `i` is on line
+    /// `first_line + i`), for errors.
+    pub first_line: usize,
 }
 
 impl ParticleFrame {
@@ -67,6 +83,14 @@ pub trait FrameReader: Iterator<Item = Result<ParticleFrame>> + Send {
 
     /// The index the next frame read or skipped will have.
     fn next_index(&self) -> usize;
+
+    /// From now on, each frame read holds only part `part` of `parts` of
+    /// its atoms: the atom lines `n part / parts..n (part + 1) / parts` of
+    /// its `n`, in the file's order (not sorted by id: the parts of a run
+    /// sort them together), with [`ParticleFrame::part`] saying which. The
+    /// other atom lines are counted, not parsed (their errors are the
+    /// other parts'). One part of one is the whole frame, unsorted.
+    fn read_parts(&mut self, part: usize, parts: usize);
 }
 
 /// Opens a particle file, choosing the reader by the extension (any case)
@@ -343,20 +367,28 @@ impl Atoms<'_> {
 /// Reads a frame's atom lines, one per line with no line between them:
 /// positions (Cartesian, or fractional in `domain` if the columns are
 /// scaled), ids and radii when the columns have them, then sorted by id.
+/// In parts (`part`: this one of how many), only the part's atom lines
+/// are read, in the file's order, and the others counted.
 pub(super) fn read_atoms<R: BufRead>(
     lines: &mut Lines<R>,
     columns: &Columns,
     atoms: &Atoms,
     domain: &PeriodicBox,
-) -> Result<Rows> {
+    part: Option<(usize, usize)>,
+) -> Result<(Rows, Option<FramePart>)> {
     let n = atoms.count;
+    let (lo, hi) = part.map_or((0, n), |(p, parts)| (share(n, p, parts), share(n, p + 1, parts)));
     let mut rows = Rows {
-        positions: Vec::with_capacity(reserve(n)),
-        ids: columns.has(Field::Id).then(|| Vec::with_capacity(reserve(n))),
-        radii: columns.has(Field::Radius).then(|| Vec::with_capacity(reserve(n))),
+        positions: Vec::with_capacity(reserve(hi - lo)),
+        ids: columns.has(Field::Id).then(|| Vec::with_capacity(reserve(hi - lo))),
+        radii: columns.has(Field::Radius).then(|| Vec::with_capacity(reserve(hi - lo))),
     };
+    let passed = lines.skip(lo)?;
+    if passed < lo {
+        return Err(atoms.cut_short(lines, passed));
+    }
     let first = lines.no() + 1;
-    for i in 0..n {
+    for i in lo..hi {
         if !lines.next()? {
             return Err(atoms.cut_short(lines, i));
         }
@@ -405,8 +437,22 @@ pub(super) fn read_atoms<R: BufRead>(
             }
         }
     }
-    sort_by_id(&mut rows, first, lines)?;
-    Ok(rows)
+    let passed = lines.skip(n - hi)?;
+    if passed < n - hi {
+        return Err(atoms.cut_short(lines, hi + passed));
+    }
+    match part {
+        Some(_) => Ok((rows, Some(FramePart { total: n, first: lo, first_line: first }))),
+        None => {
+            sort_by_id(&mut rows, first, lines)?;
+            Ok((rows, None))
+        }
+    }
+}
+
+/// Where part `p` of `parts` of `n` rows starts: `n p / parts`.
+fn share(n: usize, p: usize, parts: usize) -> usize {
+    (n as u128 * p as u128 / parts.max(1) as u128) as usize
 }
 
 /// Where a field's value is kept while its line is read.
@@ -497,6 +543,10 @@ macro_rules! frame_reader {
 
             fn next_index(&self) -> usize {
                 self.index
+            }
+
+            fn read_parts(&mut self, part: usize, parts: usize) {
+                self.part = Some((part, parts));
             }
         }
     };

@@ -97,6 +97,9 @@ pub struct RankRecord {
     pub held: u64,
     /// The halo's width.
     pub halo: f64,
+    /// The cells of the site grid's table it held (the window of the whole
+    /// job's grid around its points), and the whole grid's.
+    pub grid_cells: [u64; 2],
     /// Bytes it sent to other ranks.
     pub sent_bytes: u64,
     /// Seconds from reading its rows to its rows written.

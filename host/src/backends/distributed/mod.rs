@@ -277,6 +277,72 @@ pub fn launched_comm() -> Result<(Option<Comm>, Option<String>)> {
     ))
 }
 
+/// Sorts rows held by the ranks of `comm` by `key`, as one sort of all of
+/// them would: returns this rank's run of the sorted whole (rank 0 the
+/// first, then rank 1's, and so on; rows of one key on one rank, in rank
+/// order and then in each rank's order). The runs' lengths follow a
+/// sample of the keys (each rank's at evenly spaced places), so they are
+/// about equal; the rows travel once (a sample sort). A particle file's
+/// rows read in parts are put in order of their ids so.
+pub fn sort_across<T: bytemuck::Pod>(comm: &dyn Reduce, mut rows: Vec<T>, key: impl Fn(&T) -> u64) -> Result<Vec<T>> {
+    rows.sort_by_key(&key);
+    let ranks = comm.size();
+    if ranks == 1 {
+        return Ok(rows);
+    }
+    // The sample: keys at evenly spaced places, each with the rows it
+    // stands for.
+    const SAMPLES_PER_RANK: usize = 64;
+    let n = rows.len();
+    let s = n.min(SAMPLES_PER_RANK * ranks);
+    let mut sample = Vec::with_capacity(16 * s);
+    for k in 0..s {
+        let (at, next) = (k * n / s, (k + 1) * n / s);
+        sample.extend_from_slice(&key(&rows[at]).to_le_bytes());
+        sample.extend_from_slice(&((next - at) as u64).to_le_bytes());
+    }
+    let word = |b: &[u8]| u64::from_le_bytes(b.try_into().unwrap_or([0; 8]));
+    let mut weighed: Vec<(u64, u64)> = comm
+        .all_gather(&sample)?
+        .iter()
+        .flat_map(|b| b.chunks_exact(16).map(|c| (word(&c[..8]), word(&c[8..]))).collect::<Vec<_>>())
+        .collect();
+    weighed.sort_unstable();
+    let total: u64 = weighed.iter().map(|w| w.1).sum();
+    // Rank r takes the keys from the r-th splitter on, up to the next.
+    let mut splitters = vec![0u64; ranks];
+    let mut before = 0u64;
+    let mut r = 1;
+    for &(k, w) in &weighed {
+        while r < ranks && (before as u128) * (ranks as u128) >= (total as u128) * (r as u128) {
+            splitters[r] = k;
+            r += 1;
+        }
+        before += w;
+    }
+    for s in &mut splitters[r..] {
+        *s = u64::MAX;
+    }
+    let mut to = vec![Vec::new(); ranks];
+    let mut from = 0;
+    for (r, part) in to.iter_mut().enumerate() {
+        let end = match splitters.get(r + 1) {
+            Some(&next) => rows.partition_point(|x| key(x) < next).max(from),
+            None => n,
+        };
+        *part = bytemuck::cast_slice(&rows[from..end]).to_vec();
+        from = end;
+    }
+    drop(rows);
+    let got = comm.exchange(Parcels::of(to))?;
+    let size = size_of::<T>();
+    let mut mine: Vec<T> =
+        got.bytes.chunks_exact(size.max(1)).map(|b| bytemuck::pod_read_unaligned(&b[..size])).collect();
+    // Each rank's run in order already: a stable sort keeps rank order.
+    mine.sort_by_key(&key);
+    Ok(mine)
+}
+
 /// Where each of `parts` runs of `job`'s tets begins (and the last ends),
 /// balanced by an estimate of each tet's pieces: a tet of volume `V` where
 /// the sites have density `ρ` (those of its centroid's grid cell) meets
@@ -701,6 +767,56 @@ mod tests {
     use super::*;
     use crate::cvt::SiteDiagram;
     use crate::{geom::points, ClippedVoronoi, TetMesh};
+
+    #[test]
+    fn rows_sorted_across_ranks_are_the_sort_of_all_of_them() {
+        // Keys with many duplicates and extremes; each row tagged with its
+        // rank and place so that the sort's stability shows.
+        let mut state = 7u64;
+        let mut next = || {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            state >> 33
+        };
+        for ranks in 1..=4 {
+            for n in [0, 1, 5, 300, 2000] {
+                let held: Vec<Vec<[u64; 2]>> = (0..ranks)
+                    .map(|r| {
+                        (0..n * (r + 1) / ranks - n * r / ranks)
+                            .map(|i| {
+                                let k = match next() % 10 {
+                                    0 => u64::MAX,
+                                    1 => 0,
+                                    _ => next() % 500,
+                                };
+                                [k, (r * 1_000_000 + i) as u64]
+                            })
+                            .collect()
+                    })
+                    .collect();
+                let mut all: Vec<[u64; 2]> = held.concat();
+                all.sort_by_key(|x| x[0]);
+                let runs: Vec<Vec<[u64; 2]>> = std::thread::scope(|scope| {
+                    let handles: Vec<_> = InProcess::ranks(ranks)
+                        .into_iter()
+                        .zip(held.clone())
+                        .map(|(comm, rows)| scope.spawn(move || sort_across(&comm, rows, |x| x[0]).unwrap()))
+                        .collect();
+                    handles.into_iter().map(|h| h.join().unwrap()).collect()
+                });
+                assert_eq!(runs.concat(), all, "{ranks} ranks, {n} rows");
+                // A key on one rank only; the runs about equal.
+                for w in runs.windows(2) {
+                    if let (Some(a), Some(b)) = (w[0].last(), w[1].first()) {
+                        assert!(a[0] < b[0], "{ranks} ranks: {a:?} then {b:?}");
+                    }
+                }
+                if n >= 2000 && ranks > 1 {
+                    let most = runs.iter().map(Vec::len).max().unwrap();
+                    assert!(most < 2 * n / ranks, "{ranks} ranks: {:?}", runs.iter().map(Vec::len).collect::<Vec<_>>());
+                }
+            }
+        }
+    }
 
     fn in_parts(parts: usize) -> Distributed {
         Distributed::new(CpuBackend::new(Some(2)).unwrap(), Box::new(OneProcess), parts).unwrap()

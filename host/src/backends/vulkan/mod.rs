@@ -124,7 +124,7 @@ impl Backend for VulkanBackend {
     }
 
     fn clip(&self, job: &ClipJob) -> Result<ClipOutput> {
-        if job.held.is_some() {
+        if job.held.is_some() || job.is_windowed() {
             // The lists' certificates are the CPU backend's (the device
             // k-NN keeps no distances).
             return Err(Error::InvalidInput("the parts of a distributed job run on the CPU backend".into()));
