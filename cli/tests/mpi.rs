@@ -283,7 +283,7 @@ fn mpirun_gives_a_trajectorys_frames_byte_for_byte() {
     let mut text = String::new();
     for f in 0..2 {
         let sites = cvd::geom::points::uniform(3000, 20 + f);
-        text += &format!("3000\nLattice=\"14 0 0 0 15 0 0 0 16\" Properties=species:S:1:pos:R:3 pbc=\"T T T\"\n");
+        text += "3000\nLattice=\"14 0 0 0 15 0 0 0 16\" Properties=species:S:1:pos:R:3 pbc=\"T T T\"\n";
         for p in sites {
             text += &format!("Ar {} {} {}\n", 14.0 * p[0], 15.0 * p[1], 16.0 * p[2]);
         }
@@ -323,7 +323,7 @@ fn mpirun_gives_a_trajectorys_frames_byte_for_byte() {
     let lines: Vec<&str> = text.lines().collect();
     let (first, again) = (9, 9 + 3000);
     let id = lines[first].split(' ').next().unwrap().to_string();
-    let moved = lines[again].splitn(2, ' ').nth(1).unwrap().to_string();
+    let moved = lines[again].split_once(' ').unwrap().1.to_string();
     let mut bad: Vec<String> = lines.iter().map(|l| l.to_string()).collect();
     bad[again] = format!("{id} {moved}");
     let bad_path = dir.join("bad.lammpstrj");

@@ -508,7 +508,9 @@ ITEM: ATOMS id type xs ys zs
         // Frame 0: 3 atoms on lines 10-12; frame 1: 2 atoms on lines 22-23.
         let whole: Vec<ParticleFrame> = read_all(VALID).unwrap();
         for parts in 1..=4 {
-            let mut joined: Vec<Vec<(u64, [f64; 3], Option<f64>)>> = vec![Vec::new(); 2];
+            // Each frame's rows as read: id, position, radius.
+            type Row = (u64, [f64; 3], Option<f64>);
+            let mut joined: Vec<Vec<Row>> = vec![Vec::new(); 2];
             for p in 0..parts {
                 let mut reader = LammpsDumpReader::new(VALID.as_bytes(), "t.dump");
                 reader.read_parts(p, parts);

@@ -301,11 +301,13 @@ pub fn sort_across<T: bytemuck::Pod>(comm: &dyn Reduce, mut rows: Vec<T>, key: i
         sample.extend_from_slice(&key(&rows[at]).to_le_bytes());
         sample.extend_from_slice(&((next - at) as u64).to_le_bytes());
     }
-    let word = |b: &[u8]| u64::from_le_bytes(b.try_into().unwrap_or([0; 8]));
     let mut weighed: Vec<(u64, u64)> = comm
         .all_gather(&sample)?
         .iter()
-        .flat_map(|b| b.chunks_exact(16).map(|c| (word(&c[..8]), word(&c[8..]))).collect::<Vec<_>>())
+        .flat_map(|b| {
+            let pairs = b.as_chunks::<8>().0.as_chunks::<2>().0;
+            pairs.iter().map(|[k, w]| (u64::from_le_bytes(*k), u64::from_le_bytes(*w))).collect::<Vec<_>>()
+        })
         .collect();
     weighed.sort_unstable();
     let total: u64 = weighed.iter().map(|w| w.1).sum();
