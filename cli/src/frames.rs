@@ -36,6 +36,8 @@ pub fn run(args: &RunArgs, file: &Path) -> cvd::Result<u8> {
 
 /// One frame's cells as written: the record for the summary.
 struct FrameCells {
+    /// Seconds computing the cells (reading and writing apart).
+    seconds: f64,
     particles: usize,
     images: usize,
     reused: u64,
@@ -94,7 +96,6 @@ fn frames(args: &RunArgs, file: &Path, comm: Option<&dyn Reduce>) -> cvd::Result
             let Some(frame) = reader.next() else { return Ok(()) };
             let frame = frame?;
             let (timestep, periodic) = (frame.timestep, frame.domain.periodic());
-            let started = Instant::now();
             let file = format!("cells.{index:06}.csv");
             let out = match comm {
                 None => {
@@ -108,7 +109,9 @@ fn frames(args: &RunArgs, file: &Path, comm: Option<&dyn Reduce>) -> cvd::Result
                     if let Some(w) = &weights {
                         pv = pv.weights(w);
                     }
+                    let started = Instant::now();
                     let mut out = if args.voronoi_index { pv.compute_with_polyhedra(&cpu)? } else { pv.compute()? };
+                    let seconds = started.elapsed().as_secs_f64();
                     last = out.lists.take();
                     let particles =
                         out.cells.polyhedra().map(|p| ParticleCells::of(frame.positions.len(), p, &thresholds));
@@ -119,6 +122,7 @@ fn frames(args: &RunArgs, file: &Path, comm: Option<&dyn Reduce>) -> cvd::Result
                         frame.ids.as_deref(),
                     )?;
                     FrameCells {
+                        seconds,
                         particles: frame.positions.len(),
                         images: out.images,
                         reused: out.reused as u64,
@@ -127,7 +131,7 @@ fn frames(args: &RunArgs, file: &Path, comm: Option<&dyn Reduce>) -> cvd::Result
                 }
                 Some(comm) => frame_in_parts(args, comm, &cpu, frame, &frames_dir.join(&file), &thresholds)?,
             };
-            let seconds = started.elapsed().as_secs_f64();
+            let seconds = out.seconds;
             diagram_seconds += seconds;
             let c = &out.cells.counters;
             records.push(FrameRecord {
@@ -240,6 +244,7 @@ fn frame_in_parts(
     if let Some(w) = &weights {
         pv = pv.weights(w);
     }
+    let started = Instant::now();
     let (out, particles, report) = match args.voronoi_index {
         true => {
             let parts = pv.compute_in_parts_with_index(comm, cpu, thresholds)?;
@@ -250,9 +255,10 @@ fn frame_in_parts(
             (out, None, report)
         }
     };
+    let seconds = started.elapsed().as_secs_f64();
     let rows = cvd_io::Rows { first: report.first, total: part.total as u64, periodic: true };
     crate::parts::write_part(comm, path, |w| {
         cvd_io::write_cells_csv_rows(w, &out.cells, particles.as_ref(), ids.as_deref(), rows)
     })?;
-    Ok(FrameCells { particles: part.total, images: out.images, reused: 0, cells: out.cells })
+    Ok(FrameCells { seconds, particles: part.total, images: out.images, reused: 0, cells: out.cells })
 }

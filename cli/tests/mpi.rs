@@ -289,11 +289,20 @@ fn mpirun_gives_a_trajectorys_frames_byte_for_byte() {
         }
     }
     std::fs::write(&xyz, text).unwrap();
+    // Fewer atoms than ranks: a rank reads no rows.
+    let tiny = dir.join("tiny.lammpstrj");
+    let box4 = "ITEM: BOX BOUNDS pp pp pp\n0 4\n0 4\n0 4\n";
+    std::fs::write(
+        &tiny,
+        format!("ITEM: TIMESTEP\n0\nITEM: NUMBER OF ATOMS\n2\n{box4}ITEM: ATOMS id type x y z\n5 1 1 1 1\n2 1 3 3 3\n"),
+    )
+    .unwrap();
     let frames = |n: usize| (0..n).map(|f| format!("frames/cells.{f:06}.csv")).collect::<Vec<_>>();
-    let cases: [(&str, Vec<&str>, usize); 3] = [
+    let cases: [(&str, Vec<&str>, usize); 4] = [
         ("dump", vec!["--particles", file], 3),
         ("index", vec!["--particles", file, "--frames", "1:3", "--voronoi-index"], 0),
         ("extxyz", vec!["--particles", xyz.to_str().unwrap()], 2),
+        ("tiny", vec!["--particles", tiny.to_str().unwrap()], 1),
     ];
     for (name, args, n) in &cases {
         let files = match *name {

@@ -204,6 +204,34 @@ fn power_cells_in_parts_are_the_one_process_cells() {
     check_weighted("power slab", slab, &sites, Some(&radii(2500, 24)), 3);
 }
 
+#[test]
+fn ranks_that_read_no_rows_take_part_all_the_same() {
+    // All rows read by one rank (or by the last), the others none: a
+    // frame of few particles, or ids that sort away from a rank.
+    let b = PeriodicBox::new([0.0; 3], [8.0; 3]).unwrap();
+    let sites: Vec<[f64; 3]> = points::uniform(500, 12).iter().map(|p| b.cartesian(*p)).collect();
+    let cpu = CpuBackend::new(Some(1)).unwrap();
+    let whole = PeriodicVoronoi::new(b, &sites).faces(true).backend(&cpu).compute().unwrap();
+    for reader in [0, 2] {
+        let parts: Vec<(PeriodicCells, PartsReport)> = std::thread::scope(|scope| {
+            let handles: Vec<_> = InProcess::ranks(3)
+                .into_iter()
+                .enumerate()
+                .map(|(r, comm)| {
+                    let rows: &[[f64; 3]] = if r == reader { &sites } else { &[] };
+                    scope.spawn(move || {
+                        let cpu = CpuBackend::new(Some(1)).unwrap();
+                        PeriodicVoronoi::new(b, rows).faces(true).backend(&cpu).compute_in_parts(&comm).unwrap()
+                    })
+                })
+                .collect();
+            handles.into_iter().map(|h| h.join().unwrap()).collect()
+        });
+        same_cells(&format!("rows on rank {reader} only"), &whole, &parts, false);
+        assert_eq!(parts.iter().map(|p| p.1.owned).sum::<u64>(), 500, "every cell built once");
+    }
+}
+
 /// `iterations` of `optimizer` in one process and in 1 to `most_ranks`
 /// parts: the same sites, energies and counters, to the bit (the sums
 /// the optimisers take are exact, so their order does not matter).
