@@ -540,22 +540,17 @@ impl<'a> ClippedVoronoi<'a> {
         };
         let q = &site_knn.quantizer;
         let lo = q.origin();
-        let refine = RefineParams {
+        // The window's cells, or every cell.
+        let held = window.unwrap_or_else(|| crate::job::held::HeldCells::whole(&grid));
+        let refine = held.in_refine(RefineParams {
             clip: params,
             grid,
             grid_lo_x: lo[0] as f32,
             grid_lo_y: lo[1] as f32,
             grid_lo_z: lo[2] as f32,
             cell_len: (grid.cell_size as f64 / q.scale()) as f32,
-            // The window's cells, or every cell.
-            held_lo_x: window.map_or(0, |w| w.lo[0]),
-            held_lo_y: window.map_or(0, |w| w.lo[1]),
-            held_lo_z: window.map_or(0, |w| w.lo[2]),
-            held_dim_x: window.map_or(grid.dim_x, |w| w.dim[0]),
-            held_dim_y: window.map_or(grid.dim_y, |w| w.dim[1]),
-            held_dim_z: window.map_or(grid.dim_z, |w| w.dim[2]),
-            _pad: [0; 2],
-        };
+            ..Default::default()
+        });
         let verts: Vec<SplitPoint> = local_mesh
             .vertices
             .iter()

@@ -205,18 +205,14 @@ impl ClipJob {
         // In the held cells' coordinates (a part's, or a window's: see
         // `RefineParams::held_lo_x`); outside their corner, at it (a part's
         // lists are not certified there).
-        let r = &self.refine;
-        let cell = self.refine.grid.cell_size;
-        let s = [r.held_lo_x, r.held_lo_y, r.held_lo_z].map(|c| c * cell);
+        let s = HeldCells::of(&self.refine).shift();
         [q[0].saturating_sub(s[0]), q[1].saturating_sub(s[1]), q[2].saturating_sub(s[2]), q[3]]
     }
 
     /// Whether the job holds a window of its grid's cells only (a part's:
     /// [`Self::held`], or [`crate::job::knn::KnnJob::windowed`]).
     pub fn is_windowed(&self) -> bool {
-        let r = &self.refine;
-        [r.held_lo_x, r.held_lo_y, r.held_lo_z] != [0; 3]
-            || [r.held_dim_x, r.held_dim_y, r.held_dim_z] != [r.grid.dim_x, r.grid.dim_y, r.grid.dim_z]
+        !HeldCells::of(&self.refine).is_whole()
     }
 
     /// The tets' k-NN job with its queries, every tet's centroid.
@@ -474,8 +470,7 @@ mod tests {
         let g = job.site_knn.params.grid;
         let held = HeldCells::around([1, 1, 1], [1, 1, 1], 0, [g.dim_x, g.dim_y, g.dim_z], g.cell_size);
         job.held = Some(held);
-        [job.refine.held_lo_x, job.refine.held_lo_y, job.refine.held_lo_z] = held.lo;
-        [job.refine.held_dim_x, job.refine.held_dim_y, job.refine.held_dim_z] = held.dim;
+        job.refine = held.in_refine(job.refine);
         let cs = g.cell_size;
         let (mut below, mut beyond) = (false, false);
         for t in 0..job.tets.len() {

@@ -1,7 +1,7 @@
 //! The part of a job's site grid a part of a distributed job holds
 //! ([`HeldCells`]): a box of grid cells.
 
-use cvd_kernels::abi::GridParams;
+use cvd_kernels::abi::{GridParams, RefineParams};
 
 /// The grid cells whose sites a part holds: a box of the whole job's grid.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -23,6 +23,37 @@ impl HeldCells {
         let first = [0, 1, 2].map(|a| lo[a].saturating_sub(halo));
         let end = [0, 1, 2].map(|a| hi[a].saturating_add(halo).saturating_add(1).min(grid[a]));
         Self { lo: first, dim: [0, 1, 2].map(|a| end[a] - first[a]), grid, cell_size }
+    }
+
+    /// Every cell of `grid`.
+    pub fn whole(grid: &GridParams) -> Self {
+        let dim = [grid.dim_x, grid.dim_y, grid.dim_z];
+        Self { lo: [0; 3], dim, grid: dim, cell_size: grid.cell_size }
+    }
+
+    /// The held cells `refine` describes (`RefineParams::held_lo_x`: those
+    /// a part's or a window's walks read).
+    pub fn of(refine: &RefineParams) -> Self {
+        let g = &refine.grid;
+        Self {
+            lo: [refine.held_lo_x, refine.held_lo_y, refine.held_lo_z],
+            dim: [refine.held_dim_x, refine.held_dim_y, refine.held_dim_z],
+            grid: [g.dim_x, g.dim_y, g.dim_z],
+            cell_size: g.cell_size,
+        }
+    }
+
+    /// `refine` with these held cells (its grid the whole one).
+    pub fn in_refine(&self, refine: RefineParams) -> RefineParams {
+        RefineParams {
+            held_lo_x: self.lo[0],
+            held_lo_y: self.lo[1],
+            held_lo_z: self.lo[2],
+            held_dim_x: self.dim[0],
+            held_dim_y: self.dim[1],
+            held_dim_z: self.dim[2],
+            ..refine
+        }
     }
 
     /// Whether the box is the whole grid (every site is held).
@@ -145,6 +176,17 @@ mod tests {
         let whole = HeldCells::around([0; 3], [9; 3], 0, GRID, 100);
         assert!(whole.certifies([0, 0, 0], u64::MAX));
         assert!(whole.certifies([999, 999, 999], u64::MAX));
+    }
+
+    #[test]
+    fn held_cells_go_into_refine_parameters_and_back() {
+        let h = HeldCells::around([2, 3, 4], [3, 3, 5], 1, GRID, 7);
+        let grid = GridParams { dim_x: 10, dim_y: 10, dim_z: 10, cell_size: 7, ..Default::default() };
+        let refine = h.in_refine(RefineParams { grid, ..Default::default() });
+        assert_eq!(HeldCells::of(&refine), h);
+        let whole = HeldCells::whole(&grid);
+        assert!(whole.is_whole() && HeldCells::of(&whole.in_refine(refine)).is_whole());
+        assert_eq!(whole.shift(), [0; 3]);
     }
 
     #[test]

@@ -231,16 +231,7 @@ pub(crate) fn part_job(
         list_bits: 32,
         ..job.params
     };
-    let refine = RefineParams {
-        clip: params,
-        held_lo_x: held.lo[0],
-        held_lo_y: held.lo[1],
-        held_lo_z: held.lo[2],
-        held_dim_x: held.dim[0],
-        held_dim_y: held.dim[1],
-        held_dim_z: held.dim[2],
-        ..job.refine
-    };
+    let refine = held.in_refine(RefineParams { clip: params, ..job.refine });
     let part = ClipJob {
         site_knn,
         tet_knn,
