@@ -51,6 +51,7 @@ fn assert_closed_and_outward(piece: &Piece) {
     let mut used = vec![false; piece.vertices.len()];
     let c = centre(piece);
     let size = piece.vertices.iter().map(|&v| dot(sub(v, c), sub(v, c)).sqrt()).fold(0.0, f64::max);
+    let place = piece.vertices.iter().flatten().fold(0.0f64, |m, x| m.max(x.abs()));
     assert!(piece.faces().count() >= 4, "{what}: {} faces", piece.faces().count());
     for face in piece.faces() {
         assert!(face.len() >= 3, "{what}: a face of {} vertices", face.len());
@@ -71,7 +72,9 @@ fn assert_closed_and_outward(piece: &Piece) {
         let area = dot(n, n).sqrt();
         // A face of f32-rounding size (where four or more planes meet at a
         // point, the vertex is a tiny face) has no orientation to check.
-        let rounding = (f32::EPSILON as f64 * size).powi(2);
+        // Rounding is relative to the coordinates, not to the piece: a
+        // small piece far from the origin has faces an ulp of its place.
+        let rounding = (f32::EPSILON as f64 * size.max(place)).powi(2);
         assert!(
             area <= 1e3 * rounding || out >= -1e-6 * area * size,
             "{what}: a face faces inward ({out:e}, area {area:e})"
@@ -261,4 +264,20 @@ fn a_point_where_four_bisectors_meet() {
     let sites = points::uniform(71, 5517126888292707477);
     let (cells, pieces) = pieces_of(ClippedVoronoi::new(&mesh, &sites).pairing(Pairing::Flood));
     assert_pieces("Ell n=71 flood", &mesh, &sites, &cells, &pieces);
+}
+
+/// A face of rounding size in a small piece (Holed, 78 sites, this seed,
+/// found by `pieces_tile_the_mesh_and_each_cell`): its vertices are an ulp
+/// of the mesh's coordinates apart, far more than an ulp of the piece.
+#[test]
+fn a_rounding_face_in_a_small_piece() {
+    let mesh = mesh(Shape::Holed);
+    let sites = points::uniform(78, 3752133699944985363);
+    for (strategy, pairing) in
+        [(Strategy::TetCell, Pairing::Flood), (Strategy::TetCell, Pairing::Knn), (Strategy::CellTet, Pairing::Knn)]
+    {
+        let cv = ClippedVoronoi::new(&mesh, &sites).strategy(strategy).pairing(pairing).k(Some(78));
+        let (cells, pieces) = pieces_of(cv);
+        assert_pieces(&format!("Holed n=78 {strategy:?} {pairing:?}"), &mesh, &sites, &cells, &pieces);
+    }
 }
