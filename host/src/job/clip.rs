@@ -209,6 +209,30 @@ impl ClipJob {
         [q[0].saturating_sub(s[0]), q[1].saturating_sub(s[1]), q[2].saturating_sub(s[2]), q[3]]
     }
 
+    /// The same whole-cell job building the cells of the answered sites
+    /// `range` only (a share of its sites, `backends::distributed`): each
+    /// of them gets the same list, walk, pieces and sums, to the bit, and
+    /// the other sites' sums and faces stay zero. No lists are kept.
+    pub fn answering(&self, range: std::ops::Range<usize>) -> crate::error::Result<Self> {
+        let (lo, hi) = (self.params.own_lo as usize, self.params.own_hi as usize);
+        let listed = (self.params.nbr_base as usize, self.params.nbr_end as usize);
+        if self.strategy != Strategy::Whole || listed != (lo, hi) || range.start < lo || range.end > hi {
+            return Err(crate::error::Error::Internal(format!(
+                "sites {range:?} of a {:?} job answering {lo}..{hi}",
+                self.strategy
+            )));
+        }
+        let mut job = self.clone();
+        job.params.own_lo = range.start as u32;
+        job.params.own_hi = range.end as u32;
+        job.params.nbr_base = range.start as u32;
+        job.params.nbr_end = range.end as u32;
+        job.refine.clip = job.params;
+        job.site_knn = job.site_knn.answering(range);
+        job.keep = None;
+        Ok(job)
+    }
+
     /// Whether the job holds a window of its grid's cells only (a part's:
     /// [`Self::held`], or [`crate::job::knn::KnnJob::windowed`]).
     pub fn is_windowed(&self) -> bool {

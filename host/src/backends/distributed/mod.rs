@@ -662,6 +662,96 @@ impl Distributed {
     }
 }
 
+impl Distributed {
+    /// Whole cells: this rank's parts are runs of the job's answered sites
+    /// (in Morton order, so each is a compact piece of the domain), each
+    /// built by the whole job answering them alone ([`ClipJob::answering`]):
+    /// the same lists, walks and pieces as in one process, so every site's
+    /// sums and face sums come from one rank, to the bit, and the
+    /// all-reduce adds zeros to them. The cells the kernels could not
+    /// finish are gathered from every rank and finished by each rank's host
+    /// pass, as one process finishes them. Every rank holds the whole job;
+    /// each builds its share of the cells, lists and pieces.
+    fn clip_whole(&self, job: &ClipJob) -> Result<ClipOutput> {
+        let (lo, hi) = (job.params.own_lo as usize, job.params.own_hi as usize);
+        let of = self.comm.size() * self.per_rank;
+        let share = |p: usize| lo + (hi - lo) * p / of;
+        let (n, f) = (job.params.n_sites as usize * ACCUM_PER_SITE, job.face_sums_len());
+        let mut all = vec![0i64; n + f + counter::COUNT + 2];
+        let mut timings = Timings::default();
+        let mut unfinished: Vec<[u32; 2]> = Vec::new();
+        let parts: Vec<usize> = (self.comm.rank() * self.per_rank..(self.comm.rank() + 1) * self.per_rank).collect();
+        let mut report = PartReport {
+            rank: self.comm.rank(),
+            ranks: self.comm.size(),
+            parts: parts.clone(),
+            of,
+            ..Default::default()
+        };
+        let mut round = Round { groups: parts.len() as u64, ..Round::default() };
+        let clock = std::time::Instant::now();
+        for &p in &parts {
+            let range = share(p)..share(p + 1);
+            if range.is_empty() {
+                continue;
+            }
+            round.held_sites = job.sites.len() as u64;
+            round.listed_sites += range.len() as u64;
+            let out = self.cpu.clip(&job.answering(range)?)?;
+            let (sums, rest) = all.split_at_mut(n);
+            let (faces, rest) = rest.split_at_mut(f);
+            let (counters, redone) = rest.split_at_mut(counter::COUNT);
+            for (to, from) in [(sums, &out.sums), (faces, &out.faces), (counters, &out.counters)] {
+                if !from.is_empty() {
+                    to.iter_mut().zip(from).for_each(|(a, b)| *a += b);
+                }
+            }
+            redone[0] += out.refined as i64;
+            redone[1] += out.unresolved as i64;
+            unfinished.extend_from_slice(&out.unfinished);
+            for (phase, s) in &out.timings.phases {
+                timings.add(phase, *s);
+            }
+        }
+        let seconds = clock.elapsed().as_secs_f64();
+        round.seconds = seconds;
+        report.rounds = vec![round];
+        let mine = RankTotals::of(&report, seconds).to_words();
+        let (gathered, t) = timed(|| -> Result<_> {
+            self.comm.sum(&mut all)?;
+            let totals = self.comm.all_gather(bytemuck::cast_slice(&mine))?;
+            Ok((totals, self.comm.all_gather(bytemuck::cast_slice(&unfinished))?))
+        });
+        let (totals, entries) = gathered?;
+        timings.push("reduce", t);
+        report.reduce_seconds = t;
+        report.all = totals.iter().map(|b| RankTotals::from_words(&records::<i64>(b))).collect();
+        let mut unfinished: Vec<[u32; 2]> = entries.iter().flat_map(|b| records::<[u32; 2]>(b)).collect();
+        unfinished.sort_unstable();
+        *self.report.lock().unwrap_or_else(|e| e.into_inner()) = report;
+        let redone = all.split_off(n + f + counter::COUNT);
+        let counters = all.split_off(n + f);
+        let faces = all.split_off(n);
+        Ok(ClipOutput {
+            sums: all,
+            tet_volumes: vec![0; job.tets.len()],
+            faces,
+            counters,
+            unfinished,
+            refined: redone[0] as u64,
+            unresolved: redone[1] as u64,
+            chunks: of as u64,
+            timings,
+            ..Default::default()
+        })
+    }
+}
+
+/// The records of type `T` laid end to end in `bytes`.
+fn records<T: bytemuck::Pod>(bytes: &[u8]) -> Vec<T> {
+    bytes.chunks_exact(size_of::<T>()).map(bytemuck::pod_read_unaligned).collect()
+}
+
 /// What a part's rounds did.
 #[derive(Default)]
 struct PartOutcome {
@@ -707,9 +797,10 @@ impl Backend for Distributed {
         )
     }
 
-    /// Parts run tet-cell's floods (whole cells in parts are not built yet).
-    fn default_strategy(&self, _shape: JobShape) -> Strategy {
-        Strategy::TetCell
+    /// As one process on the CPU: whole cells (each rank building a share
+    /// of them), or tet-cell's floods where tets outnumber sites.
+    fn default_strategy(&self, shape: JobShape) -> Strategy {
+        Strategy::auto(BackendKind::Cpu, shape)
     }
 
     fn name(&self) -> String {
@@ -723,8 +814,13 @@ impl Backend for Distributed {
     /// The whole job's sums and counters, the same on every rank; nothing
     /// is left unfinished (the parts' host passes ran).
     fn clip(&self, job: &ClipJob) -> Result<ClipOutput> {
+        if job.strategy == Strategy::Whole {
+            return self.clip_whole(job);
+        }
         if job.strategy != Strategy::TetCell || job.pairing != Pairing::Flood {
-            return Err(Error::InvalidInput("a distributed run uses flood pairing (tet-cell)".into()));
+            return Err(Error::InvalidInput(
+                "a distributed run builds whole cells, or tet-cell's pieces with flood pairing".into(),
+            ));
         }
         // One all-reduce: the sums, the counters, the passes' entries, and
         // each rank's totals in its own slots.
@@ -858,7 +954,7 @@ mod tests {
             for parts in 1..=4 {
                 for halo in [[LIST_HALO, WALK_HALO], [1, 0]] {
                     let d = in_parts(parts).with_halo(halo[0], halo[1]);
-                    let cells = ClippedVoronoi::new(&mesh, sites).k_site(k_site).backend(&d).compute().unwrap();
+                    let cells = tet_cell.k_site(k_site).backend(&d).compute().unwrap();
                     same_bits(&whole, &cells, &format!("{name}, {parts} parts, halo {halo:?}"));
                     let r = d.report();
                     assert_eq!((r.of, r.parts.len()), (parts, parts));
@@ -893,15 +989,75 @@ mod tests {
         let tet_cell = ClippedVoronoi::new(&mesh, &sites).strategy(Strategy::TetCell);
         let whole = tet_cell.weights(&weights).backend(&cpu).compute().unwrap();
         let d = in_parts(3).with_halo(1, 1);
-        let cells = ClippedVoronoi::new(&mesh, &sites).weights(&weights).backend(&d).compute().unwrap();
+        let cells = tet_cell.weights(&weights).backend(&d).compute().unwrap();
         same_bits(&whole, &cells, "power cells in 3 parts");
         let one = tet_cell.backend(&cpu).lloyd(5, &mut |_, _| {}).unwrap();
-        let parts = ClippedVoronoi::new(&mesh, &sites).backend(&d).lloyd(5, &mut |_, _| {}).unwrap();
+        let parts = tet_cell.backend(&d).lloyd(5, &mut |_, _| {}).unwrap();
         for (a, b) in one.sites.iter().zip(&parts.sites) {
             assert_eq!(a.map(f64::to_bits), b.map(f64::to_bits), "Lloyd in 3 parts moves the sites alike");
         }
         for (a, b) in one.iterations.iter().zip(&parts.iterations) {
             assert_eq!(a.energy.to_bits(), b.energy.to_bits());
+        }
+    }
+
+    /// Whole cells in parts (each rank a run of the sites): every site's
+    /// sums and faces are one process's to the bit, in a non-convex domain
+    /// with a tight cluster in a crowd (cells cut by the boundary, long
+    /// walks), with power weights, and through Lloyd's iterations; the
+    /// ranks run as threads, each with its parts.
+    #[test]
+    fn whole_cells_in_parts_give_the_bits_of_one_job() {
+        let mesh = TetMesh::voxels(12, |i, j, _| i < 6 || j < 6);
+        let mut sites = points::in_mesh(&mesh, 6000, 21);
+        sites.extend(points::clustered(3000, 3, 0.02, 22).into_iter().map(|p| p.map(|x| 0.05 + 0.4 * x)));
+        sites.push(sites[17]);
+        let weights: Vec<f64> = (0..sites.len()).map(|i| 2e-5 * ((i * 7919) % 13) as f64).collect();
+        let cpu = CpuBackend::new(Some(2)).unwrap();
+        let whole = ClippedVoronoi::new(&mesh, &sites).strategy(Strategy::Whole).faces(true);
+        let one = whole.backend(&cpu).compute().unwrap();
+        let power = whole.weights(&weights).backend(&cpu).compute().unwrap();
+        let lloyd = whole.faces(false).backend(&cpu).lloyd(3, &mut |_, _| {}).unwrap();
+        assert!(one.counters.cut_cells > 0 && one.counters.whole_cells > 0);
+        for (ranks, per_rank) in [(1, 1), (2, 1), (3, 2), (4, 1)] {
+            let what = format!("{ranks} ranks x {per_rank} parts");
+            let runs: Vec<_> = std::thread::scope(|scope| {
+                let handles: Vec<_> = InProcess::ranks(ranks)
+                    .into_iter()
+                    .map(|comm| {
+                        let (mesh, sites, weights) = (&mesh, &sites, &weights);
+                        scope.spawn(move || {
+                            let d =
+                                Distributed::new(CpuBackend::new(Some(1)).unwrap(), Box::new(comm), per_rank).unwrap();
+                            let cv = ClippedVoronoi::new(mesh, sites).faces(true).backend(&d);
+                            let cells = cv.compute().unwrap();
+                            let report = d.report();
+                            let power = cv.weights(weights).compute().unwrap();
+                            let lloyd = cv.faces(false).lloyd(3, &mut |_, _| {}).unwrap();
+                            (cells, report, power, lloyd)
+                        })
+                    })
+                    .collect();
+                handles.into_iter().map(|h| h.join().unwrap()).collect()
+            });
+            let built: u64 = runs[0].1.all.iter().map(|t| t.listed_sites).sum();
+            assert_eq!(built, sites.len() as u64 - 1, "{what}: every unique site's cell built once");
+            for (cells, report, p, l) in &runs {
+                assert_eq!(cells.strategy, Strategy::Whole, "{what}: whole cells by default");
+                assert_eq!(report.of, ranks * per_rank);
+                same_bits(&one, cells, &what);
+                assert_eq!(one.adjacency, cells.adjacency, "{what}: the faces");
+                assert_eq!(one.total_volume.to_bits(), cells.total_volume.to_bits());
+                assert_eq!(
+                    (one.counters.whole_cells, one.counters.cut_cells),
+                    (cells.counters.whole_cells, cells.counters.cut_cells)
+                );
+                same_bits(&power, p, &format!("{what}, power cells"));
+                assert_eq!(power.adjacency, p.adjacency, "{what}: the power cells' faces");
+                for (a, b) in lloyd.sites.iter().zip(&l.sites) {
+                    assert_eq!(a.map(f64::to_bits), b.map(f64::to_bits), "{what}: Lloyd moves the sites alike");
+                }
+            }
         }
     }
 }
