@@ -64,19 +64,22 @@ pub fn run(args: &RunArgs) -> cvd::Result<u8> {
         Domain::Box(_) => cvd::diagram::periodic::WHOLE_FRAME_TETS,
     };
     let shape = JobShape { density: inputs.density.is_some(), sites: inputs.sites.len(), tets };
-    let strategy = args.strategy.unwrap_or_else(|| backend.default_strategy(shape)).name();
+    let strategy = args.strategy.unwrap_or_else(|| backend.default_strategy(shape));
     match &inputs.domain {
         Domain::Mesh(mesh) => {
-            // Cells only in parts (said, not dropped silently).
-            if run_backend.in_parts() && !(args.no_neighbors && args.no_geometry) {
-                println!("in parts: cells only (no neighbors.csv, cells.vtu, walls.ply or pictures yet)");
+            // What parts leave out (said, not dropped silently).
+            let whole = strategy == cvd::Strategy::Whole;
+            if run_backend.in_parts() && whole && !args.no_geometry {
+                println!("in parts: cells and neighbours (no cells.vtu, walls.ply or pictures yet)");
+            } else if run_backend.in_parts() && !whole && !(args.no_neighbors && args.no_geometry) {
+                println!("in parts: tet-cell gives cells only (no neighbors.csv, cells.vtu, walls.ply or pictures)");
             }
             let (tets, sites, name) = (mesh.tets.len(), inputs.sites.len(), backend.name());
-            println!("{}: {tets} tets, {sites} sites, {strategy} on {name} — {why}", inputs.name);
+            println!("{}: {tets} tets, {sites} sites, {} on {name} — {why}", inputs.name, strategy.name());
         }
         Domain::Box(b) => {
             let (lo, hi, sites, name) = (b.lo(), b.hi(), inputs.sites.len(), backend.name());
-            println!("{} {lo:?} to {hi:?}: {sites} sites, {strategy} on {name} — {why}", inputs.name);
+            println!("{} {lo:?} to {hi:?}: {sites} sites, {} on {name} — {why}", inputs.name, strategy.name());
         }
     }
     let optimised = optimise(args, &inputs, backend)?;
@@ -199,13 +202,11 @@ fn final_diagram(args: &RunArgs, inputs: &Inputs, o: &Optimised, run: &RunBacken
     let backend = run.get();
     match &inputs.domain {
         Domain::Mesh(mesh) => {
-            let no_neighbors = args.no_neighbors || run.in_parts();
             let mut cv = ClippedVoronoi::new(mesh, &o.sites)
                 .strategy(args.strategy)
                 .k(args.k)
                 .k_site(args.k_site)
                 .density(inputs.density.as_deref())
-                .faces(!no_neighbors)
                 .memory_budget(args.cpu_memory_budget());
             if let Some(w) = &o.weights {
                 cv = cv.weights(w);
@@ -214,6 +215,9 @@ fn final_diagram(args: &RunArgs, inputs: &Inputs, o: &Optimised, run: &RunBacken
                 cv = cv.pairing(pairing);
             }
             let cv = cv.backend(backend);
+            // Parts sum faces with whole cells only.
+            let cv =
+                cv.faces(!args.no_neighbors && !(run.in_parts() && cv.resolved_strategy() != cvd::Strategy::Whole));
             if args.warm_up {
                 let first = with_spinner("warm-up run", || cv.compute())?;
                 println!("warm-up run: {:.1} ms; the table shows the next", first.timings.total() * 1e3);

@@ -123,6 +123,50 @@ fn mpirun_gives_the_cells_of_one_process() {
     }
 }
 
+/// Whole cells, the default, over ranks: each rank builds a share of the
+/// cells and the ranks add their sums and faces. A torus (its curved,
+/// non-convex boundary cuts many cells) holding a crowd with a tight
+/// cluster, given as a file: cells.csv and neighbors.csv byte for byte one
+/// process's, and after Lloyd's iterations the sites too.
+#[test]
+fn mpirun_gives_whole_cells_and_neighbours_of_one_process() {
+    if !mpi_here() {
+        return;
+    }
+    let dir = temp_dir("whole");
+    let mesh = cvd::mesher::models::builtin("torus", Some(12)).unwrap();
+    let mut sites = cvd::geom::points::in_mesh(&mesh, 9000, 31);
+    let at = mesh.vertices[mesh.tets[mesh.tets.len() / 2][0] as usize];
+    let blob = cvd::geom::points::clustered(3000, 1, 0.01, 32);
+    sites.extend(blob.iter().map(|p| [0, 1, 2].map(|a| at[a] + 0.1 * (p[a] - 0.5))));
+    let file = dir.join("sites.xyz");
+    cvd_io::write_sites_xyz(&file, &sites).unwrap();
+    let torus = ["run", "--model", "torus", "--resolution", "12", "--backend", "cpu", "--no-geometry"];
+    let cases: [(&str, Vec<&str>); 2] = [
+        ("cells", vec!["--sites-file", file.to_str().unwrap()]),
+        ("lloyd", vec!["--sites", "6000", "--iterations", "3", "--no-picture"]),
+    ];
+    for (name, args) in &cases {
+        let one = dir.join(format!("{name}-one"));
+        let o = cvd_job(&torus, &one, args);
+        ok(&o, &format!("{name}: one process"));
+        assert!(String::from_utf8_lossy(&o.stdout).contains("whole on cpu"), "{name}: whole cells by default");
+        for ranks in [2, 3] {
+            let out = dir.join(format!("{name}-{ranks}"));
+            let o = mpirun_job(&torus, ranks, &out, args);
+            ok(&o, &format!("{name}: {ranks} ranks"));
+            let said = String::from_utf8_lossy(&o.stdout);
+            assert!(said.contains("whole on distributed"), "{name}: {said}");
+            same_files(&one, &out, &["cells.csv", "neighbors.csv", "sites.xyz"], &format!("{name}, {ranks} ranks"));
+            let s = summary(&out);
+            assert_eq!(s["parts"]["ranks"], ranks, "{name}: {ranks} ranks");
+            let built: u64 =
+                s["parts"]["all"].as_array().unwrap().iter().map(|r| r["listed_sites"].as_u64().unwrap()).sum();
+            assert!(built > 0, "{name}: {s}");
+        }
+    }
+}
+
 #[test]
 fn lloyd_over_mpi_moves_the_sites_of_one_process() {
     if !mpi_here() {

@@ -13,6 +13,14 @@
 //! and the sums are fixed point: adding the parts' sums, in any order, gives
 //! the same bits.
 //!
+//! Whole cells (the default strategy on the CPU) are split by sites
+//! instead: part `p` builds the cells of a run of the job's sites (in
+//! Morton order: a compact piece of the domain), with the whole job's
+//! lists, walks and pieces ([`ClipJob::answering`]), so each site's sums
+//! and face sums come from one part, as one process makes them. Every rank
+//! holds the whole job there; each builds its share of the cells and of
+//! their lists.
+//!
 //! [`Distributed`] is a [`Backend`]: it computes the parts of its rank on
 //! the CPU and adds the sums of all ranks through a [`Reduce`] — an MPI
 //! all-reduce (`cvd::backends::distributed::mpi`, the `mpi` feature), or nothing in
@@ -429,9 +437,11 @@ pub struct PartReport {
 pub struct RankTotals {
     /// Tets of its parts.
     pub tets: u64,
-    /// Sites held in the first round (its parts' boxes).
+    /// Sites held in the first round (its parts' boxes; whole cells: every
+    /// site).
     pub held_sites: u64,
-    /// Sites with neighbour lists in the first round.
+    /// Sites with neighbour lists in the first round (whole cells: the
+    /// cells it built).
     pub listed_sites: u64,
     /// Tets done again in later rounds.
     pub tets_again: u64,
@@ -467,8 +477,9 @@ impl RankTotals {
 }
 
 /// A backend that computes the parts of its rank of a job on the CPU and
-/// adds the sums of every rank (see the module's documentation). Flood
-/// pairing (tet-cell) only, without face sums.
+/// adds the sums of every rank (see the module's documentation): tet-cell
+/// with flood pairing (parts by tets, without face sums), or whole cells
+/// (parts by sites, faces included: `Distributed::clip_whole`).
 pub struct Distributed {
     cpu: CpuBackend,
     comm: Box<dyn Reduce>,
