@@ -691,6 +691,9 @@ impl Distributed {
         let mut all = vec![0i64; n + f + counter::COUNT + 2];
         let mut timings = Timings::default();
         let mut unfinished: Vec<[u32; 2]> = Vec::new();
+        // With faces, each part's lists (the host reads them to place the
+        // face sums): laid end to end in part order, the whole job's.
+        let mut lists: Option<(Vec<u32>, u32, u32)> = (f > 0).then(|| (Vec::new(), 0, 0));
         let parts: Vec<usize> = (self.comm.rank() * self.per_rank..(self.comm.rank() + 1) * self.per_rank).collect();
         let mut report = PartReport {
             rank: self.comm.rank(),
@@ -708,7 +711,7 @@ impl Distributed {
             }
             round.held_sites = job.sites.len() as u64;
             round.listed_sites += range.len() as u64;
-            let out = self.cpu.clip(&job.answering(range)?)?;
+            let out = self.cpu.clip(&job.answering(range.clone())?)?;
             let (sums, rest) = all.split_at_mut(n);
             let (faces, rest) = rest.split_at_mut(f);
             let (counters, redone) = rest.split_at_mut(counter::COUNT);
@@ -720,6 +723,15 @@ impl Distributed {
             redone[0] += out.refined as i64;
             redone[1] += out.unresolved as i64;
             unfinished.extend_from_slice(&out.unfinished);
+            let l = &out.site_lists;
+            let whole = l.words.len() >= cvd_kernels::lists::stride(l.k, l.bits) * range.len() && l.k > 0;
+            lists = match lists.take() {
+                Some((mut words, k, bits)) if whole && (words.is_empty() || (k, bits) == (l.k, l.bits)) => {
+                    words.extend_from_slice(&l.words[..cvd_kernels::lists::stride(l.k, l.bits) * range.len()]);
+                    Some((words, l.k, l.bits))
+                }
+                _ => None,
+            };
             for (phase, s) in &out.timings.phases {
                 timings.add(phase, *s);
             }
@@ -728,12 +740,33 @@ impl Distributed {
         round.seconds = seconds;
         report.rounds = vec![round];
         let mine = RankTotals::of(&report, seconds).to_words();
+        // Every rank's lists, or none if a rank has none to give (the
+        // host then lists the sites again).
+        let shape = lists.as_ref().map_or([0u32; 2], |l| [l.1, l.2]);
         let (gathered, t) = timed(|| -> Result<_> {
             self.comm.sum(&mut all)?;
             let totals = self.comm.all_gather(bytemuck::cast_slice(&mine))?;
-            Ok((totals, self.comm.all_gather(bytemuck::cast_slice(&unfinished))?))
+            let entries = self.comm.all_gather(bytemuck::cast_slice(&unfinished))?;
+            let shapes = match f > 0 {
+                true => self.comm.all_gather(bytemuck::cast_slice(&shape))?,
+                false => Vec::new(),
+            };
+            let agreed = !shapes.is_empty() && shapes.iter().all(|b| records::<u32>(b) == shape && shape[0] > 0);
+            let words = match (agreed, &lists) {
+                (true, Some(l)) => Some(self.comm.all_gather(bytemuck::cast_slice(&l.0))?),
+                _ => None,
+            };
+            Ok((totals, entries, words))
         });
-        let (totals, entries) = gathered?;
+        let (totals, entries, words) = gathered?;
+        let site_lists = match words {
+            Some(words) => {
+                let mut words: Vec<u32> = words.iter().flat_map(|b| records::<u32>(b)).collect();
+                words.resize(words.len() + cvd_kernels::lists::spare(shape[1]), 0);
+                crate::job::knn::PackedLists { words, k: shape[0], bits: shape[1], timings: Timings::default() }
+            }
+            None => Default::default(),
+        };
         timings.push("reduce", t);
         report.reduce_seconds = t;
         report.all = totals.iter().map(|b| RankTotals::from_words(&records::<i64>(b))).collect();
@@ -747,6 +780,7 @@ impl Distributed {
             sums: all,
             tet_volumes: vec![0; job.tets.len()],
             faces,
+            site_lists,
             counters,
             unfinished,
             refined: redone[0] as u64,
