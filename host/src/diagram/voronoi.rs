@@ -2,6 +2,7 @@
 //! backends.
 
 use crate::backend::Backend;
+use crate::backends::distributed::Distributed;
 use crate::error::{Error, Result};
 use crate::exec::TaskSink;
 use crate::geom::domain::DomainIndex;
@@ -621,7 +622,31 @@ impl<'a> ClippedVoronoi<'a> {
         out.timings.phases.insert(0, ("job".into(), job_s));
         let cells = self.finish_job(&job, &map, &frame, out, &sinks)?;
         let collected = sinks.into_inner().unwrap_or_else(|e| e.into_inner());
-        Ok((cells, crate::passes::pieces::to_world(collected, &job, &map, &frame, self.sites)))
+        Ok((cells, crate::passes::pieces::to_world(collected, &job, &map, &frame, self.sites, None)))
+    }
+
+    /// Whole cells over the ranks of `parts` ([`Distributed`]), as
+    /// [`Self::compute`] on it gives them (every site's, on every rank),
+    /// with the polyhedra ([`Cells::polyhedra`]) and pieces of the cells
+    /// this rank built (by site): together, the ranks' are those of
+    /// [`Self::compute_with_polyhedra`] in one process, each once.
+    pub fn compute_with_geometry_in_parts(&self, parts: &Distributed) -> Result<(Cells, Pieces)> {
+        let cv = ClippedVoronoi { backend: Some(parts), ..*self };
+        if cv.resolved_strategy() != Strategy::Whole {
+            return Err(Error::InvalidInput("the cells' polyhedra in parts come from whole cells".into()));
+        }
+        let (job, map, frame, job_s) = cv.timed_job()?;
+        let sinks = Mutex::new(Vec::new());
+        let mut out = parts.clip_whole_into::<PieceCollector>(&job, &sinks)?;
+        out.timings.phases.insert(0, ("job".into(), job_s));
+        let mut cells = cv.finish_job(&job, &map, &frame, out, &sinks)?;
+        let collected = sinks.into_inner().unwrap_or_else(|e| e.into_inner());
+        let share = Some(parts.share(&job));
+        let pieces = crate::passes::pieces::to_world(collected, &job, &map, &frame, self.sites, share);
+        let (polyhedra, t) = crate::geom::timing::timed(|| merge_pieces(&pieces));
+        cells.polyhedra = Some(polyhedra);
+        cells.timings.push("polyhedra", t);
+        Ok((cells, pieces))
     }
 
     /// Computes the clipped cells on the CPU backend `cpu`, as

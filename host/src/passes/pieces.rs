@@ -402,6 +402,7 @@ pub(crate) fn to_world(
     map: &crate::job::sites::SiteMap,
     frame: &Frame,
     input: &[[f64; 3]],
+    only: Option<std::ops::Range<usize>>,
 ) -> Pieces {
     // The input index that owns each job site: the lowest.
     let mut owner = vec![u32::MAX; job.sites.len()];
@@ -440,10 +441,15 @@ pub(crate) fn to_world(
             }
         }
     });
+    // The pieces of the sites at places `only` of the job (a share of its
+    // cells: `backends::distributed`), or all.
+    let place: Vec<u32> = map.iter().map(|m| m.map_or(u32::MAX, |u| u as u32)).collect();
+    let kept = |site: u32| only.as_ref().is_none_or(|r| r.contains(&(place[site as usize] as usize)));
     let mut order: Vec<(u32, u32)> = parts
         .iter()
         .enumerate()
         .flat_map(|(k, part)| (0..part.sites.len() as u32).map(move |p| (k as u32, p)))
+        .filter(|&(k, p)| kept(parts[k as usize].sites[p as usize]))
         .collect();
     order.par_sort_unstable_by_key(|&(k, p)| (parts[k as usize].sites[p as usize], parts[k as usize].tets[p as usize]));
     Pieces { parts, origins: input.to_vec(), scale: frame.scale, order }

@@ -35,7 +35,7 @@ pub mod mpi;
 
 use crate::backend::Backend;
 use crate::error::{Error, Result};
-use crate::exec::CpuBackend;
+use crate::exec::{CpuBackend, TaskSink};
 use crate::geom::exact_sum::ExactSum;
 use crate::geom::timing::{timed, Timings};
 use crate::job::clip::{ClipJob, ClipOutput, JobShape, Pairing, Strategy};
@@ -684,9 +684,28 @@ impl Distributed {
     /// pass, as one process finishes them. Every rank holds the whole job;
     /// each builds its share of the cells, lists and pieces.
     fn clip_whole(&self, job: &ClipJob) -> Result<ClipOutput> {
+        self.clip_whole_into(job, &Mutex::new(Vec::<NoPieces>::new()))
+    }
+
+    /// Where part `p` of a whole-cell job's answered sites begins (and
+    /// part `p - 1` ends).
+    fn share_start(&self, job: &ClipJob, p: usize) -> usize {
         let (lo, hi) = (job.params.own_lo as usize, job.params.own_hi as usize);
+        lo + (hi - lo) * p / (self.comm.size() * self.per_rank)
+    }
+
+    /// The sites (places in a whole-cell job's order) whose cells this
+    /// rank builds.
+    pub(crate) fn share(&self, job: &ClipJob) -> std::ops::Range<usize> {
+        let first = self.comm.rank() * self.per_rank;
+        self.share_start(job, first)..self.share_start(job, first + self.per_rank)
+    }
+
+    /// [`Self::clip_whole`], with the pieces of this rank's cells in
+    /// `sinks`.
+    pub(crate) fn clip_whole_into<S: TaskSink>(&self, job: &ClipJob, sinks: &Mutex<Vec<S>>) -> Result<ClipOutput> {
         let of = self.comm.size() * self.per_rank;
-        let share = |p: usize| lo + (hi - lo) * p / of;
+        let share = |p: usize| self.share_start(job, p);
         let (n, f) = (job.params.n_sites as usize * ACCUM_PER_SITE, job.face_sums_len());
         let mut all = vec![0i64; n + f + counter::COUNT + 2];
         let mut timings = Timings::default();
@@ -711,7 +730,7 @@ impl Distributed {
             }
             round.held_sites = job.sites.len() as u64;
             round.listed_sites += range.len() as u64;
-            let out = self.cpu.clip(&job.answering(range.clone())?)?;
+            let out = self.cpu.clip_into(&job.answering(range.clone())?, sinks)?;
             let (sums, rest) = all.split_at_mut(n);
             let (faces, rest) = rest.split_at_mut(f);
             let (counters, redone) = rest.split_at_mut(counter::COUNT);
@@ -1063,6 +1082,9 @@ mod tests {
         let one = whole.backend(&cpu).compute().unwrap();
         let power = whole.weights(&weights).backend(&cpu).compute().unwrap();
         let lloyd = whole.faces(false).backend(&cpu).lloyd(3, &mut |_, _| {}).unwrap();
+        let (with, _) = whole.compute_with_polyhedra(&cpu).unwrap();
+        let one_polyhedra = &with.polyhedra.unwrap();
+        assert!(one_polyhedra.len() > sites.len() / 2);
         assert!(one.counters.cut_cells > 0 && one.counters.whole_cells > 0);
         for (ranks, per_rank) in [(1, 1), (2, 1), (3, 2), (4, 1)] {
             let what = format!("{ranks} ranks x {per_rank} parts");
@@ -1079,7 +1101,9 @@ mod tests {
                             let report = d.report();
                             let power = cv.weights(weights).compute().unwrap();
                             let lloyd = cv.faces(false).lloyd(3, &mut |_, _| {}).unwrap();
-                            (cells, report, power, lloyd)
+                            let (with, _) = cv.compute_with_geometry_in_parts(&d).unwrap();
+                            same_bits(&cells, &with, "the cells with their polyhedra");
+                            (cells, report, power, lloyd, with.polyhedra.unwrap())
                         })
                     })
                     .collect();
@@ -1087,7 +1111,10 @@ mod tests {
             });
             let built: u64 = runs[0].1.all.iter().map(|t| t.listed_sites).sum();
             assert_eq!(built, sites.len() as u64 - 1, "{what}: every unique site's cell built once");
-            for (cells, report, p, l) in &runs {
+            let mut polyhedra: Vec<_> = runs.iter().flat_map(|r| r.4.iter().cloned()).collect();
+            polyhedra.sort_by_key(|p| p.site);
+            assert!(polyhedra == *one_polyhedra, "{what}: the ranks' polyhedra are one process's, each once");
+            for (cells, report, p, l, _) in &runs {
                 assert_eq!(cells.strategy, Strategy::Whole, "{what}: whole cells by default");
                 assert_eq!(report.of, ranks * per_rank);
                 same_bits(&one, cells, &what);
