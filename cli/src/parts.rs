@@ -156,39 +156,8 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     written.push("sites.xyz");
     // The cells' polyhedra: each rank's as a piece, cells.pvtu the whole.
     if let Some(built) = &built {
-        let piece = format!("cells/{rank}.vtu");
         let numbers = |k: usize| built.numbers[k];
-        let wrote = cvd_io::write_cells_vtu_with(&dir.join(&piece), &built.polyhedra, &numbers, &mut |_, _| {});
-        let mut failed = [wrote.is_err() as i64];
-        comm.sum(&mut failed)?;
-        wrote?;
-        if failed[0] != 0 {
-            return Err(cvd::Error::InvalidInput("another rank could not write its piece of cells.pvtu".into()));
-        }
-        if rank == 0 {
-            let pieces: Vec<String> = (0..ranks).map(|r| format!("cells/{r}.vtu")).collect();
-            cvd_io::write_cells_pvtu(&dir.join("cells.pvtu"), &pieces)?;
-            println!("in parts: cells.pvtu holds each rank's cells.vtu (cells/RANK.vtu)");
-        }
-        written.push("cells.pvtu");
-        // walls.ply: each rank's walls (a shared face from the cell of the
-        // lower site, as one process writes it), its points and faces after
-        // the ranks' before it, the header from rank 0.
-        let walls = cvd_io::Walls::of(&built.polyhedra);
-        let counts =
-            comm.all_gather(&[walls.points.len() as u64, walls.faces.len() as u64].map(u64::to_le_bytes).concat())?;
-        let count = |b: &Vec<u8>, k: usize| u64::from_le_bytes(b[8 * k..8 * k + 8].try_into().unwrap_or([0; 8]));
-        let (points, faces) = (counts.iter().map(|b| count(b, 0)).sum(), counts.iter().map(|b| count(b, 1)).sum());
-        let first_point: u64 = counts[..rank].iter().map(|b| count(b, 0)).sum();
-        let path = dir.join("walls.ply");
-        write_part(comm, &path, |w| {
-            if rank == 0 {
-                w.write_all(cvd_io::Walls::header(points, faces).as_bytes())?;
-            }
-            walls.write_points(w)
-        })?;
-        write_section(comm, &path, true, |w| walls.write_faces(w, first_point))?;
-        written.push("walls.ply");
+        written.extend(write_polyhedra(comm, &dir, &built.polyhedra, &numbers)?);
     }
     if let (Some(w), Some(_)) = (&weights, &transport) {
         write_part(comm, &dir.join("weights.txt"), |out| cvd_io::write_values_rows(out, w))?;
@@ -314,6 +283,55 @@ pub(crate) fn write_part(
     body: impl FnOnce(&mut dyn std::io::Write) -> std::io::Result<()>,
 ) -> cvd::Result<()> {
     write_section(comm, path, false, body)
+}
+
+/// The polyhedra of the cells this rank built (`numbers(k)`: the volume,
+/// centroid and energy of `polyhedra[k]`'s cell) as its piece of
+/// `cells.pvtu` (`cells/RANK.vtu`, rank 0 writing `cells.pvtu`), and their
+/// walls as its section of `walls.ply` (a shared face from the cell of the
+/// lower site, as one process writes it; its points and faces after the
+/// ranks' before it, the header from rank 0). Returns the files' names.
+pub(crate) fn write_polyhedra(
+    comm: &dyn Reduce,
+    dir: &Path,
+    polyhedra: &[cvd::passes::polyhedra::CellPolyhedron],
+    numbers: &(dyn Fn(usize) -> cvd_io::CellNumbers + Sync),
+) -> cvd::Result<Vec<&'static str>> {
+    let (rank, ranks) = (comm.rank(), comm.size());
+    let piece = format!("cells/{rank}.vtu");
+    if rank == 0 {
+        let made = dir.join("cells");
+        std::fs::create_dir_all(&made)
+            .map_err(|source| cvd::Error::Write { path: made.display().to_string(), source })?;
+    }
+    comm.sum(&mut [0i64])?;
+    let wrote = cvd_io::write_cells_vtu_with(&dir.join(&piece), polyhedra, numbers, &mut |_, _| {});
+    let mut failed = [wrote.is_err() as i64];
+    comm.sum(&mut failed)?;
+    wrote?;
+    if failed[0] != 0 {
+        return Err(cvd::Error::InvalidInput("another rank could not write its piece of cells.pvtu".into()));
+    }
+    if rank == 0 {
+        let pieces: Vec<String> = (0..ranks).map(|r| format!("cells/{r}.vtu")).collect();
+        cvd_io::write_cells_pvtu(&dir.join("cells.pvtu"), &pieces)?;
+        println!("in parts: cells.pvtu holds each rank's cells.vtu (cells/RANK.vtu)");
+    }
+    let walls = cvd_io::Walls::of(polyhedra);
+    let counts =
+        comm.all_gather(&[walls.points.len() as u64, walls.faces.len() as u64].map(u64::to_le_bytes).concat())?;
+    let count = |b: &Vec<u8>, k: usize| u64::from_le_bytes(b[8 * k..8 * k + 8].try_into().unwrap_or([0; 8]));
+    let (points, faces) = (counts.iter().map(|b| count(b, 0)).sum(), counts.iter().map(|b| count(b, 1)).sum());
+    let first_point: u64 = counts[..rank].iter().map(|b| count(b, 0)).sum();
+    let path = dir.join("walls.ply");
+    write_part(comm, &path, |w| {
+        if rank == 0 {
+            w.write_all(cvd_io::Walls::header(points, faces).as_bytes())?;
+        }
+        walls.write_points(w)
+    })?;
+    write_section(comm, &path, true, |w| walls.write_faces(w, first_point))?;
+    Ok(vec!["cells.pvtu", "walls.ply"])
 }
 
 /// [`write_part`] of a section of the file: the file made anew, or (with

@@ -69,9 +69,7 @@ pub fn run(args: &RunArgs) -> cvd::Result<u8> {
         Domain::Mesh(mesh) => {
             // What parts leave out (said, not dropped silently).
             let whole = strategy == cvd::Strategy::Whole;
-            if run_backend.in_parts() && whole && !args.no_geometry {
-                println!("in parts: cells and neighbours (no cells.vtu, walls.ply or pictures yet)");
-            } else if run_backend.in_parts() && !whole && !(args.no_neighbors && args.no_geometry) {
+            if run_backend.in_parts() && !whole && !(args.no_neighbors && args.no_geometry) {
                 println!("in parts: tet-cell gives cells only (no neighbors.csv, cells.vtu, walls.ply or pictures)");
             }
             let (tets, sites, name) = (mesh.tets.len(), inputs.sites.len(), backend.name());
@@ -84,6 +82,7 @@ pub fn run(args: &RunArgs) -> cvd::Result<u8> {
     }
     let optimised = optimise(args, &inputs, backend)?;
     let diagram = final_diagram(args, &inputs, &optimised, &run_backend)?;
+    let (mut written_in_parts, mut pieces_in_parts): (Vec<&str>, _) = (Vec::new(), None);
     let compiled = backend.kernel_compile_seconds();
     if compiled > 0.0 {
         println!("kernels: the driver compiled them in {compiled:.2} s on first use (not in the times below)");
@@ -92,6 +91,26 @@ pub fn run(args: &RunArgs) -> cvd::Result<u8> {
         Some(t) if !t.converged => NOT_CONVERGED,
         _ => 0,
     };
+    // In parts, every rank writes the polyhedra of the cells it built; the
+    // pictures and pieces.vtu (every rank's pieces) are left out.
+    let mut diagram = diagram;
+    let parts = run_backend.parts();
+    if let Some((parts, polyhedra)) = parts.and_then(|p| Some((p, diagram.cells.polyhedra.take()?))) {
+        let cells = &diagram.cells;
+        let numbers = |k: usize| {
+            let i = polyhedra[k].site as usize;
+            (cells.volume[i], cells.centroid[i], cells.energy[i])
+        };
+        let wrote = crate::parts::write_polyhedra(parts.comm(), &dir, &polyhedra, &numbers)?;
+        if writes {
+            println!("in parts: no pictures or pieces.vtu (each rank holds the pieces of its own cells only)");
+        }
+        let lids: u64 = polyhedra.iter().map(|p| p.repaired_holes as u64).sum();
+        let mut tally = [diagram.pieces.take().map_or(0, |p| p.len()) as i64, lids as i64];
+        parts.comm().sum(&mut tally)?;
+        pieces_in_parts = Some((tally[0] as usize, tally[1] as u64));
+        written_in_parts.extend(wrote);
+    }
     if !writes {
         return Ok(status);
     }
@@ -117,6 +136,9 @@ pub fn run(args: &RunArgs) -> cvd::Result<u8> {
         summary.pieces = Some(pieces.len());
         summary.lids = Some(polyhedra.iter().map(|p| p.repaired_holes as u64).sum());
     }
+    if let Some((pieces, lids)) = pieces_in_parts {
+        (summary.pieces, summary.lids) = (Some(pieces), Some(lids));
+    }
     let results = Results {
         args,
         mesh: match &inputs.domain {
@@ -130,7 +152,8 @@ pub fn run(args: &RunArgs) -> cvd::Result<u8> {
         particles: diagram.particles.as_ref(),
         summary: &summary,
     };
-    let written = outputs::write_all(&dir, &results)?;
+    let mut written = outputs::write_all(&dir, &results)?;
+    written.extend(written_in_parts.iter().map(|w| w.to_string()));
     print!("{summary}");
     if inputs.wrapped > 0 {
         println!("{} sites were outside the box: wrapped into it (sites.xyz holds them wrapped)", inputs.wrapped);
@@ -222,7 +245,13 @@ fn final_diagram(args: &RunArgs, inputs: &Inputs, o: &Optimised, run: &RunBacken
                 let first = with_spinner("warm-up run", || cv.compute())?;
                 println!("warm-up run: {:.1} ms; the table shows the next", first.timings.total() * 1e3);
             }
-            let (cells, pieces) = if args.no_geometry || run.in_parts() {
+            let parts = run.parts().filter(|_| cv.resolved_strategy() == cvd::Strategy::Whole);
+            let (cells, pieces) = if let (Some(parts), false) = (parts, args.no_geometry) {
+                // Each rank the polyhedra of the cells it built.
+                let what = "clipped Voronoi diagram and its cells' polyhedra, in parts";
+                let (cells, pieces) = with_spinner(what, || cv.compute_with_geometry_in_parts(parts))?;
+                (cells, Some(pieces))
+            } else if args.no_geometry || run.in_parts() {
                 (with_spinner("clipped Voronoi diagram", || cv.compute())?, None)
             } else {
                 // On the CPU backend the polyhedra come from the diagram's

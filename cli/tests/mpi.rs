@@ -141,10 +141,11 @@ fn mpirun_gives_whole_cells_and_neighbours_of_one_process() {
     sites.extend(blob.iter().map(|p| [0, 1, 2].map(|a| at[a] + 0.1 * (p[a] - 0.5))));
     let file = dir.join("sites.xyz");
     cvd_io::write_sites_xyz(&file, &sites).unwrap();
-    let torus = ["run", "--model", "torus", "--resolution", "12", "--backend", "cpu", "--no-geometry"];
-    let cases: [(&str, Vec<&str>); 2] = [
-        ("cells", vec!["--sites-file", file.to_str().unwrap()]),
-        ("lloyd", vec!["--sites", "6000", "--iterations", "3", "--no-picture"]),
+    let torus = ["run", "--model", "torus", "--resolution", "12", "--backend", "cpu", "--no-picture"];
+    let cases: [(&str, Vec<&str>); 3] = [
+        ("cells", vec!["--sites-file", file.to_str().unwrap(), "--no-geometry"]),
+        ("lloyd", vec!["--sites", "6000", "--iterations", "3", "--no-geometry"]),
+        ("geometry", vec!["--sites-file", file.to_str().unwrap()]),
     ];
     for (name, args) in &cases {
         let one = dir.join(format!("{name}-one"));
@@ -159,6 +160,22 @@ fn mpirun_gives_whole_cells_and_neighbours_of_one_process() {
             assert!(said.contains("whole on distributed"), "{name}: {said}");
             same_files(&one, &out, &["cells.csv", "neighbors.csv", "sites.xyz"], &format!("{name}, {ranks} ranks"));
             let s = summary(&out);
+            if *name == "geometry" {
+                // Each rank's polyhedra: the same walls, and VTK reads the
+                // pieces as one grid holding every cell once, as one
+                // process wrote it.
+                assert!(walls(&one.join("walls.ply")) == walls(&out.join("walls.ply")), "{ranks} ranks: walls.ply");
+                assert_eq!(s["pieces"], summary(&one)["pieces"], "{ranks} ranks: pieces");
+                if vtk_here() {
+                    let (whole, parts) = (vtk_cells(&one.join("cells.vtu")), vtk_cells(&out.join("cells.pvtu")));
+                    assert!(whole.len() > 11_000, "one process's cells.vtu: {} cells", whole.len());
+                    assert_eq!(parts.len(), whole.len(), "{ranks} ranks: cells in cells.pvtu");
+                    for (a, b) in whole.iter().zip(&parts) {
+                        assert_eq!((a.0, a.1.to_bits(), a.3), (b.0, b.1.to_bits(), b.3), "{ranks} ranks: a cell");
+                        assert!((a.2 - b.2).abs() <= 1e-12 * a.2.abs(), "{ranks} ranks: VTK's volume of {}", a.0);
+                    }
+                }
+            }
             assert_eq!(s["parts"]["ranks"], ranks, "{name}: {ranks} ranks");
             let built: u64 =
                 s["parts"]["all"].as_array().unwrap().iter().map(|r| r["listed_sites"].as_u64().unwrap()).sum();
@@ -454,6 +471,26 @@ fn walls(path: &Path) -> Vec<(i32, i32, Vec<[u64; 3]>)> {
     walls
 }
 
+/// The cells of a `cells.vtu` or `cells.pvtu` as VTK reads them, by site:
+/// (site, stored volume, VTK's measure of the polyhedron, faces).
+fn vtk_cells(path: &Path) -> Vec<(i64, f64, f64, i64)> {
+    let script = env!("CARGO_MANIFEST_DIR").to_string() + "/../tests/scripts/read_cells_vtu.py";
+    let o = Command::new("python3").arg(script).arg(path).output().unwrap();
+    assert!(o.status.success(), "VTK on {}: {}", path.display(), String::from_utf8_lossy(&o.stderr));
+    let json: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let mut cells: Vec<(i64, f64, f64, i64)> = json["cells"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| {
+            let f = |k: &str| c[k].as_f64().unwrap();
+            (c["site"].as_i64().unwrap(), f("volume"), f("vtk_volume"), c["faces"].as_i64().unwrap())
+        })
+        .collect();
+    cells.sort_by_key(|c| c.0);
+    cells
+}
+
 /// Whether `python3` with VTK runs here (skipped with the reason; under
 /// `CI=true` its absence fails).
 fn vtk_here() -> bool {
@@ -514,25 +551,8 @@ fn mpirun_gives_power_cells_in_parts_byte_for_byte() {
         assert!(walls(&index.join("walls.ply")) == walls(&out.join("walls.ply")), "{ranks} ranks: walls.ply's walls");
         // VTK reads the pieces as one grid: every cell once, each as one
         // process wrote it (the same stored volume, VTK's measure of it).
-        let cells = |path: &Path| -> Vec<(i64, f64, f64, i64)> {
-            let script = env!("CARGO_MANIFEST_DIR").to_string() + "/../tests/scripts/read_cells_vtu.py";
-            let o = Command::new("python3").arg(script).arg(path).output().unwrap();
-            assert!(o.status.success(), "VTK on {}: {}", path.display(), String::from_utf8_lossy(&o.stderr));
-            let json: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
-            let mut cells: Vec<(i64, f64, f64, i64)> = json["cells"]
-                .as_array()
-                .unwrap()
-                .iter()
-                .map(|c| {
-                    let f = |k: &str| c[k].as_f64().unwrap();
-                    (c["site"].as_i64().unwrap(), f("volume"), f("vtk_volume"), c["faces"].as_i64().unwrap())
-                })
-                .collect();
-            cells.sort_by_key(|c| c.0);
-            cells
-        };
         if vtk_here() {
-            let (whole, parts) = (cells(&index.join("cells.vtu")), cells(&out.join("cells.pvtu")));
+            let (whole, parts) = (vtk_cells(&index.join("cells.vtu")), vtk_cells(&out.join("cells.pvtu")));
             // (Radical cells: a small particle beside large ones may have none.)
             assert!(whole.len() > 5900, "one process's cells.vtu: {} cells", whole.len());
             assert_eq!(parts.len(), whole.len(), "{ranks} ranks: cells in cells.pvtu");
