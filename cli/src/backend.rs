@@ -67,8 +67,10 @@ pub fn open(args: &RunArgs) -> cvd::Result<(RunBackend, String)> {
     if args.backend.backend == BackendChoice::Vulkan {
         return Err(cvd::Error::InvalidInput("a run in parts uses the CPU backend: drop --backend vulkan".into()));
     }
-    if args.transports() {
-        return Err(cvd::Error::InvalidInput("optimal transport does not run in parts yet".into()));
+    if args.transports() && args.strategy.is_some_and(|s| s != cvd::Strategy::Whole) {
+        return Err(cvd::Error::InvalidInput(
+            "optimal transport in parts needs the faces of whole cells: drop --strategy".into(),
+        ));
     }
     let comm = comm.unwrap_or_else(|| Box::new(OneProcess));
     let why = format!("{} part(s) per rank, {}", args.parts.unwrap_or(1), comm.describe());

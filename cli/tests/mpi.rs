@@ -127,7 +127,8 @@ fn mpirun_gives_the_cells_of_one_process() {
 /// cells and the ranks add their sums and faces. A torus (its curved,
 /// non-convex boundary cuts many cells) holding a crowd with a tight
 /// cluster, given as a file: cells.csv and neighbors.csv byte for byte one
-/// process's, and after Lloyd's iterations the sites too.
+/// process's; after Lloyd's iterations the sites too; the polyhedra (each
+/// rank's piece of cells.pvtu, walls.ply); optimal transport's weights.
 #[test]
 fn mpirun_gives_whole_cells_and_neighbours_of_one_process() {
     if !mpi_here() {
@@ -142,10 +143,11 @@ fn mpirun_gives_whole_cells_and_neighbours_of_one_process() {
     let file = dir.join("sites.xyz");
     cvd_io::write_sites_xyz(&file, &sites).unwrap();
     let torus = ["run", "--model", "torus", "--resolution", "12", "--backend", "cpu", "--no-picture"];
-    let cases: [(&str, Vec<&str>); 3] = [
+    let cases: [(&str, Vec<&str>); 4] = [
         ("cells", vec!["--sites-file", file.to_str().unwrap(), "--no-geometry"]),
         ("lloyd", vec!["--sites", "6000", "--iterations", "3", "--no-geometry"]),
         ("geometry", vec!["--sites-file", file.to_str().unwrap()]),
+        ("transport", vec!["--sites", "3000", "--volumes", "lognormal:0,0.5", "--no-geometry"]),
     ];
     for (name, args) in &cases {
         let one = dir.join(format!("{name}-one"));
@@ -160,6 +162,11 @@ fn mpirun_gives_whole_cells_and_neighbours_of_one_process() {
             assert!(said.contains("whole on distributed"), "{name}: {said}");
             same_files(&one, &out, &["cells.csv", "neighbors.csv", "sites.xyz"], &format!("{name}, {ranks} ranks"));
             let s = summary(&out);
+            if *name == "transport" {
+                same_files(&one, &out, &["weights.txt"], &format!("{name}, {ranks} ranks"));
+                assert_eq!(s["transport"]["step_max_error"], summary(&one)["transport"]["step_max_error"]);
+                assert_eq!(s["transport"]["converged"], true);
+            }
             if *name == "geometry" {
                 // Each rank's polyhedra: the same walls, and VTK reads the
                 // pieces as one grid holding every cell once, as one

@@ -886,6 +886,11 @@ impl Backend for Distributed {
                 "a distributed run builds whole cells, or tet-cell's pieces with flood pairing".into(),
             ));
         }
+        if job.face_sums_len() > 0 {
+            return Err(Error::InvalidInput(
+                "faces in parts (neighbours, optimal transport) come with whole cells: --strategy whole".into(),
+            ));
+        }
         // One all-reduce: the sums, the counters, the passes' entries, and
         // each rank's totals in its own slots.
         let n = job.params.n_sites as usize * ACCUM_PER_SITE;
