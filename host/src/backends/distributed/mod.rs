@@ -707,7 +707,10 @@ impl Distributed {
         let of = self.comm.size() * self.per_rank;
         let share = |p: usize| self.share_start(job, p);
         let (n, f) = (job.params.n_sites as usize * ACCUM_PER_SITE, job.face_sums_len());
-        let mut all = vec![0i64; n + f + counter::COUNT + 2];
+        // The first part's sums and face sums take the others' (each the
+        // whole job's size): no buffer more.
+        let (mut sums, mut faces) = (Vec::new(), Vec::new());
+        let mut small = vec![0i64; counter::COUNT + 2];
         let mut timings = Timings::default();
         let mut unfinished: Vec<[u32; 2]> = Vec::new();
         // With faces, each part's lists (the host reads them to place the
@@ -730,15 +733,15 @@ impl Distributed {
             }
             round.held_sites = job.sites.len() as u64;
             round.listed_sites += range.len() as u64;
-            let out = self.cpu.clip_into(&job.answering(range.clone())?, sinks)?;
-            let (sums, rest) = all.split_at_mut(n);
-            let (faces, rest) = rest.split_at_mut(f);
-            let (counters, redone) = rest.split_at_mut(counter::COUNT);
-            for (to, from) in [(sums, &out.sums), (faces, &out.faces), (counters, &out.counters)] {
-                if !from.is_empty() {
-                    to.iter_mut().zip(from).for_each(|(a, b)| *a += b);
+            let mut out = self.cpu.clip_into(&job.answering(range.clone())?, sinks)?;
+            for (to, from) in [(&mut sums, &mut out.sums), (&mut faces, &mut out.faces)] {
+                match to.is_empty() {
+                    true => *to = std::mem::take(from),
+                    false => to.iter_mut().zip(from.iter()).for_each(|(a, b)| *a += b),
                 }
             }
+            let (counters, redone) = small.split_at_mut(counter::COUNT);
+            counters.iter_mut().zip(&out.counters).for_each(|(a, b)| *a += b);
             redone[0] += out.refined as i64;
             redone[1] += out.unresolved as i64;
             unfinished.extend_from_slice(&out.unfinished);
@@ -763,7 +766,12 @@ impl Distributed {
         // host then lists the sites again).
         let shape = lists.as_ref().map_or([0u32; 2], |l| [l.1, l.2]);
         let (gathered, t) = timed(|| -> Result<_> {
-            self.comm.sum(&mut all)?;
+            // A rank without parts adds zeros.
+            sums.resize(n, 0);
+            faces.resize(f, 0);
+            self.comm.sum(&mut sums)?;
+            self.comm.sum(&mut faces)?;
+            self.comm.sum(&mut small)?;
             let totals = self.comm.all_gather(bytemuck::cast_slice(&mine))?;
             let entries = self.comm.all_gather(bytemuck::cast_slice(&unfinished))?;
             let shapes = match f > 0 {
@@ -771,7 +779,7 @@ impl Distributed {
                 false => Vec::new(),
             };
             let agreed = !shapes.is_empty() && shapes.iter().all(|b| records::<u32>(b) == shape && shape[0] > 0);
-            let words = match (agreed, &lists) {
+            let words = match (agreed, lists.take()) {
                 (true, Some(l)) => Some(self.comm.all_gather(bytemuck::cast_slice(&l.0))?),
                 _ => None,
             };
@@ -780,8 +788,14 @@ impl Distributed {
         let (totals, entries, words) = gathered?;
         let site_lists = match words {
             Some(words) => {
-                let mut words: Vec<u32> = words.iter().flat_map(|b| records::<u32>(b)).collect();
-                words.resize(words.len() + cvd_kernels::lists::spare(shape[1]), 0);
+                // Each rank's bytes dropped as soon as read.
+                let total = words.iter().map(|b| b.len() / 4).sum::<usize>() + cvd_kernels::lists::spare(shape[1]);
+                let mut all = Vec::with_capacity(total);
+                for b in words {
+                    all.extend(b.chunks_exact(4).map(|w| u32::from_ne_bytes([w[0], w[1], w[2], w[3]])));
+                }
+                all.resize(total, 0);
+                let words = all;
                 crate::job::knn::PackedLists { words, k: shape[0], bits: shape[1], timings: Timings::default() }
             }
             None => Default::default(),
@@ -792,15 +806,13 @@ impl Distributed {
         let mut unfinished: Vec<[u32; 2]> = entries.iter().flat_map(|b| records::<[u32; 2]>(b)).collect();
         unfinished.sort_unstable();
         *self.report.lock().unwrap_or_else(|e| e.into_inner()) = report;
-        let redone = all.split_off(n + f + counter::COUNT);
-        let counters = all.split_off(n + f);
-        let faces = all.split_off(n);
+        let redone = small.split_off(counter::COUNT);
         Ok(ClipOutput {
-            sums: all,
+            sums,
             tet_volumes: vec![0; job.tets.len()],
             faces,
             site_lists,
-            counters,
+            counters: small,
             unfinished,
             refined: redone[0] as u64,
             unresolved: redone[1] as u64,
