@@ -792,7 +792,7 @@ impl Distributed {
                 let total = words.iter().map(|b| b.len() / 4).sum::<usize>() + cvd_kernels::lists::spare(shape[1]);
                 let mut all = Vec::with_capacity(total);
                 for b in words {
-                    all.extend(b.chunks_exact(4).map(|w| u32::from_ne_bytes([w[0], w[1], w[2], w[3]])));
+                    all.extend(b.as_chunks::<4>().0.iter().map(|w| u32::from_ne_bytes(*w)));
                 }
                 all.resize(total, 0);
                 let words = all;
