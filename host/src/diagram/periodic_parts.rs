@@ -37,7 +37,7 @@
 //! cells it built ([`PeriodicVoronoi::compute_in_parts_with_index`]).
 
 use crate::backend::Backend;
-use crate::backends::distributed::{Parcels, Reduce};
+use crate::backends::distributed::{records, Parcels, Reduce};
 use crate::diagram::particles::{IndexThresholds, ParticleCells, INDEX_ORDERS};
 use crate::diagram::periodic::{
     coverage, fold_site, images_within, merge_faces, mirrors_within, place_sites, Blocks, FoldedFaces, Image,
@@ -859,12 +859,6 @@ fn polyhedra_of(
         }
     });
     (polyhedra, places, quantities, clock.elapsed().as_secs_f64())
-}
-
-/// The records of type `T` in `bytes`, one after another.
-fn records<T: Pod>(bytes: &[u8]) -> impl Iterator<Item = T> + '_ {
-    let size = size_of::<T>();
-    (0..bytes.len() / size).map(move |k| bytemuck::pod_read_unaligned(&bytes[k * size..][..size]))
 }
 
 /// The counters as numbers to add across ranks.

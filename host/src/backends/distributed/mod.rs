@@ -525,6 +525,18 @@ impl Distributed {
         self.comm.as_ref()
     }
 
+    /// The report of this rank's parts, before they run.
+    fn new_report(&self) -> PartReport {
+        let (rank, ranks, per) = (self.comm.rank(), self.comm.size(), self.per_rank);
+        PartReport {
+            rank,
+            ranks,
+            parts: (rank * per..(rank + 1) * per).collect(),
+            of: ranks * per,
+            ..Default::default()
+        }
+    }
+
     /// This rank's parts of `job`, their sums added into `sums` (the whole
     /// job's layout), counters into `counters`; returns the second pass's
     /// finished and unresolved entries.
@@ -535,17 +547,10 @@ impl Distributed {
         counters: &mut [i64],
         timings: &mut Timings,
     ) -> Result<[u64; 2]> {
-        let of = self.comm.size() * self.per_rank;
-        let parts: Vec<usize> = (self.comm.rank() * self.per_rank..(self.comm.rank() + 1) * self.per_rank).collect();
         let (by_cell, t) = timed(|| SitesByCell::new(job));
         timings.add("halo", t);
-        let mut report = PartReport {
-            rank: self.comm.rank(),
-            ranks: self.comm.size(),
-            parts: parts.clone(),
-            of,
-            ..Default::default()
-        };
+        let mut report = self.new_report();
+        let (of, parts) = (report.of, report.parts.clone());
         let mut redone = [0u64; 2];
         let bounds = balanced_bounds(job, &by_cell, of);
         for &p in &parts {
@@ -716,14 +721,8 @@ impl Distributed {
         // With faces, each part's lists (the host reads them to place the
         // face sums): laid end to end in part order, the whole job's.
         let mut lists: Option<(Vec<u32>, u32, u32)> = (f > 0).then(|| (Vec::new(), 0, 0));
-        let parts: Vec<usize> = (self.comm.rank() * self.per_rank..(self.comm.rank() + 1) * self.per_rank).collect();
-        let mut report = PartReport {
-            rank: self.comm.rank(),
-            ranks: self.comm.size(),
-            parts: parts.clone(),
-            of,
-            ..Default::default()
-        };
+        let mut report = self.new_report();
+        let parts = report.parts.clone();
         let mut round = Round { groups: parts.len() as u64, ..Round::default() };
         let clock = std::time::Instant::now();
         for &p in &parts {
@@ -778,7 +777,7 @@ impl Distributed {
                 true => self.comm.all_gather(bytemuck::cast_slice(&shape))?,
                 false => Vec::new(),
             };
-            let agreed = !shapes.is_empty() && shapes.iter().all(|b| records::<u32>(b) == shape && shape[0] > 0);
+            let agreed = !shapes.is_empty() && shapes.iter().all(|b| records::<u32>(b).eq(shape) && shape[0] > 0);
             let words = match (agreed, lists.take()) {
                 (true, Some(l)) => Some(self.comm.all_gather(bytemuck::cast_slice(&l.0))?),
                 _ => None,
@@ -802,7 +801,7 @@ impl Distributed {
         };
         timings.push("reduce", t);
         report.reduce_seconds = t;
-        report.all = totals.iter().map(|b| RankTotals::from_words(&records::<i64>(b))).collect();
+        report.all = totals.iter().map(|b| RankTotals::from_words(&records::<i64>(b).collect::<Vec<_>>())).collect();
         let mut unfinished: Vec<[u32; 2]> = entries.iter().flat_map(|b| records::<[u32; 2]>(b)).collect();
         unfinished.sort_unstable();
         *self.report.lock().unwrap_or_else(|e| e.into_inner()) = report;
@@ -823,9 +822,10 @@ impl Distributed {
     }
 }
 
-/// The records of type `T` laid end to end in `bytes`.
-fn records<T: bytemuck::Pod>(bytes: &[u8]) -> Vec<T> {
-    bytes.chunks_exact(size_of::<T>()).map(bytemuck::pod_read_unaligned).collect()
+/// The records of type `T` laid end to end in `bytes` (what a rank sent),
+/// one after another.
+pub(crate) fn records<T: bytemuck::Pod>(bytes: &[u8]) -> impl Iterator<Item = T> + '_ {
+    bytes.chunks_exact(size_of::<T>()).map(bytemuck::pod_read_unaligned)
 }
 
 /// What a part's rounds did.
@@ -887,8 +887,10 @@ impl Backend for Distributed {
         self.cpu.knn(job)
     }
 
-    /// The whole job's sums and counters, the same on every rank; nothing
-    /// is left unfinished (the parts' host passes ran).
+    /// The whole job's sums and counters, the same on every rank. Tet-cell
+    /// leaves nothing unfinished (the parts' host passes ran); whole cells
+    /// leave every rank's unfinished cells to each rank's host pass, as one
+    /// process leaves them.
     fn clip(&self, job: &ClipJob) -> Result<ClipOutput> {
         if job.strategy == Strategy::Whole {
             return self.clip_whole(job);
