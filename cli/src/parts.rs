@@ -41,9 +41,8 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     let domain = crate::inputs::periodic_box(args)?;
     let dir = args.out.clone().unwrap_or_else(|| Path::new("out").join(crate::inputs::PERIODIC_DIR));
     if rank == 0 {
-        let made = if args.voronoi_index { dir.join("cells") } else { dir.clone() };
-        std::fs::create_dir_all(&made)
-            .map_err(|source| cvd::Error::Write { path: made.display().to_string(), source })?;
+        std::fs::create_dir_all(&dir)
+            .map_err(|source| cvd::Error::Write { path: dir.display().to_string(), source })?;
     } else {
         crate::progress::quiet_stdout();
     }

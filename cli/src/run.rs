@@ -81,7 +81,7 @@ pub fn run(args: &RunArgs) -> cvd::Result<u8> {
         }
     }
     let optimised = optimise(args, &inputs, backend)?;
-    let diagram = final_diagram(args, &inputs, &optimised, &run_backend)?;
+    let mut diagram = final_diagram(args, &inputs, &optimised, &run_backend)?;
     let (mut written_in_parts, mut pieces_in_parts): (Vec<&str>, _) = (Vec::new(), None);
     let compiled = backend.kernel_compile_seconds();
     if compiled > 0.0 {
@@ -93,7 +93,6 @@ pub fn run(args: &RunArgs) -> cvd::Result<u8> {
     };
     // In parts, every rank writes the polyhedra of the cells it built; the
     // pictures and pieces.vtu (every rank's pieces) are left out.
-    let mut diagram = diagram;
     let parts = run_backend.parts();
     if let Some((parts, polyhedra)) = parts.and_then(|p| Some((p, diagram.cells.polyhedra.take()?))) {
         let cells = &diagram.cells;

@@ -616,13 +616,30 @@ impl<'a> ClippedVoronoi<'a> {
     /// world coordinates on request ([`Pieces::get`]). The cells are those
     /// [`Self::compute`] returns on `cpu`.
     pub fn compute_with_pieces(&self, cpu: &crate::exec::CpuBackend) -> Result<(Cells, Pieces)> {
+        self.with_pieces(|job, sinks| Ok((cpu.clip_into(job, sinks)?, None)))
+    }
+
+    /// The cells, and the pieces `clip` hands its sinks (of the sites at
+    /// the places it says, or all), in world coordinates.
+    fn with_pieces(
+        &self,
+        clip: impl FnOnce(&ClipJob, &Mutex<Vec<PieceCollector>>) -> Result<(ClipOutput, Option<std::ops::Range<usize>>)>,
+    ) -> Result<(Cells, Pieces)> {
         let (job, map, frame, job_s) = self.timed_job()?;
         let sinks = Mutex::new(Vec::new());
-        let mut out = cpu.clip_into::<PieceCollector>(&job, &sinks)?;
+        let (mut out, only) = clip(&job, &sinks)?;
         out.timings.phases.insert(0, ("job".into(), job_s));
         let cells = self.finish_job(&job, &map, &frame, out, &sinks)?;
         let collected = sinks.into_inner().unwrap_or_else(|e| e.into_inner());
-        Ok((cells, crate::passes::pieces::to_world(collected, &job, &map, &frame, self.sites, None)))
+        Ok((cells, crate::passes::pieces::to_world(collected, &job, &map, &frame, self.sites, only)))
+    }
+
+    /// `cells` with the polyhedra merged from `pieces`.
+    fn with_polyhedra((mut cells, pieces): (Cells, Pieces)) -> (Cells, Pieces) {
+        let (polyhedra, t) = crate::geom::timing::timed(|| merge_pieces(&pieces));
+        cells.polyhedra = Some(polyhedra);
+        cells.timings.push("polyhedra", t);
+        (cells, pieces)
     }
 
     /// Whole cells over the ranks of `parts` ([`Distributed`]), as
@@ -635,18 +652,8 @@ impl<'a> ClippedVoronoi<'a> {
         if cv.resolved_strategy() != Strategy::Whole {
             return Err(Error::InvalidInput("the cells' polyhedra in parts come from whole cells".into()));
         }
-        let (job, map, frame, job_s) = cv.timed_job()?;
-        let sinks = Mutex::new(Vec::new());
-        let mut out = parts.clip_whole_into::<PieceCollector>(&job, &sinks)?;
-        out.timings.phases.insert(0, ("job".into(), job_s));
-        let mut cells = cv.finish_job(&job, &map, &frame, out, &sinks)?;
-        let collected = sinks.into_inner().unwrap_or_else(|e| e.into_inner());
-        let share = Some(parts.share(&job));
-        let pieces = crate::passes::pieces::to_world(collected, &job, &map, &frame, self.sites, share);
-        let (polyhedra, t) = crate::geom::timing::timed(|| merge_pieces(&pieces));
-        cells.polyhedra = Some(polyhedra);
-        cells.timings.push("polyhedra", t);
-        Ok((cells, pieces))
+        let built = cv.with_pieces(|job, sinks| Ok((parts.clip_whole_into(job, sinks)?, Some(parts.share(job)))))?;
+        Ok(Self::with_polyhedra(built))
     }
 
     /// Computes the clipped cells on the CPU backend `cpu`, as
@@ -654,11 +661,7 @@ impl<'a> ClippedVoronoi<'a> {
     /// polyhedron ([`Cells::polyhedra`]): its pieces merged (a whole cell
     /// is one piece).
     pub fn compute_with_polyhedra(&self, cpu: &crate::exec::CpuBackend) -> Result<(Cells, Pieces)> {
-        let (mut cells, pieces) = self.compute_with_pieces(cpu)?;
-        let (polyhedra, t) = crate::geom::timing::timed(|| merge_pieces(&pieces));
-        cells.polyhedra = Some(polyhedra);
-        cells.timings.push("polyhedra", t);
-        Ok((cells, pieces))
+        Ok(Self::with_polyhedra(self.compute_with_pieces(cpu)?))
     }
 
     /// The cells on the diagram's backend, each also as one closed
