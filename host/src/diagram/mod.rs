@@ -4,6 +4,7 @@
 //! ([`particles`]: surface, coordination, Voronoi index), and what a
 //! trajectory's frame leaves for the next ([`trajectory`]).
 
+pub mod mesh_parts;
 pub mod particles;
 pub mod periodic;
 pub mod periodic_parts;

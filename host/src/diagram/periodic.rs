@@ -58,7 +58,7 @@ use crate::exec::CpuBackend;
 use crate::geom::periodic_box::PeriodicBox;
 use crate::geom::site_grid::SiteGrid;
 use crate::job::clip::{JobShape, Strategy};
-use crate::job::sites::Layout;
+use crate::job::sites::{Layout, Window};
 use crate::job::BackendKind;
 use crate::passes::faces::Adjacency;
 use crate::passes::pieces::ON_BOUNDARY;
@@ -350,7 +350,8 @@ impl<'a> PeriodicVoronoi<'a> {
                 grid_sites: all.len(),
                 answer: (0, n),
                 weights: None,
-                window: false,
+                window: Window::Whole,
+                periodic: true,
             });
         }
         let last = self.last.filter(|l| whole_cells && l.fits(&domain, &sites, self.weights));

@@ -50,7 +50,7 @@ use crate::geom::exact_sum::ExactSum;
 use crate::geom::periodic_box::PeriodicBox;
 use crate::geom::timing::{timed, Timings};
 use crate::job::clip::Strategy;
-use crate::job::sites::Layout;
+use crate::job::sites::{Layout, Window};
 use crate::passes::faces::Adjacency;
 use crate::passes::pieces::ON_BOUNDARY;
 use crate::passes::polyhedra::{merge_pieces, CellPolyhedron};
@@ -60,22 +60,22 @@ use rayon::prelude::*;
 /// A point a rank holds: a site (no shift, no wall) or an image of one.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
-struct Held {
-    at: [f64; 3],
+pub(super) struct Held {
+    pub(super) at: [f64; 3],
     /// The site's input index.
-    site: u64,
+    pub(super) site: u64,
     /// The site's power weight (0 without weights).
     weight: f64,
     shift: [i32; 3],
     /// The wall it is mirrored in, or `NO_WALL`.
     wall: u32,
     /// The rank whose cell its site's is.
-    rank: u32,
+    pub(super) rank: u32,
     _pad: u32,
 }
 
 impl Held {
-    fn site(at: [f64; 3], site: u64, weight: f64, rank: usize) -> Self {
+    pub(super) fn site(at: [f64; 3], site: u64, weight: f64, rank: usize) -> Self {
         Self { at, site, weight, shift: [0; 3], wall: NO_WALL as u32, rank: rank as u32, _pad: 0 }
     }
 
@@ -105,30 +105,30 @@ impl Held {
 /// follow it).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
-struct Row {
-    site: u64,
-    volume: f64,
-    centroid: [f64; 3],
-    energy: f64,
-    offset: [f64; 3],
-    wall: f64,
-    wall_vector: [f64; 3],
-    faces: u64,
+pub(super) struct Row {
+    pub(super) site: u64,
+    pub(super) volume: f64,
+    pub(super) centroid: [f64; 3],
+    pub(super) energy: f64,
+    pub(super) offset: [f64; 3],
+    pub(super) wall: f64,
+    pub(super) wall_vector: [f64; 3],
+    pub(super) faces: u64,
     /// The cell's particle quantities (zero unless asked for): surface
     /// area, then coordination, the Voronoi index and the largest order.
-    area: f64,
-    counts: [u32; INDEX_ORDERS + 2],
+    pub(super) area: f64,
+    pub(super) counts: [u32; INDEX_ORDERS + 2],
 }
 
 /// A face of a row.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
-struct FaceRow {
-    neighbor: u64,
-    shift: [i32; 3],
-    _pad: u32,
-    area: f64,
-    normal: [f64; 3],
+pub(super) struct FaceRow {
+    pub(super) neighbor: u64,
+    pub(super) shift: [i32; 3],
+    pub(super) _pad: u32,
+    pub(super) area: f64,
+    pub(super) normal: [f64; 3],
 }
 
 /// What this rank's part of a diagram in parts did.
@@ -379,7 +379,8 @@ impl PeriodicVoronoi<'_> {
                 grid_sites,
                 answer: (answer.start, answer.end),
                 weights: self.weights.map(|_| kept_span),
-                window,
+                window: if window { Window::Around } else { Window::Whole },
+                periodic: true,
             };
             let weights: Option<Vec<f64>> = self.weights.map(|_| held.iter().map(|h| h.weight).collect());
             let (mut whole, pieces) = if answer.is_empty() {
@@ -587,7 +588,7 @@ struct PartsOut {
 
 /// An error about a site, its index moved from this rank's rows to the
 /// input's.
-fn at_row(e: Error, first: u64) -> Error {
+pub(super) fn at_row(e: Error, first: u64) -> Error {
     if first == 0 {
         return e;
     }
@@ -615,7 +616,7 @@ fn owners(blocks: &Blocks, counts: &[i64], ranks: usize) -> Vec<u32> {
 /// The half of a face a cell sends the rank of the cell on its other side.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
-struct Half {
+pub(super) struct Half {
     /// The other side's site, and the cell's own.
     site: u64,
     neighbor: u64,
@@ -630,7 +631,7 @@ struct Half {
 /// other side where that side is not built here (a site of another rank, or
 /// an image): each sent to the rank that built the cell on that side, and
 /// those sent to this rank returned, by site.
-fn halves(
+pub(super) fn halves(
     comm: &dyn Reduce,
     a: &Adjacency,
     held: &[Held],
@@ -671,7 +672,7 @@ fn halves(
 /// first, then the other side's (from this rank's cells, or `halves` from
 /// another's); a wall sums the cell's faces with mirrors in the one
 /// process's order, and again (the mirrors' rows there).
-fn faces_of(a: &Adjacency, held: &[Held], u: usize, halves: Option<&Vec<Half>>) -> FoldedFaces {
+pub(super) fn faces_of(a: &Adjacency, held: &[Held], u: usize, halves: Option<&Vec<Half>>) -> FoldedFaces {
     let (mut faces, mut mirrors) = (Vec::new(), Vec::new());
     for (v, area, normal) in a.of(u) {
         let h = held[v as usize];
@@ -747,7 +748,7 @@ fn spread(
 }
 
 /// Exchanges points between the ranks (see [`Reduce::exchange`]).
-fn send(comm: &dyn Reduce, to: Vec<Vec<Held>>, sent: &mut u64) -> Result<Vec<Held>> {
+pub(super) fn send(comm: &dyn Reduce, to: Vec<Vec<Held>>, sent: &mut u64) -> Result<Vec<Held>> {
     let me = comm.rank();
     *sent +=
         to.iter().enumerate().filter(|&(r, _)| r != me).map(|(_, p)| (p.len() * size_of::<Held>()) as u64).sum::<u64>();
@@ -782,7 +783,7 @@ type RowsBack = ((Cells, Vec<[f64; 3]>), ParticleCells);
 
 /// The cells of this rank's `len` rows from `first`, from the rows the
 /// ranks sent it.
-fn rows_of(got: &Parcels, first: u64, len: usize, faces: bool) -> Result<RowsBack> {
+pub(super) fn rows_of(got: &Parcels, first: u64, len: usize, faces: bool) -> Result<RowsBack> {
     // Where each row's record starts in the parcels, then the rows in order.
     let bytes = &got.bytes;
     let mut starts = vec![usize::MAX; len];
@@ -862,7 +863,7 @@ fn polyhedra_of(
 }
 
 /// The counters as numbers to add across ranks.
-fn counter_words(c: &Counters) -> Vec<i64> {
+pub(super) fn counter_words(c: &Counters) -> Vec<i64> {
     [
         c.pairs,
         c.nonempty,
@@ -885,7 +886,7 @@ fn counter_words(c: &Counters) -> Vec<i64> {
 }
 
 /// [`counter_words`] back.
-fn counters_of(w: &[i64]) -> Counters {
+pub(super) fn counters_of(w: &[i64]) -> Counters {
     let v = |i: usize| w[i].max(0) as u64;
     Counters {
         pairs: v(0),

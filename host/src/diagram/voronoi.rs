@@ -12,7 +12,7 @@ use crate::geom::timing::Timings;
 use crate::job::clip::{default_k_site, paper_k, ClipJob, ClipOutput, Frame, JobShape, Pairing, Strategy};
 use crate::job::kept::{Candidates, Keep, KeptLists, LocalKept, SiteCandidates};
 use crate::job::knn::{KnnJob, KnnMethod};
-use crate::job::sites::{Layout, SiteMap};
+use crate::job::sites::{Layout, SiteMap, Window};
 use crate::job::BackendKind;
 use crate::passes::pieces::{PieceCollector, Pieces};
 use crate::passes::polyhedra::{merge_pieces, CellPolyhedron};
@@ -451,11 +451,15 @@ impl<'a> ClippedVoronoi<'a> {
         // A part searches the window of the whole grid around its sites
         // (a cell more on every side for the walks' margins).
         let grid = site_knn.params.grid;
-        let window = match &self.layout {
-            Some(l) if l.window => {
+        let window = match self.layout.map(|l| l.window) {
+            Some(Window::Around) => {
                 let (job, window) = site_knn.windowed(2);
                 site_knn = job;
                 window
+            }
+            Some(Window::Held(held)) => {
+                site_knn = site_knn.windowed_to(held)?;
+                Some(held)
             }
             _ => None,
         };
@@ -558,7 +562,8 @@ impl<'a> ClippedVoronoi<'a> {
             .enumerate()
             .map(|(v, &p)| SplitPoint::new(p, self.density.map_or(1.0, |rho| rho[v] as f32)))
             .collect();
-        let whole = match (self.density, self.images_from.or(self.layout.map(|_| 0))) {
+        let periodic = self.layout.filter(|l| l.periodic).map(|_| 0);
+        let whole = match (self.density, self.images_from.or(periodic)) {
             (Some(_), _) => domain_whole::NONE,
             (None, Some(_)) => domain_whole::ALL,
             (None, None) => domain_whole::INSIDE,
@@ -822,7 +827,7 @@ fn finish(
         cells.centroid.push(c);
         cells.energy.push(e);
     }
-    cells.total_volume = cells.volume.iter().sum();
+    cells.total_volume = crate::geom::exact_sum::ExactSum::of(&cells.volume).value();
     cells.mesh_volume = match density {
         // Linear in each tet: the mass is the volume times the mean.
         Some(rho) => (0..mesh.tets.len())

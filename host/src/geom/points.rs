@@ -103,6 +103,50 @@ pub fn in_mesh(mesh: &crate::TetMesh, n: usize, seed: u64) -> Vec<[f64; 3]> {
         .collect()
 }
 
+/// Points' places along a Morton (Z-order) curve over their bounding
+/// cube: 10 bits per axis, x lowest. Points in parts key alike when every
+/// part takes the same bounds (all the points' box).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MortonKeys {
+    lo: [f64; 3],
+    extent: f64,
+}
+
+impl MortonKeys {
+    /// Keys over the bounding box `lo..hi`.
+    pub fn new(lo: [f64; 3], hi: [f64; 3]) -> Self {
+        let extent = (0..3).map(|a| hi[a] - lo[a]).fold(0.0f64, f64::max).max(f64::MIN_POSITIVE);
+        Self { lo, extent }
+    }
+
+    /// Keys over the bounding box of `points`.
+    pub fn over(points: impl Iterator<Item = [f64; 3]>) -> Self {
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for p in points {
+            for a in 0..3 {
+                lo[a] = lo[a].min(p[a]);
+                hi[a] = hi[a].max(p[a]);
+            }
+        }
+        Self::new(lo, hi)
+    }
+
+    /// The key of `p` (30 bits).
+    pub fn key(&self, p: [f64; 3]) -> u32 {
+        // Spreads the low 10 bits of v to every third bit.
+        let spread = |v: u32| {
+            let mut x = v & 0x3ff;
+            x = (x | (x << 16)) & 0x0300_00ff;
+            x = (x | (x << 8)) & 0x0300_f00f;
+            x = (x | (x << 4)) & 0x030c_30c3;
+            (x | (x << 2)) & 0x0924_9249
+        };
+        let q = |a: usize| (((p[a] - self.lo[a]) / self.extent) * 1023.0) as u32;
+        spread(q(0)) | (spread(q(1)) << 1) | (spread(q(2)) << 2)
+    }
+}
+
 /// The order of `points` along a Morton (Z-order) curve: neighbours in
 /// space become neighbours in memory, which keeps caches (and GPU
 /// workgroups) on nearby data. Ties keep the input order.
@@ -113,31 +157,8 @@ pub fn morton_order(points: &[[f64; 3]]) -> Vec<u32> {
 /// [`morton_order`] of the `n` points `point(0..n)`, computed as needed
 /// (twice each) rather than held.
 pub fn morton_order_by(n: usize, point: impl Fn(usize) -> [f64; 3]) -> Vec<u32> {
-    let mut lo = [f64::INFINITY; 3];
-    let mut hi = [f64::NEG_INFINITY; 3];
-    for i in 0..n {
-        let p = point(i);
-        for a in 0..3 {
-            lo[a] = lo[a].min(p[a]);
-            hi[a] = hi[a].max(p[a]);
-        }
-    }
-    let extent = (0..3).map(|a| hi[a] - lo[a]).fold(0.0f64, f64::max).max(f64::MIN_POSITIVE);
-    // Spreads the low 10 bits of v to every third bit.
-    let spread = |v: u32| {
-        let mut x = v & 0x3ff;
-        x = (x | (x << 16)) & 0x0300_00ff;
-        x = (x | (x << 8)) & 0x0300_f00f;
-        x = (x | (x << 4)) & 0x030c_30c3;
-        (x | (x << 2)) & 0x0924_9249
-    };
-    let mut keyed: Vec<(u32, u32)> = (0..n)
-        .map(|i| {
-            let p = point(i);
-            let q = |a: usize| (((p[a] - lo[a]) / extent) * 1023.0) as u32;
-            (spread(q(0)) | (spread(q(1)) << 1) | (spread(q(2)) << 2), i as u32)
-        })
-        .collect();
+    let keys = MortonKeys::over((0..n).map(&point));
+    let mut keyed: Vec<(u32, u32)> = (0..n).map(|i| (keys.key(point(i)), i as u32)).collect();
     keyed.sort_unstable();
     // Not collected in place: that would keep the pairs' allocation.
     keyed.iter().map(|&(_, i)| i).collect()

@@ -133,7 +133,7 @@ impl KnnJob {
     /// grid's table is then its window's size, not the whole job's, and a
     /// walk that would leave the window gives up instead
     /// (`RefineParams::held_lo_x`).
-    pub fn windowed(mut self, pad: u32) -> (Self, Option<crate::job::held::HeldCells>) {
+    pub fn windowed(self, pad: u32) -> (Self, Option<crate::job::held::HeldCells>) {
         let g = self.params.grid;
         if self.sites.is_empty() {
             return (self, None);
@@ -150,6 +150,14 @@ impl KnnJob {
         if window.is_whole() {
             return (self, None);
         }
+        (self.moved_into(window), Some(window))
+    }
+
+    /// The same job over the cells `window` of its grid: its sites'
+    /// quantized coordinates shifted by the window's corner (whole cells,
+    /// so every distance is the same integer and every site in the same
+    /// cell), the grid the window's cells.
+    fn moved_into(mut self, window: crate::job::held::HeldCells) -> Self {
         let shift = window.shift();
         let moved = |p: &Points| -> Points {
             p.iter().map(|q| [q[0] - shift[0], q[1] - shift[1], q[2] - shift[2], q[3]]).collect::<Vec<_>>().into()
@@ -157,8 +165,23 @@ impl KnnJob {
         let shared = std::sync::Arc::ptr_eq(&self.sites, &self.queries);
         self.sites = moved(&self.sites);
         self.queries = if shared { self.sites.clone() } else { moved(&self.queries) };
-        self.params.grid = window.grid_params(g.n_sites as usize);
-        (self, Some(window))
+        self.params.grid = window.grid_params(self.params.grid.n_sites as usize);
+        self
+    }
+
+    /// The same job over the held cells `held` of its grid (a part that
+    /// holds every site of those cells, and only those: each must lie in
+    /// them), its sites' quantized coordinates shifted by their corner.
+    pub fn windowed_to(self, held: crate::job::held::HeldCells) -> crate::error::Result<Self> {
+        let g = self.params.grid;
+        if held.grid != [g.dim_x, g.dim_y, g.dim_z] || held.cell_size != g.cell_size {
+            return Err(crate::error::Error::Internal(format!("held cells {held:?} of another grid than {g:?}")));
+        }
+        if let Some(s) = self.sites.iter().find(|s| !held.holds(cvd_kernels::grid::cell_coords(&g, [s[0], s[1], s[2]])))
+        {
+            return Err(crate::error::Error::Internal(format!("site {} outside the held cells {held:?}", s[3])));
+        }
+        Ok(self.moved_into(held))
     }
 
     /// The same job answering only its sites `range`, in index order (a
@@ -228,6 +251,16 @@ impl KnnJob {
         };
         Ok(Self { sites, queries, params, method, quantizer })
     }
+}
+
+/// The quantizer and grid of a job laid out over the frame points
+/// `frame` (whose bounding box holds every site) for `n` sites: those
+/// [`KnnJob::sites_in_frame`] and [`KnnJob::with_grid_for`] give it,
+/// known without its sites (a part of a job learns them so).
+pub(crate) fn frame_grid(frame: &[[f64; 3]], n: usize) -> Result<(Quantizer, GridParams)> {
+    let quantizer = Quantizer::fit(&[("frame point", frame)])?;
+    let q = quantizer.quantize_all(frame);
+    Ok((quantizer, grid_over(q.iter(), n)))
 }
 
 /// A grid with about [`SITES_PER_CELL`] sites per cell over the sites'

@@ -158,11 +158,26 @@ pub(crate) struct Layout<'a> {
     /// The whole job's smallest and largest weight of a site that owns a
     /// cell (a part's sites hold only some weights); `None`: the job's own.
     pub weights: Option<[f64; 2]>,
+    /// Which cells of the whole job's grid the job's table holds.
+    pub window: Window,
+    /// A periodic box's sites and images: no cell is cut (else a mesh's
+    /// sites, whole cells cut by its boundary).
+    pub periodic: bool,
+}
+
+/// The cells of the whole job's grid a laid-out job's table holds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Window {
+    /// Every cell (the whole job).
+    Whole,
     /// A part of the job, holding only the sites near its own: its grid's
     /// table is the window of the whole job's grid around its sites
     /// ([`crate::job::knn::KnnJob::windowed`]), and a walk that would
     /// leave the window gives up (counted in `Counters::out_of_halo`).
-    pub window: bool,
+    Around,
+    /// A part holding every site of these cells: its table is theirs, and
+    /// a walk that would leave them gives up, likewise.
+    Held(crate::job::held::HeldCells),
 }
 
 /// [`unique_in_morton_order`] for a [`Layout`]: the sites in its order,

@@ -54,6 +54,13 @@ pub(crate) fn run<S: TaskSink>(job: &ClipJob, out: &mut ClipOutput, sinks: &Mute
     if out.unfinished.is_empty() && !knn {
         return Ok(SecondPassCounts::default());
     }
+    // Whole cells in a part whose walks left its window: the part is done
+    // again with a wider one, and a cell finished here from every tet
+    // would only cost time. Left unfinished, and counted.
+    let left_window = out.counters.get(counter::HALO).is_some_and(|&h| h > 0);
+    if job.strategy == crate::job::clip::Strategy::Whole && job.is_windowed() && left_window {
+        return Ok(SecondPassCounts { unresolved: out.unfinished.len() as u64, ..Default::default() });
+    }
     // The kernels' grid walk, over the kernels' grid; the host grid answers
     // nearest-site and radius queries.
     let g = build_grid(&job.site_knn);
