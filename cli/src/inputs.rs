@@ -84,9 +84,17 @@ impl Inputs {
             Domain::Mesh(_) => self.name.as_str(),
             Domain::Box(_) => PERIODIC_DIR,
         };
-        let stem = Path::new(name).file_stem().map(|s| s.to_string_lossy().into_owned());
-        Path::new("out").join(stem.filter(|s| !s.is_empty()).unwrap_or_else(|| "model".into()))
+        out_dir(args, name)
     }
+}
+
+/// The folder `--out` names, or `out/<name>` (without a file's extension).
+pub(crate) fn out_dir(args: &RunArgs, name: &str) -> PathBuf {
+    if let Some(dir) = &args.out {
+        return dir.clone();
+    }
+    let stem = Path::new(name).file_stem().map(|s| s.to_string_lossy().into_owned());
+    Path::new("out").join(stem.filter(|s| !s.is_empty()).unwrap_or_else(|| "model".into()))
 }
 
 /// The output folder's name for a periodic box (in `out/`).
@@ -95,7 +103,7 @@ pub(crate) const PERIODIC_DIR: &str = "periodic";
 /// Refuses a run whose job of `sites` sites and `tets` tets would not fit
 /// in memory (`cvd::job::memory`), before its sites are made: against
 /// `--memory-budget` on the CPU, else the memory the machine has.
-fn check_memory(args: &RunArgs, sites: u64, tets: u64) -> cvd::Result<()> {
+pub(crate) fn check_memory(args: &RunArgs, sites: u64, tets: u64) -> cvd::Result<()> {
     use cvd::job::clip::{DEFAULT_K_SITE, DEFAULT_K_SITE_CPU_FLOOD};
     let cpu = args.backend.backend != cvd::BackendChoice::Vulkan;
     let k_site = args.k_site.unwrap_or(if cpu { DEFAULT_K_SITE_CPU_FLOOD } else { DEFAULT_K_SITE });
@@ -105,7 +113,7 @@ fn check_memory(args: &RunArgs, sites: u64, tets: u64) -> cvd::Result<()> {
 
 /// The model's mesh: an explicit file, a file of that name in the models
 /// folder, or a built-in model; inverted tets turned.
-fn load_model(args: &RunArgs) -> cvd::Result<(String, TetMesh)> {
+pub(crate) fn load_model(args: &RunArgs) -> cvd::Result<(String, TetMesh)> {
     let (name, mut mesh) = find_model(args)?;
     let flipped = mesh.orient_positively();
     if flipped > 0 {

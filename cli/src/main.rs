@@ -9,6 +9,7 @@ mod backend;
 mod commands;
 mod frames;
 mod inputs;
+mod mesh_parts;
 mod optimise;
 mod outputs;
 mod parts;

@@ -37,7 +37,7 @@ pub(crate) fn ending_together(comm: &dyn Reduce, job: impl FnOnce(&dyn Reduce) -
 fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     refuse_what_parts_lack(args)?;
     let clock = std::time::Instant::now();
-    let (rank, ranks) = (comm.rank(), comm.size());
+    let rank = comm.rank();
     let domain = crate::inputs::periodic_box(args)?;
     let dir = args.out.clone().unwrap_or_else(|| Path::new("out").join(crate::inputs::PERIODIC_DIR));
     if rank == 0 {
@@ -47,26 +47,10 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
         crate::progress::quiet_stdout();
     }
     // This rank's rows: its part of the file, or of the sites made.
-    let (sites, total) = match &args.sites_file {
-        Some(path) => {
-            let mut part = cvd_io::read_sites_part(path, rank, ranks)?;
-            let summaries = comm.all_gather(&part.summary().to_bytes())?;
-            let summaries: Vec<cvd_io::SitesPartSummary> = summaries
-                .iter()
-                .map(|b| cvd_io::SitesPartSummary::from_bytes(b))
-                .collect::<Option<_>>()
-                .ok_or_else(|| cvd::Error::Internal("a rank's part summary did not come through".into()))?;
-            part.join(path, &summaries, rank)?;
-            let total = part.total.ok_or_else(|| cvd::Error::Internal("a part without its file's count".into()))?;
-            (part.sites, total)
-        }
-        None => {
-            let n = args.sites.unwrap_or(5000) as u64;
-            let rows = n * rank as u64 / ranks as u64..n * (rank as u64 + 1) / ranks as u64;
-            let unit = cvd::geom::points::uniform_rows(rows, args.seed);
-            (unit.iter().map(|&p| domain.cartesian(p)).collect(), n)
-        }
-    };
+    let (sites, total) = rows_of_sites(args, comm, args.sites.unwrap_or(5000) as u64, |rows| {
+        let unit = cvd::geom::points::uniform_rows(rows, args.seed);
+        unit.iter().map(|&p| domain.cartesian(p)).collect()
+    })?;
     let first: u64 = comm.gather_u64(sites.len() as u64)?[..rank].iter().sum();
     // This rank's weights: its rows of --weights, or of --radii squared.
     let weights = match (&args.weights, &args.radii) {
@@ -199,10 +183,47 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     summary.write_json(&dir.join("summary.json"))?;
     written.push("summary.json");
     print!("{summary}");
+    print_ranks(&summary, "blocks");
+    println!("wrote {}: {}", dir.display(), written.join(", "));
+    Ok(status)
+}
+
+/// This rank's rows of the sites and how many there are in all: its part
+/// of `--sites-file` (bytes snapped to rows, `cvd_io::read_sites_part`),
+/// or its rows of the `n` sites `make` makes.
+pub(crate) fn rows_of_sites(
+    args: &RunArgs,
+    comm: &dyn Reduce,
+    n: u64,
+    make: impl FnOnce(std::ops::Range<u64>) -> Vec<[f64; 3]>,
+) -> cvd::Result<(Vec<[f64; 3]>, u64)> {
+    let (rank, ranks) = (comm.rank(), comm.size());
+    match &args.sites_file {
+        Some(path) => {
+            let mut part = cvd_io::read_sites_part(path, rank, ranks)?;
+            let summaries = comm.all_gather(&part.summary().to_bytes())?;
+            let summaries: Vec<cvd_io::SitesPartSummary> = summaries
+                .iter()
+                .map(|b| cvd_io::SitesPartSummary::from_bytes(b))
+                .collect::<Option<_>>()
+                .ok_or_else(|| cvd::Error::Internal("a rank's part summary did not come through".into()))?;
+            part.join(path, &summaries, rank)?;
+            let total = part.total.ok_or_else(|| cvd::Error::Internal("a part without its file's count".into()))?;
+            Ok((part.sites, total))
+        }
+        None => {
+            let rows = n * rank as u64 / ranks as u64..n * (rank as u64 + 1) / ranks as u64;
+            Ok((make(rows), n))
+        }
+    }
+}
+
+/// Prints each rank's line of `summary` (its parts called `parts`).
+pub(crate) fn print_ranks(summary: &Summary, parts: &str) {
     for r in summary.ranks.iter().flatten() {
         println!(
-            "rank {}: {} rows read, {} sites owned in {} blocks, {} points held (halo {:.3}; grid cells {} of {}), {} \
-             sent, {:.2} s, peak memory {}",
+            "rank {}: {} rows read, {} sites owned in {} {parts}, {} points held (halo {:.3}; grid cells {} of {}), \
+             {} sent, {:.2} s, peak memory {}",
             r.rank,
             r.rows,
             r.owned,
@@ -216,8 +237,6 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
             cvd::error::human(r.peak_memory_bytes)
         );
     }
-    println!("wrote {}: {}", dir.display(), written.join(", "));
-    Ok(status)
 }
 
 /// The options a periodic box in parts does not take yet, refused by name.
@@ -388,7 +407,7 @@ fn write_section(
 }
 
 /// A rank's record as bytes (numbers in a fixed order), and back.
-fn record_bytes(r: &RankRecord) -> Vec<u8> {
+pub(crate) fn record_bytes(r: &RankRecord) -> Vec<u8> {
     let words = [
         r.rank as u64,
         r.rows,
@@ -405,7 +424,7 @@ fn record_bytes(r: &RankRecord) -> Vec<u8> {
     words.iter().flat_map(|w| w.to_le_bytes()).collect()
 }
 
-fn record_of(b: &[u8]) -> RankRecord {
+pub(crate) fn record_of(b: &[u8]) -> RankRecord {
     let w = |k: usize| b.get(8 * k..8 * k + 8).map_or(0, |s| u64::from_le_bytes(s.try_into().unwrap_or([0; 8])));
     RankRecord {
         rank: w(0) as usize,

@@ -42,6 +42,13 @@ pub fn run(args: &RunArgs) -> cvd::Result<u8> {
         if let Some(comm) = comm {
             return crate::parts::run(args, comm.as_ref());
         }
+    } else if crate::mesh_parts::lacking(args).is_none() {
+        // A mesh started by an MPI launcher: each rank with its own rows
+        // (what that does not take yet runs with the whole input on every
+        // rank, below).
+        if let (Some(comm), _) = cvd::backends::distributed::launched_comm()? {
+            return crate::mesh_parts::run(args, comm.as_ref());
+        }
     }
     let inputs = Inputs::read(args)?;
     let dir = inputs.out_dir(args);
@@ -71,6 +78,11 @@ pub fn run(args: &RunArgs) -> cvd::Result<u8> {
             let whole = strategy == cvd::Strategy::Whole;
             if run_backend.in_parts() && !whole && !(args.no_neighbors && args.no_geometry) {
                 println!("in parts: tet-cell gives cells only (no neighbors.csv, cells.vtu, walls.ply or pictures)");
+            }
+            if let Some(what) =
+                crate::mesh_parts::lacking(args).filter(|_| run_backend.parts().is_some_and(|d| d.comm().size() > 1))
+            {
+                println!("in parts: every rank reads the whole input ({what} is not yet run with the sites in parts)");
             }
             let (tets, sites, name) = (mesh.tets.len(), inputs.sites.len(), backend.name());
             println!("{}: {tets} tets, {sites} sites, {} on {name} — {why}", inputs.name, strategy.name());

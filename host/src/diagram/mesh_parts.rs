@@ -382,7 +382,11 @@ impl ClippedVoronoi<'_> {
         let to = Parcels::of(to);
         report.sent += (0..ranks).filter(|&r| r != rank).map(|r| to.get(r).len() as u64).sum::<u64>();
         let got = comm.exchange(to)?;
-        let ((cells, _), _) = rows_of(&got, first, self.sites.len(), self.faces)?;
+        let ((mut cells, _), _) = rows_of(&got, first, self.sites.len(), self.faces)?;
+        // No images: a mesh's faces have no shifts.
+        if let Some(a) = &mut cells.adjacency {
+            a.shifts = Vec::new();
+        }
         drop(got);
         timings.push("rows", clock.elapsed().as_secs_f64());
 

@@ -79,7 +79,13 @@ pub fn lattice(n: usize, side: usize, seed: u64) -> Vec<[f64; 3]> {
 /// `n` points uniform inside a tet mesh: a tet drawn with probability
 /// proportional to its volume, then a uniform point in it.
 pub fn in_mesh(mesh: &crate::TetMesh, n: usize, seed: u64) -> Vec<[f64; 3]> {
-    let mut rng = Rng::new(seed);
+    in_mesh_rows(mesh, 0..n as u64, seed)
+}
+
+/// Rows `rows` of [`in_mesh`]'s points (for any `n` beyond them): a part
+/// makes its own rows alone.
+pub fn in_mesh_rows(mesh: &crate::TetMesh, rows: std::ops::Range<u64>, seed: u64) -> Vec<[f64; 3]> {
+    let mut rng = Rng::skipped(seed, 4 * rows.start);
     let mut cumulative = Vec::with_capacity(mesh.tets.len());
     let mut total = 0.0;
     for t in 0..mesh.tets.len() {
@@ -89,18 +95,17 @@ pub fn in_mesh(mesh: &crate::TetMesh, n: usize, seed: u64) -> Vec<[f64; 3]> {
     if mesh.tets.is_empty() || total <= 0.0 {
         return Vec::new();
     }
-    (0..n)
-        .map(|_| {
-            let r = rng.unit() * total;
-            let t = cumulative.partition_point(|&c| c <= r).min(mesh.tets.len() - 1);
-            // Uniform barycentric coordinates: sorted uniforms' gaps.
-            let mut u = [rng.unit(), rng.unit(), rng.unit()];
-            u.sort_by(f64::total_cmp);
-            let w = [u[0], u[1] - u[0], u[2] - u[1], 1.0 - u[2]];
-            let v = mesh.tets[t].map(|i| mesh.vertices[i as usize]);
-            [0, 1, 2].map(|a| (0..4).map(|k| w[k] * v[k][a]).sum::<f64>())
-        })
-        .collect()
+    rows.map(|_| {
+        let r = rng.unit() * total;
+        let t = cumulative.partition_point(|&c| c <= r).min(mesh.tets.len() - 1);
+        // Uniform barycentric coordinates: sorted uniforms' gaps.
+        let mut u = [rng.unit(), rng.unit(), rng.unit()];
+        u.sort_by(f64::total_cmp);
+        let w = [u[0], u[1] - u[0], u[2] - u[1], 1.0 - u[2]];
+        let v = mesh.tets[t].map(|i| mesh.vertices[i as usize]);
+        [0, 1, 2].map(|a| (0..4).map(|k| w[k] * v[k][a]).sum::<f64>())
+    })
+    .collect()
 }
 
 /// Points' places along a Morton (Z-order) curve over their bounding

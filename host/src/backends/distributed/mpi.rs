@@ -227,11 +227,13 @@ fn split(all: Vec<u8>, lengths: &[u64]) -> Vec<Vec<u8>> {
 /// MPI's `MPI_IN_PLACE` is the address 1, which is also where an empty
 /// `Vec<u8>` points. A rank sending nothing through it would run the
 /// in-place algorithm while the others do not, and the ranks would wait
-/// for one another forever. Nothing is read from it (its counts are 0).
+/// for one another forever. Nothing is read from it: it is empty too (a
+/// send count of one byte, where the others receive none from this rank,
+/// would shift what they receive).
 fn sendable(bytes: &[u8]) -> &[u8] {
     static NOTHING: [u8; 1] = [0];
     if bytes.is_empty() {
-        &NOTHING
+        &NOTHING[..0]
     } else {
         bytes
     }

@@ -1,0 +1,131 @@
+//! `mpirun -np P cvd run --mesh domain.mesh --sites-file sites.npy`: a
+//! mesh with its sites in parts. Every rank reads the mesh (small beside
+//! the sites it is cut into); each reads (or makes) only its own rows of
+//! the sites, computes the whole cells of its run of the curve
+//! (`ClippedVoronoi::compute_in_parts`), and writes its rows of
+//! `cells.csv`, `neighbors.csv` and `sites.xyz` at their place in the
+//! files, and the polyhedra of the cells it built as its piece of
+//! `cells.pvtu` and its section of `walls.ply`: the same bytes as one
+//! process. Rank 0 writes `summary.json`, with every rank's numbers.
+//!
+//! What it does not take yet ([`lacking`]) runs with every rank reading the
+//! whole input (`cvd::backends::distributed`), and says so.
+
+use crate::args::RunArgs;
+use crate::parts::{record_bytes, record_of, rows_of_sites, write_part, write_polyhedra};
+use cvd::backends::distributed::Reduce;
+use cvd::geom::exact_sum::ExactSum;
+use cvd::{ClippedVoronoi, CpuBackend};
+use cvd_io::{RankRecord, Rows, Summary};
+
+/// What a mesh with its sites in parts does not take yet, if `args` asks
+/// for any of it: then every rank reads the whole input.
+pub fn lacking(args: &RunArgs) -> Option<&'static str> {
+    let lacking = [
+        (args.weights.is_some() || args.radii.is_some(), "power cells (--weights, --radii)"),
+        (args.transports(), "optimal transport"),
+        (args.iterations > 0, "CVT iterations"),
+        (args.density.is_some() || args.density_file.is_some(), "a density"),
+        (args.strategy.is_some_and(|s| s != cvd::Strategy::Whole), "a strategy other than whole cells"),
+        (args.parts.is_some(), "--parts"),
+        (args.backend.backend == cvd::BackendChoice::Vulkan, "the Vulkan backend"),
+        (args.voronoi_index, "--voronoi-index"),
+        (args.output.is_some() || args.json.is_some(), "--output and --json"),
+    ];
+    lacking.iter().find(|(asked, _)| *asked).map(|(_, what)| *what)
+}
+
+/// Runs a mesh with its sites in parts over `comm`'s ranks.
+pub fn run(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
+    crate::parts::ending_together(comm, |comm| in_parts(args, comm))
+}
+
+fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
+    let clock = std::time::Instant::now();
+    let (rank, ranks) = (comm.rank(), comm.size());
+    let (name, mesh) = crate::inputs::load_model(args)?;
+    let dir = crate::inputs::out_dir(args, &name);
+    if rank == 0 {
+        std::fs::create_dir_all(&dir)
+            .map_err(|source| cvd::Error::Write { path: dir.display().to_string(), source })?;
+    } else {
+        crate::progress::quiet_stdout();
+    }
+    let n = args.sites.unwrap_or_else(|| cvd::mesher::models::default_sites(&args.model).unwrap_or(5000)) as u64;
+    if args.sites_file.is_none() {
+        crate::inputs::check_memory(args, n.div_ceil(ranks as u64), mesh.tets.len() as u64)?;
+    }
+    let (sites, total) = rows_of_sites(args, comm, n, |rows| cvd::geom::points::in_mesh_rows(&mesh, rows, args.seed))?;
+    let first: u64 = comm.gather_u64(sites.len() as u64)?[..rank].iter().sum();
+    let threads = args.backend.threads.map_or("all".to_string(), |t| t.to_string());
+    println!(
+        "{name}: {} tets, {total} sites in parts over {} (each rank reading its rows), whole cells on {threads} CPU \
+         thread(s) per rank",
+        mesh.tets.len(),
+        comm.describe(),
+    );
+    let cpu = CpuBackend::new(args.backend.threads)?;
+    if let Some(warning) = crate::backend::threads_beyond_cores(args.backend.threads).filter(|_| rank == 0) {
+        eprintln!("cvd: {warning}");
+    }
+    let faces = !args.no_neighbors;
+    let diagram = ClippedVoronoi::new(&mesh, &sites)
+        .k_site(args.k_site)
+        .faces(faces)
+        .memory_budget(args.cpu_memory_budget())
+        .backend(&cpu);
+    let (cells, built, report) = match args.no_geometry {
+        true => {
+            let (cells, report) = diagram.compute_in_parts(comm)?;
+            (cells, None, report)
+        }
+        false => {
+            let (cells, built, report) = diagram.compute_in_parts_with_polyhedra(comm, &cpu)?;
+            (cells, Some(built), report)
+        }
+    };
+    let rows = Rows { first, total, periodic: false };
+    let mut written = vec!["cells.csv"];
+    write_part(comm, &dir.join("cells.csv"), |w| cvd_io::write_cells_csv_rows(w, &cells, None, None, rows))?;
+    if let Some(a) = cells.adjacency() {
+        write_part(comm, &dir.join("neighbors.csv"), |w| cvd_io::write_neighbors_csv_rows(w, a, rows))?;
+        written.push("neighbors.csv");
+    }
+    write_part(comm, &dir.join("sites.xyz"), |w| cvd_io::write_sites_xyz_rows(w, &sites, rows))?;
+    written.push("sites.xyz");
+    if let Some(built) = &built {
+        let numbers = |k: usize| built.numbers[k];
+        written.extend(write_polyhedra(comm, &dir, &built.polyhedra, &numbers)?);
+        if rank == 0 {
+            println!("in parts: no pictures or pieces.vtu (each rank holds the pieces of its own cells only)");
+        }
+    }
+
+    // The run's numbers: totals from every rank, each rank's record.
+    let energy = comm.exact_total(&ExactSum::of(&cells.energy))?.value();
+    let mine = RankRecord {
+        rank,
+        rows: report.read,
+        blocks: report.blocks[1],
+        owned: report.owned,
+        held: report.held,
+        halo: report.halo,
+        grid_cells: report.grid_cells,
+        sent_bytes: report.sent,
+        seconds: clock.elapsed().as_secs_f64(),
+        peak_memory_bytes: cvd::job::memory::peak().unwrap_or(0),
+    };
+    let records = comm.all_gather(&record_bytes(&mine))?;
+    if rank != 0 {
+        return Ok(0);
+    }
+    let mut summary = Summary::new(&name, &mesh, total as usize, cells.strategy, &cpu, &cells);
+    summary.energy = energy;
+    summary.ranks = Some(records.iter().map(|b| record_of(b)).collect());
+    summary.write_json(&dir.join("summary.json"))?;
+    written.push("summary.json");
+    print!("{summary}");
+    crate::parts::print_ranks(&summary, "buckets of the curve");
+    println!("wrote {}: {}", dir.display(), written.join(", "));
+    Ok(0)
+}
