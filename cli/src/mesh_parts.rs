@@ -27,7 +27,6 @@ pub fn lacking(args: &RunArgs) -> Option<&'static str> {
         (args.iterations > 0, "CVT iterations"),
         (args.density.is_some() || args.density_file.is_some(), "a density"),
         (args.strategy.is_some_and(|s| s != cvd::Strategy::Whole), "a strategy other than whole cells"),
-        (args.parts.is_some(), "--parts"),
         (args.backend.backend == cvd::BackendChoice::Vulkan, "the Vulkan backend"),
         (args.voronoi_index, "--voronoi-index"),
         (args.output.is_some() || args.json.is_some(), "--output and --json"),
@@ -73,22 +72,35 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
         .k_site(args.k_site)
         .faces(faces)
         .memory_budget(args.cpu_memory_budget())
+        .parts_per_rank(args.parts.unwrap_or(1))
         .backend(&cpu);
-    let (cells, built, report) = match args.no_geometry {
-        true => {
-            let (cells, report) = diagram.compute_in_parts(comm)?;
-            (cells, None, report)
-        }
-        false => {
-            let (cells, built, report) = diagram.compute_in_parts_with_polyhedra(comm, &cpu)?;
-            (cells, Some(built), report)
-        }
-    };
+    let geometry = (!args.no_geometry).then_some(&cpu);
+    let cvd::diagram::mesh_parts::MeshInParts { cells, rows: by_rows, built, report } =
+        diagram.compute_in_parts_by_rows(comm, geometry)?;
+    // The rows with their faces in batches: a rank holds its rows' faces
+    // once (as received), and a batch's at a time.
+    let batches =
+        |w: &mut dyn std::io::Write,
+         write: &dyn Fn(&mut dyn std::io::Write, &cvd::Cells, Rows) -> std::io::Result<()>| {
+            // At least one batch: rank 0 writes the header with no rows too.
+            for start in (0..by_rows.len().max(1)).step_by(1 << 16) {
+                let batch = by_rows.cells(start..(start + (1 << 16)).min(by_rows.len()));
+                write(w, &batch, Rows { first: first + start as u64, total, periodic: false })?;
+            }
+            Ok(())
+        };
     let rows = Rows { first, total, periodic: false };
     let mut written = vec!["cells.csv"];
-    write_part(comm, &dir.join("cells.csv"), |w| cvd_io::write_cells_csv_rows(w, &cells, None, None, rows))?;
-    if let Some(a) = cells.adjacency() {
-        write_part(comm, &dir.join("neighbors.csv"), |w| cvd_io::write_neighbors_csv_rows(w, a, rows))?;
+    write_part(comm, &dir.join("cells.csv"), |w| {
+        batches(w, &|w, c, rows| cvd_io::write_cells_csv_rows(w, c, None, None, rows))
+    })?;
+    if faces {
+        write_part(comm, &dir.join("neighbors.csv"), |w| {
+            batches(w, &|w, c, rows| match c.adjacency() {
+                Some(a) => cvd_io::write_neighbors_csv_rows(w, a, rows),
+                None => Ok(()),
+            })
+        })?;
         written.push("neighbors.csv");
     }
     write_part(comm, &dir.join("sites.xyz"), |w| cvd_io::write_sites_xyz_rows(w, &sites, rows))?;

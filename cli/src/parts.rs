@@ -360,10 +360,37 @@ fn write_section(
     append: bool,
     body: impl FnOnce(&mut dyn std::io::Write) -> std::io::Result<()>,
 ) -> cvd::Result<()> {
+    use std::io::{Seek, Write};
     let io = |source| cvd::Error::Write { path: path.display().to_string(), source };
-    let mut bytes = Vec::new();
-    body(&mut bytes).map_err(io)?;
-    let lengths = comm.gather_u64(bytes.len() as u64)?;
+    // Written first to a file of this rank's own beside it (a part's text
+    // may be larger than the numbers it is made from: a million cells'
+    // faces are 1.4 GB), then copied into place once every rank's length
+    // is known.
+    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let own = path.with_file_name(format!(".{name}.{}.part", comm.rank()));
+    let own_io = |source| cvd::Error::Write { path: own.display().to_string(), source };
+    let written =
+        std::fs::File::options().read(true).write(true).create(true).truncate(true).open(&own).and_then(|f| {
+            let mut out = std::io::BufWriter::with_capacity(1 << 20, f);
+            body(&mut out)?;
+            out.flush()?;
+            let mut f = out.into_inner().map_err(|e| e.into_error())?;
+            let length = f.stream_position()?;
+            f.rewind()?;
+            Ok((f, length))
+        });
+    let _ = std::fs::remove_file(&own);
+    let (mut part, length) = match written {
+        Ok(w) => (Some(w.0), w.1),
+        Err(e) => {
+            eprintln!("cvd: rank {}: {}", comm.rank(), own_io(e));
+            (None, u64::MAX)
+        }
+    };
+    let lengths = comm.gather_u64(length)?;
+    if lengths.contains(&u64::MAX) {
+        return Err(cvd::Error::InvalidInput(format!("{}: a rank could not write its part", path.display())));
+    }
     let total: u64 = lengths.iter().sum();
     // Rank 0 makes (or lengthens) the file; every rank learns whether it
     // could, and where the section starts, and stops together.
@@ -393,9 +420,15 @@ fn write_section(
     let at = made[1] as u64 + lengths[..comm.rank()].iter().sum::<u64>();
     let mut failed = [0i64];
     let wrote = std::fs::OpenOptions::new().write(true).open(path).and_then(|mut f| {
-        use std::io::{Seek, Write};
         f.seek(std::io::SeekFrom::Start(at))?;
-        f.write_all(&bytes)
+        let copied = match part.as_mut() {
+            Some(part) => std::io::copy(part, &mut f)?,
+            None => 0,
+        };
+        match copied == length {
+            true => Ok(()),
+            false => Err(std::io::Error::other(format!("copied {copied} of a part's {length} bytes"))),
+        }
     });
     failed[0] = wrote.is_err() as i64;
     comm.sum(&mut failed)?;

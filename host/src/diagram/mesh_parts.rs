@@ -32,10 +32,9 @@
 //! Power cells and densities are not laid out so yet (their local weight
 //! bounds and pieces read all sites): refused by name.
 
-use super::periodic_parts::{
-    at_row, counter_words, counters_of, faces_of, halves, rows_of, send, BuiltCells, FaceRow, Held, PartsReport, Row,
-};
-use crate::backends::distributed::{Parcels, Reduce};
+use super::periodic::merge_faces;
+use super::periodic_parts::{at_row, counter_words, counters_of, send, BuiltCells, Held, PartsReport};
+use crate::backends::distributed::{records, Parcels, Reduce};
 use crate::diagram::voronoi::{Cells, ClippedVoronoi};
 use crate::error::{Error, Result};
 use crate::exec::CpuBackend;
@@ -47,16 +46,24 @@ use crate::job::held::HeldCells;
 use crate::job::sites::{Layout, Window};
 use crate::passes::faces::Adjacency;
 use crate::passes::polyhedra::merge_pieces;
+use bytemuck::{Pod, Zeroable};
 use rayon::prelude::*;
 
 /// The Morton key's bits that number a bucket (5 per axis).
 const BUCKET_BITS: u32 = 15;
 
-/// What a rank gives back.
-struct MeshPartsOut {
-    cells: Cells,
-    built: Option<BuiltCells>,
-    report: PartsReport,
+/// What a rank of a mesh in parts gives back
+/// ([`ClippedVoronoi::compute_in_parts_by_rows`]).
+pub struct MeshInParts {
+    /// The run's totals and counters, and each of this rank's rows'
+    /// volume, centroid and energy (their faces: [`Self::rows`]).
+    pub cells: Cells,
+    /// This rank's rows with their faces, read in batches.
+    pub rows: MeshRows,
+    /// The polyhedra of the cells this rank built, when asked for.
+    pub built: Option<BuiltCells>,
+    /// What the part did.
+    pub report: PartsReport,
 }
 
 /// A rank's part job and what it computed.
@@ -78,8 +85,8 @@ impl ClippedVoronoi<'_> {
     /// [`Self::faces`]) — with the run's totals, and what the part did.
     /// Whole cells on the CPU; no weights or density yet.
     pub fn compute_in_parts(&self, comm: &dyn Reduce) -> Result<(Cells, PartsReport)> {
-        let out = self.mesh_in_parts(comm, None)?;
-        Ok((out.cells, out.report))
+        let out = self.compute_in_parts_by_rows(comm, None)?;
+        Ok((out.all_rows(), out.report))
     }
 
     /// [`Self::compute_in_parts`] with the polyhedra of the cells this rank
@@ -90,12 +97,20 @@ impl ClippedVoronoi<'_> {
         comm: &dyn Reduce,
         cpu: &CpuBackend,
     ) -> Result<(Cells, BuiltCells, PartsReport)> {
-        let out = self.mesh_in_parts(comm, Some(cpu))?;
-        let built = out.built.ok_or_else(|| Error::Internal("no polyhedra came back".into()))?;
-        Ok((out.cells, built, out.report))
+        let mut out = self.compute_in_parts_by_rows(comm, Some(cpu))?;
+        let built = out.built.take().ok_or_else(|| Error::Internal("no polyhedra came back".into()))?;
+        Ok((out.all_rows(), built, out.report))
     }
 
-    fn mesh_in_parts(&self, comm: &dyn Reduce, geometry: Option<&CpuBackend>) -> Result<MeshPartsOut> {
+    /// [`Self::compute_in_parts`] (with the polyhedra on `geometry`), the
+    /// rows' faces kept as the ranks sent them, to be read in batches
+    /// ([`MeshRows::cells`]): a rank then holds its rows' faces once, not
+    /// twice.
+    pub fn compute_in_parts_by_rows(&self, comm: &dyn Reduce, geometry: Option<&CpuBackend>) -> Result<MeshInParts> {
+        self.mesh_in_parts(comm, geometry)
+    }
+
+    fn mesh_in_parts(&self, comm: &dyn Reduce, geometry: Option<&CpuBackend>) -> Result<MeshInParts> {
         let mesh = self.mesh;
         if mesh.tets.is_empty() {
             return Err(Error::InvalidInput("the mesh has no tets".into()));
@@ -170,11 +185,15 @@ impl ClippedVoronoi<'_> {
             let r = owner[bucket(p)] as usize;
             to[r].push(Held::site(p, first + i as u64, 0.0, r));
         }
-        let own: Vec<Held> = send(comm, to, &mut report.sent)?;
+        let mut own: Vec<Held> = send(comm, to, &mut report.sent)?;
         report.owned = own.len() as u64;
         // Duplicates share a key, so a rank holds all of a position's.
         let mut distinct = [distinct_positions(&own) as i64];
         comm.sum(&mut distinct)?;
+        // Every rank takes the same number of sub-parts (each a round).
+        let mut sub = [self.sub_parts.max(1) as f64];
+        comm.max(&mut sub)?;
+        let sub = sub[0] as usize;
 
         // The whole job's frame, quantization and grid.
         let frame = Frame::of(mesh);
@@ -183,63 +202,152 @@ impl ClippedVoronoi<'_> {
         frame_points.extend((0..8).map(|c| [0, 1, 2].map(|a| if c >> a & 1 == 0 { l[a] } else { h[a] })));
         let (quantizer, grid) = crate::job::knn::frame_grid(&frame_points, distinct[0] as usize)?;
         drop(frame_points);
-        let dims = [grid.dim_x, grid.dim_y, grid.dim_z];
-        let quantized = |p: [f64; 3]| quantizer.quantize(frame.to_local(p), 0);
-        let cell_of = |p: [f64; 3]| {
-            let q = quantized(p);
-            cvd_kernels::grid::cell_coords(&grid, [q[0], q[1], q[2]])
+        let whole_grid = Whole { frame, quantizer, grid, keys, lo, hi, distinct: distinct[0] as usize };
+        // This rank's sites in the one process's order, and their cells.
+        let mut keyed: Vec<(u32, u64, Held)> = own.par_iter().map(|h| (keys.key(h.at), h.site, *h)).collect();
+        keyed.par_sort_unstable_by_key(|k| (k.0, k.1));
+        own = keyed.into_iter().map(|k| k.2).collect();
+        let own_cells: Vec<[u32; 3]> = own.par_iter().map(|s| whole_grid.cell_of(s.at)).collect();
+        timings.push("blocks", clock.elapsed().as_secs_f64());
+
+        // The sub-parts in turn, each one's rows (and the halves of its
+        // faces that others' cells share) sent to their readers.
+        let mut rows = Received::default();
+        let mut built = geometry.map(|_| BuiltCells::default());
+        let mut counted = vec![0i64; counter_words(&Default::default()).len() + 1];
+        let (mut pairing, mut k) = (crate::job::clip::Pairing::Flood, 1);
+        let mut phases = Timings::default();
+        let own_keys: Vec<u32> = own.iter().map(|h| keys.key(h.at)).collect();
+        let runs = cuts_along(own.len(), sub, |i| i as i64, |i| own_keys[i]);
+        drop(own_keys);
+        for s in 0..sub {
+            let run = runs[s]..runs[s + 1];
+            let part = self.sub_part(comm, cpu, geometry, &whole_grid, &own, &own_cells, run, &mut report)?;
+            let Some(Part { held, answer, cells: whole, pieces, width }) = part else {
+                rows.add(comm, Vec::new(), Vec::new(), &mut report.sent)?;
+                continue;
+            };
+            report.held = report.held.max(held.len() as u64);
+            report.halo = report.halo.max(width);
+            report.grid_cells = [0, 1].map(|i| report.grid_cells[i].max(whole.grid_cells[i]));
+            for (name, t) in &whole.timings.phases {
+                phases.add(name, *t);
+            }
+            (pairing, k) = (whole.pairing, whole.k);
+            let clock = std::time::Instant::now();
+            if let (Some(built), Some(pieces)) = (built.as_mut(), pieces) {
+                add_polyhedra(built, pieces, &held, &whole);
+                timings.add("polyhedra", clock.elapsed().as_secs_f64());
+            }
+            let clock = std::time::Instant::now();
+            let mut seen = std::collections::HashSet::new();
+            let duplicates = held[answer.clone()].iter().filter(|h| !seen.insert(h.at.map(f64::to_bits))).count();
+            drop(seen);
+            for (c, w) in counted.iter_mut().zip(counter_words(&whole.counters).into_iter().chain([duplicates as i64]))
+            {
+                *c += w;
+            }
+            let (to_rows, to_halves) = self.rows_of_part(&whole, &held, answer, &reader, ranks)?;
+            drop((whole, held));
+            rows.add(comm, to_rows, to_halves, &mut report.sent)?;
+            timings.add("rows", clock.elapsed().as_secs_f64());
+        }
+        let clock = std::time::Instant::now();
+        let rows = MeshRows::of(rows, first, self.sites.len(), self.faces)?;
+        let mut cells = rows.numbers();
+        timings.add("rows", clock.elapsed().as_secs_f64());
+
+        // The run's totals.
+        counted.push(cells.volume.iter().filter(|&&v| v <= 0.0).count() as i64);
+        comm.sum(&mut counted)?;
+        let mut c = counters_of(&counted);
+        c.duplicate_sites = counted[counted.len() - 2] as u64;
+        c.empty_cells = counted[counted.len() - 1] as u64 - c.duplicate_sites;
+        let total_volume = comm.exact_total(&ExactSum::of(&cells.volume))?.value();
+        let mesh_volume = mesh.volume();
+        cells = Cells {
+            total_volume,
+            mesh_volume,
+            e_vol: (total_volume - mesh_volume).abs() / mesh_volume,
+            strategy: Strategy::Whole,
+            pairing,
+            k,
+            k_site: self.resolved_k_site(),
+            counters: c,
+            chunks: (ranks * sub) as u64,
+            timings: timings.clone(),
+            ..cells
         };
-        let own_cells: Vec<[u32; 3]> = own.par_iter().map(|s| cell_of(s.at)).collect();
+        for (name, t) in &phases.phases {
+            cells.timings.add(name, *t);
+        }
+        report.timings = cells.timings.clone();
+        Ok(MeshInParts { cells, rows, built, report })
+    }
+
+    /// Sub-part `run` of this rank's sites `own` (in the one process's
+    /// order, in grid cells `own_cells`): the cells of its sites, built in a
+    /// job holding every site of a box of grid cells around them, widened
+    /// until every cell is certified (see the module's documentation).
+    /// Every rank takes part in each round, with a sub-part or not.
+    #[allow(clippy::too_many_arguments)]
+    fn sub_part(
+        &self,
+        comm: &dyn Reduce,
+        cpu: &dyn crate::backend::Backend,
+        geometry: Option<&CpuBackend>,
+        whole: &Whole,
+        own: &[Held],
+        own_cells: &[[u32; 3]],
+        run: std::ops::Range<usize>,
+        report: &mut PartsReport,
+    ) -> Result<Option<Part>> {
+        let grid = &whole.grid;
+        let dims = [grid.dim_x, grid.dim_y, grid.dim_z];
         let (mut clo, mut chi) = ([u32::MAX; 3], [0u32; 3]);
-        for c in &own_cells {
+        for c in &own_cells[run.clone()] {
             for a in 0..3 {
                 clo[a] = clo[a].min(c[a]);
                 chi[a] = chi[a].max(c[a]);
             }
         }
-        // One world unit in quantized units, and a cell's side in the world.
-        let per_world = quantizer.scale() / frame.scale;
-        let cell_side = grid.cell_size as f64 / per_world;
         let k_site = self.resolved_k_site();
-        // A first halo a little wider than the ball of a cell's list (at
-        // the grid's mean density), then half as wide again each round.
+        // A first halo twice as wide as the ball of a cell's list (at the
+        // grid's mean density: a cut cell's walk may reach farther), then
+        // half as wide again each round.
         let ball = (3.0 * k_site as f64 / (4.0 * std::f64::consts::PI * crate::job::knn::SITES_PER_CELL)).cbrt();
-        let mut halo = ((1.3 * ball).ceil() as u32).max(1);
-        timings.push("blocks", clock.elapsed().as_secs_f64());
-
+        let mut halo = ((2.0 * ball).ceil() as u32).max(1);
+        let first_key = own.get(run.start).map(|h| (whole.keys.key(h.at), h.site));
         let mut done: Option<Part> = None;
         loop {
             let want =
-                (done.is_none() && !own.is_empty()).then(|| HeldCells::around(clo, chi, halo, dims, grid.cell_size));
+                (done.is_none() && !run.is_empty()).then(|| HeldCells::around(clo, chi, halo, dims, grid.cell_size));
             let boxes = wanted_boxes(comm, want)?;
             if boxes.iter().all(Option::is_none) {
                 break;
             }
-            let (held, t) = timed(|| spread(comm, &own, &own_cells, &boxes, &mut report.sent));
-            timings.add("exchange", t);
-            let Some(window) = want else { continue };
+            let (held, t) = timed(|| spread(comm, own, own_cells, &boxes, &mut report.sent));
+            report.timings.add("exchange", t);
+            let (Some(window), Some(first_key)) = (want, first_key) else { continue };
             let mut held = held?;
-            let clock = std::time::Instant::now();
-            let mut keyed: Vec<(u32, u64, Held)> = held.par_iter().map(|h| (keys.key(h.at), h.site, *h)).collect();
+            let mut keyed: Vec<(u32, u64, Held)> =
+                held.par_iter().map(|h| (whole.keys.key(h.at), h.site, *h)).collect();
             keyed.par_sort_unstable_by_key(|k| (k.0, k.1));
+            let start = keyed.partition_point(|k| (k.0, k.1) < first_key);
             held = keyed.into_iter().map(|k| k.2).collect();
-            let start = held.iter().position(|h| h.rank as usize == rank).unwrap_or(0);
-            let answer = start..start + held[start..].iter().take_while(|h| h.rank as usize == rank).count();
-            if answer.len() != own.len() {
-                return Err(Error::Internal(format!(
-                    "{} of this rank's {} sites are a run of its part's order",
-                    answer.len(),
-                    own.len()
-                )));
+            let answer = start..start + run.len();
+            if answer.end > held.len()
+                || held[answer.clone()].iter().zip(&own[run.clone()]).any(|(a, b)| a.site != b.site)
+            {
+                return Err(Error::Internal("a sub-part's sites are not a run of its part's order".into()));
             }
-            timings.add("order", clock.elapsed().as_secs_f64());
             let at: Vec<[f64; 3]> = held.iter().map(|h| h.at).collect();
             let order: Vec<u32> = (0..held.len() as u32).collect();
             let layout = Layout {
                 order: &order,
-                lo,
-                hi,
-                grid_sites: distinct[0] as usize,
+                lo: whole.lo,
+                hi: whole.hi,
+                grid_sites: whole.distinct,
                 answer: (answer.start, answer.end),
                 weights: None,
                 window: Window::Held(window),
@@ -261,180 +369,365 @@ impl ClippedVoronoi<'_> {
                 return Err(Error::Internal(format!("{} lists kept for {} cells", kept.kth.len(), listed.len())));
             }
             let shift = window.shift();
+            let per_world = whole.quantizer.scale() / whole.frame.scale;
             let uncertified = (0..listed.len())
                 .into_par_iter()
                 .filter(|&u| {
                     let need = kept.kth[u] + 2.0 * (kept.kth[u] - kept.reach[u]).max(0.0);
                     let d2 = if need.is_finite() { ((need * per_world).ceil() + 2.0).powi(2) as u64 } else { u64::MAX };
-                    let q = quantized(held[listed[u] as usize].at);
+                    let q = whole.quantized(held[listed[u] as usize].at);
                     !window.certifies([0, 1, 2].map(|a| q[a] - shift[a]), d2)
                 })
                 .count();
             drop(kept);
             let c = &cells.counters;
             if window.is_whole() || (uncertified == 0 && c.out_of_halo == 0 && c.unresolved == 0) {
-                report.grid_cells = cells.grid_cells;
-                let width = halo as f64 * cell_side;
+                let width = halo as f64 * grid.cell_size as f64 / per_world;
                 done = Some(Part { held, answer, cells, pieces, width });
             } else {
                 halo = halo.saturating_add(halo.div_ceil(2));
                 report.widened += 1;
             }
         }
-        let Part { held, answer, cells: whole, pieces, width } = match done {
-            Some(part) => part,
-            // No sites of its own: an empty part.
-            None => Part {
-                held: Vec::new(),
-                answer: 0..0,
-                cells: Cells { k_site, strategy: Strategy::Whole, ..Default::default() },
-                pieces: None,
-                width: 0.0,
-            },
-        };
-        report.held = held.len() as u64;
-        report.halo = width;
+        Ok(done)
+    }
 
-        // The polyhedra of this rank's cells, by input index.
-        let clock = std::time::Instant::now();
-        let built = geometry.map(|_| {
-            let mut polyhedra = pieces.as_ref().map(merge_pieces).unwrap_or_default();
-            let numbers = polyhedra
-                .iter()
-                .map(|p| {
-                    let u = p.site as usize;
-                    (whole.volume[u], whole.centroid[u], whole.energy[u])
-                })
-                .collect();
-            polyhedra.par_iter_mut().for_each(|p| {
-                p.site = held[p.site as usize].site as u32;
-                for m in &mut p.face_neighbors {
-                    if let Some(h) = usize::try_from(*m).ok().and_then(|u| held.get(u)) {
-                        *m = h.site as i64;
-                    }
-                }
-            });
-            BuiltCells { polyhedra, numbers }
-        });
-        drop(pieces);
-        if geometry.is_some() {
-            timings.push("polyhedra", clock.elapsed().as_secs_f64());
-        }
-
-        // Each row, with its faces, to its reader.
-        let clock = std::time::Instant::now();
-        let mut seen = std::collections::HashSet::new();
-        let duplicates = held[answer.clone()].iter().filter(|h| !seen.insert(h.at.map(f64::to_bits))).count() as u64;
-        drop(seen);
+    /// The rows of a part's answered cells (with their faces, each a half
+    /// seen from the cell, and their boundary), each for its site's reader;
+    /// and the halves of their faces with cells not built in this part, for
+    /// the reader of the other side's site.
+    fn rows_of_part(
+        &self,
+        whole: &Cells,
+        held: &[Held],
+        answer: std::ops::Range<usize>,
+        reader: &(dyn Fn(u64) -> Option<usize> + Sync),
+        ranks: usize,
+    ) -> Result<RowsAndHalves> {
         let none = Adjacency { offsets: vec![0], ..Default::default() };
         let a = whole.adjacency().filter(|_| self.faces).unwrap_or(&none);
-        let halves = match self.faces {
-            true => halves(comm, a, &held, answer.clone(), &mut report.sent)?,
-            false => Default::default(),
-        };
-        let row_bytes = |u: usize, out: &mut [Vec<u8>]| -> Result<()> {
-            let (faces, boundary, boundary_vector) = match self.faces {
-                true => {
-                    let (faces, _, _) = faces_of(a, &held, u, halves.get(&held[u].site));
-                    (faces, a.boundary[u], a.boundary_vector[u])
+        let reader_of =
+            |site: u64| reader(site).ok_or_else(|| Error::Internal(format!("site {site} beyond the input")));
+        let chunk = |us: Vec<usize>| -> Result<RowsAndHalves> {
+            let (mut rows, mut halves) = (vec![Vec::new(); ranks], vec![Vec::new(); ranks]);
+            for u in us {
+                let h = held[u];
+                let mut faces: Vec<MeshFace> = Vec::new();
+                let (mut boundary, mut boundary_vector) = (0.0, [0.0; 3]);
+                if self.faces {
+                    for (v, area, normal) in a.of(u) {
+                        let other = held[v as usize];
+                        faces.push(MeshFace { neighbor: other.site, area, normal });
+                        if !answer.contains(&(v as usize)) {
+                            // The one process's, from the other side:
+                            // exactly opposite (a zero stays +0).
+                            let half = MeshFace { neighbor: h.site, area, normal: normal.map(|c| 0.0 - c) };
+                            halves[reader_of(other.site)?].push(MeshHalf { site: other.site, face: half });
+                        }
+                    }
+                    (boundary, boundary_vector) = (a.boundary[u], a.boundary_vector[u]);
                 }
-                false => (Vec::new(), 0.0, [0.0; 3]),
-            };
-            let h = held[u];
-            let row = Row {
-                site: h.site,
-                volume: whole.volume[u],
-                centroid: whole.centroid[u],
-                energy: whole.energy[u],
-                offset: [0.0; 3],
-                wall: boundary,
-                wall_vector: boundary_vector,
-                faces: faces.len() as u64,
-                area: 0.0,
-                counts: Default::default(),
-            };
-            let r = reader(h.site).ok_or_else(|| Error::Internal(format!("site {} beyond the input", h.site)))?;
-            out[r].extend_from_slice(bytemuck::bytes_of(&row));
-            for (neighbor, shift, area, normal) in faces {
-                let f = FaceRow { neighbor: neighbor as u64, shift, _pad: 0, area, normal };
-                out[r].extend_from_slice(bytemuck::bytes_of(&f));
+                let row = MeshRow {
+                    site: h.site,
+                    volume: whole.volume[u],
+                    centroid: whole.centroid[u],
+                    energy: whole.energy[u],
+                    boundary,
+                    boundary_vector,
+                    faces: faces.len() as u64,
+                };
+                let out = &mut rows[reader_of(h.site)?];
+                out.extend_from_slice(bytemuck::bytes_of(&row));
+                out.extend_from_slice(bytemuck::cast_slice(&faces));
             }
-            Ok(())
+            Ok((rows, halves))
         };
-        let chunks: Vec<Vec<Vec<u8>>> = answer
-            .clone()
-            .into_par_iter()
-            .chunks(1 << 12)
-            .map(|us| {
-                let mut out = vec![Vec::new(); ranks];
-                us.into_iter().try_for_each(|u| row_bytes(u, &mut out)).map(|()| out)
-            })
-            .collect::<Result<_>>()?;
-        let mut to: Vec<Vec<u8>> =
-            (0..ranks).map(|r| Vec::with_capacity(chunks.iter().map(|c| c[r].len()).sum())).collect();
-        for chunk in chunks {
-            for (r, bytes) in chunk.into_iter().enumerate() {
-                to[r].extend_from_slice(&bytes);
+        let chunks: Vec<_> = answer.clone().into_par_iter().chunks(1 << 12).map(chunk).collect::<Result<_>>()?;
+        let (mut rows, mut halves) = (vec![Vec::new(); ranks], vec![Vec::new(); ranks]);
+        for (r, h) in chunks {
+            for (to, part) in rows.iter_mut().zip(r) {
+                to.extend_from_slice(&part);
+            }
+            for (to, part) in halves.iter_mut().zip(h) {
+                to.extend(part);
             }
         }
-        let (counted, pairing, k, phases) = (whole.counters, whole.pairing, whole.k, whole.timings.phases.clone());
-        drop((whole, held));
-        let to = Parcels::of(to);
-        report.sent += (0..ranks).filter(|&r| r != rank).map(|r| to.get(r).len() as u64).sum::<u64>();
-        let got = comm.exchange(to)?;
-        let ((mut cells, _), _) = rows_of(&got, first, self.sites.len(), self.faces)?;
-        // No images: a mesh's faces have no shifts.
-        if let Some(a) = &mut cells.adjacency {
-            a.shifts = Vec::new();
-        }
-        drop(got);
-        timings.push("rows", clock.elapsed().as_secs_f64());
-
-        // The run's totals.
-        let mut counters = counter_words(&counted);
-        counters.push(duplicates as i64);
-        counters.push(cells.volume.iter().filter(|&&v| v <= 0.0).count() as i64);
-        comm.sum(&mut counters)?;
-        let mut c = counters_of(&counters);
-        c.duplicate_sites = counters[counters.len() - 2] as u64;
-        c.empty_cells = counters[counters.len() - 1] as u64 - c.duplicate_sites;
-        let total_volume = comm.exact_total(&ExactSum::of(&cells.volume))?.value();
-        let mesh_volume = mesh.volume();
-        let mut cells = Cells {
-            total_volume,
-            mesh_volume,
-            e_vol: (total_volume - mesh_volume).abs() / mesh_volume,
-            strategy: Strategy::Whole,
-            pairing,
-            k,
-            k_site,
-            counters: c,
-            chunks: ranks as u64,
-            timings: timings.clone(),
-            ..cells
-        };
-        for (name, t) in &phases {
-            cells.timings.add(name, *t);
-        }
-        report.timings = cells.timings.clone();
-        Ok(MeshPartsOut { cells, built, report })
+        Ok((rows, halves))
     }
 }
 
+/// Rows and halves, by the rank they go to.
+type RowsAndHalves = (Vec<Vec<u8>>, Vec<Vec<MeshHalf>>);
+
+/// What every rank knows of the one process's job: its frame, quantization
+/// and grid, its curve over the sites' box, and its distinct sites.
+struct Whole {
+    frame: Frame,
+    quantizer: crate::geom::quantize::Quantizer,
+    grid: cvd_kernels::abi::GridParams,
+    keys: MortonKeys,
+    lo: [f64; 3],
+    hi: [f64; 3],
+    distinct: usize,
+}
+
+impl Whole {
+    fn quantized(&self, p: [f64; 3]) -> cvd_kernels::abi::QuantPoint {
+        self.quantizer.quantize(self.frame.to_local(p), 0)
+    }
+
+    fn cell_of(&self, p: [f64; 3]) -> [u32; 3] {
+        let q = self.quantized(p);
+        cvd_kernels::grid::cell_coords(&self.grid, [q[0], q[1], q[2]])
+    }
+}
+
+/// A cell's row as its reader receives it; its faces follow it.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct MeshRow {
+    site: u64,
+    volume: f64,
+    centroid: [f64; 3],
+    energy: f64,
+    boundary: f64,
+    boundary_vector: [f64; 3],
+    faces: u64,
+}
+
+/// A face of a row: half its area seen from the cell (the other half
+/// comes from the other side's cell, in the same row or as a [`MeshHalf`]).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct MeshFace {
+    neighbor: u64,
+    area: f64,
+    normal: [f64; 3],
+}
+
+/// The half of a face a cell sends the reader of the site on its other
+/// side.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct MeshHalf {
+    site: u64,
+    face: MeshFace,
+}
+
+/// The rows and halves a reader received, one parcel of each per round.
+#[derive(Default)]
+struct Received {
+    rows: Vec<Vec<u8>>,
+    halves: Vec<MeshHalf>,
+}
+
+impl Received {
+    /// One round: `rows` and `halves` to their readers, and this rank's
+    /// kept.
+    fn add(&mut self, comm: &dyn Reduce, rows: Vec<Vec<u8>>, halves: Vec<Vec<MeshHalf>>, sent: &mut u64) -> Result<()> {
+        let me = comm.rank();
+        let rows = if rows.is_empty() { vec![Vec::new(); comm.size()] } else { rows };
+        let halves = if halves.is_empty() { vec![Vec::new(); comm.size()] } else { halves };
+        *sent += rows.iter().enumerate().filter(|&(r, _)| r != me).map(|(_, b)| b.len() as u64).sum::<u64>();
+        *sent += halves
+            .iter()
+            .enumerate()
+            .filter(|&(r, _)| r != me)
+            .map(|(_, h)| (h.len() * size_of::<MeshHalf>()) as u64)
+            .sum::<u64>();
+        let got = comm.exchange(Parcels::of(rows))?;
+        self.rows.push(got.bytes);
+        let got =
+            comm.exchange(Parcels::of(halves.into_iter().map(|h| bytemuck::cast_slice(&h).to_vec()).collect()))?;
+        self.halves.extend(records::<MeshHalf>(&got.bytes));
+        Ok(())
+    }
+}
+
+impl MeshInParts {
+    /// The cells of all this rank's rows with their faces, and the run's
+    /// totals.
+    pub fn all_rows(&self) -> Cells {
+        Cells { adjacency: self.rows.cells(0..self.rows.len()).adjacency, ..self.cells.clone() }
+    }
+}
+
+/// A rank's rows of a mesh in parts, as the ranks that built them sent
+/// them: read in batches ([`Self::cells`]).
+pub struct MeshRows {
+    received: Received,
+    /// Each row's parcel and place in it.
+    at: Vec<(u32, usize)>,
+    first: u64,
+    faces: bool,
+}
+
+impl MeshRows {
+    /// The `len` rows from `first` in `received`, each found.
+    fn of(mut received: Received, first: u64, len: usize, faces: bool) -> Result<Self> {
+        let mut at = vec![(u32::MAX, 0usize); len];
+        for (p, bytes) in received.rows.iter().enumerate() {
+            let mut k = 0;
+            while k < bytes.len() {
+                let row: MeshRow = bytemuck::pod_read_unaligned(&bytes[k..k + size_of::<MeshRow>()]);
+                let i = row.site.checked_sub(first).filter(|&i| (i as usize) < len);
+                let i =
+                    i.ok_or_else(|| Error::Internal(format!("row {} sent to the reader of {first}..", row.site)))?;
+                at[i as usize] = (p as u32, k);
+                k += size_of::<MeshRow>() + row.faces as usize * size_of::<MeshFace>();
+            }
+        }
+        if let Some(i) = at.iter().position(|a| a.0 == u32::MAX) {
+            return Err(Error::Internal(format!("no cell came back for site {}", first + i as u64)));
+        }
+        received.halves.par_sort_by_key(|h| h.site);
+        Ok(Self { received, at, first, faces })
+    }
+
+    /// This rank's rows.
+    pub fn len(&self) -> usize {
+        self.at.len()
+    }
+
+    /// Whether this rank has no rows.
+    pub fn is_empty(&self) -> bool {
+        self.at.is_empty()
+    }
+
+    /// The input index of this rank's first row.
+    pub fn first(&self) -> u64 {
+        self.first
+    }
+
+    fn row(&self, i: usize) -> (MeshRow, &[u8]) {
+        let (p, k) = self.at[i];
+        let bytes = &self.received.rows[p as usize][k..];
+        (bytemuck::pod_read_unaligned(&bytes[..size_of::<MeshRow>()]), &bytes[size_of::<MeshRow>()..])
+    }
+
+    /// Every row's volume, centroid and energy.
+    fn numbers(&self) -> Cells {
+        let mut cells = Cells::default();
+        for i in 0..self.len() {
+            let (row, _) = self.row(i);
+            cells.volume.push(row.volume);
+            cells.centroid.push(row.centroid);
+            cells.energy.push(row.energy);
+        }
+        cells
+    }
+
+    /// Rows `range` (of this rank's) as cells with their faces, each row's
+    /// faces merged with the halves from the other sides as one process
+    /// adds them: the cell's own first, then the other side's.
+    pub fn cells(&self, range: std::ops::Range<usize>) -> Cells {
+        let mut cells = Cells::default();
+        let mut adj = Adjacency { offsets: vec![0], ..Default::default() };
+        let halves = &self.received.halves;
+        for i in range {
+            let (row, faces) = self.row(i);
+            cells.volume.push(row.volume);
+            cells.centroid.push(row.centroid);
+            cells.energy.push(row.energy);
+            if !self.faces {
+                continue;
+            }
+            let site = self.first + i as u64;
+            let own = records::<MeshFace>(&faces[..row.faces as usize * size_of::<MeshFace>()]);
+            let lo = halves.partition_point(|h| h.site < site);
+            let others = halves[lo..].iter().take_while(|h| h.site == site).map(|h| h.face);
+            let merged =
+                merge_faces(own.chain(others).map(|f| (f.neighbor as u32, [0; 3], f.area, f.normal)).collect());
+            for (j, _, area, normal) in merged {
+                adj.neighbors.push(j);
+                adj.areas.push(area);
+                adj.normals.push(normal);
+            }
+            adj.offsets.push(adj.neighbors.len());
+            adj.boundary.push(row.boundary + 0.0);
+            adj.boundary_vector.push(row.boundary_vector.map(|v| v + 0.0));
+        }
+        cells.adjacency = self.faces.then_some(adj);
+        cells
+    }
+}
+
+/// The polyhedra of a part's cells (`pieces` of its job over `held`), by
+/// input index, added to `built` with their cells' numbers.
+fn add_polyhedra(built: &mut BuiltCells, pieces: crate::passes::pieces::Pieces, held: &[Held], whole: &Cells) {
+    let mut polyhedra = merge_pieces(&pieces);
+    drop(pieces);
+    built.numbers.extend(polyhedra.iter().map(|p| {
+        let u = p.site as usize;
+        (whole.volume[u], whole.centroid[u], whole.energy[u])
+    }));
+    polyhedra.par_iter_mut().for_each(|p| {
+        p.site = held[p.site as usize].site as u32;
+        for m in &mut p.face_neighbors {
+            if let Some(h) = usize::try_from(*m).ok().and_then(|u| held.get(u)) {
+                *m = h.site as i64;
+            }
+        }
+    });
+    built.polyhedra.extend(polyhedra);
+}
+
 /// Each bucket's rank: runs of buckets along the curve, each holding about
-/// a rank's share of the sites (a bucket goes to the rank whose share its
-/// middle site falls in).
+/// a rank's share of the sites, cut where the curve leaves the largest
+/// octant it can within a few percent of the share (a run of a whole
+/// octant is a box; a run across a big octant's end spans both).
 fn owners(counts: &[i64], ranks: usize) -> Vec<u32> {
-    let total = counts.iter().sum::<i64>().max(1) as f64;
-    let mut before = 0i64;
-    counts
-        .iter()
-        .map(|&n| {
-            let middle = before as f64 + n as f64 / 2.0;
-            before += n;
-            ((middle * ranks as f64 / total) as usize).min(ranks - 1) as u32
-        })
-        .collect()
+    let mut before = Vec::with_capacity(counts.len() + 1);
+    before.push(0i64);
+    for &n in counts {
+        before.push(before[before.len() - 1] + n);
+    }
+    let cuts = cuts_along(counts.len(), ranks, |b| before[b], |b| b as u32);
+    let mut owner = vec![0u32; counts.len()];
+    for (r, w) in cuts.windows(2).enumerate() {
+        owner[w[0]..w[1]].fill(r as u32);
+    }
+    owner
+}
+
+/// `parts + 1` places cutting `0..n` into runs of about equal weight
+/// (`before(i)`: the weight before place `i`, growing), each cut where
+/// the curve's keys (`key(i)`, growing) change in their highest bit among
+/// the places within 5% of a part's weight of the even cut.
+fn cuts_along(n: usize, parts: usize, before: impl Fn(usize) -> i64, key: impl Fn(usize) -> u32) -> Vec<usize> {
+    let total = before(n);
+    let share = total as f64 / parts as f64;
+    let mut cuts = vec![0];
+    for p in 1..parts {
+        let ideal = share * p as f64;
+        let (lo, hi) = (ideal - 0.05 * share, ideal + 0.05 * share);
+        // The first place whose weight before it is not below `x` (or
+        // above it, with `inclusive`).
+        let place = |x: f64, inclusive: bool| {
+            let (mut a, mut b) = (0, n + 1);
+            while a < b {
+                let m = (a + b) / 2;
+                let w = before(m) as f64;
+                if w < x || (inclusive && w == x) {
+                    a = m + 1;
+                } else {
+                    b = m;
+                }
+            }
+            a
+        };
+        let even = place(ideal, false);
+        let last = *cuts.last().unwrap_or(&0);
+        let first = place(lo, false).max(last + 1);
+        let end = place(hi, true).min(n);
+        let best = (first..end.max(first))
+            .filter(|&i| i > 0 && i < n)
+            .max_by_key(|&i| (key(i - 1) ^ key(i), std::cmp::Reverse(i.abs_diff(even))))
+            .unwrap_or(even.clamp(last, n));
+        cuts.push(best.max(last));
+    }
+    cuts.push(n);
+    cuts
 }
 
 /// The distinct positions among `sites` (`-0.0` and `0.0` alike).
@@ -547,8 +840,8 @@ mod tests {
         let (one, _) = whole.compute_with_polyhedra(&cpu).unwrap();
         let one_polyhedra = one.polyhedra.as_ref().unwrap();
         assert!(one.counters.cut_cells > 0 && one.counters.whole_cells > 0);
-        for ranks in 1..=4 {
-            let what = format!("{ranks} ranks");
+        for (ranks, per_rank) in [(1, 1), (2, 1), (3, 2), (4, 1), (2, 3)] {
+            let what = format!("{ranks} ranks x {per_rank} parts");
             let rows = |r: usize| sites.len() * r / ranks..sites.len() * (r + 1) / ranks;
             let runs: Vec<_> = std::thread::scope(|scope| {
                 let handles: Vec<_> = InProcess::ranks(ranks)
@@ -558,7 +851,7 @@ mod tests {
                         let (mesh, mine) = (&mesh, &sites[rows(r)]);
                         scope.spawn(move || {
                             let cpu = CpuBackend::new(Some(1)).unwrap();
-                            let cv = ClippedVoronoi::new(mesh, mine).faces(true).backend(&cpu);
+                            let cv = ClippedVoronoi::new(mesh, mine).faces(true).backend(&cpu).parts_per_rank(per_rank);
                             let (cells, report) = cv.compute_in_parts(&comm).unwrap();
                             let (with, built, _) = cv.compute_in_parts_with_polyhedra(&comm, &cpu).unwrap();
                             (cells, report, with, built)
@@ -598,7 +891,7 @@ mod tests {
         let cpu = CpuBackend::new(Some(2)).unwrap();
         let one = ClippedVoronoi::new(&mesh, &sites).strategy(Strategy::Whole).faces(true).backend(&cpu).compute();
         let one = one.unwrap();
-        for (ranks, most) in [(2, 0.7), (4, 0.55)] {
+        for (ranks, most) in [(2, 0.75), (4, 0.6)] {
             let rows = |r: usize| sites.len() * r / ranks..sites.len() * (r + 1) / ranks;
             let runs: Vec<_> = std::thread::scope(|scope| {
                 let handles: Vec<_> = InProcess::ranks(ranks)

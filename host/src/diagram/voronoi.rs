@@ -164,6 +164,9 @@ pub struct ClippedVoronoi<'a> {
     /// The sites' order, frame and answered ones, laid out by the caller
     /// ([`Layout`]).
     pub(crate) layout: Option<Layout<'a>>,
+    /// With the sites in parts ([`Self::compute_in_parts`]): the parts each
+    /// rank computes in turn ([`Self::parts_per_rank`]).
+    pub(crate) sub_parts: usize,
 }
 
 impl<'a> ClippedVoronoi<'a> {
@@ -186,7 +189,17 @@ impl<'a> ClippedVoronoi<'a> {
             candidates: None,
             memory_budget: None,
             layout: None,
+            sub_parts: 1,
         }
+    }
+
+    /// With the sites in parts ([`Self::compute_in_parts`]): each rank
+    /// computes its sites in `n` parts, one after another (default 1):
+    /// each part's job holds a share of them and its halo, so a rank's
+    /// memory falls with `n`, and its time grows with the halos.
+    pub fn parts_per_rank(mut self, n: usize) -> Self {
+        self.sub_parts = n.max(1);
+        self
     }
 
     /// Whole cells laid out by the caller ([`Layout`]): the sites in its
