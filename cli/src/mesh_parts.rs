@@ -75,7 +75,7 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
         .parts_per_rank(args.parts.unwrap_or(1))
         .backend(&cpu);
     let geometry = (!args.no_geometry).then_some(&cpu);
-    let cvd::diagram::mesh_parts::MeshInParts { cells, rows: by_rows, built, report } =
+    let cvd::diagram::mesh_parts::MeshInParts { cells, rows: by_rows, built, pieces, report } =
         diagram.compute_in_parts_by_rows(comm, geometry)?;
     // The rows with their faces in batches: a rank holds its rows' faces
     // once (as received), and a batch's at a time.
@@ -105,9 +105,14 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     }
     write_part(comm, &dir.join("sites.xyz"), |w| cvd_io::write_sites_xyz_rows(w, &sites, rows))?;
     written.push("sites.xyz");
+    let mut pieces_and_lids = None;
     if let Some(built) = &built {
         let numbers = |k: usize| built.numbers[k];
         written.extend(write_polyhedra(comm, &dir, &built.polyhedra, &numbers)?);
+        let lids: u64 = built.polyhedra.iter().map(|p| p.repaired_holes as u64).sum();
+        let mut tally = [pieces as i64, lids as i64];
+        comm.sum(&mut tally)?;
+        pieces_and_lids = Some((tally[0] as usize, tally[1] as u64));
         if rank == 0 {
             println!("in parts: no pictures or pieces.vtu (each rank holds the pieces of its own cells only)");
         }
@@ -134,6 +139,9 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     let mut summary = Summary::new(&name, &mesh, total as usize, cells.strategy, &cpu, &cells);
     summary.energy = energy;
     summary.ranks = Some(records.iter().map(|b| record_of(b)).collect());
+    if let Some((pieces, lids)) = pieces_and_lids {
+        (summary.pieces, summary.lids) = (Some(pieces), Some(lids));
+    }
     summary.write_json(&dir.join("summary.json"))?;
     written.push("summary.json");
     print!("{summary}");

@@ -159,7 +159,17 @@ fn mpirun_gives_whole_cells_and_neighbours_of_one_process() {
             let o = mpirun_job(&torus, ranks, &out, args);
             ok(&o, &format!("{name}: {ranks} ranks"));
             let said = String::from_utf8_lossy(&o.stdout);
-            assert!(said.contains("whole on distributed"), "{name}: {said}");
+            // Cells, neighbours and polyhedra with each rank reading its
+            // rows; iterations and transport with the whole input on every
+            // rank, said.
+            let by_rows = ["cells", "geometry"].contains(name);
+            match by_rows {
+                true => assert!(said.contains("each rank reading its rows"), "{name}: {said}"),
+                false => assert!(
+                    said.contains("whole on distributed") && said.contains("every rank reads the whole input"),
+                    "{name}: {said}"
+                ),
+            }
             same_files(&one, &out, &["cells.csv", "neighbors.csv", "sites.xyz"], &format!("{name}, {ranks} ranks"));
             let s = summary(&out);
             if *name == "transport" {
@@ -183,12 +193,83 @@ fn mpirun_gives_whole_cells_and_neighbours_of_one_process() {
                     }
                 }
             }
-            assert_eq!(s["parts"]["ranks"], ranks, "{name}: {ranks} ranks");
-            let built: u64 =
-                s["parts"]["all"].as_array().unwrap().iter().map(|r| r["listed_sites"].as_u64().unwrap()).sum();
-            assert!(built > 0, "{name}: {s}");
+            if by_rows {
+                let records = s["ranks"].as_array().unwrap();
+                assert_eq!(records.len(), ranks, "{name}: {s}");
+                let owned: u64 = records.iter().map(|r| r["owned"].as_u64().unwrap()).sum();
+                assert_eq!(owned, sites.len() as u64, "{name}: every site's cell built once");
+                let rows: u64 = records.iter().map(|r| r["rows"].as_u64().unwrap()).sum();
+                assert_eq!(rows, sites.len() as u64, "{name}: every row read once");
+            } else {
+                assert_eq!(s["parts"]["ranks"], ranks, "{name}: {ranks} ranks");
+                let built: u64 =
+                    s["parts"]["all"].as_array().unwrap().iter().map(|r| r["listed_sites"].as_u64().unwrap()).sum();
+                assert!(built > 0, "{name}: {s}");
+            }
         }
     }
+}
+
+#[test]
+fn a_mesh_in_parts_holds_a_fraction_of_one_process_memory() {
+    if !mpi_here() {
+        return;
+    }
+    // 10^6 sites in a cube of 6 000 tets (every rank holds the mesh), with
+    // their faces: each rank's peak against one process's (both on one
+    // thread), measured by the processes themselves (VmHWM); the ranks
+    // each in parts, one after another.
+    let dir = temp_dir("mesh-memory");
+    struct Removed(PathBuf);
+    impl Drop for Removed {
+        fn drop(&mut self) {
+            let _ = std::fs::remove_dir_all(&self.0);
+        }
+    }
+    let _removed = Removed(dir.clone());
+    let job = ["run", "--model", "cube", "--resolution", "10", "--no-picture", "--no-geometry", "--strategy", "whole"];
+    let args = ["--sites", "1000000", "--threads", "1"];
+    let one = dir.join("one");
+    ok(&cvd_job(&job, &one, &args), "one process");
+    let peak = summary(&one)["peak_memory_bytes"].as_f64().unwrap();
+    assert!(peak > 0.0, "the peak is measured here");
+    for (ranks, parts, most) in [(2, "2", 0.6), (4, "4", 0.35)] {
+        let out = dir.join(format!("ranks{ranks}"));
+        let o = mpirun_job(&job, ranks, &out, &[&args[..2], &["--parts", parts]].concat());
+        ok(&o, &format!("{ranks} ranks"));
+        same_files(&one, &out, &["cells.csv", "neighbors.csv"], &format!("{ranks} ranks"));
+        for r in summary(&out)["ranks"].as_array().unwrap() {
+            let share = r["peak_memory_bytes"].as_f64().unwrap() / peak;
+            eprintln!("{ranks} ranks x {parts} parts: rank {} peak {:.3} of one process's", r["rank"], share);
+            assert!(share <= most, "{ranks} ranks: rank {} peaked at {share:.3} of one process's", r["rank"]);
+        }
+        let _ = std::fs::remove_dir_all(&out);
+    }
+}
+
+#[test]
+fn a_mesh_too_large_for_one_process_runs_in_parts_that_fit() {
+    if !mpi_here() {
+        return;
+    }
+    // A budget the whole job exceeds and each rank's parts fit: one
+    // process refuses it, the ranks read their rows of the file and run.
+    let dir = temp_dir("mesh-budget");
+    let n = 200_000;
+    let mesh = cvd::mesher::models::builtin("cube", Some(10)).unwrap();
+    let npy = dir.join("sites.npy");
+    cvd_io::write_sites_npy(&npy, &cvd::geom::points::in_mesh(&mesh, n, 9)).unwrap();
+    let whole = cvd::job::memory::JobSize { sites: n as u64, tets: mesh.tets.len() as u64, k_site: 48, faces: true };
+    let budget = ((whole.bytes() / 2) >> 20).to_string();
+    let job = ["run", "--model", "cube", "--resolution", "10", "--no-picture", "--no-geometry"];
+    let args = ["--sites-file", npy.to_str().unwrap(), "--memory-budget", &budget];
+    let o = cvd_job(&job, &dir.join("one"), &args);
+    assert_eq!(o.status.code(), Some(2), "one process: {}", String::from_utf8_lossy(&o.stdout));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("memory budget"), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = mpirun_job(&job, 4, &dir.join("four"), &[&args[..], &["--parts", "2"]].concat());
+    ok(&o, "4 ranks x 2 parts under the budget");
+    assert_eq!(cvd_io::read_cells_csv(&dir.join("four").join("cells.csv")).unwrap().len(), n);
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]

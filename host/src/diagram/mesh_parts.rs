@@ -62,6 +62,8 @@ pub struct MeshInParts {
     pub rows: MeshRows,
     /// The polyhedra of the cells this rank built, when asked for.
     pub built: Option<BuiltCells>,
+    /// The pieces they were merged from.
+    pub pieces: u64,
     /// What the part did.
     pub report: PartsReport,
 }
@@ -214,6 +216,7 @@ impl ClippedVoronoi<'_> {
         // faces that others' cells share) sent to their readers.
         let mut rows = Received::default();
         let mut built = geometry.map(|_| BuiltCells::default());
+        let mut pieces_merged = 0;
         let mut counted = vec![0i64; counter_words(&Default::default()).len() + 1];
         let (mut pairing, mut k) = (crate::job::clip::Pairing::Flood, 1);
         let mut phases = Timings::default();
@@ -236,6 +239,7 @@ impl ClippedVoronoi<'_> {
             (pairing, k) = (whole.pairing, whole.k);
             let clock = std::time::Instant::now();
             if let (Some(built), Some(pieces)) = (built.as_mut(), pieces) {
+                pieces_merged += pieces.len() as u64;
                 add_polyhedra(built, pieces, &held, &whole);
                 timings.add("polyhedra", clock.elapsed().as_secs_f64());
             }
@@ -282,7 +286,7 @@ impl ClippedVoronoi<'_> {
             cells.timings.add(name, *t);
         }
         report.timings = cells.timings.clone();
-        Ok(MeshInParts { cells, rows, built, report })
+        Ok(MeshInParts { cells, rows, built, pieces: pieces_merged, report })
     }
 
     /// Sub-part `run` of this rank's sites `own` (in the one process's
