@@ -831,6 +831,8 @@ mod tests {
         let mut sites = points::in_mesh(&mesh, 6000, 21);
         sites.extend(points::clustered(3000, 3, 0.02, 22).into_iter().map(|p| p.map(|x| 0.05 + 0.4 * x)));
         sites.push(sites[17]);
+        // Outside the domain: in the L's notch, and beyond the mesh's box.
+        sites.extend([[0.8, 0.8, 0.5], [1.2, 0.3, 0.4]]);
         // A lattice in a corner: many equal distances.
         for x in 0..8 {
             for y in 0..8 {
