@@ -12,11 +12,10 @@
 //! whole input (`cvd::backends::distributed`), and says so.
 
 use crate::args::RunArgs;
-use crate::parts::{record_bytes, record_of, rows_of_sites, write_part, write_polyhedra};
+use crate::parts::{rows_of_sites, write_part, write_polyhedra};
 use cvd::backends::distributed::Reduce;
-use cvd::geom::exact_sum::ExactSum;
 use cvd::{ClippedVoronoi, CpuBackend};
-use cvd_io::{RankRecord, Rows, Summary};
+use cvd_io::{Rows, Summary};
 
 /// What a mesh with its sites in parts does not take yet, if `args` asks
 /// for any of it: then every rank reads the whole input.
@@ -119,26 +118,13 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     }
 
     // The run's numbers: totals from every rank, each rank's record.
-    let energy = comm.exact_total(&ExactSum::of(&cells.energy))?.value();
-    let mine = RankRecord {
-        rank,
-        rows: report.read,
-        blocks: report.blocks[1],
-        owned: report.owned,
-        held: report.held,
-        halo: report.halo,
-        grid_cells: report.grid_cells,
-        sent_bytes: report.sent,
-        seconds: clock.elapsed().as_secs_f64(),
-        peak_memory_bytes: cvd::job::memory::peak().unwrap_or(0),
-    };
-    let records = comm.all_gather(&record_bytes(&mine))?;
+    let (energy, records) = crate::parts::totals_and_records(comm, &cells, &report, clock)?;
     if rank != 0 {
         return Ok(0);
     }
     let mut summary = Summary::new(&name, &mesh, total as usize, cells.strategy, &cpu, &cells);
     summary.energy = energy;
-    summary.ranks = Some(records.iter().map(|b| record_of(b)).collect());
+    summary.ranks = Some(records);
     if let Some((pieces, lids)) = pieces_and_lids {
         (summary.pieces, summary.lids) = (Some(pieces), Some(lids));
     }

@@ -148,20 +148,7 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     }
 
     // The run's numbers: totals from every rank, each rank's record.
-    let energy = comm.exact_total(&ExactSum::of(&out.cells.energy))?.value();
-    let mine = RankRecord {
-        rank,
-        rows: report.read,
-        blocks: report.blocks[1],
-        owned: report.owned,
-        held: report.held,
-        halo: report.halo,
-        grid_cells: report.grid_cells,
-        sent_bytes: report.sent,
-        seconds: clock.elapsed().as_secs_f64(),
-        peak_memory_bytes: cvd::job::memory::peak().unwrap_or(0),
-    };
-    let records = comm.all_gather(&record_bytes(&mine))?;
+    let (energy, records) = totals_and_records(comm, &out.cells, &report, clock)?;
     let status = match &transport {
         Some(t) if !t.converged => crate::optimise::NOT_CONVERGED,
         _ => 0,
@@ -179,13 +166,38 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     }
     summary.transport = transport;
     summary.periodic = Some(cvd_io::PeriodicRecord::of(&domain, &out));
-    summary.ranks = Some(records.iter().map(|b| record_of(b)).collect());
+    summary.ranks = Some(records);
     summary.write_json(&dir.join("summary.json"))?;
     written.push("summary.json");
     print!("{summary}");
     print_ranks(&summary, "blocks");
     println!("wrote {}: {}", dir.display(), written.join(", "));
     Ok(status)
+}
+
+/// The energy of every rank's `cells` (its rows'), and every rank's record
+/// (its `report`, the seconds since `clock` and its peak memory).
+pub(crate) fn totals_and_records(
+    comm: &dyn Reduce,
+    cells: &cvd::Cells,
+    report: &cvd::diagram::periodic_parts::PartsReport,
+    clock: std::time::Instant,
+) -> cvd::Result<(f64, Vec<RankRecord>)> {
+    let energy = comm.exact_total(&ExactSum::of(&cells.energy))?.value();
+    let mine = RankRecord {
+        rank: comm.rank(),
+        rows: report.read,
+        blocks: report.blocks[1],
+        owned: report.owned,
+        held: report.held,
+        halo: report.halo,
+        grid_cells: report.grid_cells,
+        sent_bytes: report.sent,
+        seconds: clock.elapsed().as_secs_f64(),
+        peak_memory_bytes: cvd::job::memory::peak().unwrap_or(0),
+    };
+    let records = comm.all_gather(&record_bytes(&mine))?;
+    Ok((energy, records.iter().map(|b| record_of(b)).collect()))
 }
 
 /// This rank's rows of the sites and how many there are in all: its part
@@ -440,7 +452,7 @@ fn write_section(
 }
 
 /// A rank's record as bytes (numbers in a fixed order), and back.
-pub(crate) fn record_bytes(r: &RankRecord) -> Vec<u8> {
+fn record_bytes(r: &RankRecord) -> Vec<u8> {
     let words = [
         r.rank as u64,
         r.rows,
@@ -457,7 +469,7 @@ pub(crate) fn record_bytes(r: &RankRecord) -> Vec<u8> {
     words.iter().flat_map(|w| w.to_le_bytes()).collect()
 }
 
-pub(crate) fn record_of(b: &[u8]) -> RankRecord {
+fn record_of(b: &[u8]) -> RankRecord {
     let w = |k: usize| b.get(8 * k..8 * k + 8).map_or(0, |s| u64::from_le_bytes(s.try_into().unwrap_or([0; 8])));
     RankRecord {
         rank: w(0) as usize,

@@ -33,12 +33,11 @@
 //! bounds and pieces read all sites): refused by name.
 
 use super::periodic::merge_faces;
-use super::periodic_parts::{at_row, counter_words, counters_of, send, BuiltCells, Held, PartsReport};
+use super::periodic_parts::{at_row, counter_words, send, with_totals, BuiltCells, Held, PartsReport};
 use crate::backends::distributed::{records, Parcels, Reduce};
 use crate::diagram::voronoi::{Cells, ClippedVoronoi};
 use crate::error::{Error, Result};
 use crate::exec::CpuBackend;
-use crate::geom::exact_sum::ExactSum;
 use crate::geom::points::MortonKeys;
 use crate::geom::timing::{timed, Timings};
 use crate::job::clip::{Frame, JobShape, Strategy};
@@ -262,26 +261,16 @@ impl ClippedVoronoi<'_> {
         timings.add("rows", clock.elapsed().as_secs_f64());
 
         // The run's totals.
-        counted.push(cells.volume.iter().filter(|&&v| v <= 0.0).count() as i64);
-        comm.sum(&mut counted)?;
-        let mut c = counters_of(&counted);
-        c.duplicate_sites = counted[counted.len() - 2] as u64;
-        c.empty_cells = counted[counted.len() - 1] as u64 - c.duplicate_sites;
-        let total_volume = comm.exact_total(&ExactSum::of(&cells.volume))?.value();
-        let mesh_volume = mesh.volume();
-        cells = Cells {
-            total_volume,
-            mesh_volume,
-            e_vol: (total_volume - mesh_volume).abs() / mesh_volume,
+        let like = Cells {
             strategy: Strategy::Whole,
             pairing,
             k,
             k_site: self.resolved_k_site(),
-            counters: c,
             chunks: (ranks * sub) as u64,
             timings: timings.clone(),
-            ..cells
+            ..Default::default()
         };
+        cells = with_totals(comm, counted, cells, mesh.volume(), like)?;
         for (name, t) in &phases.phases {
             cells.timings.add(name, *t);
         }
@@ -805,6 +794,20 @@ mod tests {
     use crate::geom::mesh::TetMesh;
     use crate::geom::points;
 
+    /// `run(rank, comm)` on each of `ranks` ranks, as threads; their
+    /// results by rank.
+    fn on_ranks<T: Send>(ranks: usize, run: impl Fn(usize, &InProcess) -> T + Sync) -> Vec<T> {
+        std::thread::scope(|scope| {
+            let run = &run;
+            let handles: Vec<_> = InProcess::ranks(ranks)
+                .into_iter()
+                .enumerate()
+                .map(|(r, comm)| scope.spawn(move || run(r, &comm)))
+                .collect();
+            handles.into_iter().map(|h| h.join().unwrap()).collect()
+        })
+    }
+
     /// Rows `rows` of the one-process cells `one` are `part`'s, bit for bit
     /// (volumes, centroids, energies, faces and boundary).
     fn same_rows(one: &Cells, part: &Cells, rows: std::ops::Range<usize>, what: &str) {
@@ -849,22 +852,12 @@ mod tests {
         for (ranks, per_rank) in [(1, 1), (2, 1), (3, 2), (4, 1), (2, 3)] {
             let what = format!("{ranks} ranks x {per_rank} parts");
             let rows = |r: usize| sites.len() * r / ranks..sites.len() * (r + 1) / ranks;
-            let runs: Vec<_> = std::thread::scope(|scope| {
-                let handles: Vec<_> = InProcess::ranks(ranks)
-                    .into_iter()
-                    .enumerate()
-                    .map(|(r, comm)| {
-                        let (mesh, mine) = (&mesh, &sites[rows(r)]);
-                        scope.spawn(move || {
-                            let cpu = CpuBackend::new(Some(1)).unwrap();
-                            let cv = ClippedVoronoi::new(mesh, mine).faces(true).backend(&cpu).parts_per_rank(per_rank);
-                            let (cells, report) = cv.compute_in_parts(&comm).unwrap();
-                            let (with, built, _) = cv.compute_in_parts_with_polyhedra(&comm, &cpu).unwrap();
-                            (cells, report, with, built)
-                        })
-                    })
-                    .collect();
-                handles.into_iter().map(|h| h.join().unwrap()).collect()
+            let runs = on_ranks(ranks, |r, comm| {
+                let cpu = CpuBackend::new(Some(1)).unwrap();
+                let cv = ClippedVoronoi::new(&mesh, &sites[rows(r)]).faces(true).backend(&cpu).parts_per_rank(per_rank);
+                let (cells, report) = cv.compute_in_parts(comm).unwrap();
+                let (with, built, _) = cv.compute_in_parts_with_polyhedra(comm, &cpu).unwrap();
+                (cells, report, with, built)
             });
             let mut polyhedra: Vec<_> = runs.iter().flat_map(|r| r.3.polyhedra.iter().cloned()).collect();
             polyhedra.sort_by_key(|p| p.site);
@@ -899,19 +892,9 @@ mod tests {
         let one = one.unwrap();
         for (ranks, most) in [(2, 0.75), (4, 0.6)] {
             let rows = |r: usize| sites.len() * r / ranks..sites.len() * (r + 1) / ranks;
-            let runs: Vec<_> = std::thread::scope(|scope| {
-                let handles: Vec<_> = InProcess::ranks(ranks)
-                    .into_iter()
-                    .enumerate()
-                    .map(|(r, comm)| {
-                        let (mesh, mine) = (&mesh, &sites[rows(r)]);
-                        scope.spawn(move || {
-                            let cpu = CpuBackend::new(Some(1)).unwrap();
-                            ClippedVoronoi::new(mesh, mine).faces(true).backend(&cpu).compute_in_parts(&comm).unwrap()
-                        })
-                    })
-                    .collect();
-                handles.into_iter().map(|h| h.join().unwrap()).collect()
+            let runs = on_ranks(ranks, |r, comm| {
+                let cpu = CpuBackend::new(Some(1)).unwrap();
+                ClippedVoronoi::new(&mesh, &sites[rows(r)]).faces(true).backend(&cpu).compute_in_parts(comm).unwrap()
             });
             for (r, (cells, report)) in runs.iter().enumerate() {
                 same_rows(&one, cells, rows(r), &format!("{ranks} ranks"));

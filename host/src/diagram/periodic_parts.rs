@@ -505,29 +505,8 @@ impl PeriodicVoronoi<'_> {
         // The run's totals.
         let mut counters = counter_words(&counted);
         counters.push(duplicates as i64);
-        counters.push(cells.0.volume.iter().filter(|&&v| v <= 0.0).count() as i64);
-        comm.sum(&mut counters)?;
-        let mut c = counters_of(&counters);
-        c.duplicate_sites = counters[counters.len() - 2] as u64;
-        c.empty_cells = counters[counters.len() - 1] as u64 - c.duplicate_sites;
-        let total_volume = comm.exact_total(&ExactSum::of(&cells.0.volume))?.value();
-        let mesh_volume = domain.volume();
-        let (cells, offsets) = (
-            Cells {
-                total_volume,
-                mesh_volume,
-                e_vol: (total_volume - mesh_volume).abs() / mesh_volume,
-                strategy: Strategy::Whole,
-                pairing,
-                k,
-                k_site,
-                counters: c,
-                chunks: ranks as u64,
-                timings: Timings::default(),
-                ..cells.0
-            },
-            cells.1,
-        );
+        let whole = Cells { strategy: Strategy::Whole, pairing, k, k_site, chunks: ranks as u64, ..Default::default() };
+        let (cells, offsets) = (with_totals(comm, counters, cells.0, domain.volume(), whole)?, cells.1);
         let mut cells = cells;
         cells.timings = timings.clone();
         for (name, t) in &phases {
@@ -862,6 +841,37 @@ fn polyhedra_of(
     (polyhedra, places, quantities, clock.elapsed().as_secs_f64())
 }
 
+/// This rank's rows' `cells` with the run's totals over the ranks of
+/// `comm`, and what `like` says of the run (strategy, pairing, `k`,
+/// `k_site`, parts): the counters (`counted`: [`counter_words`], then the
+/// duplicates) added with the empty cells, the total volume summed exactly
+/// and its error against `mesh_volume`.
+pub(super) fn with_totals(
+    comm: &dyn Reduce,
+    mut counted: Vec<i64>,
+    cells: Cells,
+    mesh_volume: f64,
+    like: Cells,
+) -> Result<Cells> {
+    counted.push(cells.volume.iter().filter(|&&v| v <= 0.0).count() as i64);
+    comm.sum(&mut counted)?;
+    let mut c = counters_of(&counted);
+    c.duplicate_sites = counted[counted.len() - 2] as u64;
+    c.empty_cells = counted[counted.len() - 1] as u64 - c.duplicate_sites;
+    let total_volume = comm.exact_total(&ExactSum::of(&cells.volume))?.value();
+    Ok(Cells {
+        total_volume,
+        mesh_volume,
+        e_vol: (total_volume - mesh_volume).abs() / mesh_volume,
+        counters: c,
+        volume: cells.volume,
+        centroid: cells.centroid,
+        energy: cells.energy,
+        adjacency: cells.adjacency,
+        ..like
+    })
+}
+
 /// The counters as numbers to add across ranks.
 pub(super) fn counter_words(c: &Counters) -> Vec<i64> {
     [
@@ -886,7 +896,7 @@ pub(super) fn counter_words(c: &Counters) -> Vec<i64> {
 }
 
 /// [`counter_words`] back.
-pub(super) fn counters_of(w: &[i64]) -> Counters {
+fn counters_of(w: &[i64]) -> Counters {
     let v = |i: usize| w[i].max(0) as u64;
     Counters {
         pairs: v(0),

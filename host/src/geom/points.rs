@@ -128,6 +128,7 @@ impl MortonKeys {
     pub fn over(points: impl Iterator<Item = [f64; 3]>) -> Self {
         let mut lo = [f64::INFINITY; 3];
         let mut hi = [f64::NEG_INFINITY; 3];
+        // Not `vec3::bounding_box`: the points are made as needed, not held.
         for p in points {
             for a in 0..3 {
                 lo[a] = lo[a].min(p[a]);
