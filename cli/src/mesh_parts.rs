@@ -13,6 +13,7 @@
 
 use crate::args::RunArgs;
 use crate::parts::{rows_of_sites, write_part, write_polyhedra};
+use crate::progress::with_iterations;
 use cvd::backends::distributed::Reduce;
 use cvd::{ClippedVoronoi, CpuBackend};
 use cvd_io::{Rows, Summary};
@@ -23,7 +24,7 @@ pub fn lacking(args: &RunArgs) -> Option<&'static str> {
     let lacking = [
         (args.weights.is_some() || args.radii.is_some(), "power cells (--weights, --radii)"),
         (args.transports(), "optimal transport"),
-        (args.iterations > 0, "CVT iterations"),
+        (args.iterations > 0 && args.optimizer == cvd::cvt::Optimizer::Lloyd, "Lloyd's iterations (L-BFGS is)"),
         (args.density.is_some() || args.density_file.is_some(), "a density"),
         (args.strategy.is_some_and(|s| s != cvd::Strategy::Whole), "a strategy other than whole cells"),
         (args.backend.backend == cvd::BackendChoice::Vulkan, "the Vulkan backend"),
@@ -66,6 +67,21 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     if let Some(warning) = crate::backend::threads_beyond_cores(args.backend.threads).filter(|_| rank == 0) {
         eprintln!("cvd: {warning}");
     }
+    // L-BFGS, each rank moving its own rows: one process's steps.
+    let (sites, cvt) = match args.iterations {
+        0 => (sites, None),
+        iterations => {
+            let iterated = ClippedVoronoi::new(&mesh, &sites)
+                .k_site(args.k_site)
+                .memory_budget(args.cpu_memory_budget())
+                .parts_per_rank(args.parts.unwrap_or(1))
+                .backend(&cpu);
+            let iterated = cvd::cvt::clipped::ClippedInParts::new(iterated, comm);
+            let name = args.optimizer.name();
+            let run = with_iterations(name, iterations, |show| args.optimizer.run(&iterated, iterations, show))?;
+            (run.sites, Some(cvd_io::CvtRecord::of(name, &run.iterations)))
+        }
+    };
     let faces = !args.no_neighbors;
     let diagram = ClippedVoronoi::new(&mesh, &sites)
         .k_site(args.k_site)
@@ -124,6 +140,11 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     }
     let mut summary = Summary::new(&name, &mesh, total as usize, cells.strategy, &cpu, &cells);
     summary.energy = energy;
+    if let Some(record) = cvt {
+        crate::outputs::write_energy_chart(&dir.join("energy.png"), &record)?;
+        written.insert(0, "energy.png");
+        summary.cvt = Some(record);
+    }
     summary.ranks = Some(records);
     if let Some((pieces, lids)) = pieces_and_lids {
         (summary.pieces, summary.lids) = (Some(pieces), Some(lids));
