@@ -77,9 +77,6 @@ impl Inputs {
     /// The folder `--out` names, or `out/<name>`: the model's name, the
     /// mesh file's name without extension, or `periodic`.
     pub fn out_dir(&self, args: &RunArgs) -> PathBuf {
-        if let Some(dir) = &args.out {
-            return dir.clone();
-        }
         let name = match self.domain {
             Domain::Mesh(_) => self.name.as_str(),
             Domain::Box(_) => PERIODIC_DIR,

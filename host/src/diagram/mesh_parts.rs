@@ -33,7 +33,7 @@
 //! bounds and pieces read all sites): refused by name.
 
 use super::periodic::merge_faces;
-use super::periodic_parts::{at_row, counter_words, send, with_totals, BuiltCells, Held, PartsReport};
+use super::periodic_parts::{at_row, counter_words, send, to_owners, with_totals, BuiltCells, Held, PartsReport};
 use crate::backends::distributed::{records, Parcels, Reduce};
 use crate::diagram::voronoi::{Cells, ClippedVoronoi};
 use crate::error::{Error, Result};
@@ -172,21 +172,7 @@ impl ClippedVoronoi<'_> {
         comm.sum(&mut per_bucket)?;
         let owner = owners(&per_bucket, ranks);
         drop(per_bucket);
-        let mut report = PartsReport {
-            rank,
-            ranks,
-            first,
-            read: self.sites.len() as u64,
-            total,
-            blocks: [owner.len() as u64, owner.iter().filter(|&&r| r as usize == rank).count() as u64],
-            ..Default::default()
-        };
-        let mut to = vec![Vec::new(); ranks];
-        for (i, &p) in self.sites.iter().enumerate() {
-            let r = owner[bucket(p)] as usize;
-            to[r].push(Held::site(p, first + i as u64, 0.0, r));
-        }
-        let mut own: Vec<Held> = send(comm, to, &mut report.sent)?;
+        let (mut own, mut report) = to_owners(comm, self.sites, (first, total), &owner, bucket, |_| 0.0)?;
         report.owned = own.len() as u64;
         // Duplicates share a key, so a rank holds all of a position's.
         let mut distinct = [distinct_positions(&own) as i64];
@@ -271,7 +257,8 @@ impl ClippedVoronoi<'_> {
             ..Default::default()
         };
         cells = with_totals(comm, counted, cells, mesh.volume(), like)?;
-        for (name, t) in &phases.phases {
+        // The sub-parts' exchanges (timed in the report), then their jobs'.
+        for (name, t) in report.timings.phases.iter().chain(&phases.phases) {
             cells.timings.add(name, *t);
         }
         report.timings = cells.timings.clone();

@@ -271,24 +271,15 @@ impl PeriodicVoronoi<'_> {
         let owner = owners(&blocks, &per_block, ranks);
         drop(per_block);
         let mine = |p: [f64; 3]| owner[blocks.index(blocks.of_point(&domain, p))] as usize == rank;
-        let mut report = PartsReport {
-            rank,
-            ranks,
-            first,
-            read: self.sites.len() as u64,
-            total,
-            blocks: [blocks.count() as u64, owner.iter().filter(|&&r| r as usize == rank).count() as u64],
-            ..Default::default()
-        };
-
         // The sites to their blocks' ranks.
-        let mut to = vec![Vec::new(); ranks];
-        for (i, &p) in placed.iter().enumerate() {
-            let r = owner[blocks.index(blocks.of_point(&domain, p))] as usize;
-            let weight = self.weights.map_or(0.0, |w| w[i]);
-            to[r].push(Held::site(p, first + i as u64, weight, r));
-        }
-        let mut own: Vec<Held> = send(comm, to, &mut report.sent)?;
+        let (mut own, mut report) = to_owners(
+            comm,
+            &placed,
+            (first, total),
+            &owner,
+            |p| blocks.index(blocks.of_point(&domain, p)),
+            |i| self.weights.map_or(0.0, |w| w[i]),
+        )?;
         own.sort_unstable_by_key(|h| h.site);
         let own_sites: Vec<[f64; 3]> = own.iter().map(|h| h.at).collect();
         report.owned = own.len() as u64;
@@ -563,6 +554,36 @@ struct PartsOut {
     particles: Option<ParticleCells>,
     built: Option<BuiltCells>,
     report: PartsReport,
+}
+
+/// This rank's report as its part starts, and its `rows` (from input row
+/// `first` of `total`) sent to the ranks that own them (`owner[part(p)]`,
+/// each with `weight(row)`): returns the sites this rank owns.
+pub(super) fn to_owners(
+    comm: &dyn Reduce,
+    rows: &[[f64; 3]],
+    (first, total): (u64, u64),
+    owner: &[u32],
+    part: impl Fn([f64; 3]) -> usize,
+    weight: impl Fn(usize) -> f64,
+) -> Result<(Vec<Held>, PartsReport)> {
+    let (rank, ranks) = (comm.rank(), comm.size());
+    let mut report = PartsReport {
+        rank,
+        ranks,
+        first,
+        read: rows.len() as u64,
+        total,
+        blocks: [owner.len() as u64, owner.iter().filter(|&&r| r as usize == rank).count() as u64],
+        ..Default::default()
+    };
+    let mut to = vec![Vec::new(); ranks];
+    for (i, &p) in rows.iter().enumerate() {
+        let r = owner[part(p)] as usize;
+        to[r].push(Held::site(p, first + i as u64, weight(i), r));
+    }
+    let own = send(comm, to, &mut report.sent)?;
+    Ok((own, report))
 }
 
 /// An error about a site, its index moved from this rank's rows to the
