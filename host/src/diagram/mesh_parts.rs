@@ -33,7 +33,9 @@
 //! bounds and pieces read all sites): refused by name.
 
 use super::periodic::merge_faces;
-use super::periodic_parts::{at_row, counter_words, send, to_owners, with_totals, BuiltCells, Held, PartsReport};
+use super::periodic_parts::{
+    at_row, counter_words, send, to_owners, with_totals, BuiltCells, Held, PartsReport, RowsAcross,
+};
 use crate::backends::distributed::{records, Parcels, Reduce};
 use crate::diagram::voronoi::{Cells, ClippedVoronoi};
 use crate::error::{Error, Result};
@@ -134,15 +136,11 @@ impl ClippedVoronoi<'_> {
                 &own_cpu
             }
         };
-        let (rank, ranks) = (comm.rank(), comm.size());
+        let ranks = comm.size();
         let mut timings = Timings::default();
         let clock = std::time::Instant::now();
-        let counts = comm.gather_u64(self.sites.len() as u64)?;
-        let first: u64 = counts[..rank].iter().sum();
-        let total: u64 = counts.iter().sum();
-        if total == 0 {
-            return Err(Error::InvalidInput("there are no sites".into()));
-        }
+        let across = RowsAcross::of(comm, self.sites.len())?;
+        let (first, total) = (across.first, across.total);
         if !self.sites.is_empty() {
             crate::job::sites::check_sites(self.sites, None).map_err(|e| at_row(e, first))?;
         }
@@ -150,13 +148,7 @@ impl ClippedVoronoi<'_> {
         if Self::strategy_for(self.strategy, Some(cpu), shape) != Strategy::Whole {
             return Err(Error::InvalidInput("a mesh with its sites in parts is computed with whole cells".into()));
         }
-        let reader = |site: u64| {
-            let mut at = 0;
-            counts.iter().position(|&c| {
-                at += c;
-                site < at
-            })
-        };
+        let reader = |site: u64| across.reader(site);
 
         // The sites' box over all ranks, and the curve over it.
         let (lo, hi) = crate::geom::vec3::bounding_box(self.sites.iter());

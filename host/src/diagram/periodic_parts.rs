@@ -225,19 +225,9 @@ impl PeriodicVoronoi<'_> {
         let (rank, ranks) = (comm.rank(), comm.size());
         let mut timings = Timings::default();
         let clock = std::time::Instant::now();
-        let counts = comm.gather_u64(self.sites.len() as u64)?;
-        let first: u64 = counts[..rank].iter().sum();
-        let total: u64 = counts.iter().sum();
-        if total == 0 {
-            return Err(Error::InvalidInput("no sites".into()));
-        }
-        let reader = |site: u64| {
-            let mut at = 0;
-            counts.iter().position(|&c| {
-                at += c;
-                site < at
-            })
-        };
+        let rows = RowsAcross::of(comm, self.sites.len())?;
+        let (first, total) = (rows.first, rows.total);
+        let reader = |site: u64| rows.reader(site);
         // A rank may hold no rows (fewer rows than ranks, or none of a
         // frame's ids): the others' checks stand for it.
         if !self.sites.is_empty() {
@@ -554,6 +544,36 @@ struct PartsOut {
     particles: Option<ParticleCells>,
     built: Option<BuiltCells>,
     report: PartsReport,
+}
+
+/// Where the ranks' rows of the input lie: each rank's count, this rank's
+/// first row, and the total (none refused).
+pub(super) struct RowsAcross {
+    counts: Vec<u64>,
+    pub(super) first: u64,
+    pub(super) total: u64,
+}
+
+impl RowsAcross {
+    /// The rows of every rank of `comm`, this rank's `len`.
+    pub(super) fn of(comm: &dyn Reduce, len: usize) -> Result<Self> {
+        let counts = comm.gather_u64(len as u64)?;
+        let first: u64 = counts[..comm.rank()].iter().sum();
+        let total: u64 = counts.iter().sum();
+        if total == 0 {
+            return Err(Error::InvalidInput("there are no sites".into()));
+        }
+        Ok(Self { counts, first, total })
+    }
+
+    /// The rank that read input row `site`.
+    pub(super) fn reader(&self, site: u64) -> Option<usize> {
+        let mut at = 0;
+        self.counts.iter().position(|&c| {
+            at += c;
+            site < at
+        })
+    }
 }
 
 /// This rank's report as its part starts, and its `rows` (from input row
