@@ -29,12 +29,16 @@
 //!   that built that side, as one process adds them), to the rank that
 //!   read its site.
 //!
-//! Power cells and densities are not laid out so yet (their local weight
-//! bounds and pieces read all sites): refused by name.
+//! Power cells carry their weights with their sites: the job shifts them
+//! by the smallest of all, and its local weight bounds read the grid of
+//! largest weights of all the sites (each rank adds its own; the largest
+//! over the ranks in each grid cell), so every part bounds its sites as the
+//! one process does. Densities are not laid out so yet: refused by name.
 
 use super::periodic::merge_faces;
 use super::periodic_parts::{
-    at_row, counter_words, send, to_owners, with_totals, BuiltCells, Held, PartsReport, RowsAcross,
+    at_row, counter_words, kept_span, send, to_owners, weight_span, with_totals, BuiltCells, Held, PartsReport,
+    RowsAcross,
 };
 use crate::backends::distributed::{records, Parcels, Reduce};
 use crate::diagram::voronoi::{Cells, ClippedVoronoi};
@@ -45,9 +49,11 @@ use crate::geom::timing::{timed, Timings};
 use crate::job::clip::{Frame, JobShape, Strategy};
 use crate::job::held::HeldCells;
 use crate::job::sites::{Layout, Window};
+use crate::job::weight_bounds::WeightGrid;
 use crate::passes::faces::Adjacency;
 use crate::passes::polyhedra::merge_pieces;
 use bytemuck::{Pod, Zeroable};
+use cvd_kernels::abi::SplitPoint;
 use rayon::prelude::*;
 
 /// The Morton key's bits that number a bucket (5 per axis).
@@ -86,7 +92,8 @@ impl ClippedVoronoi<'_> {
     /// this rank's rows — the same bits as the diagram of all the sites in
     /// one process with whole cells, neighbours by input index (with
     /// [`Self::faces`]) — with the run's totals, and what the part did.
-    /// Whole cells on the CPU; no weights or density yet.
+    /// Whole cells on the CPU, with power weights ([`Self::weights`]: this
+    /// rank's rows' own); no density yet.
     pub fn compute_in_parts(&self, comm: &dyn Reduce) -> Result<(Cells, PartsReport)> {
         let out = self.compute_in_parts_by_rows(comm, None)?;
         Ok((out.all_rows(), out.report))
@@ -118,10 +125,9 @@ impl ClippedVoronoi<'_> {
         if mesh.tets.is_empty() {
             return Err(Error::InvalidInput("the mesh has no tets".into()));
         }
-        if self.weights.is_some() || self.density.is_some() {
+        if self.density.is_some() {
             return Err(Error::InvalidInput(
-                "a mesh with its sites in parts takes no weights or density yet; give every rank the whole input"
-                    .into(),
+                "a mesh with its sites in parts takes no density yet; give every rank the whole input".into(),
             ));
         }
         let own_cpu;
@@ -142,8 +148,9 @@ impl ClippedVoronoi<'_> {
         let across = RowsAcross::of(comm, self.sites.len())?;
         let (first, total) = (across.first, across.total);
         if !self.sites.is_empty() {
-            crate::job::sites::check_sites(self.sites, None).map_err(|e| at_row(e, first))?;
+            crate::job::sites::check_sites(self.sites, self.weights).map_err(|e| at_row(e, first))?;
         }
+        let span = weight_span(comm, self.weights)?;
         let shape = JobShape { density: false, sites: total as usize, tets: mesh.tets.len() };
         if Self::strategy_for(self.strategy, Some(cpu), shape) != Strategy::Whole {
             return Err(Error::InvalidInput("a mesh with its sites in parts is computed with whole cells".into()));
@@ -164,7 +171,8 @@ impl ClippedVoronoi<'_> {
         comm.sum(&mut per_bucket)?;
         let owner = owners(&per_bucket, ranks);
         drop(per_bucket);
-        let (mut own, mut report) = to_owners(comm, self.sites, (first, total), &owner, bucket, |_| 0.0)?;
+        let weight = |i: usize| self.weights.map_or(0.0, |w| w[i]);
+        let (mut own, mut report) = to_owners(comm, self.sites, (first, total), &owner, bucket, weight)?;
         report.owned = own.len() as u64;
         // Duplicates share a key, so a rank holds all of a position's.
         let mut distinct = [distinct_positions(&own) as i64];
@@ -181,7 +189,11 @@ impl ClippedVoronoi<'_> {
         frame_points.extend((0..8).map(|c| [0, 1, 2].map(|a| if c >> a & 1 == 0 { l[a] } else { h[a] })));
         let (quantizer, grid) = crate::job::knn::frame_grid(&frame_points, distinct[0] as usize)?;
         drop(frame_points);
-        let whole_grid = Whole { frame, quantizer, grid, keys, lo, hi, distinct: distinct[0] as usize };
+        let weights = match span {
+            Some([_, largest]) => Some(self.weights_as_one(comm, &own, largest, frame, distinct[0] as usize)?),
+            None => None,
+        };
+        let whole_grid = Whole { frame, quantizer, grid, keys, lo, hi, distinct: distinct[0] as usize, weights };
         // This rank's sites in the one process's order, and their cells.
         let mut keyed: Vec<(u32, u64, Held)> = own.par_iter().map(|h| (keys.key(h.at), h.site, *h)).collect();
         keyed.par_sort_unstable_by_key(|k| (k.0, k.1));
@@ -257,6 +269,37 @@ impl ClippedVoronoi<'_> {
         Ok(MeshInParts { cells, rows, built, pieces: pieces_merged, report })
     }
 
+    /// The one process's weights (see [`WholeWeights`]), from every
+    /// rank's `own` sites; `largest` is the largest weight of all.
+    fn weights_as_one(
+        &self,
+        comm: &dyn Reduce,
+        own: &[Held],
+        largest: f64,
+        frame: Frame,
+        distinct: usize,
+    ) -> Result<WholeWeights> {
+        let span = kept_span(comm, own, largest)?;
+        let scale2 = frame.scale * frame.scale;
+        if ((span[1] - span[0]) / scale2).max(0.0) == 0.0 {
+            return Ok(WholeWeights { span, grid: None });
+        }
+        // The sites as the job holds them, and the box of all of them.
+        let split: Vec<SplitPoint> =
+            own.par_iter().map(|h| SplitPoint::site(frame.to_local(h.at), (h.weight - span[0]) / scale2)).collect();
+        let (lo, hi) = crate::geom::vec3::bounding_box(split.iter().map(SplitPoint::to_f64).collect::<Vec<_>>().iter());
+        let mut extremes = [-lo[0], -lo[1], -lo[2], hi[0], hi[1], hi[2]];
+        comm.max(&mut extremes)?;
+        let (lo, hi) = ([0, 1, 2].map(|a| -extremes[a]), [0, 1, 2].map(|a| extremes[a + 3]));
+        let volume = self.mesh.volume() / frame.scale.powi(3);
+        let mut grid = WeightGrid::new(lo, hi, distinct, volume);
+        for s in &split {
+            grid.add(s);
+        }
+        comm.max(grid.cells_mut())?;
+        Ok(WholeWeights { span, grid: Some(grid) })
+    }
+
     /// Sub-part `run` of this rank's sites `own` (in the one process's
     /// order, in grid cells `own_cells`): the cells of its sites, built in a
     /// job holding every site of a box of grid cells around them, widened
@@ -321,15 +364,17 @@ impl ClippedVoronoi<'_> {
                 hi: whole.hi,
                 grid_sites: whole.distinct,
                 answer: (answer.start, answer.end),
-                weights: None,
+                weights: whole.weights.as_ref().map(|w| w.span),
+                weight_grid: whole.weights.as_ref().and_then(|w| w.grid.as_ref()),
                 window: Window::Held(window),
                 periodic: false,
             };
-            let part = ClippedVoronoi { sites: &at, ..*self }
-                .strategy(Strategy::Whole)
-                .backend(cpu)
-                .layout(layout)
-                .keep_lists(Some(k_site));
+            let weights: Option<Vec<f64>> = self.weights.map(|_| held.iter().map(|h| h.weight).collect());
+            let mut part = ClippedVoronoi { sites: &at, ..*self };
+            if let Some(w) = &weights {
+                part = part.weights(w);
+            }
+            let part = part.strategy(Strategy::Whole).backend(cpu).layout(layout).keep_lists(Some(k_site));
             let (mut cells, pieces) = match geometry {
                 Some(cpu) => part.compute_with_pieces(cpu).map(|(c, p)| (c, Some(p)))?,
                 None => (part.compute()?, None),
@@ -441,6 +486,14 @@ struct Whole {
     lo: [f64; 3],
     hi: [f64; 3],
     distinct: usize,
+    weights: Option<WholeWeights>,
+}
+
+/// The one process's power weights: the span it shifts them by, and the
+/// grid its local bounds read (none when every weight is the same).
+struct WholeWeights {
+    span: [f64; 2],
+    grid: Option<WeightGrid>,
 }
 
 impl Whole {
@@ -855,6 +908,43 @@ mod tests {
                 for (p, n) in built.polyhedra.iter().zip(&built.numbers) {
                     let i = p.site as usize;
                     assert_eq!(n.0.to_bits(), one.volume[i].to_bits(), "{what}: a polyhedron's cell's volume");
+                }
+            }
+        }
+    }
+
+    /// Power cells in parts are one process's: weights that drift across
+    /// the domain over a few spacings² with noise (the local weight bounds
+    /// matter), a duplicate lighter than its twin, a cluster; then weights
+    /// spread far wider than the spacing (walks beyond any first halo).
+    #[test]
+    fn power_cells_in_parts_give_the_bits_of_one_process() {
+        let mesh = TetMesh::voxels(10, |i, j, _| i < 5 || j < 5);
+        let mut sites = points::in_mesh(&mesh, 4000, 31);
+        sites.extend(points::clustered(1500, 2, 0.02, 32).into_iter().map(|p| p.map(|x| 0.05 + 0.4 * x)));
+        sites.push(sites[11]);
+        let noise = points::uniform(sites.len(), 33);
+        let cpu = CpuBackend::new(Some(2)).unwrap();
+        for spread in [0.004, 0.3] {
+            let mut weights: Vec<f64> =
+                sites.iter().zip(&noise).map(|(p, n)| spread * (p[0] + 0.5 * p[2] + n[0])).collect();
+            let last = weights.len() - 1;
+            weights[last] = weights[11] - 0.5 * spread;
+            let whole = ClippedVoronoi::new(&mesh, &sites).strategy(Strategy::Whole).faces(true).weights(&weights);
+            let one = whole.backend(&cpu).compute().unwrap();
+            assert!(one.counters.empty_cells > 0 || spread < 0.1, "spread {spread}: heavy weights empty some cells");
+            for (ranks, per_rank) in [(1, 1), (2, 1), (3, 2), (4, 1)] {
+                let what = format!("spread {spread}, {ranks} ranks x {per_rank} parts");
+                let rows = |r: usize| sites.len() * r / ranks..sites.len() * (r + 1) / ranks;
+                let runs = on_ranks(ranks, |r, comm| {
+                    let cpu = CpuBackend::new(Some(1)).unwrap();
+                    let cv = ClippedVoronoi::new(&mesh, &sites[rows(r)]).faces(true).weights(&weights[rows(r)]);
+                    cv.backend(&cpu).parts_per_rank(per_rank).compute_in_parts(comm).unwrap()
+                });
+                for (r, (cells, _)) in runs.iter().enumerate() {
+                    same_rows(&one, cells, rows(r), &what);
+                    assert_eq!(one.total_volume.to_bits(), cells.total_volume.to_bits(), "{what}: total volume");
+                    assert_eq!(one.counters.empty_cells, cells.counters.empty_cells, "{what}: empty cells");
                 }
             }
         }

@@ -350,6 +350,7 @@ impl<'a> PeriodicVoronoi<'a> {
                 grid_sites: all.len(),
                 answer: (0, n),
                 weights: None,
+                weight_grid: None,
                 window: Window::Whole,
                 periodic: true,
             });

@@ -65,7 +65,7 @@ pub(super) struct Held {
     /// The site's input index.
     pub(super) site: u64,
     /// The site's power weight (0 without weights).
-    weight: f64,
+    pub(super) weight: f64,
     shift: [i32; 3],
     /// The wall it is mirrored in, or `NO_WALL`.
     wall: u32,
@@ -235,18 +235,8 @@ impl PeriodicVoronoi<'_> {
         }
         // The weights' range over all rows (the halo widens with it), as
         // the one process takes it; whether the ranks agree on weights.
-        let (lo, hi) = self
-            .weights
-            .unwrap_or_default()
-            .iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
-        let weighted = self.weights.is_some() as u8 as f64;
-        let mut span = [-lo, hi, weighted, -weighted];
-        comm.max(&mut span)?;
-        if span[2] != -span[3] {
-            return Err(Error::InvalidInput("some ranks have weights and some do not".into()));
-        }
-        let range = if span[2] > 0.0 { span[1] - -span[0] } else { 0.0 };
+        let span = weight_span(comm, self.weights)?;
+        let range = span.map_or(0.0, |[lo, hi]| hi - lo);
         let (placed, on_walls) = place_sites(&domain, self.sites).map_err(|e| at_row(e, first))?;
         let wrapped = placed.iter().zip(self.sites).filter(|(a, b)| a != b).count() - on_walls;
         let spacing = (domain.volume() / total as f64).cbrt();
@@ -314,16 +304,7 @@ impl PeriodicVoronoi<'_> {
         // The weights as the one process shifts them: from the smallest of
         // a site that owns its cell (of duplicates, the largest weight's).
         let kept_span = match self.weights {
-            Some(_) => {
-                let mut largest: std::collections::HashMap<[u64; 3], f64> = Default::default();
-                for h in &own {
-                    let w = largest.entry(h.at.map(f64::to_bits)).or_insert(h.weight);
-                    *w = w.max(h.weight);
-                }
-                let mut span = [-largest.values().copied().fold(f64::INFINITY, f64::min), span[1]];
-                comm.max(&mut span)?;
-                [-span[0], span[1]]
-            }
+            Some(_) => kept_span(comm, &own, span.map_or(0.0, |s| s[1]))?,
             None => [0.0; 2],
         };
         let (lo, hi) = crate::geom::vec3::bounding_box(points.iter().map(|h| &h.at));
@@ -360,6 +341,7 @@ impl PeriodicVoronoi<'_> {
                 grid_sites,
                 answer: (answer.start, answer.end),
                 weights: self.weights.map(|_| kept_span),
+                weight_grid: None,
                 window: if window { Window::Around } else { Window::Whole },
                 periodic: true,
             };
@@ -604,6 +586,35 @@ pub(super) fn to_owners(
     }
     let own = send(comm, to, &mut report.sent)?;
     Ok((own, report))
+}
+
+/// The smallest and largest of the weights of every rank's rows (`None`:
+/// no weights); an error if some ranks have weights and some do not.
+pub(super) fn weight_span(comm: &dyn Reduce, weights: Option<&[f64]>) -> Result<Option<[f64; 2]>> {
+    let (lo, hi) =
+        weights.unwrap_or_default().iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
+    let weighted = weights.is_some() as u8 as f64;
+    let mut span = [-lo, hi, weighted, -weighted];
+    comm.max(&mut span)?;
+    if span[2] != -span[3] {
+        return Err(Error::InvalidInput("some ranks have weights and some do not".into()));
+    }
+    Ok((span[2] > 0.0).then_some([-span[0], span[1]]))
+}
+
+/// The smallest and largest weight over every rank's sites that own a
+/// cell (of duplicates, the largest weight's), as the one process shifts
+/// the weights by: each rank holds every duplicate of its `own` sites;
+/// `largest` is the largest weight of all.
+pub(super) fn kept_span(comm: &dyn Reduce, own: &[Held], largest: f64) -> Result<[f64; 2]> {
+    let mut kept: std::collections::HashMap<[u64; 3], f64> = Default::default();
+    for h in own {
+        let w = kept.entry(h.at.map(f64::to_bits)).or_insert(h.weight);
+        *w = w.max(h.weight);
+    }
+    let mut span = [-kept.values().copied().fold(f64::INFINITY, f64::min), largest];
+    comm.max(&mut span)?;
+    Ok([-span[0], span[1]])
 }
 
 /// An error about a site, its index moved from this rank's rows to the

@@ -434,7 +434,11 @@ impl<'a> ClippedVoronoi<'a> {
         if weight_range > 0.0 {
             // Each site's local weight bound, after the sites.
             let volume = mesh.volume() / frame.scale.powi(3);
-            split.extend(crate::job::weight_bounds::local_bounds(&split, weight_range, volume));
+            let bounds = match self.layout.and_then(|l| l.weight_grid) {
+                Some(grid) => grid.bounds(&split, weight_range),
+                None => crate::job::weight_bounds::local_bounds(&split, weight_range, volume),
+            };
+            split.extend(bounds);
         }
         let verts: Vec<[f64; 3]> = mesh.vertices.iter().map(|&p| frame.to_local(p)).collect();
         let mut local_mesh = TetMesh { vertices: verts, tets: mesh.tets.clone() };

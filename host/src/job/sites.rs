@@ -158,6 +158,10 @@ pub(crate) struct Layout<'a> {
     /// The whole job's smallest and largest weight of a site that owns a
     /// cell (a part's sites hold only some weights); `None`: the job's own.
     pub weights: Option<[f64; 2]>,
+    /// The whole job's grid of largest weights (its sites' local weight
+    /// bounds read it: [`crate::job::weight_bounds`]), when a part's sites
+    /// do not make it; `None`: the job's own.
+    pub weight_grid: Option<&'a crate::job::weight_bounds::WeightGrid>,
     /// Which cells of the whole job's grid the job's table holds.
     pub window: Window,
     /// A periodic box's sites and images: no cell is cut (else a mesh's

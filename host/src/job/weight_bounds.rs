@@ -36,23 +36,63 @@ const CELL_SPACINGS: f64 = 2.0;
 /// `volume`: `hi = [W_0, R_0², W_1, R_1²]`, `lo = [W_2, R_2², 0, 0]` (see
 /// the module's documentation), rounded so that they stay bounds in f32.
 pub(crate) fn local_bounds(sites: &[SplitPoint], range: f64, volume: f64) -> Vec<SplitPoint> {
-    let n = sites.len();
     let points: Vec<[f64; 3]> = sites.iter().map(SplitPoint::to_f64).collect();
-    let weights: Vec<f64> = sites.iter().map(SplitPoint::value).collect();
     let (lo, hi) = crate::geom::vec3::bounding_box(points.iter());
-    let spacing = (volume.max(1e-30) / n as f64).cbrt();
-    // The grid: at most about 2^21 cells.
-    let longest = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max).max(1e-30);
-    let side = (CELL_SPACINGS * spacing).max(longest / 128.0);
-    let dims = [0, 1, 2].map(|a| (((hi[a] - lo[a]) / side).floor() as usize + 1).min(129));
-    let cell_of = |x: f64, a: usize| (((x - lo[a]) / side).floor().max(0.0) as usize).min(dims[a] - 1);
-    let mut grid = vec![f64::NEG_INFINITY; dims[0] * dims[1] * dims[2]];
-    for (p, &w) in points.iter().zip(&weights) {
-        let c = (cell_of(p[2], 2) * dims[1] + cell_of(p[1], 1)) * dims[0] + cell_of(p[0], 0);
-        grid[c] = grid[c].max(w);
+    let mut grid = WeightGrid::new(lo, hi, sites.len(), volume);
+    for s in sites {
+        grid.add(s);
     }
-    let box_max = |p: &[f64; 3], radius: f64| {
-        let (a, b) = ([0, 1, 2].map(|k| cell_of(p[k] - radius, k)), [0, 1, 2].map(|k| cell_of(p[k] + radius, k)));
+    grid.bounds(sites, range)
+}
+
+/// The coarse grid of the largest weight in each cell that the bounds read
+/// (see the module's documentation), over the box of all the sites. A job
+/// in parts adds its own sites' and takes the largest of every part's in
+/// each cell ([`Self::cells_mut`]): the grid of all sites, so each part
+/// bounds its sites as the whole job does.
+#[derive(Clone, Debug)]
+pub(crate) struct WeightGrid {
+    lo: [f64; 3],
+    side: f64,
+    dims: [usize; 3],
+    spacing: f64,
+    cells: Vec<f64>,
+}
+
+impl WeightGrid {
+    /// An empty grid over `lo..hi` (the clipping frame) for `sites`
+    /// distinct sites in a domain of volume `volume`: at most about 2^21
+    /// cells.
+    pub(crate) fn new(lo: [f64; 3], hi: [f64; 3], sites: usize, volume: f64) -> Self {
+        let spacing = (volume.max(1e-30) / sites.max(1) as f64).cbrt();
+        let longest = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max).max(1e-30);
+        let side = (CELL_SPACINGS * spacing).max(longest / 128.0);
+        let dims = [0, 1, 2].map(|a| (((hi[a] - lo[a]) / side).floor() as usize + 1).min(129));
+        Self { lo, side, dims, spacing, cells: vec![f64::NEG_INFINITY; dims[0] * dims[1] * dims[2]] }
+    }
+
+    fn cell_of(&self, x: f64, a: usize) -> usize {
+        (((x - self.lo[a]) / self.side).floor().max(0.0) as usize).min(self.dims[a] - 1)
+    }
+
+    /// Adds a site (its weight in `hi[3] + lo[3]`).
+    pub(crate) fn add(&mut self, site: &SplitPoint) {
+        let p = site.to_f64();
+        let c = (self.cell_of(p[2], 2) * self.dims[1] + self.cell_of(p[1], 1)) * self.dims[0] + self.cell_of(p[0], 0);
+        self.cells[c] = self.cells[c].max(site.value());
+    }
+
+    /// Each cell's largest weight, to be taken the largest of over parts.
+    pub(crate) fn cells_mut(&mut self) -> &mut [f64] {
+        &mut self.cells
+    }
+
+    /// The largest weight of the cells meeting the box of the ball of
+    /// `radius` around `p` (infinite when the box meets too many cells).
+    fn box_max(&self, p: &[f64; 3], radius: f64) -> f64 {
+        let dims = self.dims;
+        let (a, b) =
+            ([0, 1, 2].map(|k| self.cell_of(p[k] - radius, k)), [0, 1, 2].map(|k| self.cell_of(p[k] + radius, k)));
         // A ball over much of the grid (weights spread far wider than the
         // spacing) bounds nothing below the largest weight: no walk.
         if (0..3).map(|k| b[k] - a[k] + 1).product::<usize>() > MOST_CELLS {
@@ -62,39 +102,45 @@ pub(crate) fn local_bounds(sites: &[SplitPoint], range: f64, volume: f64) -> Vec
         for z in a[2]..=b[2] {
             for y in a[1]..=b[1] {
                 let row = (z * dims[1] + y) * dims[0];
-                m = grid[row + a[0]..=row + b[0]].iter().copied().fold(m, f64::max);
+                m = self.cells[row + a[0]..=row + b[0]].iter().copied().fold(m, f64::max);
             }
         }
         m
-    };
-    // Rounded up, so that each bound stays one in f32.
-    let up = |w: f64| {
-        let b = w as f32;
-        if (b as f64) < w {
-            f32::from_bits(b.to_bits() + 1)
-        } else {
-            b
-        }
-    };
-    points
-        .par_iter()
-        .zip(&weights)
-        .map(|(p, &w)| {
-            let bounds = CAPS.map(|c| {
-                let cap = c * spacing;
-                let reach = |slack: f64| (cap + (cap * cap + slack.max(0.0)).sqrt()) * (1.0 + 1e-4);
-                let mut bound = range;
-                for _ in 0..ROUNDS {
-                    bound = bound.min(box_max(p, reach(bound - w)));
-                }
-                (up(bound), (cap * cap * (1.0 - 1e-6)) as f32)
-            });
-            SplitPoint {
-                hi: [bounds[0].0, bounds[0].1, bounds[1].0, bounds[1].1],
-                lo: [bounds[2].0, bounds[2].1, 0.0, 0.0],
+    }
+
+    /// The local bound record of each of `sites` (every one inside the
+    /// grid's box), weights in `0..=range` (see [`local_bounds`]).
+    pub(crate) fn bounds(&self, sites: &[SplitPoint], range: f64) -> Vec<SplitPoint> {
+        let spacing = self.spacing;
+        // Rounded up, so that each bound stays one in f32.
+        let up = |w: f64| {
+            let b = w as f32;
+            if (b as f64) < w {
+                f32::from_bits(b.to_bits() + 1)
+            } else {
+                b
             }
-        })
-        .collect()
+        };
+        sites
+            .par_iter()
+            .map(|s| {
+                let (p, w) = (s.to_f64(), s.value());
+                let bounds = CAPS.map(|c| {
+                    let cap = c * spacing;
+                    let reach = |slack: f64| (cap + (cap * cap + slack.max(0.0)).sqrt()) * (1.0 + 1e-4);
+                    let mut bound = range;
+                    for _ in 0..ROUNDS {
+                        bound = bound.min(self.box_max(&p, reach(bound - w)));
+                    }
+                    (up(bound), (cap * cap * (1.0 - 1e-6)) as f32)
+                });
+                SplitPoint {
+                    hi: [bounds[0].0, bounds[0].1, bounds[1].0, bounds[1].1],
+                    lo: [bounds[2].0, bounds[2].1, 0.0, 0.0],
+                }
+            })
+            .collect()
+    }
 }
 
 #[cfg(test)]
