@@ -62,11 +62,12 @@ fn evaluation(sites: &[[f64; 3]], cells: &Cells, energy: f64) -> Evaluation {
 /// sites and moves them (the next diagram gives each site to the rank
 /// whose run of the curve it moved into), and every sum the optimisers
 /// take is the total over the ranks ([`SiteDiagram::total`]), so that
-/// L-BFGS takes on every rank the steps one process takes with every site,
-/// to the bit. Lloyd moves each site to its centroid one diagram at a time
-/// ([`super::lloyd::by_diagrams`]; one process's CPU backend runs its loop
-/// in the job's frame: the same sites up to rounding, not to the bit).
-/// Whole cells, no power cells yet.
+/// L-BFGS and optimal transport take on every rank the steps one process
+/// takes with every site, to the bit (transport's power cells with their
+/// faces, neighbours by input index). Lloyd moves each site to its
+/// centroid one diagram at a time ([`super::lloyd::by_diagrams`]: one
+/// process's Lloyd by diagrams to the bit; its CPU backend's own loop runs
+/// in the job's frame, the same sites up to rounding). Whole cells.
 pub struct ClippedInParts<'a> {
     diagram: ClippedVoronoi<'a>,
     comm: &'a dyn crate::backends::distributed::Reduce,
@@ -89,11 +90,9 @@ impl SiteDiagram for ClippedInParts<'_> {
         Ok(ClippedVoronoi { sites, ..self.diagram }.compute_in_parts(self.comm)?.0)
     }
 
-    fn power_cells_at(&self, _sites: &[[f64; 3]], _weights: &[f64]) -> Result<Cells> {
-        Err(crate::error::Error::InvalidInput(
-            "power cells of a mesh with its sites in parts are not computed yet; give every rank the whole input"
-                .into(),
-        ))
+    fn power_cells_at(&self, sites: &[[f64; 3]], weights: &[f64]) -> Result<Cells> {
+        let diagram = ClippedVoronoi { sites, face_masses: true, ..self.diagram.weights(weights).faces(true) };
+        Ok(diagram.compute_in_parts(self.comm)?.0)
     }
 
     fn evaluate(&self, x: &[f64]) -> Result<(Evaluation, f64)> {
@@ -113,45 +112,134 @@ impl SiteDiagram for ClippedInParts<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::backends::distributed::InProcess;
+    use crate::backends::distributed::{InProcess, Reduce as _};
     use crate::geom::mesh::TetMesh;
     use crate::geom::points;
     use crate::job::clip::Strategy;
+
+    /// The rows of `n` sites rank `r` of `ranks` holds.
+    fn rows(n: usize, ranks: usize, r: usize) -> std::ops::Range<usize> {
+        n * r / ranks..n * (r + 1) / ranks
+    }
+
+    /// An L-shaped domain with a crowd and a tight cluster.
+    fn crowd_and_cluster() -> (TetMesh, Vec<[f64; 3]>) {
+        let mesh = TetMesh::voxels(8, |i, j, _| i < 4 || j < 4);
+        let mut sites = points::in_mesh(&mesh, 3000, 41);
+        sites.extend(points::clustered(500, 2, 0.02, 42).into_iter().map(|p| p.map(|x| 0.1 + 0.3 * x)));
+        (mesh, sites)
+    }
+
+    fn bits(sites: &[[f64; 3]]) -> Vec<[u64; 3]> {
+        sites.iter().map(|p| p.map(f64::to_bits)).collect()
+    }
+
+    fn energies(run: &CvtRun) -> Vec<u64> {
+        run.iterations.iter().map(|i| i.energy.to_bits()).collect()
+    }
 
     /// L-BFGS on a mesh with its sites in parts takes one process's steps:
     /// every rank's rows move to the bit as one process moves them.
     #[test]
     fn lbfgs_in_parts_moves_the_sites_of_one_process() {
-        let mesh = TetMesh::voxels(8, |i, j, _| i < 4 || j < 4);
-        let mut sites = points::in_mesh(&mesh, 3000, 41);
-        sites.extend(points::clustered(500, 2, 0.02, 42).into_iter().map(|p| p.map(|x| 0.1 + 0.3 * x)));
+        let (mesh, sites) = crowd_and_cluster();
         let cpu = crate::exec::CpuBackend::new(Some(2)).unwrap();
         let one = ClippedVoronoi::new(&mesh, &sites).strategy(Strategy::Whole).backend(&cpu);
         let one = one.lbfgs(4, &mut |_, _| {}).unwrap();
         for ranks in [2, 3] {
-            let rows = |r: usize| sites.len() * r / ranks..sites.len() * (r + 1) / ranks;
-            let runs: Vec<CvtRun> = std::thread::scope(|scope| {
-                let handles: Vec<_> = InProcess::ranks(ranks)
-                    .into_iter()
-                    .enumerate()
-                    .map(|(r, comm)| {
-                        let (mesh, mine) = (&mesh, &sites[rows(r)]);
-                        scope.spawn(move || {
-                            let cpu = crate::exec::CpuBackend::new(Some(1)).unwrap();
-                            let cv = ClippedVoronoi::new(mesh, mine).backend(&cpu).parts_per_rank(2);
-                            ClippedInParts::new(cv, &comm).lbfgs(4, &mut |_, _| {}).unwrap()
-                        })
-                    })
-                    .collect();
-                handles.into_iter().map(|h| h.join().unwrap()).collect()
+            let runs = InProcess::each(ranks, |comm| {
+                let cpu = crate::exec::CpuBackend::new(Some(1)).unwrap();
+                let mine = &sites[rows(sites.len(), ranks, comm.rank())];
+                let cv = ClippedVoronoi::new(&mesh, mine).backend(&cpu).parts_per_rank(2);
+                ClippedInParts::new(cv, comm).lbfgs(4, &mut |_, _| {}).unwrap()
             });
             for (r, run) in runs.iter().enumerate() {
-                for (a, b) in one.sites[rows(r)].iter().zip(&run.sites) {
-                    assert_eq!(a.map(f64::to_bits), b.map(f64::to_bits), "{ranks} ranks: rank {r}'s sites");
-                }
-                let energies = |run: &CvtRun| run.iterations.iter().map(|i| i.energy.to_bits()).collect::<Vec<_>>();
+                let expected = &one.sites[rows(sites.len(), ranks, r)];
+                assert_eq!(bits(expected), bits(&run.sites), "{ranks} ranks: rank {r}'s sites");
                 assert_eq!(energies(&one), energies(run), "{ranks} ranks: the energies");
             }
+        }
+    }
+
+    /// Lloyd on a mesh with its sites in parts moves every site as one
+    /// process's Lloyd by diagrams does, to the bit, and as its CPU
+    /// backend's loop (in the job's frame) up to rounding.
+    #[test]
+    fn lloyd_in_parts_moves_the_sites_of_one_process() {
+        let (mesh, sites) = crowd_and_cluster();
+        let cpu = crate::exec::CpuBackend::new(Some(2)).unwrap();
+        let one = ClippedVoronoi::new(&mesh, &sites).strategy(Strategy::Whole).backend(&cpu);
+        let by_diagrams = super::super::lloyd::by_diagrams(&one, 3, &mut |_, _| {}).unwrap();
+        let on_backend = one.lloyd(3, &mut |_, _| {}).unwrap();
+        // The loop's sites are held as pairs of f32 in the job's frame.
+        let apart =
+            by_diagrams.sites.iter().zip(&on_backend.sites).flat_map(|(a, b)| (0..3).map(|k| (a[k] - b[k]).abs()));
+        let apart = apart.fold(0.0, f64::max);
+        assert!(apart < 1e-7, "by diagrams and the backend's loop {apart:e} apart in a unit domain");
+        for (ranks, per_rank) in [(2, 1), (3, 2)] {
+            let runs = InProcess::each(ranks, |comm| {
+                let cpu = crate::exec::CpuBackend::new(Some(1)).unwrap();
+                let mine = &sites[rows(sites.len(), ranks, comm.rank())];
+                let cv = ClippedVoronoi::new(&mesh, mine).backend(&cpu).parts_per_rank(per_rank);
+                ClippedInParts::new(cv, comm).lloyd(3, &mut |_, _| {}).unwrap()
+            });
+            for (r, run) in runs.iter().enumerate() {
+                let expected = &by_diagrams.sites[rows(sites.len(), ranks, r)];
+                assert_eq!(bits(expected), bits(&run.sites), "{ranks} ranks: rank {r}'s sites");
+                assert_eq!(energies(&by_diagrams), energies(run), "{ranks} ranks: the energies");
+            }
+        }
+    }
+
+    /// Optimal transport on a mesh with its sites in parts finds one
+    /// process's weights, Newton steps and masses, to the bit; a domain in
+    /// two pieces is refused in parts as in one process.
+    #[test]
+    fn optimal_transport_in_parts_finds_the_one_process_weights() {
+        use crate::cvt::transport::{Transport, TransportRun};
+        let (mesh, sites) = crowd_and_cluster();
+        let sites = &sites[..2000];
+        let capacities: Vec<f64> = points::uniform(sites.len(), 43).iter().map(|p| 1.0 + 3.0 * p[0]).collect();
+        let cpu = crate::exec::CpuBackend::new(Some(2)).unwrap();
+        let one = ClippedVoronoi::new(&mesh, sites).strategy(Strategy::Whole).backend(&cpu);
+        let whole = Transport::new(one).capacities(&capacities).solve(&mut |_| true).unwrap();
+        assert!(whole.converged && whole.steps.len() > 2, "one process: {}", whole.stopped);
+        let steps = |r: &TransportRun| {
+            r.steps.iter().map(|s| (s.max_error.to_bits(), s.step.to_bits(), s.cg_iterations)).collect::<Vec<_>>()
+        };
+        for ranks in [2, 3] {
+            let runs = InProcess::each(ranks, |comm| {
+                let cpu = crate::exec::CpuBackend::new(Some(1)).unwrap();
+                let mine = rows(sites.len(), ranks, comm.rank());
+                let cv = ClippedVoronoi::new(&mesh, &sites[mine.clone()]).backend(&cpu).parts_per_rank(2);
+                let diagram = ClippedInParts::new(cv, comm);
+                Transport::new(diagram).capacities(&capacities[mine]).solve(&mut |_| true).unwrap()
+            });
+            let weights: Vec<u64> = runs.iter().flat_map(|r| &r.weights).map(|w| w.to_bits()).collect();
+            assert!(weights == whole.weights.iter().map(|w| w.to_bits()).collect::<Vec<_>>(), "{ranks} ranks");
+            let masses: Vec<u64> = runs.iter().flat_map(|r| &r.cells.volume).map(|m| m.to_bits()).collect();
+            assert!(masses == whole.cells.volume.iter().map(|m| m.to_bits()).collect::<Vec<_>>(), "{ranks} ranks");
+            for run in &runs {
+                assert_eq!(steps(run), steps(&whole), "{ranks} ranks: the Newton steps");
+            }
+        }
+        // Two cubes apart: the cells fall apart in two groups, on any rank.
+        let mut two = TetMesh::cube(3);
+        let cube = TetMesh::cube(3);
+        let base = two.vertices.len() as u32;
+        two.vertices.extend(cube.vertices.iter().map(|v| [v[0] + 2.0, v[1], v[2]]));
+        two.tets.extend(cube.tets.iter().map(|t| t.map(|k| k + base)));
+        let split: Vec<[f64; 3]> = points::uniform(400, 44)
+            .into_iter()
+            .map(|p| [p[0] + if p[1] > 0.5 { 2.0 } else { 0.0 }, p[1], p[2]])
+            .collect();
+        let errors = InProcess::each(3, |comm| {
+            let cpu = crate::exec::CpuBackend::new(Some(1)).unwrap();
+            let cv = ClippedVoronoi::new(&two, &split[rows(400, 3, comm.rank())]).backend(&cpu);
+            Transport::new(ClippedInParts::new(cv, comm)).solve(&mut |_| true).err().map(|e| e.to_string())
+        });
+        for e in errors {
+            assert!(e.as_deref().is_some_and(|e| e.contains("2 groups")), "{e:?}");
         }
     }
 }

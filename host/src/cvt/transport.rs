@@ -460,8 +460,7 @@ impl<'a> Laplacian<'a> {
     /// its area, or its mass under a density; in a periodic box
     /// `period`, `x_j` the image the face is shared with).
     /// Refuses a diagram whose cells fall apart into separate groups (a
-    /// domain in pieces; in parts, a periodic box, always one piece, is
-    /// not checked).
+    /// domain in pieces), counted over every process's rows.
     fn of(cells: &Cells, sites: &[[f64; 3]], period: Option<PeriodicBox>, across: Across<'a>) -> Result<Self> {
         let adj = cells.adjacency().ok_or_else(|| Error::Internal("a transport diagram without faces".into()))?;
         let mut columns = adj.neighbors.clone();
@@ -487,7 +486,7 @@ impl<'a> Laplacian<'a> {
             .collect();
         let diagonal = adj.offsets.par_windows(2).map(|r| values[r[0]..r[1]].iter().sum()).collect();
         let laplacian = Self { offsets: adj.offsets.clone(), columns, values, diagonal, ghosts, across };
-        let groups = if across.in_parts() { 1 } else { laplacian.groups() };
+        let groups = laplacian.groups()?;
         if groups > 1 {
             return Err(Error::InvalidInput(format!(
                 "the cells fall apart into {groups} groups that share no face (a domain in separate pieces): \
@@ -497,30 +496,57 @@ impl<'a> Laplacian<'a> {
         Ok(laplacian)
     }
 
-    /// Connected groups of cells.
-    fn groups(&self) -> usize {
+    /// Connected groups of cells over every process's rows: each
+    /// process's own rows grouped by their faces (union-find: a group's
+    /// root its smallest row), each group labelled with its smallest global
+    /// row, then lowered to the smallest label across its faces to other
+    /// processes' rows until no label lowers; a group is counted at the row
+    /// that keeps its own number.
+    fn groups(&self) -> Result<u64> {
         let n = self.diagonal.len();
-        let mut seen = vec![false; n];
-        let mut groups = 0;
-        let mut stack = Vec::new();
-        for s in 0..n {
-            if seen[s] {
-                continue;
+        let edges = |i: usize| {
+            (self.offsets[i]..self.offsets[i + 1]).filter(|&e| self.values[e] > 0.0).map(|e| self.columns[e] as usize)
+        };
+        let mut parent: Vec<usize> = (0..n).collect();
+        fn find(parent: &mut [usize], mut i: usize) -> usize {
+            while parent[i] != i {
+                parent[i] = parent[parent[i]];
+                i = parent[i];
             }
-            groups += 1;
-            seen[s] = true;
-            stack.push(s);
-            while let Some(i) = stack.pop() {
-                for e in self.offsets[i]..self.offsets[i + 1] {
-                    let j = self.columns[e] as usize;
-                    if !seen[j] && self.values[e] > 0.0 {
-                        seen[j] = true;
-                        stack.push(j);
+            i
+        }
+        for i in 0..n {
+            for j in edges(i).filter(|&j| j < n) {
+                let (a, b) = (find(&mut parent, i), find(&mut parent, j));
+                parent[a.max(b)] = a.min(b);
+            }
+        }
+        let root: Vec<usize> = (0..n).map(|i| find(&mut parent, i)).collect();
+        let first = self.across.first as f64;
+        let mut label: Vec<f64> = root.iter().map(|&r| first + r as f64).collect();
+        if self.across.in_parts() {
+            let mut all = Vec::new();
+            loop {
+                self.ghosts.fill(&label, &mut all)?;
+                let mut lowest = label.clone();
+                for i in 0..n {
+                    for j in edges(i).filter(|&j| j >= n) {
+                        lowest[root[i]] = lowest[root[i]].min(all[j]);
                     }
+                }
+                let mut lowered = false;
+                for i in 0..n {
+                    if lowest[root[i]] < label[i] {
+                        (label[i], lowered) = (lowest[root[i]], true);
+                    }
+                }
+                if !self.across.any(lowered)? {
+                    break;
                 }
             }
         }
-        groups
+        let counted: Vec<f64> = (0..n).map(|i| (label[i] == first + i as f64) as u8 as f64).collect();
+        Ok(self.across.sum(&counted)? as u64)
     }
 
     /// `out = L x`.
@@ -624,12 +650,12 @@ mod tests {
     #[test]
     fn groups_count_the_parts_that_share_no_face() {
         let path = laplacian(4, &[(0, 1, 1.0), (1, 2, 2.0), (2, 3, 0.5)]);
-        assert_eq!(path.groups(), 1);
+        assert_eq!(path.groups().unwrap(), 1);
         let apart = laplacian(5, &[(0, 1, 1.0), (2, 3, 1.0)]);
-        assert_eq!(apart.groups(), 3, "{{0,1}}, {{2,3}} and {{4}}");
+        assert_eq!(apart.groups().unwrap(), 3, "{{0,1}}, {{2,3}} and {{4}}");
         // A face of zero area joins nothing.
         let zero = laplacian(3, &[(0, 1, 1.0), (1, 2, 0.0)]);
-        assert_eq!(zero.groups(), 2);
+        assert_eq!(zero.groups().unwrap(), 2);
     }
 
     #[test]

@@ -829,15 +829,7 @@ mod tests {
     /// `run(rank, comm)` on each of `ranks` ranks, as threads; their
     /// results by rank.
     fn on_ranks<T: Send>(ranks: usize, run: impl Fn(usize, &InProcess) -> T + Sync) -> Vec<T> {
-        std::thread::scope(|scope| {
-            let run = &run;
-            let handles: Vec<_> = InProcess::ranks(ranks)
-                .into_iter()
-                .enumerate()
-                .map(|(r, comm)| scope.spawn(move || run(r, &comm)))
-                .collect();
-            handles.into_iter().map(|h| h.join().unwrap()).collect()
-        })
+        InProcess::each(ranks, |comm| run(comm.rank(), comm))
     }
 
     /// Rows `rows` of the one-process cells `one` are `part`'s, bit for bit

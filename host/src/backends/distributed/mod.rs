@@ -181,6 +181,16 @@ impl InProcess {
         (0..size).map(|rank| Self { rank, shared: shared.clone() }).collect()
     }
 
+    /// Runs `run` on each of `size` ranks, each on its own thread; their
+    /// results by rank. A panic on a rank is raised here.
+    pub fn each<T: Send>(size: usize, run: impl Fn(&InProcess) -> T + Sync) -> Vec<T> {
+        std::thread::scope(|scope| {
+            let run = &run;
+            let handles: Vec<_> = Self::ranks(size).into_iter().map(|comm| scope.spawn(move || run(&comm))).collect();
+            handles.into_iter().map(|h| h.join().unwrap_or_else(|e| std::panic::resume_unwind(e))).collect()
+        })
+    }
+
     /// Puts `mine` (a parcel per rank, or one for all) in this rank's
     /// slot and returns every rank's parcel for this one.
     fn swap(&self, mine: Parcels, each: bool) -> Vec<Vec<u8>> {
