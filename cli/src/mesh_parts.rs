@@ -6,14 +6,16 @@
 //! `cells.csv`, `neighbors.csv` and `sites.xyz` at their place in the
 //! files, and the polyhedra of the cells it built as its piece of
 //! `cells.pvtu` and its section of `walls.ply`: the same bytes as one
-//! process. Rank 0 writes `summary.json`, with every rank's numbers.
+//! process. Power cells (each rank its rows of `--weights` or `--radii`),
+//! Lloyd, L-BFGS and optimal transport (`weights.txt` likewise) too. Rank 0
+//! writes `summary.json`, with every rank's numbers.
 //!
 //! What it does not take yet ([`lacking`]) runs with every rank reading the
 //! whole input (`cvd::backends::distributed`), and says so.
 
 use crate::args::RunArgs;
-use crate::parts::{rows_of_sites, write_part, write_polyhedra};
-use crate::progress::with_iterations;
+use crate::optimise::Optimised;
+use crate::parts::{optimise_in_parts, rows_of_sites, weights_of_rows, write_part, write_polyhedra};
 use cvd::backends::distributed::Reduce;
 use cvd::{ClippedVoronoi, CpuBackend};
 use cvd_io::{Rows, Summary};
@@ -22,9 +24,6 @@ use cvd_io::{Rows, Summary};
 /// for any of it: then every rank reads the whole input.
 pub fn lacking(args: &RunArgs) -> Option<&'static str> {
     let lacking = [
-        (args.weights.is_some() || args.radii.is_some(), "power cells (--weights, --radii)"),
-        (args.transports(), "optimal transport"),
-        (args.iterations > 0 && args.optimizer == cvd::cvt::Optimizer::Lloyd, "Lloyd's iterations (L-BFGS is)"),
         (args.density.is_some() || args.density_file.is_some(), "a density"),
         (args.strategy.is_some_and(|s| s != cvd::Strategy::Whole), "a strategy other than whole cells"),
         (args.backend.backend == cvd::BackendChoice::Vulkan, "the Vulkan backend"),
@@ -54,8 +53,16 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     if args.sites_file.is_none() {
         crate::inputs::check_memory(args, n.div_ceil(ranks as u64), mesh.tets.len() as u64)?;
     }
+    if args.weights.is_some() && args.iterations > 0 && !args.transports() {
+        return Err(cvd::Error::InvalidInput(
+            "--weights with --iterations: CVT iterations keep power weights only with --transport \
+             (the capacity-constrained CVT)"
+                .into(),
+        ));
+    }
     let (sites, total) = rows_of_sites(args, comm, n, |rows| cvd::geom::points::in_mesh_rows(&mesh, rows, args.seed))?;
     let first: u64 = comm.gather_u64(sites.len() as u64)?[..rank].iter().sum();
+    let weights = weights_of_rows(args, comm, sites.len(), first, total)?;
     let threads = args.backend.threads.map_or("all".to_string(), |t| t.to_string());
     println!(
         "{name}: {} tets, {total} sites in parts over {} (each rank reading its rows), whole cells on {threads} CPU \
@@ -67,21 +74,17 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     if let Some(warning) = crate::backend::threads_beyond_cores(args.backend.threads).filter(|_| rank == 0) {
         eprintln!("cvd: {warning}");
     }
-    // L-BFGS, each rank moving its own rows: one process's steps.
-    let (sites, cvt) = match args.iterations {
-        0 => (sites, None),
-        iterations => {
-            let iterated = ClippedVoronoi::new(&mesh, &sites)
-                .k_site(args.k_site)
-                .memory_budget(args.cpu_memory_budget())
-                .parts_per_rank(args.parts.unwrap_or(1))
-                .backend(&cpu);
-            let iterated = cvd::cvt::clipped::ClippedInParts::new(iterated, comm);
-            let name = args.optimizer.name();
-            let run = with_iterations(name, iterations, |show| args.optimizer.run(&iterated, iterations, show))?;
-            (run.sites, Some(cvd_io::CvtRecord::of(name, &run.iterations)))
-        }
-    };
+    // The optimiser, each rank moving its own rows (and finding their
+    // weights): one process's steps (Lloyd: one process's by diagrams).
+    let iterated = ClippedVoronoi::new(&mesh, &sites)
+        .k_site(args.k_site)
+        .memory_budget(args.cpu_memory_budget())
+        .parts_per_rank(args.parts.unwrap_or(1))
+        .backend(&cpu);
+    let iterated = cvd::cvt::clipped::ClippedInParts::new(iterated, comm);
+    let optimised = optimise_in_parts(args, comm, iterated, weights.as_deref(), first, total)?;
+    let Optimised { sites, cvt, weights, transport } =
+        optimised.unwrap_or(Optimised { sites, cvt: None, weights, transport: None });
     let faces = !args.no_neighbors;
     let diagram = ClippedVoronoi::new(&mesh, &sites)
         .k_site(args.k_site)
@@ -89,6 +92,10 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
         .memory_budget(args.cpu_memory_budget())
         .parts_per_rank(args.parts.unwrap_or(1))
         .backend(&cpu);
+    let diagram = match &weights {
+        Some(w) => diagram.weights(w),
+        None => diagram,
+    };
     let geometry = (!args.no_geometry).then_some(&cpu);
     let cvd::diagram::mesh_parts::MeshInParts { cells, rows: by_rows, built, pieces, report } =
         diagram.compute_in_parts_by_rows(comm, geometry)?;
@@ -120,6 +127,10 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     }
     write_part(comm, &dir.join("sites.xyz"), |w| cvd_io::write_sites_xyz_rows(w, &sites, rows))?;
     written.push("sites.xyz");
+    if let (Some(w), Some(_)) = (&weights, &transport) {
+        write_part(comm, &dir.join("weights.txt"), |out| cvd_io::write_values_rows(out, w))?;
+        written.push("weights.txt");
+    }
     let mut pieces_and_lids = None;
     if let Some(built) = &built {
         let numbers = |k: usize| built.numbers[k];
@@ -135,8 +146,12 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
 
     // The run's numbers: totals from every rank, each rank's record.
     let (energy, records) = crate::parts::totals_and_records(comm, &cells, &report, clock)?;
+    let status = match &transport {
+        Some(t) if !t.converged => crate::optimise::NOT_CONVERGED,
+        _ => 0,
+    };
     if rank != 0 {
-        return Ok(0);
+        return Ok(status);
     }
     let mut summary = Summary::new(&name, &mesh, total as usize, cells.strategy, &cpu, &cells);
     summary.energy = energy;
@@ -145,6 +160,7 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
         written.insert(0, "energy.png");
         summary.cvt = Some(record);
     }
+    summary.transport = transport;
     summary.ranks = Some(records);
     if let Some((pieces, lids)) = pieces_and_lids {
         (summary.pieces, summary.lids) = (Some(pieces), Some(lids));
@@ -154,5 +170,5 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     print!("{summary}");
     crate::parts::print_ranks(&summary, "buckets of the curve");
     println!("wrote {}: {}", dir.display(), written.join(", "));
-    Ok(0)
+    Ok(status)
 }

@@ -52,23 +52,7 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
         unit.iter().map(|&p| domain.cartesian(p)).collect()
     })?;
     let first: u64 = comm.gather_u64(sites.len() as u64)?[..rank].iter().sum();
-    // This rank's weights: its rows of --weights, or of --radii squared.
-    let weights = match (&args.weights, &args.radii) {
-        (Some(path), _) => Some(values_for_rows(comm, path, "weights", sites.len(), total)?),
-        (None, Some(path)) => {
-            let radii = values_for_rows(comm, path, "radii", sites.len(), total)?;
-            Some(cvd::diagram::particles::radii_weights(&radii).map_err(|_| {
-                let i = radii.iter().position(|r| !(r.is_finite() && *r >= 0.0)).unwrap_or(0);
-                cvd::Error::InvalidInput(format!(
-                    "{}: particle {}'s radius is {}; radii must be numbers >= 0",
-                    path.display(),
-                    first + i as u64,
-                    radii[i]
-                ))
-            })?)
-        }
-        (None, None) => None,
-    };
+    let weights = weights_of_rows(args, comm, sites.len(), first, total)?;
     println!(
         "periodic box {:?} to {:?}: {total} sites in parts over {}, whole cells on {} CPU thread(s) per rank",
         domain.lo(),
@@ -85,21 +69,7 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     let iterated =
         PeriodicVoronoi::new(domain, &sites).k_site(args.k_site).memory_budget(args.cpu_memory_budget()).backend(&cpu);
     let iterated = PeriodicInParts::new(iterated, comm);
-    let optimised = if args.transports() {
-        let capacities = match (&args.capacities, args.volumes) {
-            (Some(p), _) => Some(values_for_rows(comm, p, "capacities", sites.len(), total)?),
-            (None, Some(law)) => Some(law.draw_rows(first..first + sites.len() as u64, args.seed)),
-            (None, None) => None,
-        };
-        Some(crate::optimise::transport(args, iterated, weights.as_deref(), capacities)?)
-    } else if args.iterations > 0 {
-        let (name, iterations) = (args.optimizer.name(), args.iterations);
-        let run = with_iterations(name, iterations, |show| args.optimizer.run(&iterated, iterations, show))?;
-        let cvt = Some(CvtRecord::of(name, &run.iterations));
-        Some(Optimised { sites: run.sites, cvt, weights: weights.clone(), transport: None })
-    } else {
-        None
-    };
+    let optimised = optimise_in_parts(args, comm, iterated, weights.as_deref(), first, total)?;
     let Optimised { sites, cvt, weights, transport } =
         optimised.unwrap_or(Optimised { sites, cvt: None, weights, transport: None });
     let faces = !args.no_neighbors;
@@ -269,6 +239,65 @@ pub(crate) fn refuse_what_parts_lack(args: &RunArgs) -> cvd::Result<()> {
         ))),
         None => Ok(()),
     }
+}
+
+/// This rank's power weights (its `len` rows from `first` of `total`): its
+/// rows of `--weights`, or of `--radii` squared.
+pub(crate) fn weights_of_rows(
+    args: &RunArgs,
+    comm: &dyn Reduce,
+    len: usize,
+    first: u64,
+    total: u64,
+) -> cvd::Result<Option<Vec<f64>>> {
+    Ok(match (&args.weights, &args.radii) {
+        (Some(path), _) => Some(values_for_rows(comm, path, "weights", len, total)?),
+        (None, Some(path)) => {
+            let radii = values_for_rows(comm, path, "radii", len, total)?;
+            Some(cvd::diagram::particles::radii_weights(&radii).map_err(|_| {
+                let i = radii.iter().position(|r| !(r.is_finite() && *r >= 0.0)).unwrap_or(0);
+                cvd::Error::InvalidInput(format!(
+                    "{}: particle {}'s radius is {}; radii must be numbers >= 0",
+                    path.display(),
+                    first + i as u64,
+                    radii[i]
+                ))
+            })?)
+        }
+        (None, None) => None,
+    })
+}
+
+/// What the arguments ask the optimisers of a diagram in parts
+/// (`iterated`, its sites this rank's rows from `first` of `total`):
+/// optimal transport from `weights` (its capacities this rank's rows of
+/// `--capacities`, or drawn by `--volumes` for its rows), or CVT
+/// iterations, or `None`; each rank moving its own rows (and finding their
+/// weights), the steps of one process.
+pub(crate) fn optimise_in_parts(
+    args: &RunArgs,
+    comm: &dyn Reduce,
+    iterated: impl cvd::cvt::SiteDiagram,
+    weights: Option<&[f64]>,
+    first: u64,
+    total: u64,
+) -> cvd::Result<Option<Optimised>> {
+    let len = iterated.starting_sites().len();
+    if args.transports() {
+        let capacities = match (&args.capacities, args.volumes) {
+            (Some(p), _) => Some(values_for_rows(comm, p, "capacities", len, total)?),
+            (None, Some(law)) => Some(law.draw_rows(first..first + len as u64, args.seed)),
+            (None, None) => None,
+        };
+        return crate::optimise::transport(args, iterated, weights, capacities).map(Some);
+    }
+    if args.iterations == 0 {
+        return Ok(None);
+    }
+    let (name, iterations) = (args.optimizer.name(), args.iterations);
+    let run = with_iterations(name, iterations, |show| args.optimizer.run(&iterated, iterations, show))?;
+    let cvt = Some(CvtRecord::of(name, &run.iterations));
+    Ok(Some(Optimised { sites: run.sites, cvt, weights: weights.map(<[f64]>::to_vec), transport: None }))
 }
 
 /// This rank's `len` rows of a file of one value per site (`what`: weights,

@@ -127,8 +127,10 @@ fn mpirun_gives_the_cells_of_one_process() {
 /// cells and the ranks add their sums and faces. A torus (its curved,
 /// non-convex boundary cuts many cells) holding a crowd with a tight
 /// cluster, given as a file: cells.csv and neighbors.csv byte for byte one
-/// process's; after Lloyd's iterations the sites too; the polyhedra (each
-/// rank's piece of cells.pvtu, walls.ply); optimal transport's weights.
+/// process's; after Lloyd's and L-BFGS's iterations the sites too; the
+/// polyhedra (each rank's piece of cells.pvtu, walls.ply); power cells;
+/// optimal transport's weights — each rank reading its own rows. Tet-cell
+/// with every rank reading the whole input, said.
 #[test]
 fn mpirun_gives_whole_cells_and_neighbours_of_one_process() {
     if !mpi_here() {
@@ -142,36 +144,47 @@ fn mpirun_gives_whole_cells_and_neighbours_of_one_process() {
     sites.extend(blob.iter().map(|p| [0, 1, 2].map(|a| at[a] + 0.1 * (p[a] - 0.5))));
     let file = dir.join("sites.xyz");
     cvd_io::write_sites_xyz(&file, &sites).unwrap();
+    // Power weights that drift along the torus over about a spacing²
+    // (5e-4), noisy.
+    let noise = cvd::geom::points::uniform(sites.len(), 33);
+    let weights: Vec<f64> = sites.iter().zip(&noise).map(|(p, n)| 2e-4 * (p[0] + n[0])).collect();
+    let weights_file = dir.join("weights.txt");
+    cvd_io::write_values(&weights_file, &weights).unwrap();
+    let (file, weights_file) = (file.to_str().unwrap(), weights_file.to_str().unwrap());
     let torus = ["run", "--model", "torus", "--resolution", "12", "--backend", "cpu", "--no-picture"];
-    let cases: [(&str, Vec<&str>); 5] = [
-        ("cells", vec!["--sites-file", file.to_str().unwrap(), "--no-geometry"]),
+    let cases: [(&str, Vec<&str>); 7] = [
+        ("cells", vec!["--sites-file", file, "--no-geometry"]),
         ("lbfgs", vec!["--sites", "6000", "--iterations", "3", "--optimizer", "lbfgs", "--no-geometry"]),
         ("lloyd", vec!["--sites", "6000", "--iterations", "3", "--no-geometry"]),
-        ("geometry", vec!["--sites-file", file.to_str().unwrap()]),
+        ("geometry", vec!["--sites-file", file]),
+        ("power", vec!["--sites-file", file, "--weights", weights_file, "--no-geometry"]),
         ("transport", vec!["--sites", "3000", "--volumes", "lognormal:0,0.5", "--no-geometry"]),
+        ("tet-cell", vec!["--sites", "3000", "--strategy", "tet-cell", "--no-geometry", "--no-neighbors"]),
     ];
     for (name, args) in &cases {
         let one = dir.join(format!("{name}-one"));
         let o = cvd_job(&torus, &one, args);
         ok(&o, &format!("{name}: one process"));
-        assert!(String::from_utf8_lossy(&o.stdout).contains("whole on cpu"), "{name}: whole cells by default");
+        let strategy = if *name == "tet-cell" { "tet-cell on cpu" } else { "whole on cpu" };
+        assert!(String::from_utf8_lossy(&o.stdout).contains(strategy), "{name}: whole cells by default");
         for ranks in [2, 3] {
             let out = dir.join(format!("{name}-{ranks}"));
             let o = mpirun_job(&torus, ranks, &out, args);
             ok(&o, &format!("{name}: {ranks} ranks"));
             let said = String::from_utf8_lossy(&o.stdout);
-            // Cells, neighbours and polyhedra with each rank reading its
-            // rows; iterations and transport with the whole input on every
-            // rank, said.
-            let by_rows = ["cells", "lbfgs", "geometry"].contains(name);
+            // Whole cells with each rank reading its rows (cells,
+            // neighbours, polyhedra, power cells, the optimisers); tet-cell
+            // with the whole input on every rank, said.
+            let by_rows = *name != "tet-cell";
             match by_rows {
                 true => assert!(said.contains("each rank reading its rows"), "{name}: {said}"),
                 false => assert!(
-                    said.contains("whole on distributed") && said.contains("every rank reads the whole input"),
+                    said.contains("tet-cell on distributed") && said.contains("every rank reads the whole input"),
                     "{name}: {said}"
                 ),
             }
-            same_files(&one, &out, &["cells.csv", "neighbors.csv", "sites.xyz"], &format!("{name}, {ranks} ranks"));
+            let files: &[&str] = if by_rows { &["cells.csv", "neighbors.csv", "sites.xyz"] } else { &["cells.csv"] };
+            same_files(&one, &out, files, &format!("{name}, {ranks} ranks"));
             let s = summary(&out);
             if *name == "transport" {
                 same_files(&one, &out, &["weights.txt"], &format!("{name}, {ranks} ranks"));
@@ -194,6 +207,18 @@ fn mpirun_gives_whole_cells_and_neighbours_of_one_process() {
                     }
                 }
             }
+            if *name == "power" {
+                let volumes = |dir: &Path| -> Vec<f64> {
+                    let text = std::fs::read_to_string(dir.join("cells.csv")).unwrap();
+                    text.lines().skip(1).map(|l| l.split(',').nth(1).unwrap().parse().unwrap()).collect()
+                };
+                let (power, plain) = (volumes(&out), volumes(&dir.join("cells-one")));
+                let empty = power.iter().filter(|&&v| v == 0.0).count();
+                let moved = power.iter().zip(&plain).filter(|(a, b)| (*a - *b).abs() > 1e-3 * *b).count();
+                // (The tight cluster's cells are emptied by their heavier
+                // neighbours: about 3 000.)
+                assert!(empty < power.len() / 3 && moved > power.len() / 2, "{empty} empty, {moved} changed");
+            }
             if by_rows {
                 let records = s["ranks"].as_array().unwrap();
                 assert_eq!(records.len(), ranks, "{name}: {s}");
@@ -210,6 +235,7 @@ fn mpirun_gives_whole_cells_and_neighbours_of_one_process() {
             }
         }
     }
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
