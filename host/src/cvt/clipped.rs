@@ -77,13 +77,21 @@ fn evaluation(sites: &[[f64; 3]], cells: &Cells, energy: f64) -> Evaluation {
 pub struct ClippedInParts<'a> {
     diagram: ClippedVoronoi<'a>,
     comm: &'a dyn crate::backends::distributed::Reduce,
+    /// The halos the last diagram's sub-parts took: the next starts there.
+    halos: crate::diagram::mesh_parts::Halos,
 }
 
 impl<'a> ClippedInParts<'a> {
     /// `diagram` (its sites this rank's rows of the input) in parts over
     /// the ranks of `comm`.
     pub fn new(diagram: ClippedVoronoi<'a>, comm: &'a dyn crate::backends::distributed::Reduce) -> Self {
-        Self { diagram, comm }
+        Self { diagram, comm, halos: Default::default() }
+    }
+
+    /// The diagram at `sites`, starting each sub-part's halo where the
+    /// last diagram's ended.
+    fn at<'b>(&'b self, sites: &'b [[f64; 3]]) -> ClippedVoronoi<'b> {
+        ClippedVoronoi { sites, halos: Some(&self.halos), ..self.diagram }
     }
 }
 
@@ -93,18 +101,18 @@ impl SiteDiagram for ClippedInParts<'_> {
     }
 
     fn cells_at(&self, sites: &[[f64; 3]]) -> Result<Cells> {
-        Ok(ClippedVoronoi { sites, ..self.diagram }.compute_in_parts(self.comm)?.0)
+        Ok(self.at(sites).compute_in_parts(self.comm)?.0)
     }
 
     fn power_cells_at(&self, sites: &[[f64; 3]], weights: &[f64]) -> Result<Cells> {
-        let diagram = ClippedVoronoi { sites, face_masses: true, ..self.diagram.weights(weights).faces(true) };
+        let diagram = ClippedVoronoi { face_masses: true, ..self.at(sites).weights(weights).faces(true) };
         Ok(diagram.compute_in_parts(self.comm)?.0)
     }
 
     fn evaluate(&self, x: &[f64]) -> Result<(Evaluation, f64)> {
         let sites = to_points(x);
         let start = std::time::Instant::now();
-        let cells = ClippedVoronoi { sites: &sites, faces: false, ..self.diagram }.compute_in_parts(self.comm)?.0;
+        let cells = self.at(&sites).faces(false).compute_in_parts(self.comm)?.0;
         let seconds = start.elapsed().as_secs_f64();
         let energy = super::total_of(self, &cells.energy)?;
         Ok((evaluation(&sites, &cells, energy), seconds))

@@ -214,7 +214,7 @@ impl ClippedVoronoi<'_> {
         drop(own_keys);
         for s in 0..sub {
             let run = runs[s]..runs[s + 1];
-            let part = self.sub_part(comm, cpu, geometry, &whole_grid, &own, &own_cells, run, &mut report)?;
+            let part = self.sub_part(comm, cpu, geometry, &whole_grid, &own, &own_cells, (s, run), &mut report)?;
             let Some(Part { held, answer, cells: whole, pieces, width }) = part else {
                 rows.add(comm, Vec::new(), Vec::new(), &mut report.sent)?;
                 continue;
@@ -314,7 +314,7 @@ impl ClippedVoronoi<'_> {
         whole: &Whole,
         own: &[Held],
         own_cells: &[[u32; 3]],
-        run: std::ops::Range<usize>,
+        (sub, run): (usize, std::ops::Range<usize>),
         report: &mut PartsReport,
     ) -> Result<Option<Part>> {
         let grid = &whole.grid;
@@ -332,6 +332,11 @@ impl ClippedVoronoi<'_> {
         // half as wide again each round.
         let ball = (3.0 * k_site as f64 / (4.0 * std::f64::consts::PI * crate::job::knn::SITES_PER_CELL)).cbrt();
         let mut halo = ((2.0 * ball).ceil() as u32).max(1);
+        // The halo this sub-part last took, if the diagram's caller keeps
+        // them (the optimisers' diagrams follow one another).
+        if let Some(last) = self.halos.and_then(|h| h.get(sub)) {
+            halo = halo.max(last);
+        }
         let first_key = own.get(run.start).map(|h| (whole.keys.key(h.at), h.site));
         let mut done: Option<Part> = None;
         loop {
@@ -400,6 +405,9 @@ impl ClippedVoronoi<'_> {
             let c = &cells.counters;
             if window.is_whole() || (uncertified == 0 && c.out_of_halo == 0 && c.unresolved == 0) {
                 let width = halo as f64 * grid.cell_size as f64 / per_world;
+                if let Some(halos) = self.halos {
+                    halos.set(sub, halo);
+                }
                 done = Some(Part { held, answer, cells, pieces, width });
             } else {
                 halo = halo.saturating_add(halo.div_ceil(2));
@@ -470,6 +478,29 @@ impl ClippedVoronoi<'_> {
             }
         }
         Ok((rows, halves))
+    }
+}
+
+/// The halo (in grid cells) each sub-part of a rank last took, kept from
+/// one diagram in parts to the next ([`ClippedVoronoi::halos`]): the
+/// optimisers' diagrams follow one another, and a sub-part whose cells
+/// needed a wider halo than the first (power cells whose weights reach far)
+/// starts there next time, not from the first again. The halo changes no
+/// bit of the cells, only how many rounds a part takes.
+#[derive(Debug, Default)]
+pub struct Halos(std::sync::Mutex<Vec<u32>>);
+
+impl Halos {
+    fn get(&self, sub: usize) -> Option<u32> {
+        self.0.lock().unwrap_or_else(|e| e.into_inner()).get(sub).copied()
+    }
+
+    fn set(&self, sub: usize, halo: u32) {
+        let mut halos = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        if halos.len() <= sub {
+            halos.resize(sub + 1, 0);
+        }
+        halos[sub] = halo;
     }
 }
 

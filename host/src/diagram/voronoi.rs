@@ -167,6 +167,9 @@ pub struct ClippedVoronoi<'a> {
     /// With the sites in parts ([`Self::compute_in_parts`]): the parts each
     /// rank computes in turn ([`Self::parts_per_rank`]).
     pub(crate) sub_parts: usize,
+    /// In parts, the halos the sub-parts last took
+    /// ([`crate::diagram::mesh_parts::Halos`]).
+    pub(crate) halos: Option<&'a crate::diagram::mesh_parts::Halos>,
 }
 
 impl<'a> ClippedVoronoi<'a> {
@@ -190,6 +193,7 @@ impl<'a> ClippedVoronoi<'a> {
             memory_budget: None,
             layout: None,
             sub_parts: 1,
+            halos: None,
         }
     }
 
