@@ -70,6 +70,16 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
         mesh.tets.len(),
         comm.describe(),
     );
+    // In parts, whole cells (asked for, or not): where one process would
+    // take tet-cell, said.
+    let shape = cvd::JobShape { density: false, sites: total as usize, tets: mesh.tets.len() };
+    if args.strategy.is_none() && cvd::Strategy::auto(cvd::BackendKind::Cpu, shape) != cvd::Strategy::Whole {
+        println!(
+            "in parts: whole cells, where one process takes tet-cell ({:.1} tets a site): the cells agree to \
+             rounding, not to the bit; --strategy tet-cell splits the tets instead, every rank reading the whole input",
+            mesh.tets.len() as f64 / total.max(1) as f64
+        );
+    }
     let cpu = CpuBackend::new(args.backend.threads)?;
     if let Some(warning) = crate::backend::threads_beyond_cores(args.backend.threads).filter(|_| rank == 0) {
         eprintln!("cvd: {warning}");
@@ -77,6 +87,7 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     // The optimiser, each rank moving its own rows (and finding their
     // weights): one process's steps (Lloyd: one process's by diagrams).
     let iterated = ClippedVoronoi::new(&mesh, &sites)
+        .strategy(cvd::Strategy::Whole)
         .k_site(args.k_site)
         .memory_budget(args.cpu_memory_budget())
         .parts_per_rank(args.parts.unwrap_or(1))
@@ -87,6 +98,7 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
         optimised.unwrap_or(Optimised { sites, cvt: None, weights, transport: None });
     let faces = !args.no_neighbors;
     let diagram = ClippedVoronoi::new(&mesh, &sites)
+        .strategy(cvd::Strategy::Whole)
         .k_site(args.k_site)
         .faces(faces)
         .memory_budget(args.cpu_memory_budget())

@@ -235,6 +235,17 @@ fn mpirun_gives_whole_cells_and_neighbours_of_one_process() {
             }
         }
     }
+    // Few sites in many tets: one process takes tet-cell by default; the
+    // ranks take whole cells and say so (one process's whole cells' bytes).
+    let few = ["--sites", "600", "--no-geometry"];
+    let one = dir.join("few-one");
+    ok(&cvd_job(&torus, &one, &[&few[..], &["--strategy", "whole"]].concat()), "few sites: one process");
+    let out = dir.join("few-2");
+    let o = mpirun_job(&torus, 2, &out, &few);
+    ok(&o, "few sites: 2 ranks");
+    let said = String::from_utf8_lossy(&o.stdout);
+    assert!(said.contains("in parts: whole cells, where one process takes tet-cell"), "{said}");
+    same_files(&one, &out, &["cells.csv", "neighbors.csv"], "few sites, 2 ranks");
     let _ = std::fs::remove_dir_all(&dir);
 }
 

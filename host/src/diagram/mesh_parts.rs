@@ -818,7 +818,9 @@ fn wanted_boxes(comm: &dyn Reduce, want: Option<HeldCells>) -> Result<Vec<Option
 
 /// Sends each of this rank's own sites (in grid cells `cells`) to every
 /// rank whose box holds its cell, and returns what this rank received:
-/// every site of its box.
+/// every site of its box. The sites go by runs along the curve, each run
+/// looking only at the boxes that meet its cells' box (a rank's
+/// neighbours, not every rank).
 fn spread(
     comm: &dyn Reduce,
     own: &[Held],
@@ -831,10 +833,18 @@ fn spread(
         .zip(cells.par_chunks(1 << 14))
         .map(|(sites, cells)| {
             let mut to = vec![Vec::new(); boxes.len()];
+            let (mut lo, mut hi) = ([u32::MAX; 3], [0u32; 3]);
+            for c in cells {
+                for a in 0..3 {
+                    (lo[a], hi[a]) = (lo[a].min(c[a]), hi[a].max(c[a]));
+                }
+            }
+            let near: Vec<(usize, HeldCells)> =
+                boxes.iter().enumerate().filter_map(|(r, b)| b.filter(|b| b.meets(lo, hi)).map(|b| (r, b))).collect();
             for (s, c) in sites.iter().zip(cells) {
-                for (r, b) in boxes.iter().enumerate() {
-                    if b.is_some_and(|b| b.holds(*c)) {
-                        to[r].push(*s);
+                for (r, b) in &near {
+                    if b.holds(*c) {
+                        to[*r].push(*s);
                     }
                 }
             }

@@ -71,6 +71,12 @@ impl HeldCells {
         (0..3).all(|a| c[a] >= self.lo[a] && c[a] - self.lo[a] < self.dim[a])
     }
 
+    /// Whether any cell from `lo` to `hi` (inclusive, whole grid
+    /// coordinates) is held.
+    pub fn meets(&self, lo: [u32; 3], hi: [u32; 3]) -> bool {
+        (0..3).all(|a| hi[a] >= self.lo[a] && lo[a] < self.lo[a] + self.dim[a])
+    }
+
     /// Whether every site within `sqrt(d2)` of the point `q` (the part's
     /// quantized coordinates) is held: the ball lies strictly inside every
     /// side of the box that has cells beyond it. `d2 = u64::MAX` (fewer
@@ -141,6 +147,20 @@ mod tests {
         }
         let count = (0..10).flat_map(|x| (0..10).flat_map(move |y| (0..10).map(move |z| [x, y, z])));
         assert_eq!(count.filter(|&c| h.holds(c)).count(), 4 * 3 * 4);
+    }
+
+    #[test]
+    fn meets_a_box_when_it_holds_one_of_its_cells() {
+        let h = HeldCells::around([2, 3, 4], [3, 3, 5], 1, GRID, 7);
+        let cells = |lo: [u32; 3], hi: [u32; 3]| {
+            (lo[0]..=hi[0])
+                .flat_map(move |x| (lo[1]..=hi[1]).flat_map(move |y| (lo[2]..=hi[2]).map(move |z| [x, y, z])))
+        };
+        for lo in cells([0; 3], [6; 3]).step_by(5) {
+            for hi in cells(lo, [9; 3]).step_by(7) {
+                assert_eq!(h.meets(lo, hi), cells(lo, hi).any(|c| h.holds(c)), "{lo:?}..={hi:?}");
+            }
+        }
     }
 
     #[test]
