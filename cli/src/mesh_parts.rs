@@ -17,7 +17,7 @@ use crate::args::RunArgs;
 use crate::optimise::Optimised;
 use crate::parts::{optimise_in_parts, rows_of_sites, weights_of_rows, write_part, write_polyhedra};
 use cvd::backends::distributed::Reduce;
-use cvd::{ClippedVoronoi, CpuBackend};
+use cvd::{ClippedVoronoi, CpuBackend, ParticleCells};
 use cvd_io::{Rows, Summary};
 
 /// What a mesh with its sites in parts does not take yet, if `args` asks
@@ -27,7 +27,6 @@ pub fn lacking(args: &RunArgs) -> Option<&'static str> {
         (args.density.is_some() || args.density_file.is_some(), "a density"),
         (args.strategy.is_some_and(|s| s != cvd::Strategy::Whole), "a strategy other than whole cells"),
         (args.backend.backend == cvd::BackendChoice::Vulkan, "the Vulkan backend"),
-        (args.voronoi_index, "--voronoi-index"),
         (args.output.is_some() || args.json.is_some(), "--output and --json"),
     ];
     lacking.iter().find(|(asked, _)| *asked).map(|(_, what)| *what)
@@ -58,6 +57,11 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
             "--weights with --iterations: CVT iterations keep power weights only with --transport \
              (the capacity-constrained CVT)"
                 .into(),
+        ));
+    }
+    if args.voronoi_index && args.no_geometry {
+        return Err(cvd::Error::InvalidInput(
+            "--voronoi-index needs the cells' polyhedra: not with --no-geometry".into(),
         ));
     }
     let (sites, total) = rows_of_sites(args, comm, n, |rows| cvd::geom::points::in_mesh_rows(&mesh, rows, args.seed))?;
@@ -109,28 +113,39 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
         None => diagram,
     };
     let geometry = (!args.no_geometry).then_some(&cpu);
-    let cvd::diagram::mesh_parts::MeshInParts { cells, rows: by_rows, built, pieces, report } =
-        diagram.compute_in_parts_by_rows(comm, geometry)?;
+    let out = diagram.compute_in_parts_by_rows(comm, geometry)?;
+    // With --voronoi-index, each cell's polyhedron measured where it was
+    // built; its numbers sent to its row's rank.
+    let particles = match args.voronoi_index {
+        true => Some(out.particles(comm, &args.index_thresholds()?)?),
+        false => None,
+    };
+    let cvd::diagram::mesh_parts::MeshInParts { cells, rows: by_rows, built, pieces, report } = out;
     // The rows with their faces in batches: a rank holds its rows' faces
     // once (as received), and a batch's at a time.
-    let batches =
-        |w: &mut dyn std::io::Write,
-         write: &dyn Fn(&mut dyn std::io::Write, &cvd::Cells, Rows) -> std::io::Result<()>| {
-            // At least one batch: rank 0 writes the header with no rows too.
-            for start in (0..by_rows.len().max(1)).step_by(1 << 16) {
-                let batch = by_rows.cells(start..(start + (1 << 16)).min(by_rows.len()));
-                write(w, &batch, Rows { first: first + start as u64, total, periodic: false })?;
-            }
-            Ok(())
-        };
+    let batches = |w: &mut dyn std::io::Write,
+                   write: &dyn Fn(
+        &mut dyn std::io::Write,
+        &cvd::Cells,
+        Option<&ParticleCells>,
+        Rows,
+    ) -> std::io::Result<()>| {
+        // At least one batch: rank 0 writes the header with no rows too.
+        for start in (0..by_rows.len().max(1)).step_by(1 << 16) {
+            let range = start..(start + (1 << 16)).min(by_rows.len());
+            let (batch, particles) = (by_rows.cells(range.clone()), particles.as_ref().map(|p| p.rows(range)));
+            write(w, &batch, particles.as_ref(), Rows { first: first + start as u64, total, periodic: false })?;
+        }
+        Ok(())
+    };
     let rows = Rows { first, total, periodic: false };
     let mut written = vec!["cells.csv"];
     write_part(comm, &dir.join("cells.csv"), |w| {
-        batches(w, &|w, c, rows| cvd_io::write_cells_csv_rows(w, c, None, None, rows))
+        batches(w, &|w, c, p, rows| cvd_io::write_cells_csv_rows(w, c, p, None, rows))
     })?;
     if faces {
         write_part(comm, &dir.join("neighbors.csv"), |w| {
-            batches(w, &|w, c, rows| match c.adjacency() {
+            batches(w, &|w, c, _, rows| match c.adjacency() {
                 Some(a) => cvd_io::write_neighbors_csv_rows(w, a, rows),
                 None => Ok(()),
             })

@@ -129,7 +129,8 @@ fn mpirun_gives_the_cells_of_one_process() {
 /// cluster, given as a file: cells.csv and neighbors.csv byte for byte one
 /// process's; after Lloyd's and L-BFGS's iterations the sites too; the
 /// polyhedra (each rank's piece of cells.pvtu, walls.ply); power cells;
-/// optimal transport's weights — each rank reading its own rows. Tet-cell
+/// optimal transport's weights; the Voronoi index — each rank reading its
+/// own rows. Tet-cell
 /// with every rank reading the whole input, said.
 #[test]
 fn mpirun_gives_whole_cells_and_neighbours_of_one_process() {
@@ -152,12 +153,13 @@ fn mpirun_gives_whole_cells_and_neighbours_of_one_process() {
     cvd_io::write_values(&weights_file, &weights).unwrap();
     let (file, weights_file) = (file.to_str().unwrap(), weights_file.to_str().unwrap());
     let torus = ["run", "--model", "torus", "--resolution", "12", "--backend", "cpu", "--no-picture"];
-    let cases: [(&str, Vec<&str>); 7] = [
+    let cases: [(&str, Vec<&str>); 8] = [
         ("cells", vec!["--sites-file", file, "--no-geometry"]),
         ("lbfgs", vec!["--sites", "6000", "--iterations", "3", "--optimizer", "lbfgs", "--no-geometry"]),
         ("lloyd", vec!["--sites", "6000", "--iterations", "3", "--no-geometry"]),
         ("geometry", vec!["--sites-file", file]),
         ("power", vec!["--sites-file", file, "--weights", weights_file, "--no-geometry"]),
+        ("index", vec!["--sites", "5000", "--voronoi-index", "--relative-face-threshold", "0.01"]),
         ("transport", vec!["--sites", "3000", "--volumes", "lognormal:0,0.5", "--no-geometry"]),
         ("tet-cell", vec!["--sites", "3000", "--strategy", "tet-cell", "--no-geometry", "--no-neighbors"]),
     ];
@@ -206,6 +208,10 @@ fn mpirun_gives_whole_cells_and_neighbours_of_one_process() {
                         assert!((a.2 - b.2).abs() <= 1e-12 * a.2.abs(), "{ranks} ranks: VTK's volume of {}", a.0);
                     }
                 }
+            }
+            if *name == "index" {
+                let header = std::fs::read_to_string(out.join("cells.csv")).unwrap();
+                assert!(header.lines().next().unwrap().contains(",n5,n6"), "{name}: the index columns");
             }
             if *name == "power" {
                 let volumes = |dir: &Path| -> Vec<f64> {

@@ -41,6 +41,7 @@ use super::periodic_parts::{
     RowsAcross,
 };
 use crate::backends::distributed::{records, Parcels, Reduce};
+use crate::diagram::particles::{cell_quantities, IndexThresholds, ParticleCells, INDEX_ORDERS};
 use crate::diagram::voronoi::{Cells, ClippedVoronoi};
 use crate::error::{Error, Result};
 use crate::exec::CpuBackend;
@@ -606,6 +607,63 @@ impl MeshInParts {
     pub fn all_rows(&self) -> Cells {
         Cells { adjacency: self.rows.cells(0..self.rows.len()).adjacency, ..self.cells.clone() }
     }
+
+    /// The particles' quantities (`--voronoi-index`: surface area,
+    /// coordination, Voronoi index, largest face order) of this rank's
+    /// rows: each cell's measured from its polyhedron on the rank that built
+    /// it and sent to the rank that read its site, so the same bits as
+    /// [`ParticleCells::of`] on one process's polyhedra (a cell without a
+    /// polyhedron, zero). Needs the polyhedra
+    /// ([`ClippedVoronoi::compute_in_parts_by_rows`] with `geometry`);
+    /// every rank calls it together.
+    pub fn particles(&self, comm: &dyn Reduce, thresholds: &IndexThresholds) -> Result<ParticleCells> {
+        let built = self
+            .built
+            .as_ref()
+            .ok_or_else(|| Error::InvalidInput("the Voronoi index needs the cells' polyhedra".into()))?;
+        let (first, len) = (self.rows.first, self.rows.len());
+        let across = RowsAcross::of(comm, len)?;
+        let measured: Vec<Measured> = built
+            .polyhedra
+            .par_iter()
+            .map(|p| {
+                let (area, coordination, index, max_face_order) = cell_quantities(p, thresholds);
+                Measured { site: p.site as u64, area, coordination, max_face_order, index }
+            })
+            .collect();
+        let mut to = vec![Vec::new(); comm.size()];
+        for m in &measured {
+            let r =
+                across.reader(m.site).ok_or_else(|| Error::Internal(format!("site {} beyond the input", m.site)))?;
+            to[r].extend_from_slice(bytemuck::bytes_of(m));
+        }
+        drop(measured);
+        let got = comm.exchange(Parcels::of(to))?;
+        let mut out = ParticleCells {
+            area: vec![0.0; len],
+            coordination: vec![0; len],
+            index: vec![[0; INDEX_ORDERS]; len],
+            max_face_order: vec![0; len],
+        };
+        for m in records::<Measured>(&got.bytes) {
+            let i = m.site.checked_sub(first).map(|i| i as usize).filter(|&i| i < len);
+            let i = i.ok_or_else(|| Error::Internal(format!("site {} sent to the reader of {first}..", m.site)))?;
+            (out.area[i], out.coordination[i], out.index[i]) = (m.area, m.coordination, m.index);
+            out.max_face_order[i] = m.max_face_order;
+        }
+        Ok(out)
+    }
+}
+
+/// A cell's particle quantities, on the way to its site's reader.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct Measured {
+    site: u64,
+    area: f64,
+    coordination: u32,
+    max_face_order: u32,
+    index: [u32; INDEX_ORDERS],
 }
 
 /// A rank's rows of a mesh in parts, as the ranks that built them sent
@@ -978,6 +1036,38 @@ mod tests {
                     same_rows(&one, cells, rows(r), &what);
                     assert_eq!(one.total_volume.to_bits(), cells.total_volume.to_bits(), "{what}: total volume");
                     assert_eq!(one.counters.empty_cells, cells.counters.empty_cells, "{what}: empty cells");
+                }
+            }
+        }
+    }
+
+    /// The Voronoi index in parts: each cell measured where it was built
+    /// and sent to its reader, the same numbers as one process's.
+    #[test]
+    fn the_voronoi_index_in_parts_is_one_process_index() {
+        let mesh = TetMesh::voxels(8, |i, j, _| i < 4 || j < 4);
+        let mut sites = points::in_mesh(&mesh, 2500, 51);
+        sites.extend(points::clustered(500, 2, 0.02, 52).into_iter().map(|p| p.map(|x| 0.1 + 0.3 * x)));
+        let thresholds = IndexThresholds { relative_face: 0.01, ..Default::default() };
+        let cpu = CpuBackend::new(Some(2)).unwrap();
+        let (one, _) =
+            ClippedVoronoi::new(&mesh, &sites).strategy(Strategy::Whole).compute_with_polyhedra(&cpu).unwrap();
+        let expected = ParticleCells::of(sites.len(), one.polyhedra().unwrap(), &thresholds);
+        assert!(expected.coordination.iter().filter(|&&c| c > 0).count() > sites.len() * 9 / 10);
+        for (ranks, per_rank) in [(2, 1), (3, 2)] {
+            let rows = |r: usize| sites.len() * r / ranks..sites.len() * (r + 1) / ranks;
+            let runs = on_ranks(ranks, |r, comm| {
+                let cpu = CpuBackend::new(Some(1)).unwrap();
+                let cv = ClippedVoronoi::new(&mesh, &sites[rows(r)]).backend(&cpu).parts_per_rank(per_rank);
+                cv.compute_in_parts_by_rows(comm, Some(&cpu)).unwrap().particles(comm, &thresholds).unwrap()
+            });
+            for (r, got) in runs.iter().enumerate() {
+                for (k, i) in rows(r).enumerate() {
+                    let what = format!("{ranks} ranks x {per_rank} parts: site {i}");
+                    assert_eq!(got.area[k].to_bits(), expected.area[i].to_bits(), "{what}: area");
+                    assert_eq!(got.coordination[k], expected.coordination[i], "{what}: coordination");
+                    assert_eq!(got.index[k], expected.index[i], "{what}: index");
+                    assert_eq!(got.max_face_order[k], expected.max_face_order[i], "{what}");
                 }
             }
         }

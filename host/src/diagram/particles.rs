@@ -84,6 +84,16 @@ pub struct ParticleCells {
 }
 
 impl ParticleCells {
+    /// The quantities of the cells in `rows`.
+    pub fn rows(&self, rows: std::ops::Range<usize>) -> Self {
+        Self {
+            area: self.area[rows.clone()].to_vec(),
+            coordination: self.coordination[rows.clone()].to_vec(),
+            index: self.index[rows.clone()].to_vec(),
+            max_face_order: self.max_face_order[rows].to_vec(),
+        }
+    }
+
     /// The quantities of `n` sites' cells from their `polyhedra` (at most
     /// one per site, each naming its site).
     pub fn of(n: usize, polyhedra: &[CellPolyhedron], thresholds: &IndexThresholds) -> Self {
@@ -125,7 +135,7 @@ fn polygon_area(points: &[[f64; 3]], ring: &[u32]) -> f64 {
 }
 
 /// One cell's surface area, coordination, index and largest face order.
-fn cell_quantities(p: &CellPolyhedron, t: &IndexThresholds) -> (f64, u32, [u32; INDEX_ORDERS], u32) {
+pub(crate) fn cell_quantities(p: &CellPolyhedron, t: &IndexThresholds) -> (f64, u32, [u32; INDEX_ORDERS], u32) {
     let areas: Vec<f64> = p.faces().map(|ring| polygon_area(&p.vertices, ring)).collect();
     let surface: f64 = areas.iter().sum();
     let edge = t.edge.max(t.relative_edge * p.volume().max(0.0).cbrt());
