@@ -20,6 +20,11 @@ use cvd::backends::distributed::Reduce;
 use cvd::{ClippedVoronoi, CpuBackend, ParticleCells};
 use cvd_io::{Rows, Summary};
 
+/// Writes a batch of a rank's rows (their cells, their particles'
+/// quantities if asked for) to a file's part.
+type WriteBatch<'a> =
+    dyn Fn(&mut dyn std::io::Write, &cvd::Cells, Option<&ParticleCells>, Rows) -> std::io::Result<()> + 'a;
+
 /// What a mesh with its sites in parts does not take yet, if `args` asks
 /// for any of it: then every rank reads the whole input.
 pub fn lacking(args: &RunArgs) -> Option<&'static str> {
@@ -123,13 +128,7 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     let cvd::diagram::mesh_parts::MeshInParts { cells, rows: by_rows, built, pieces, report } = out;
     // The rows with their faces in batches: a rank holds its rows' faces
     // once (as received), and a batch's at a time.
-    let batches = |w: &mut dyn std::io::Write,
-                   write: &dyn Fn(
-        &mut dyn std::io::Write,
-        &cvd::Cells,
-        Option<&ParticleCells>,
-        Rows,
-    ) -> std::io::Result<()>| {
+    let batches = |w: &mut dyn std::io::Write, write: &WriteBatch| {
         // At least one batch: rank 0 writes the header with no rows too.
         for start in (0..by_rows.len().max(1)).step_by(1 << 16) {
             let range = start..(start + (1 << 16)).min(by_rows.len());
