@@ -380,7 +380,7 @@ impl ClippedVoronoi<'_> {
             if let Some(w) = &weights {
                 part = part.weights(w);
             }
-            let part = part.strategy(Strategy::Whole).backend(cpu).layout(layout).keep_lists(Some(k_site));
+            let part = part.strategy(Strategy::Whole).backend(cpu).layout(layout).keep_reach(k_site);
             let (mut cells, pieces) = match geometry {
                 Some(cpu) => part.compute_with_pieces(cpu).map(|(c, p)| (c, Some(p)))?,
                 None => (part.compute()?, None),

@@ -349,7 +349,7 @@ impl PeriodicVoronoi<'_> {
             let (mut whole, pieces) = if answer.is_empty() {
                 (Cells { k_site, strategy: Strategy::Whole, ..Default::default() }, None)
             } else {
-                let mut part = ClippedVoronoi { sites: &at, ..diagram }.layout(layout).keep_lists(Some(k_site));
+                let mut part = ClippedVoronoi { sites: &at, ..diagram }.layout(layout).keep_reach(k_site);
                 if let Some(w) = &weights {
                     part = part.weights(w);
                 }

@@ -157,6 +157,9 @@ pub struct ClippedVoronoi<'a> {
     /// Whole cells: each answered site's list of this many nearest sites
     /// kept ([`Cells::kept`]) for a trajectory's next frame.
     pub(crate) keep: Option<usize>,
+    /// Whether the kept lists hold their entries, or only their distances
+    /// ([`Self::keep_reach`]).
+    pub(crate) keep_entries: bool,
     /// The last frame's kept lists, as candidates ([`crate::job::kept`]).
     pub(crate) candidates: Option<&'a Candidates<'a>>,
     /// Most bytes the job may hold ([`Self::memory_budget`]).
@@ -189,6 +192,7 @@ impl<'a> ClippedVoronoi<'a> {
             face_masses: false,
             images_from: None,
             keep: None,
+            keep_entries: false,
             candidates: None,
             memory_budget: None,
             layout: None,
@@ -227,7 +231,15 @@ impl<'a> ClippedVoronoi<'a> {
     /// ([`Cells::kept`]), for the next frame of a trajectory
     /// ([`crate::job::kept`]); the CPU backend keeps them, others none.
     pub(crate) fn keep_lists(mut self, k: Option<usize>) -> Self {
-        self.keep = k;
+        (self.keep, self.keep_entries) = (k, true);
+        self
+    }
+
+    /// [`Self::keep_lists`] without the lists' entries: each answered
+    /// site's `k`-th distance and reach only ([`KeptLists::kth`],
+    /// [`KeptLists::reach`]), what a part certifies its lists by.
+    pub(crate) fn keep_reach(mut self, k: usize) -> Self {
+        (self.keep, self.keep_entries) = (Some(k), false);
         self
     }
 
@@ -489,6 +501,7 @@ impl<'a> ClippedVoronoi<'a> {
             return Err(Error::Internal("candidates are taken for the first sites only".into()));
         }
         let keep = self.keep.filter(|_| strategy == Strategy::Whole).map(|kk| Keep {
+            entries: self.keep_entries,
             k: kk.max(site_knn.params.k as usize).min(n.saturating_sub(1)) as u32,
             candidates: self.candidates.map(|c| local_candidates(c, &inputs, listed.end, &map, &site_knn, frame.scale)),
         });

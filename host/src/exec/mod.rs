@@ -444,9 +444,10 @@ impl CpuBackend {
         let kk = keep.k.max(k).max(1);
         let available = p.grid.n_sites.saturating_sub(1);
         let mut words = vec![0u32; n * lists::stride(k, bits) + lists::spare(bits)];
+        let stride = if keep.entries { kk as usize } else { 0 };
         let mut local = LocalKept {
             k: kk,
-            lists: vec![NO_SITE; n * kk as usize],
+            lists: vec![NO_SITE; n * stride],
             last2: vec![u64::MAX; n],
             kth2: vec![u64::MAX; n],
             reused: vec![false; n],
@@ -455,10 +456,21 @@ impl CpuBackend {
         let (cs, cc, sorted) = (&grid.cell_start, &grid.cell_count, &grid.sorted);
         let (_, t) = timed(|| {
             self.pool.install(|| {
-                let rows = local.lists.par_chunks_mut(kk as usize).zip(&mut local.last2).zip(&mut local.kth2);
+                // The entries into the kept lists, or into a row of scratch.
+                let lists: Vec<&mut [u32]> = match keep.entries {
+                    true => local.lists.chunks_mut(kk as usize).collect(),
+                    false => (0..n).map(|_| <&mut [u32]>::default()).collect(),
+                };
+                let rows = lists.into_par_iter().zip(&mut local.last2).zip(&mut local.kth2);
                 rows.zip(&mut local.reused).enumerate().for_each_init(
-                    || vec![0u64; kk as usize],
-                    |d2, (u, (((list, last2), kth2), reused))| {
+                    || (vec![0u64; kk as usize], vec![NO_SITE; kk as usize]),
+                    |(d2, scratch), (u, (((kept, last2), kth2), reused))| {
+                        let list: &mut [u32] = if kept.is_empty() {
+                            scratch.fill(NO_SITE);
+                            &mut scratch[..]
+                        } else {
+                            kept
+                        };
                         let q = job.queries[p.query_base as usize + u];
                         let at = [q[0], q[1], q[2]];
                         *reused = keep.candidates.as_ref().is_some_and(|c| {

@@ -45,6 +45,10 @@ pub struct Keep {
     pub k: u32,
     /// Candidates from the last frame, per listed site, if any.
     pub candidates: Option<SiteCandidates>,
+    /// Whether the lists' entries are kept (a trajectory's next frame reads
+    /// them), or only their distances (a part's certificate: `k` entries a
+    /// site are the largest thing a part would hold for it).
+    pub entries: bool,
 }
 
 /// [`Candidates`] in a job's terms: `k` candidates per listed site (job
@@ -76,7 +80,7 @@ impl SiteCandidates {
 pub struct LocalKept {
     /// Entries per list.
     pub k: u32,
-    /// The lists, `k` entries each.
+    /// The lists, `k` entries each (none unless [`Keep::entries`]).
     pub lists: Vec<u32>,
     /// Per list: the squared quantized distance of its last entry.
     pub last2: Vec<u64>,
