@@ -288,8 +288,12 @@ impl ClippedVoronoi<'_> {
         // The sites as the job holds them, and the box of all of them.
         let split: Vec<SplitPoint> =
             own.par_iter().map(|h| SplitPoint::site(frame.to_local(h.at), (h.weight - span[0]) / scale2)).collect();
-        let (lo, hi) = crate::geom::vec3::bounding_box(split.iter().map(SplitPoint::to_f64).collect::<Vec<_>>().iter());
-        let mut extremes = [-lo[0], -lo[1], -lo[2], hi[0], hi[1], hi[2]];
+        let mut extremes = [f64::NEG_INFINITY; 6];
+        for p in split.iter().map(SplitPoint::to_f64) {
+            for a in 0..3 {
+                (extremes[a], extremes[a + 3]) = (extremes[a].max(-p[a]), extremes[a + 3].max(p[a]));
+            }
+        }
         comm.max(&mut extremes)?;
         let (lo, hi) = ([0, 1, 2].map(|a| -extremes[a]), [0, 1, 2].map(|a| extremes[a + 3]));
         let volume = self.mesh.volume() / frame.scale.powi(3);
