@@ -172,6 +172,10 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
 
     // The run's numbers: totals from every rank, each rank's record.
     let (energy, records) = crate::parts::totals_and_records(comm, &cells, &report, clock)?;
+    let indices = match &particles {
+        Some(p) => Some(crate::parts::particles_record(comm, p, &args.index_thresholds()?)?),
+        None => None,
+    };
     let status = match &transport {
         Some(t) if !t.converged => crate::optimise::NOT_CONVERGED,
         _ => 0,
@@ -187,6 +191,7 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
         summary.cvt = Some(record);
     }
     summary.transport = transport;
+    summary.particles = indices;
     summary.ranks = Some(records);
     if let Some((pieces, lids)) = pieces_and_lids {
         (summary.pieces, summary.lids) = (Some(pieces), Some(lids));

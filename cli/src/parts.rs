@@ -119,6 +119,10 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
 
     // The run's numbers: totals from every rank, each rank's record.
     let (energy, records) = totals_and_records(comm, &out.cells, &report, clock)?;
+    let indices = match &particles {
+        Some(p) => Some(particles_record(comm, p, &args.index_thresholds()?)?),
+        None => None,
+    };
     let status = match &transport {
         Some(t) if !t.converged => crate::optimise::NOT_CONVERGED,
         _ => 0,
@@ -136,6 +140,7 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     }
     summary.transport = transport;
     summary.periodic = Some(cvd_io::PeriodicRecord::of(&domain, &out));
+    summary.particles = indices;
     summary.ranks = Some(records);
     summary.write_json(&dir.join("summary.json"))?;
     written.push("summary.json");
@@ -168,6 +173,24 @@ pub(crate) fn totals_and_records(
     };
     let records = comm.all_gather(&record_bytes(&mine))?;
     Ok((energy, records.iter().map(|b| record_of(b)).collect()))
+}
+
+/// `summary.json`'s record of the Voronoi indices (`--voronoi-index`) of
+/// every rank's rows, `particles` this rank's: each rank's counts added
+/// (whole numbers: one process's record). Every rank calls it; the record
+/// on all.
+pub(crate) fn particles_record(
+    comm: &dyn Reduce,
+    particles: &cvd::ParticleCells,
+    thresholds: &cvd::IndexThresholds,
+) -> cvd::Result<cvd_io::ParticlesRecord> {
+    let mut counts = cvd_io::IndexCounts::default();
+    for bytes in comm.all_gather(&cvd_io::IndexCounts::of(particles).to_bytes())? {
+        let got = cvd_io::IndexCounts::from_bytes(&bytes)
+            .ok_or_else(|| cvd::Error::Internal("a rank's Voronoi index counts came garbled".into()))?;
+        counts.add(&got);
+    }
+    Ok(cvd_io::ParticlesRecord::of_counts(&counts, thresholds))
 }
 
 /// This rank's rows of the sites and how many there are in all: its part

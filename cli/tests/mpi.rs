@@ -212,6 +212,10 @@ fn mpirun_gives_whole_cells_and_neighbours_of_one_process() {
             if *name == "index" {
                 let header = std::fs::read_to_string(out.join("cells.csv")).unwrap();
                 assert!(header.lines().next().unwrap().contains(",n5,n6"), "{name}: the index columns");
+                let indices = &s["particles"]["top_indices"];
+                assert!(indices.as_array().is_some_and(|a| !a.is_empty()), "{name}: {s}");
+                assert_eq!(indices, &summary(&one)["particles"]["top_indices"], "{name}: the most common indices");
+                assert_eq!(s["particles"]["mean_coordination"], summary(&one)["particles"]["mean_coordination"]);
             }
             if *name == "power" {
                 let volumes = |dir: &Path| -> Vec<f64> {
@@ -681,6 +685,10 @@ fn mpirun_gives_power_cells_in_parts_byte_for_byte() {
         let o = mpirun_job(BOX, ranks, &out, &args);
         ok(&o, &format!("--voronoi-index: {ranks} ranks"));
         same_files(&index, &out, &["cells.csv", "neighbors.csv"], &format!("--voronoi-index, {ranks} ranks"));
+        // summary.json's most common indices: every rank's cells counted.
+        let (one, parts) = (summary(&index)["particles"].clone(), summary(&out)["particles"].clone());
+        assert!(one["top_indices"].as_array().is_some_and(|a| !a.is_empty()), "{one}");
+        assert_eq!(parts, one, "{ranks} ranks: the most common indices");
         // walls.ply: the same walls, each rank's after the ranks' before.
         assert!(walls(&index.join("walls.ply")) == walls(&out.join("walls.ply")), "{ranks} ranks: walls.ply's walls");
         // VTK reads the pieces as one grid: every cell once, each as one

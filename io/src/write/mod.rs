@@ -31,7 +31,9 @@ pub use cells_vtu::{write_cells_pvtu, write_cells_vtu, write_cells_vtu_with, Cel
 pub use neighbors_csv::{write_neighbors_csv, write_neighbors_csv_rows};
 pub use picture::{write_section_png, Section};
 pub use plot::{write_chart_png, write_line_chart_png, Axes, Series};
-pub use summary::{CvtRecord, ParticlesRecord, PeriodicRecord, RankRecord, Summary, Times, TransportRecord};
+pub use summary::{
+    CvtRecord, IndexCounts, ParticlesRecord, PeriodicRecord, RankRecord, Summary, Times, TransportRecord,
+};
 pub use trajectory::{FrameRecord, TrajectorySummary};
 pub use view::write_cells_view_png;
 pub use vtu::write_pieces_vtu;

@@ -123,20 +123,79 @@ pub struct ParticlesRecord {
     pub top_indices: Vec<(String, usize)>,
 }
 
+/// What a [`ParticlesRecord`] is made of: the cells with a face counted,
+/// by Voronoi index, and their coordination's sum — whole numbers, added
+/// over the ranks of a run in parts ([`Self::add`]) to one process's.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct IndexCounts {
+    /// Cells by index.
+    pub by_index: std::collections::HashMap<[u32; cvd::INDEX_ORDERS], u64>,
+    /// The cells counted.
+    pub cells: u64,
+    /// Their coordination, summed.
+    pub coordination: u64,
+}
+
+impl IndexCounts {
+    /// The counts of `particles`' cells with a counted face.
+    pub fn of(particles: &cvd::ParticleCells) -> Self {
+        let mut out = Self::default();
+        for (i, index) in particles.index.iter().enumerate() {
+            if particles.coordination[i] > 0 {
+                *out.by_index.entry(*index).or_default() += 1;
+                out.cells += 1;
+                out.coordination += particles.coordination[i] as u64;
+            }
+        }
+        out
+    }
+
+    /// Adds `other`'s counts.
+    pub fn add(&mut self, other: &Self) {
+        for (index, n) in &other.by_index {
+            *self.by_index.entry(*index).or_default() += n;
+        }
+        self.cells += other.cells;
+        self.coordination += other.coordination;
+    }
+
+    /// As bytes (`from_bytes` reads them back).
+    pub fn to_bytes(&self) -> Vec<u8> {
+        let mut words = vec![self.cells, self.coordination];
+        for (index, &n) in &self.by_index {
+            words.extend(index.iter().map(|&k| k as u64));
+            words.push(n);
+        }
+        words.iter().flat_map(|w| w.to_le_bytes()).collect()
+    }
+
+    /// The counts `to_bytes` wrote, or `None` for bytes it did not write.
+    pub fn from_bytes(bytes: &[u8]) -> Option<Self> {
+        let (words, rest) = bytes.as_chunks::<8>();
+        let words: Vec<u64> = words.iter().map(|w| u64::from_le_bytes(*w)).collect();
+        if !rest.is_empty() || words.len() < 2 || (words.len() - 2) % (cvd::INDEX_ORDERS + 1) != 0 {
+            return None;
+        }
+        let mut out = Self { cells: words[0], coordination: words[1], ..Default::default() };
+        for entry in words[2..].chunks(cvd::INDEX_ORDERS + 1) {
+            let index = std::array::from_fn(|k| entry[k] as u32);
+            *out.by_index.entry(index).or_default() += entry[cvd::INDEX_ORDERS];
+        }
+        Some(out)
+    }
+}
+
 impl ParticlesRecord {
     /// The record of `particles` counted with `thresholds`.
     pub fn of(particles: &cvd::ParticleCells, thresholds: &cvd::IndexThresholds) -> Self {
-        let mut counts: std::collections::HashMap<[u32; cvd::INDEX_ORDERS], usize> = Default::default();
-        let mut cells = 0;
-        let mut total = 0u64;
-        for (i, index) in particles.index.iter().enumerate() {
-            if particles.coordination[i] > 0 {
-                *counts.entry(*index).or_default() += 1;
-                cells += 1;
-                total += particles.coordination[i] as u64;
-            }
-        }
-        let mut top: Vec<([u32; cvd::INDEX_ORDERS], usize)> = counts.into_iter().collect();
+        Self::of_counts(&IndexCounts::of(particles), thresholds)
+    }
+
+    /// The record of the cells `counts` counted with `thresholds`.
+    pub fn of_counts(counts: &IndexCounts, thresholds: &cvd::IndexThresholds) -> Self {
+        let (cells, total) = (counts.cells, counts.coordination);
+        let mut top: Vec<([u32; cvd::INDEX_ORDERS], usize)> =
+            counts.by_index.iter().map(|(i, &n)| (*i, n as usize)).collect();
         top.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
         let name = |index: &[u32; cvd::INDEX_ORDERS]| {
             let last = index.iter().rposition(|&n| n > 0).unwrap_or(0).max(3);
@@ -521,6 +580,28 @@ impl fmt::Display for Summary {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn index_counts_added_over_parts_are_the_whole_counts() {
+        let index = |k: u32| [0, 12 - 2 * k, 4 * k, 0, 0, 0, 0, 0];
+        let n = 50;
+        let particles = cvd::ParticleCells {
+            area: vec![1.0; n],
+            coordination: (0..n).map(|i| if i % 7 == 0 { 0 } else { 12 + (i % 3) as u32 }).collect(),
+            index: (0..n).map(|i| index((i % 3) as u32)).collect(),
+            max_face_order: vec![5; n],
+        };
+        let whole = IndexCounts::of(&particles);
+        let mut added = IndexCounts::default();
+        for rows in [0..13, 13..13, 13..50] {
+            let bytes = IndexCounts::of(&particles.rows(rows)).to_bytes();
+            added.add(&IndexCounts::from_bytes(&bytes).unwrap());
+        }
+        assert_eq!(added, whole);
+        let t = cvd::IndexThresholds::default();
+        assert_eq!(ParticlesRecord::of_counts(&added, &t), ParticlesRecord::of(&particles, &t));
+        assert!(IndexCounts::from_bytes(&[0; 12]).is_none() && IndexCounts::from_bytes(&[0; 24]).is_none());
+    }
     use cvd::cvt::transport::{NewtonStep, TransportRun};
 
     fn summary() -> Summary {
