@@ -173,7 +173,7 @@ impl IndexCounts {
     pub fn from_bytes(bytes: &[u8]) -> Option<Self> {
         let (words, rest) = bytes.as_chunks::<8>();
         let words: Vec<u64> = words.iter().map(|w| u64::from_le_bytes(*w)).collect();
-        if !rest.is_empty() || words.len() < 2 || (words.len() - 2) % (cvd::INDEX_ORDERS + 1) != 0 {
+        if !rest.is_empty() || words.len() < 2 || !(words.len() - 2).is_multiple_of(cvd::INDEX_ORDERS + 1) {
             return None;
         }
         let mut out = Self { cells: words[0], coordination: words[1], ..Default::default() };
