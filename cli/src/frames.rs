@@ -6,8 +6,10 @@
 //! Each frame starts from the last one's neighbour lists
 //! (`cvd::diagram::trajectory`) unless `--rebuild-frames`.
 //!
-//! Under `mpirun`, every frame in parts: each rank parses only its share
-//! of each frame's atom lines (`FrameReader::read_parts`), the ranks put
+//! Under `mpirun`, every frame in parts: each rank reads only its share
+//! of each frame's bytes (`FrameReader::next_in_parts`: the ranks count
+//! the frame's line ends together, a share each, and each parses only its
+//! own atom lines), the ranks put
 //! the rows in order of their ids together (`sort_across`), and the frame's
 //! cells are a periodic box in parts (`PeriodicVoronoi::compute_in_parts`),
 //! each rank writing its rows of the frame's `cells.csv` at their place:
@@ -64,9 +66,6 @@ fn frames(args: &RunArgs, file: &Path, comm: Option<&dyn Reduce>) -> cvd::Result
             .map_err(|source| cvd::Error::Write { path: frames_dir.display().to_string(), source })?;
     }
     let mut reader = cvd_io::open_particles(file)?;
-    if let Some(comm) = comm {
-        reader.read_parts(comm.rank(), comm.size());
-    }
     let cpu = CpuBackend::new(args.backend.threads)?;
     let clock = Instant::now();
     let mut records = Vec::new();
@@ -88,12 +87,20 @@ fn frames(args: &RunArgs, file: &Path, comm: Option<&dyn Reduce>) -> cvd::Result
                 return Ok(());
             }
             if !range.wants(index) {
-                if !reader.skip_frame()? {
+                let skipped = match comm {
+                    None => reader.skip_frame()?,
+                    Some(comm) => reader.skip_in_parts(comm)?,
+                };
+                if !skipped {
                     return Ok(());
                 }
                 continue;
             }
-            let Some(frame) = reader.next() else { return Ok(()) };
+            let frame = match comm {
+                None => reader.next(),
+                Some(comm) => reader.next_in_parts(comm),
+            };
+            let Some(frame) = frame else { return Ok(()) };
             let frame = frame?;
             let (timestep, periodic) = (frame.timestep, frame.domain.periodic());
             let file = format!("cells.{index:06}.csv");

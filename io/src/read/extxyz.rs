@@ -23,12 +23,13 @@
 //! `radii` (`R:1`) the radii; the others are not looked at.
 
 use super::particles::{
-    box_message, count, finite, open_buffered, read_atoms, tokens, unsigned, Atoms, Columns, Field, FrameReader, Lines,
-    ParticleFrame,
+    atoms_in_parts, box_message, count, finite, open_buffered, read_atoms, tokens, unsigned, Atoms, Columns, Field,
+    FrameReader, Lines, ParticleFrame, PartsScan,
 };
+use cvd::backends::distributed::Reduce;
 use cvd::error::Result;
 use cvd::PeriodicBox;
-use std::io::{BufRead, BufReader};
+use std::io::{BufRead, BufReader, Seek};
 use std::path::Path;
 
 /// The columns when the comment line names none.
@@ -40,8 +41,8 @@ pub struct ExtxyzReader<R> {
     lines: Lines<R>,
     index: usize,
     done: bool,
-    /// This reader's part of every frame (`read_parts`), or `None`.
-    part: Option<(usize, usize)>,
+    /// What reading in parts keeps from frame to frame.
+    scan: PartsScan,
 }
 
 impl ExtxyzReader<BufReader<std::fs::File>> {
@@ -59,10 +60,10 @@ struct Info {
     timestep: Option<u64>,
 }
 
-impl<R: BufRead> ExtxyzReader<R> {
+impl<R: BufRead + Seek> ExtxyzReader<R> {
     /// A reader of the file `reader` holds; `path` names it in errors.
     pub fn new(reader: R, path: impl Into<String>) -> Self {
-        Self { lines: Lines::new(reader, path.into()), index: 0, done: false, part: None }
+        Self { lines: Lines::new(reader, path.into()), index: 0, done: false, scan: PartsScan::default() }
     }
 
     /// The next frame's atom count and its line, `None` at the end of the
@@ -82,14 +83,22 @@ impl<R: BufRead> ExtxyzReader<R> {
         format!("the comment line (Lattice=\"...\" ...) after the atom count on line {count_line}")
     }
 
-    /// The next frame, or `None` at the end of the file.
-    fn read(&mut self) -> Result<Option<ParticleFrame>> {
+    /// The next frame, or `None` at the end of the file: whole, or this
+    /// rank's part of it over `comm`'s ranks.
+    fn read(&mut self, comm: Option<&dyn Reduce>) -> Result<Option<ParticleFrame>> {
         let Some((count, count_line)) = self.count_line()? else { return Ok(None) };
         let lines = &mut self.lines;
         lines.expect(Self::comment_what(count_line))?;
         let info = info(lines)?;
         let atoms = Atoms { count, count_line, count_name: "the atom count", stop: None };
-        let (rows, part) = read_atoms(lines, &info.columns, &atoms, &info.domain, self.part)?;
+        let (rows, part) = match comm {
+            None => (read_atoms(lines, &info.columns, &atoms, &info.domain)?, None),
+            Some(comm) => {
+                let parse = Some((&info.columns, &info.domain));
+                let (rows, part) = atoms_in_parts(lines, &atoms, comm, parse, &mut self.scan)?;
+                (rows, Some(part))
+            }
+        };
         let frame = ParticleFrame {
             index: self.index,
             timestep: info.timestep,
@@ -104,21 +113,25 @@ impl<R: BufRead> ExtxyzReader<R> {
     }
 
     /// Passes over the next frame: its count line is read, the comment
-    /// and atom lines only counted.
-    fn skip(&mut self) -> Result<bool> {
+    /// and atom lines only counted (in parts over `comm`'s ranks, each
+    /// counting a share of the atom lines).
+    fn skip(&mut self, comm: Option<&dyn Reduce>) -> Result<bool> {
         let Some((count, count_line)) = self.count_line()? else { return Ok(false) };
         let lines = &mut self.lines;
-        match lines.skip(count.saturating_add(1))? {
-            0 => Err(lines.missing(Self::comment_what(count_line))),
-            n if n - 1 < count => {
-                let atoms = Atoms { count, count_line, count_name: "the atom count", stop: None };
-                Err(atoms.cut_short(lines, n - 1))
-            }
-            _ => {
-                self.index += 1;
-                Ok(true)
+        let atoms = Atoms { count, count_line, count_name: "the atom count", stop: None };
+        match comm {
+            None => match lines.skip(count.saturating_add(1))? {
+                0 => return Err(lines.missing(Self::comment_what(count_line))),
+                n if n - 1 < count => return Err(atoms.cut_short(lines, n - 1)),
+                _ => {}
+            },
+            Some(comm) => {
+                lines.expect(Self::comment_what(count_line))?;
+                atoms_in_parts(lines, &atoms, comm, None, &mut self.scan)?;
             }
         }
+        self.index += 1;
+        Ok(true)
     }
 }
 
@@ -316,6 +329,7 @@ super::particles::frame_reader!(ExtxyzReader);
 #[cfg(test)]
 pub(crate) mod tests {
     use super::super::particles::tests::{fails_at, read_all_frames, replace_line};
+    use super::super::particles::FramePart;
     use super::super::tests::no_panic_on_mutations;
     use super::*;
 
@@ -335,7 +349,7 @@ O 1 1 1
 "#;
 
     fn read_all(text: &str) -> Result<Vec<ParticleFrame>> {
-        ExtxyzReader::new(text.as_bytes(), "t.extxyz").collect()
+        ExtxyzReader::new(std::io::Cursor::new(text.as_bytes()), "t.extxyz").collect()
     }
 
     /// Reading `text` fails at `line` of frame `frame`, the message holding
@@ -376,6 +390,51 @@ O 1 1 1
         let cell = PeriodicBox::triclinic([1.0, 2.0, -1.0], [[4.0, 0.0, 0.0], [1.0, 3.0, 0.0], [0.5, 0.5, 5.0]]);
         assert_eq!(f.domain, cell.unwrap().with_periodic([false, true, true]));
         assert_eq!(f.positions, [[0.0; 3], [1.0; 3]]);
+    }
+
+    /// An atom as read: its id, position and radius.
+    type Row = (u64, [f64; 3], Option<f64>);
+
+    #[test]
+    fn frames_read_in_parts_are_the_frames_rows() {
+        // Frame 0: 3 atoms on lines 3-5, ids out of order; frame 1: 2 atoms
+        // on lines 8-9, no ids; frame 0 passed over or not; chunks of 1
+        // and 16 bytes (many rounds) and as sized for a run.
+        let whole = read_all(VALID).unwrap();
+        for parts in 1..=4 {
+            for chunk in [Some(1), Some(16), None] {
+                for skip in [false, true] {
+                    let by_part = cvd::backends::distributed::InProcess::each(parts, |comm| {
+                        let mut reader = ExtxyzReader::new(std::io::Cursor::new(VALID.as_bytes()), "t.extxyz");
+                        reader.scan.chunk = chunk;
+                        if skip {
+                            assert!(reader.skip_in_parts(comm).unwrap());
+                        }
+                        std::iter::from_fn(|| reader.next_in_parts(comm)).collect::<Result<Vec<_>>>().unwrap()
+                    });
+                    let mut rows: [Vec<Row>; 2] = Default::default();
+                    for (p, frames) in by_part.iter().enumerate() {
+                        assert_eq!(frames.len(), 2 - skip as usize);
+                        for f in frames {
+                            let n = whole[f.index].len();
+                            let lo = n * p / parts;
+                            let first_line = [3, 8][f.index] + lo;
+                            assert_eq!(f.part, Some(FramePart { total: n, first: lo, first_line }));
+                            assert_eq!((f.domain, f.timestep), (whole[f.index].domain, whole[f.index].timestep));
+                            for i in 0..f.len() {
+                                let id = f.ids.as_ref().map_or((lo + i) as u64, |ids| ids[i]);
+                                rows[f.index].push((id, f.positions[i], f.radii.as_ref().map(|r| r[i])));
+                            }
+                        }
+                    }
+                    for (f, mut rows) in whole.iter().zip(rows).skip(skip as usize) {
+                        rows.sort_by_key(|r| r.0);
+                        assert_eq!(rows.iter().map(|r| r.1).collect::<Vec<_>>(), f.positions, "{parts} parts");
+                        assert_eq!(rows.iter().map(|r| r.2).collect::<Option<Vec<_>>>(), f.radii);
+                    }
+                }
+            }
+        }
     }
 
     #[test]
@@ -437,7 +496,7 @@ O 1 1 1
             text += &frame(&format!("Lattice=\"9 0 0 0 9 0 0 0 9\" step={k}"), &points);
         }
         let bad = text.replacen("Si 4 3 0.5", "Si 4 3", 1);
-        let mut r = ExtxyzReader::new(bad.as_bytes(), "t.extxyz");
+        let mut r = ExtxyzReader::new(std::io::Cursor::new(bad.as_bytes()), "t.extxyz");
         assert!(r.skip_frame().unwrap() && r.skip_frame().unwrap());
         let f = r.next().unwrap().unwrap();
         assert_eq!((f.index, f.timestep, f.positions[0]), (2, Some(2), [2.0, 1.0, 0.5]));
@@ -446,12 +505,12 @@ O 1 1 1
         let e = r.next().unwrap().unwrap_err().to_string();
         assert_eq!(e, "t.extxyz:25: frame 4: expected 4 values (Properties=species:S:1:pos:R:3) for atom 3, found 3");
         assert!(r.next().is_none() && !r.skip_frame().unwrap());
-        let mut r = ExtxyzReader::new(bad.as_bytes(), "t.extxyz");
+        let mut r = ExtxyzReader::new(std::io::Cursor::new(bad.as_bytes()), "t.extxyz");
         assert_eq!(r.nth(3).unwrap().unwrap().timestep, Some(3));
         assert!(r.skip_frame().unwrap() && !r.skip_frame().unwrap());
         // Cut short while skipping: in the atoms, after the count.
         let cut = &text[..text.len() - "Si 4 3 0.5\n".len()];
-        let mut r = ExtxyzReader::new(cut.as_bytes(), "t.extxyz");
+        let mut r = ExtxyzReader::new(std::io::Cursor::new(cut.as_bytes()), "t.extxyz");
         assert!((0..4).all(|_| r.skip_frame().unwrap()));
         let e = r.skip_frame().unwrap_err().to_string();
         assert_eq!(
@@ -459,7 +518,7 @@ O 1 1 1
             "t.extxyz:24: frame 4: expected 3 atom lines (the atom count on line 21), found 2: the file ends (cut \
              short?)"
         );
-        let mut r = ExtxyzReader::new("2\n".as_bytes(), "t.extxyz");
+        let mut r = ExtxyzReader::new(std::io::Cursor::new("2\n".as_bytes()), "t.extxyz");
         let e = r.skip_frame().unwrap_err().to_string();
         assert_eq!(e, "t.extxyz:1: frame 0: expected the comment line (Lattice=\"...\" ...) after the atom count on line 1, found end of file");
     }

@@ -32,12 +32,13 @@
 //! not looked at (types may be names).
 
 use super::particles::{
-    box_message, count, finite, open_buffered, read_atoms, tokens, unsigned, Atoms, Columns, Field, FrameReader, Lines,
-    ParticleFrame,
+    atoms_in_parts, box_message, count, finite, open_buffered, read_atoms, tokens, unsigned, Atoms, Columns, Field,
+    FrameReader, Lines, ParticleFrame, PartsScan,
 };
+use cvd::backends::distributed::Reduce;
 use cvd::error::{Error, Result};
 use cvd::PeriodicBox;
-use std::io::{BufRead, BufReader};
+use std::io::{BufRead, BufReader, Seek};
 use std::path::Path;
 
 /// A reader of a LAMMPS text dump's frames (see the module's notes for
@@ -46,8 +47,8 @@ pub struct LammpsDumpReader<R> {
     lines: Lines<R>,
     index: usize,
     done: bool,
-    /// This reader's part of every frame (`read_parts`), or `None`.
-    part: Option<(usize, usize)>,
+    /// What reading in parts keeps from frame to frame.
+    scan: PartsScan,
 }
 
 impl LammpsDumpReader<BufReader<std::fs::File>> {
@@ -77,21 +78,29 @@ enum BoxKind {
     General,
 }
 
-impl<R: BufRead> LammpsDumpReader<R> {
+impl<R: BufRead + Seek> LammpsDumpReader<R> {
     /// A reader of the dump `reader` holds; `path` names it in errors.
     pub fn new(reader: R, path: impl Into<String>) -> Self {
-        Self { lines: Lines::new(reader, path.into()), index: 0, done: false, part: None }
+        Self { lines: Lines::new(reader, path.into()), index: 0, done: false, scan: PartsScan::default() }
     }
 
-    /// The next frame, or `None` at the end of the file.
-    fn read(&mut self) -> Result<Option<ParticleFrame>> {
+    /// The next frame, or `None` at the end of the file: whole, or this
+    /// rank's part of it over `comm`'s ranks.
+    fn read(&mut self, comm: Option<&dyn Reduce>) -> Result<Option<ParticleFrame>> {
         let Some(header) = self.header(true)? else { return Ok(None) };
         let (Some(domain), Some(columns)) = (header.domain, header.columns) else {
             return Err(Error::Internal("a dump's header was read without its box or columns".into()));
         };
         let (count, count_line) = header.count;
         let atoms = Atoms { count, count_line, count_name: "ITEM: NUMBER OF ATOMS", stop: Some("ITEM:") };
-        let (rows, part) = read_atoms(&mut self.lines, &columns, &atoms, &domain, self.part)?;
+        let (rows, part) = match comm {
+            None => (read_atoms(&mut self.lines, &columns, &atoms, &domain)?, None),
+            Some(comm) => {
+                let parse = Some((&columns, &domain));
+                let (rows, part) = atoms_in_parts(&mut self.lines, &atoms, comm, parse, &mut self.scan)?;
+                (rows, Some(part))
+            }
+        };
         let frame = ParticleFrame {
             index: self.index,
             timestep: header.timestep,
@@ -106,14 +115,21 @@ impl<R: BufRead> LammpsDumpReader<R> {
     }
 
     /// Passes over the next frame: its header is read, its atom lines only
-    /// counted.
-    fn skip(&mut self) -> Result<bool> {
+    /// counted (in parts over `comm`'s ranks, each counting a share).
+    fn skip(&mut self, comm: Option<&dyn Reduce>) -> Result<bool> {
         let Some(header) = self.header(false)? else { return Ok(false) };
         let (count, count_line) = header.count;
-        let skipped = self.lines.skip(count)?;
-        if skipped < count {
-            let atoms = Atoms { count, count_line, count_name: "ITEM: NUMBER OF ATOMS", stop: None };
-            return Err(atoms.cut_short(&self.lines, skipped));
+        let atoms = Atoms { count, count_line, count_name: "ITEM: NUMBER OF ATOMS", stop: None };
+        match comm {
+            None => {
+                let skipped = self.lines.skip(count)?;
+                if skipped < count {
+                    return Err(atoms.cut_short(&self.lines, skipped));
+                }
+            }
+            Some(comm) => {
+                atoms_in_parts(&mut self.lines, &atoms, comm, None, &mut self.scan)?;
+            }
         }
         self.index += 1;
         Ok(true)
@@ -298,6 +314,7 @@ pub(crate) mod tests {
     use super::super::particles::FramePart;
     use super::super::tests::{no_panic_on_mutations, parse_err};
     use super::*;
+    use cvd::backends::distributed::InProcess;
     use std::fmt::Write;
 
     /// Two frames: an orthogonal box with walls along z, ids out of order
@@ -330,7 +347,7 @@ ITEM: ATOMS id type xs ys zs
 ";
 
     fn read_all(text: &str) -> Result<Vec<ParticleFrame>> {
-        LammpsDumpReader::new(text.as_bytes(), "t.dump").collect()
+        LammpsDumpReader::new(std::io::Cursor::new(text.as_bytes()), "t.dump").collect()
     }
 
     /// Reading `text` fails at `line` of frame `frame`, the message holding
@@ -503,60 +520,185 @@ ITEM: ATOMS id type xs ys zs
         fails(&with_line(23, "2 Ar 0.25 0 0.75"), 23, 1, "atom id 2 again (it is on line 22 too)");
     }
 
+    /// `text`'s frames read in parts over `parts` ranks (threads), the
+    /// frames `skip` passed over in parts, each rank counting line ends
+    /// in chunks of `chunk` bytes (`None`: as sized for a run): each
+    /// rank's frames, or its error.
+    fn read_in_parts(text: &str, parts: usize, chunk: Option<u64>, skip: &[usize]) -> Vec<Result<Vec<ParticleFrame>>> {
+        InProcess::each(parts, |comm| {
+            let mut reader = LammpsDumpReader::new(std::io::Cursor::new(text.as_bytes()), "t.dump");
+            reader.scan.chunk = chunk;
+            let mut frames = Vec::new();
+            loop {
+                if skip.contains(&reader.next_index()) {
+                    match reader.skip_in_parts(comm)? {
+                        true => continue,
+                        false => return Ok(frames),
+                    }
+                }
+                match reader.next_in_parts(comm) {
+                    Some(frame) => frames.push(frame?),
+                    None => return Ok(frames),
+                }
+            }
+        })
+    }
+
+    /// The frames read in parts, the parts' rows put together and sorted
+    /// by id (their ids, positions, radii), with each part's checks: its
+    /// rows are the atom lines `n p / P..n (p + 1) / P`, its first line
+    /// `first_lines[frame] + n p / P`.
+    type Row = (u64, [f64; 3], Option<f64>);
+    fn joined(by_part: &[Vec<ParticleFrame>], first_lines: &[usize]) -> Vec<Vec<Row>> {
+        let parts = by_part.len();
+        let mut joined: Vec<Vec<Row>> = vec![Vec::new(); by_part[0].len()];
+        for (p, frames) in by_part.iter().enumerate() {
+            for (k, f) in frames.iter().enumerate() {
+                let n = f.part.unwrap().total;
+                let (lo, hi) = (n * p / parts, n * (p + 1) / parts);
+                let first_line = first_lines[f.index] + lo;
+                assert_eq!(f.part, Some(FramePart { total: n, first: lo, first_line }), "part {p} of {parts}");
+                assert_eq!(f.len(), hi - lo);
+                for i in 0..f.len() {
+                    let id = f.ids.as_ref().map_or(i as u64, |ids| ids[i]);
+                    joined[k].push((id, f.positions[i], f.radii.as_ref().map(|r| r[i])));
+                }
+            }
+        }
+        joined.iter_mut().for_each(|rows| rows.sort_by_key(|r| r.0));
+        joined
+    }
+
+    /// The frames `whole` as rows sorted by id.
+    fn rows_of(whole: &[ParticleFrame]) -> Vec<Vec<Row>> {
+        let row =
+            |f: &ParticleFrame, i: usize| (f.ids.as_ref().unwrap()[i], f.positions[i], f.radii.as_ref().map(|r| r[i]));
+        whole.iter().map(|f| (0..f.len()).map(|i| row(f, i)).collect()).collect()
+    }
+
     #[test]
     fn frames_read_in_parts_are_the_frames_rows_in_the_files_order() {
         // Frame 0: 3 atoms on lines 10-12; frame 1: 2 atoms on lines 22-23.
         let whole: Vec<ParticleFrame> = read_all(VALID).unwrap();
+        // A line end every few bytes: chunks of 1 and 7 bytes take many
+        // rounds; a frame of 2 atoms has parts of no line.
         for parts in 1..=4 {
-            // Each frame's rows as read: id, position, radius.
-            type Row = (u64, [f64; 3], Option<f64>);
-            let mut joined: Vec<Vec<Row>> = vec![Vec::new(); 2];
-            for p in 0..parts {
-                let mut reader = LammpsDumpReader::new(VALID.as_bytes(), "t.dump");
-                reader.read_parts(p, parts);
-                let frames: Vec<ParticleFrame> = reader.by_ref().collect::<Result<_>>().unwrap();
-                assert_eq!(frames.len(), 2);
-                for (f, first_line) in frames.iter().zip([10, 22]) {
-                    let n = whole[f.index].len();
-                    let (lo, hi) = (n * p / parts, n * (p + 1) / parts);
-                    assert_eq!(f.part, Some(FramePart { total: n, first: lo, first_line: first_line + lo }));
-                    assert_eq!(
-                        (f.len(), f.domain, f.timestep),
-                        (hi - lo, whole[f.index].domain, whole[f.index].timestep)
-                    );
-                    let ids = f.ids.as_ref().unwrap();
-                    for i in 0..f.len() {
-                        joined[f.index].push((ids[i], f.positions[i], f.radii.as_ref().map(|r| r[i])));
+            for chunk in [Some(1), Some(7), Some(64), None] {
+                let by_part: Vec<Vec<ParticleFrame>> =
+                    read_in_parts(VALID, parts, chunk, &[]).into_iter().collect::<Result<_>>().unwrap();
+                for frames in &by_part {
+                    assert_eq!(frames.len(), 2);
+                    for f in frames {
+                        assert_eq!((f.domain, f.timestep), (whole[f.index].domain, whole[f.index].timestep));
                     }
                 }
+                // Laid end to end, the file's order; sorted, the frames.
+                let ids: Vec<u64> = by_part.iter().flat_map(|f| f[0].ids.clone().unwrap()).collect();
+                assert_eq!(ids, [3, 1, 2], "{parts} parts");
+                assert_eq!(joined(&by_part, &[10, 22]), rows_of(&whole), "{parts} parts, chunks of {chunk:?}");
+                // Frame 0 passed over in parts: frame 1 as read.
+                let second = read_in_parts(VALID, parts, chunk, &[0]);
+                for (p, frames) in second.into_iter().enumerate() {
+                    assert_eq!(frames.unwrap(), [by_part[p][1].clone()]);
+                }
             }
-            // The parts' rows laid end to end are the file's; sorted by id,
-            // the whole frame's.
-            assert_eq!(joined[0].iter().map(|r| r.0).collect::<Vec<_>>(), [3, 1, 2], "{parts} parts");
-            for (f, mut rows) in whole.iter().zip(joined) {
-                rows.sort_by_key(|r| r.0);
-                assert_eq!(rows.iter().map(|r| r.0).collect::<Vec<_>>(), *f.ids.as_ref().unwrap());
-                assert_eq!(rows.iter().map(|r| r.1).collect::<Vec<_>>(), f.positions);
-                assert_eq!(rows.iter().map(|r| r.2).collect::<Option<Vec<_>>>(), f.radii);
+        }
+        // CR LF line ends, blank lines between frames, no line end at the end.
+        let spaced = VALID.replace("ITEM: TIMESTEP\n100", "\n  \nITEM: TIMESTEP\n100").replace('\n', "\r\n");
+        let spaced = spaced.trim_end();
+        for parts in 1..=3 {
+            for chunk in [Some(3), None] {
+                let by_part: Vec<Vec<ParticleFrame>> =
+                    read_in_parts(spaced, parts, chunk, &[]).into_iter().collect::<Result<_>>().unwrap();
+                assert_eq!(joined(&by_part, &[10, 24]), rows_of(&whole));
             }
         }
         // A bad atom line is the error of the part that reads it, at its
-        // line; the other parts pass over it.
-        let bad = with_line(11, "1 2 0.5 oops -1 0.25");
-        let read = |p: usize| {
-            let mut reader = LammpsDumpReader::new(bad.as_bytes(), "t.dump");
-            reader.read_parts(p, 3);
-            reader.collect::<Result<Vec<_>>>()
-        };
-        assert!(read(0).is_ok() && read(2).is_ok());
-        fails_at(read(1), "t.dump", 11, 0, "expected y of atom 2");
-        // A frame cut short fails in every part.
+        // line; the other parts read on (the last frame: after it no rank
+        // waits for the one that failed).
+        let bad = with_line(23, "1 Ar 0.25 oops 0.75");
+        for chunk in [Some(5), None] {
+            let mut read = read_in_parts(&bad, 3, chunk, &[]);
+            assert!(read[0].is_ok() && read[1].is_ok());
+            fails_at(read.remove(2), "t.dump", 23, 1, "expected ys of atom 2");
+        }
+        // A frame cut short is every part's error, one process's.
         let cut = VALID.lines().take(22).collect::<Vec<_>>().join("\n");
-        for p in 0..3 {
-            let mut reader = LammpsDumpReader::new(cut.as_bytes(), "t.dump");
-            reader.read_parts(p, 3);
-            let err = reader.collect::<Result<Vec<_>>>().unwrap_err().to_string();
-            assert!(err.contains("expected 2 atom lines"), "part {p}: {err}");
+        let one = read_all(&cut).unwrap_err().to_string();
+        assert!(one.starts_with("t.dump:22: frame 1: expected 2 atom lines"), "{one}");
+        for parts in 1..=3 {
+            for chunk in [Some(2), None] {
+                for (p, read) in read_in_parts(&cut, parts, chunk, &[]).into_iter().enumerate() {
+                    assert_eq!(read.unwrap_err().to_string(), one, "part {p} of {parts}");
+                }
+                for read in read_in_parts(&cut, parts, chunk, &[1]) {
+                    assert_eq!(read.unwrap_err().to_string(), one, "passing over it");
+                }
+            }
+        }
+    }
+
+    /// A dump of `frames` frames of `n` atoms, lines of varied lengths,
+    /// ids shuffled.
+    pub fn big_dump(n: usize, frames: usize) -> String {
+        let mut text = String::new();
+        for k in 0..frames {
+            let _ = write!(text, "ITEM: TIMESTEP\n{k}\nITEM: NUMBER OF ATOMS\n{n}\n");
+            text += "ITEM: BOX BOUNDS pp pp pp\n0 100\n0 100\n0 100\nITEM: ATOMS id type x y z\n";
+            for i in 0..n {
+                let id = (i * 7919 + k) % n + 1;
+                let x = (i as f64 * 0.618034).fract() * 100.0;
+                let _ = writeln!(text, "{id} {} {x} {} {:.3}", 1 + i % 3, (i % 997) as f64 * 0.1, (i % 89) as f64);
+            }
+        }
+        text
+    }
+
+    /// A reader that counts the bytes read through it.
+    struct Counted<R> {
+        inner: R,
+        read: std::sync::Arc<std::sync::atomic::AtomicU64>,
+    }
+
+    impl<R: std::io::Read> std::io::Read for Counted<R> {
+        fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+            let n = self.inner.read(buf)?;
+            self.read.fetch_add(n as u64, std::sync::atomic::Ordering::Relaxed);
+            Ok(n)
+        }
+    }
+
+    impl<R: std::io::Seek> std::io::Seek for Counted<R> {
+        fn seek(&mut self, pos: std::io::SeekFrom) -> std::io::Result<u64> {
+            self.inner.seek(pos)
+        }
+    }
+
+    #[test]
+    fn no_part_reads_the_whole_file() {
+        // 3 frames of 60 000 atoms: about 2 MB each.
+        let text = big_dump(60_000, 3);
+        let whole = read_all(&text).unwrap();
+        let size = text.len() as f64;
+        for parts in [2, 3, 4] {
+            let read: Vec<(Vec<ParticleFrame>, u64)> = InProcess::each(parts, |comm| {
+                let read = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0));
+                let counted = Counted { inner: std::io::Cursor::new(text.as_bytes()), read: read.clone() };
+                let reader = LammpsDumpReader::new(std::io::BufReader::with_capacity(1 << 16, counted), "t.dump");
+                let mut reader = reader;
+                let frames: Vec<ParticleFrame> =
+                    std::iter::from_fn(|| reader.next_in_parts(comm)).collect::<Result<_>>().unwrap();
+                (frames, read.load(std::sync::atomic::Ordering::Relaxed))
+            });
+            let by_part: Vec<Vec<ParticleFrame>> = read.iter().map(|r| r.0.clone()).collect();
+            assert_eq!(joined(&by_part, &[10, 60_019, 120_028]), rows_of(&whole));
+            // About a part's share of the bytes each (measured: 0.54-0.56
+            // at 2 parts, 0.28-0.31 at 4): its share counted a little over,
+            // a buffer's refill at each frame's header and its part's start.
+            for (p, (_, bytes)) in read.iter().enumerate() {
+                let share = *bytes as f64 / size;
+                assert!(share < 1.1 / parts as f64 + 0.05, "part {p} of {parts} read {share:.3} of the file");
+            }
         }
     }
 
@@ -584,7 +726,7 @@ ITEM: ATOMS id type xs ys zs
             text += &frame(10 * k, "ITEM: BOX BOUNDS pp pp pp\n0 10\n0 10\n0 10\n", "id type x y z", &rows);
         }
         let bad = text.replacen("3 1 4 3 0.5", "3 1 4 3", 1);
-        let mut r = LammpsDumpReader::new(bad.as_bytes(), "t.dump");
+        let mut r = LammpsDumpReader::new(std::io::Cursor::new(bad.as_bytes()), "t.dump");
         assert!(r.skip_frame().unwrap() && r.skip_frame().unwrap());
         assert_eq!(r.next_index(), 2);
         let f = r.next().unwrap().unwrap();
@@ -594,15 +736,15 @@ ITEM: ATOMS id type xs ys zs
         assert_eq!(e, "t.dump:60: frame 4: expected 5 values (id type x y z) for atom 3, found 4");
         assert!(r.next().is_none() && !r.skip_frame().unwrap(), "the reader ends after an error");
         // nth skips; skipping does not parse the atoms.
-        let mut r = LammpsDumpReader::new(bad.as_bytes(), "t.dump");
+        let mut r = LammpsDumpReader::new(std::io::Cursor::new(bad.as_bytes()), "t.dump");
         assert_eq!(r.nth(3).unwrap().unwrap().timestep, Some(30));
         assert!(r.skip_frame().unwrap(), "the bad line is not looked at");
         assert!(!r.skip_frame().unwrap() && r.next().is_none());
-        let mut r = LammpsDumpReader::new(text.as_bytes(), "t.dump");
+        let mut r = LammpsDumpReader::new(std::io::Cursor::new(text.as_bytes()), "t.dump");
         assert!(r.nth(5).is_none());
         // A frame cut short while skipping.
         let cut = &text[..text.len() - "3 1 4 3 0.5\n".len()];
-        let mut r = LammpsDumpReader::new(cut.as_bytes(), "t.dump");
+        let mut r = LammpsDumpReader::new(std::io::Cursor::new(cut.as_bytes()), "t.dump");
         assert!((0..4).all(|_| r.skip_frame().unwrap()));
         let e = r.skip_frame().unwrap_err().to_string();
         assert_eq!(
@@ -611,7 +753,7 @@ ITEM: ATOMS id type xs ys zs
              (cut short?)"
         );
         // A last line without its line end is a line.
-        let mut r = LammpsDumpReader::new(&text.as_bytes()[..text.len() - 1], "t.dump");
+        let mut r = LammpsDumpReader::new(std::io::Cursor::new(&text.as_bytes()[..text.len() - 1]), "t.dump");
         assert!((0..5).all(|_| r.skip_frame().unwrap()) && !r.skip_frame().unwrap());
     }
 
@@ -683,7 +825,7 @@ ITEM: ATOMS id type xs ys zs
             let text: String = lines[..k].iter().map(|l| format!("{l}\n")).collect();
             let mut frames = 0;
             let mut error = None;
-            for f in LammpsDumpReader::new(text.as_bytes(), "t.dump") {
+            for f in LammpsDumpReader::new(std::io::Cursor::new(text.as_bytes()), "t.dump") {
                 match f {
                     Ok(_) => frames += 1,
                     Err(e) => error = Some(e.to_string()),
@@ -705,7 +847,7 @@ ITEM: ATOMS id type xs ys zs
         let mut bytes = VALID.as_bytes().to_vec();
         let at = VALID.find("9 9 4").unwrap();
         bytes[at + 2] = 0xff;
-        let r: Result<Vec<_>> = LammpsDumpReader::new(&bytes[..], "t.dump").collect();
+        let r: Result<Vec<_>> = LammpsDumpReader::new(std::io::Cursor::new(&bytes[..]), "t.dump").collect();
         let (line, m) = parse_err(r);
         assert_eq!((line, m.as_str()), (12, "frame 0: expected y of atom 3 (a finite number), found \"\u{fffd}\""));
     }

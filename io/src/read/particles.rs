@@ -13,10 +13,11 @@
 
 use super::formats::{self, PARTICLES};
 use super::lex::{parse_error, plural, shown};
+use cvd::backends::distributed::Reduce;
 use cvd::error::{Error, Result};
 use cvd::PeriodicBox;
 use std::fmt::Display;
-use std::io::{BufRead, Read};
+use std::io::{BufRead, Read, Seek, SeekFrom};
 use std::path::Path;
 
 /// One frame of a trajectory: the particles at one time and their box.
@@ -39,12 +40,12 @@ pub struct ParticleFrame {
     /// The particles' radii (a `radius` column or property, or extended
     /// XYZ's `radii`) when given.
     pub radii: Option<Vec<f64>>,
-    /// Read in parts ([`FrameReader::read_parts`]): which of the frame's
-    /// atoms these rows are. `None`: all of them, sorted by id.
+    /// Read in parts ([`FrameReader::next_in_parts`]): which of the
+    /// frame's atoms these rows are. `None`: all of them, sorted by id.
     pub part: Option<FramePart>,
 }
 
-/// The rows of a frame one part of a run read ([`FrameReader::read_parts`]):
+/// The rows of a frame one part of a run read ([`FrameReader::next_in_parts`]):
 /// atoms `first..first + len` of the file's order, not sorted by id.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct FramePart {
@@ -84,13 +85,22 @@ pub trait FrameReader: Iterator<Item = Result<ParticleFrame>> + Send {
     /// The index the next frame read or skipped will have.
     fn next_index(&self) -> usize;
 
-    /// From now on, each frame read holds only part `part` of `parts` of
-    /// its atoms: the atom lines `n part / parts..n (part + 1) / parts` of
-    /// its `n`, in the file's order (not sorted by id: the parts of a run
-    /// sort them together), with [`ParticleFrame::part`] saying which. The
-    /// other atom lines are counted, not parsed (their errors are the
-    /// other parts'). One part of one is the whole frame, unsorted.
-    fn read_parts(&mut self, part: usize, parts: usize);
+    /// The next frame read in parts over the ranks of `comm`, every rank
+    /// calling it in step: rank `p` of `P` gets the atom lines
+    /// `n p / P..n (p + 1) / P` of the frame's `n`, in the file's order
+    /// (not sorted by id: the ranks sort them together), with
+    /// [`ParticleFrame::part`] saying which. No rank reads the whole frame:
+    /// every rank reads the frame's few header lines, the ranks find where
+    /// the parts' lines start by each counting the line ends of a share of
+    /// the frame's bytes, and each then parses only its own lines' bytes
+    /// (see [`atoms_in_parts`]). An atom line's error is the error of the
+    /// rank that reads it; a frame cut short is every rank's.
+    fn next_in_parts(&mut self, comm: &dyn Reduce) -> Option<Result<ParticleFrame>>;
+
+    /// [`skip_frame`](Self::skip_frame) in parts over the ranks of `comm`,
+    /// every rank calling it in step: each counts the line ends of a share
+    /// of the frame's bytes.
+    fn skip_in_parts(&mut self, comm: &dyn Reduce) -> Result<bool>;
 }
 
 /// Opens a particle file, choosing the reader by the extension (any case)
@@ -132,11 +142,20 @@ pub(super) struct Lines<R> {
     text: String,
     /// The current line's number: 0 before the first, else the lines read.
     no: usize,
+    /// The bytes of the file read as lines or passed over: where the next
+    /// line starts (when `reader` was at the file's start).
+    offset: u64,
 }
 
 impl<R: BufRead> Lines<R> {
     pub fn new(reader: R, path: String) -> Self {
-        Self { reader, path, frame: 0, text: String::new(), no: 0 }
+        Self::at(reader, path, 0, 0)
+    }
+
+    /// The lines of `reader`, whose first is the file's line `after + 1`,
+    /// read in frame `frame`.
+    fn at(reader: R, path: String, frame: usize, after: usize) -> Self {
+        Self { reader, path, frame, text: String::new(), no: after, offset: 0 }
     }
 
     /// The current line (valid after [`Self::next`] gave `true`).
@@ -185,6 +204,7 @@ impl<R: BufRead> Lines<R> {
             return Ok(false);
         }
         self.no += 1;
+        self.offset += n as u64;
         if bytes.last() == Some(&b'\n') {
             bytes.pop();
             if bytes.last() == Some(&b'\r') {
@@ -247,6 +267,7 @@ impl<R: BufRead> Lines<R> {
             }
             partial = chunk[..used].last() != Some(&b'\n');
             self.reader.consume(used);
+            self.offset += used as u64;
         }
         self.text.clear();
         Ok(skipped)
@@ -367,27 +388,32 @@ impl Atoms<'_> {
 /// Reads a frame's atom lines, one per line with no line between them:
 /// positions (Cartesian, or fractional in `domain` if the columns are
 /// scaled), ids and radii when the columns have them, then sorted by id.
-/// In parts (`part`: this one of how many), only the part's atom lines
-/// are read, in the file's order, and the others counted.
 pub(super) fn read_atoms<R: BufRead>(
     lines: &mut Lines<R>,
     columns: &Columns,
     atoms: &Atoms,
     domain: &PeriodicBox,
-    part: Option<(usize, usize)>,
-) -> Result<(Rows, Option<FramePart>)> {
-    let n = atoms.count;
-    let (lo, hi) = part.map_or((0, n), |(p, parts)| (share(n, p, parts), share(n, p + 1, parts)));
+) -> Result<Rows> {
+    let first = lines.no() + 1;
+    let mut rows = parse_atoms(lines, columns, atoms, domain, 0..atoms.count)?;
+    sort_by_id(&mut rows, first, lines)?;
+    Ok(rows)
+}
+
+/// Parses the atom lines `range` of a frame's, the next lines of `lines`.
+fn parse_atoms<R: BufRead>(
+    lines: &mut Lines<R>,
+    columns: &Columns,
+    atoms: &Atoms,
+    domain: &PeriodicBox,
+    range: std::ops::Range<usize>,
+) -> Result<Rows> {
+    let (lo, hi) = (range.start, range.end);
     let mut rows = Rows {
         positions: Vec::with_capacity(reserve(hi - lo)),
         ids: columns.has(Field::Id).then(|| Vec::with_capacity(reserve(hi - lo))),
         radii: columns.has(Field::Radius).then(|| Vec::with_capacity(reserve(hi - lo))),
     };
-    let passed = lines.skip(lo)?;
-    if passed < lo {
-        return Err(atoms.cut_short(lines, passed));
-    }
-    let first = lines.no() + 1;
     for i in lo..hi {
         if !lines.next()? {
             return Err(atoms.cut_short(lines, i));
@@ -437,17 +463,239 @@ pub(super) fn read_atoms<R: BufRead>(
             }
         }
     }
-    let passed = lines.skip(n - hi)?;
-    if passed < n - hi {
-        return Err(atoms.cut_short(lines, hi + passed));
+    Ok(rows)
+}
+
+/// The bytes each rank counts line ends in, per round, when a frame's
+/// size is not yet known well: at least this, at most [`MAX_CHUNK`].
+const MIN_CHUNK: u64 = 64 << 10;
+/// The most bytes a rank holds while counting line ends.
+const MAX_CHUNK: u64 = 64 << 20;
+
+/// What a reader in parts keeps from frame to frame.
+#[derive(Clone, Copy, Debug, Default)]
+pub(super) struct PartsScan {
+    /// The bytes of an atom line in the last frame read, on average.
+    line_bytes: Option<f64>,
+    /// The bytes each rank counts per round, if fixed (tests).
+    #[cfg(test)]
+    pub chunk: Option<u64>,
+}
+
+/// A frame's atom lines read in parts over the ranks of `comm` (all
+/// calling it in step), `lines` standing after the frame's header: rank
+/// `p` of `P` parses the atom lines `n p / P..n (p + 1) / P` when `parse`
+/// gives the columns and the cell (else only passes over the frame), and
+/// `lines` is left after the frame's last atom line.
+///
+/// No rank reads the whole frame. The ranks count line ends in rounds:
+/// in each, rank `p` reads the `p`-th of `P` consecutive chunks of bytes
+/// (sized from the last frame's bytes per line, or this frame's first
+/// line's, so that one round mostly covers the frame) and the counts are
+/// all-gathered; the rank whose chunk holds the line end before a part's
+/// first line tells its byte offset. Each rank then reads its own lines'
+/// bytes: about `2 / P` of the frame's bytes a rank. Every rank learns
+/// the same counts, so a frame cut short is the same error on all.
+pub(super) fn atoms_in_parts<R: BufRead + Seek>(
+    lines: &mut Lines<R>,
+    atoms: &Atoms,
+    comm: &dyn Reduce,
+    parse: Option<(&Columns, &PeriodicBox)>,
+    scan: &mut PartsScan,
+) -> Result<(Rows, FramePart)> {
+    let (n, parts, p) = (atoms.count, comm.size(), comm.rank());
+    // The line before the first atom line, and the byte it starts at.
+    let (before, start) = (lines.no(), lines.offset);
+    let chunk = chunk_bytes(lines, n, parts, scan);
+    // Line `t` of the frame starts after `t` line ends.
+    let targets: Vec<u64> = (0..=parts).map(|q| share(n, q, parts) as u64).collect();
+    let path = lines.path.clone();
+    let io = move |source| Error::Io { path: path.clone(), source };
+    // The bytes this rank read first (from where), kept to parse from.
+    let mut held = (start, Vec::new());
+    let starts = match line_starts(&mut lines.reader, start, &targets, chunk, comm, &io, &mut held)? {
+        Ok(starts) => starts,
+        Err(found) => {
+            lines.no = before + found as usize;
+            return Err(atoms.cut_short(lines, found as usize));
+        }
+    };
+    let end = starts[parts];
+    if n > 0 {
+        scan.line_bytes = Some((end - start) as f64 / n as f64);
     }
-    match part {
-        Some(_) => Ok((rows, Some(FramePart { total: n, first: lo, first_line: first }))),
-        None => {
-            sort_by_id(&mut rows, first, lines)?;
-            Ok((rows, None))
+    let (lo, hi) = (share(n, p, parts), share(n, p + 1, parts));
+    let rows = match parse {
+        Some((columns, domain)) => {
+            // This rank's lines' bytes: what it holds of them, the rest read.
+            let (a, b) = (starts[p], starts[p + 1]);
+            let (from, bytes) = (held.0, &held.1);
+            let (inner_a, inner_b) = (a.max(from), b.min(from + bytes.len() as u64));
+            let mut read = |range: std::ops::Range<u64>| -> Result<Vec<u8>> {
+                let mut out = vec![0; (range.end - range.start) as usize];
+                lines.reader.seek(SeekFrom::Start(range.start)).map_err(&io)?;
+                lines.reader.read_exact(&mut out).map_err(&io)?;
+                Ok(out)
+            };
+            let (before_held, middle, after_held) = match inner_a < inner_b {
+                true => {
+                    (read(a..inner_a)?, &bytes[(inner_a - from) as usize..(inner_b - from) as usize], read(inner_b..b)?)
+                }
+                false => (read(a..b)?, &[][..], Vec::new()),
+            };
+            let own = std::io::Cursor::new(before_held).chain(middle).chain(std::io::Cursor::new(after_held));
+            let mut own = Lines::at(own, lines.path.clone(), lines.frame, before + lo);
+            parse_atoms(&mut own, columns, atoms, domain, lo..hi)?
+        }
+        None => Rows { positions: Vec::new(), ids: None, radii: None },
+    };
+    lines.reader.seek(SeekFrom::Start(end)).map_err(|e| lines.io(e))?;
+    (lines.no, lines.offset) = (before + n, end);
+    lines.text.clear();
+    Ok((rows, FramePart { total: n, first: lo, first_line: before + lo + 1 }))
+}
+
+/// The bytes each rank counts line ends in per round for a frame of `n`
+/// atom lines over `parts` ranks: a share of the frame's expected bytes
+/// (the last frame's bytes per line, else the first atom lines' length),
+/// a little over, so that one round mostly covers the frame.
+fn chunk_bytes<R: BufRead>(lines: &mut Lines<R>, n: usize, parts: usize, scan: &PartsScan) -> u64 {
+    #[cfg(test)]
+    if let Some(chunk) = scan.chunk {
+        return chunk;
+    }
+    let line = scan.line_bytes.unwrap_or_else(|| {
+        // The first atom lines the buffer holds, on average.
+        let held = lines.reader.fill_buf().unwrap_or(&[]);
+        let held = &held[..held.len().min(1 << 16)];
+        let ends = held.iter().enumerate().filter(|(_, &b)| b == b'\n').map(|(i, _)| i + 1).take(n.max(1));
+        let (count, last) = ends.fold((0, 0), |(count, _), end| (count + 1, end));
+        if count == 0 {
+            64.0
+        } else {
+            last as f64 / count as f64
+        }
+    });
+    let frame = line * n as f64 * 1.02 / parts.max(1) as f64;
+    (frame as u64 + 4096).clamp(MIN_CHUNK, MAX_CHUNK)
+}
+
+/// The byte offsets where the lines `targets` (ascending) start, counted
+/// from 0 at `start`: line `t` starts after the `t`-th line end (the
+/// file's end ends a last line without one). Found by the ranks of `comm`
+/// together, each reading only its chunks (see [`atoms_in_parts`]); every
+/// rank gets all of them, or `Err(lines)` if the file holds only `lines`
+/// lines after `start`, fewer than the last target. `held`: the bytes
+/// this rank read in the first round and where they start.
+fn line_starts<R: Read + Seek>(
+    reader: &mut R,
+    start: u64,
+    targets: &[u64],
+    chunk: u64,
+    comm: &dyn Reduce,
+    io: &dyn Fn(std::io::Error) -> Error,
+    held: &mut (u64, Vec<u8>),
+) -> Result<std::result::Result<Vec<u64>, u64>> {
+    let (parts, p) = (comm.size() as u64, comm.rank() as u64);
+    let want = targets.last().copied().unwrap_or(0);
+    // The offsets this rank found, by target; the line ends counted before
+    // this round's chunks.
+    let mut found: Vec<(u64, u64)> =
+        targets.iter().enumerate().filter(|(_, &t)| t == 0).map(|(q, _)| (q as u64, start)).collect();
+    let mut counted = 0u64;
+    let mut buffer = Vec::new();
+    let mut round = 0u64;
+    while counted < want {
+        buffer.resize(chunk as usize + 1, 0);
+        let from = start + (round * parts + p) * chunk;
+        reader.seek(SeekFrom::Start(from)).map_err(io)?;
+        let got = read_up_to(reader, &mut buffer).map_err(io)?;
+        // One byte past the chunk read: whether the file ends in it.
+        let (bytes, at_end) = (&buffer[..got.min(chunk as usize)], got <= chunk as usize);
+        let mut ends = bytes.iter().filter(|&&b| b == b'\n').count() as u64;
+        let unended = at_end && bytes.last().is_some_and(|&b| b != b'\n');
+        ends += unended as u64;
+        let mut mine = [0u8; 16];
+        mine[..8].copy_from_slice(&ends.to_le_bytes());
+        mine[8..].copy_from_slice(&(at_end as u64).to_le_bytes());
+        let all = gathered_words(comm, &mine)?;
+        let mut ended = false;
+        let mut mine_before = counted;
+        for (r, words) in all.iter().enumerate() {
+            let [ends, at_end] = [words[0], words[1]];
+            if (r as u64) < p {
+                mine_before += ends;
+            }
+            counted += ends;
+            ended |= at_end != 0;
+        }
+        // The targets whose line end is in this rank's chunk.
+        let mut k = mine_before;
+        let mut positions = bytes.iter().enumerate().filter(|(_, &b)| b == b'\n').map(|(i, _)| i as u64 + 1);
+        // (Parts of no line share their start with the next.)
+        let mut last = None;
+        for (q, &t) in targets.iter().enumerate().filter(|(_, &t)| t > mine_before && t <= mine_before + ends) {
+            let at = match last {
+                Some((lt, at)) if lt == t => at,
+                _ => loop {
+                    match positions.next() {
+                        Some(i) => {
+                            k += 1;
+                            if k == t {
+                                break i;
+                            }
+                        }
+                        // The file's end ending its last line.
+                        None => break bytes.len() as u64,
+                    }
+                },
+            };
+            last = Some((t, at));
+            found.push((q as u64, from + at));
+        }
+        if round == 0 {
+            let len = bytes.len();
+            buffer.truncate(len);
+            *held = (from, std::mem::take(&mut buffer));
+        }
+        round += 1;
+        if counted < want && ended {
+            return Ok(Err(counted));
         }
     }
+    // Every rank's finds, to every rank.
+    let mine: Vec<u8> = found.iter().flat_map(|&(q, at)| [q, at]).flat_map(u64::to_le_bytes).collect();
+    let mut starts = vec![u64::MAX; targets.len()];
+    for words in gathered_words(comm, &mine)? {
+        for pair in words.as_chunks::<2>().0 {
+            let q = pair[0] as usize;
+            starts[q] = starts[q].min(pair[1]);
+        }
+    }
+    if starts.contains(&u64::MAX) {
+        return Err(Error::Internal("a part's first line was found by no rank".into()));
+    }
+    Ok(Ok(starts))
+}
+
+/// Reads into `buffer` until it is full or the file ends: the bytes read.
+fn read_up_to<R: Read>(reader: &mut R, buffer: &mut [u8]) -> std::io::Result<usize> {
+    let mut got = 0;
+    while got < buffer.len() {
+        match reader.read(&mut buffer[got..]) {
+            Ok(0) => break,
+            Ok(k) => got += k,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(got)
+}
+
+/// `mine` (little-endian u64s) all-gathered: every rank's words, by rank.
+fn gathered_words(comm: &dyn Reduce, mine: &[u8]) -> Result<Vec<Vec<u64>>> {
+    let all = comm.all_gather(mine)?;
+    Ok(all.iter().map(|bytes| bytes.as_chunks::<8>().0.iter().map(|&w| u64::from_le_bytes(w)).collect()).collect())
 }
 
 /// Where part `p` of `parts` of `n` rows starts: `n p / parts`.
@@ -508,45 +756,56 @@ pub(super) fn skipped(done: &mut bool, skip: Result<bool>) -> Result<bool> {
 /// frame's).
 macro_rules! frame_reader {
     ($reader:ident) => {
-        impl<R: BufRead> $reader<R> {
-            /// [`FrameReader::skip_frame`]: nothing after an error or the end.
-            fn skip_checked(&mut self) -> Result<bool> {
+        impl<R: BufRead + Seek> $reader<R> {
+            /// [`FrameReader::skip_frame`] (in parts over `comm`'s ranks):
+            /// nothing after an error or the end.
+            fn skip_checked(&mut self, comm: Option<&dyn Reduce>) -> Result<bool> {
                 if self.done {
                     return Ok(false);
                 }
-                let skip = self.skip();
+                let skip = self.skip(comm);
                 super::particles::skipped(&mut self.done, skip)
             }
-        }
 
-        impl<R: BufRead> Iterator for $reader<R> {
-            type Item = Result<ParticleFrame>;
-
-            fn next(&mut self) -> Option<Self::Item> {
+            /// The next frame (in parts over `comm`'s ranks): nothing
+            /// after an error or the end.
+            fn read_checked(&mut self, comm: Option<&dyn Reduce>) -> Option<Result<ParticleFrame>> {
                 if self.done {
                     return None;
                 }
-                let read = self.read();
+                let read = self.read(comm);
                 super::particles::frame_or_end(&mut self.done, read)
+            }
+        }
+
+        impl<R: BufRead + Seek> Iterator for $reader<R> {
+            type Item = Result<ParticleFrame>;
+
+            fn next(&mut self) -> Option<Self::Item> {
+                self.read_checked(None)
             }
 
             /// Skips `n` frames without parsing their atoms, then reads one.
             fn nth(&mut self, n: usize) -> Option<Self::Item> {
-                super::particles::nth_frame(self, n, Self::skip_checked)
+                super::particles::nth_frame(self, n, |r| r.skip_checked(None))
             }
         }
 
-        impl<R: BufRead + Send> FrameReader for $reader<R> {
+        impl<R: BufRead + Seek + Send> FrameReader for $reader<R> {
             fn skip_frame(&mut self) -> Result<bool> {
-                self.skip_checked()
+                self.skip_checked(None)
             }
 
             fn next_index(&self) -> usize {
                 self.index
             }
 
-            fn read_parts(&mut self, part: usize, parts: usize) {
-                self.part = Some((part, parts));
+            fn next_in_parts(&mut self, comm: &dyn Reduce) -> Option<Result<ParticleFrame>> {
+                self.read_checked(Some(comm))
+            }
+
+            fn skip_in_parts(&mut self, comm: &dyn Reduce) -> Result<bool> {
+                self.skip_checked(Some(comm))
             }
         }
     };
@@ -578,14 +837,14 @@ pub(super) mod tests {
     /// Every frame of `text` read by `open`'s reader, then again skipping
     /// every other frame: a fuzz-like check that nothing panics and that
     /// the readers always end.
-    pub fn read_all_frames<'a, F: FrameReader>(text: &'a str, open: impl Fn(&'a [u8]) -> F) {
+    pub fn read_all_frames<'a, F: FrameReader>(text: &'a str, open: impl Fn(std::io::Cursor<&'a [u8]>) -> F) {
         let mut frames = 0;
-        for frame in open(text.as_bytes()) {
+        for frame in open(std::io::Cursor::new(text.as_bytes())) {
             frames += 1;
             assert!(frames <= text.len() + 1, "a reader that does not end");
             let _ = frame;
         }
-        let mut reader = open(text.as_bytes());
+        let mut reader = open(std::io::Cursor::new(text.as_bytes()));
         for k in 0..=text.len() + 1 {
             let more = if k % 2 == 0 { matches!(reader.skip_frame(), Ok(true)) } else { reader.next().is_some() };
             if !more {
