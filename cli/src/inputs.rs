@@ -234,7 +234,7 @@ fn natural_key(s: &str) -> Vec<(String, u64)> {
 }
 
 /// The density per mesh vertex the arguments ask for, if any.
-fn density(args: &RunArgs, mesh: &TetMesh) -> cvd::Result<Option<Vec<f64>>> {
+pub(crate) fn density(args: &RunArgs, mesh: &TetMesh) -> cvd::Result<Option<Vec<f64>>> {
     if let Some(text) = &args.density {
         return Ok(Some(cvd::geom::density::Expr::parse(text)?.at_vertices(mesh, text)?));
     }

@@ -7,7 +7,9 @@
 //! files, and the polyhedra of the cells it built as its piece of
 //! `cells.pvtu` and its section of `walls.ply`: the same bytes as one
 //! process. Power cells (each rank its rows of `--weights` or `--radii`),
-//! Lloyd, L-BFGS and optimal transport (`weights.txt` likewise) too. Rank 0
+//! a density (`--density`, `--density-file`: per mesh vertex, every rank
+//! all of it), Lloyd, L-BFGS and optimal transport (`weights.txt`
+//! likewise) too. Rank 0
 //! writes `summary.json`, with every rank's numbers.
 //!
 //! What it does not take yet ([`lacking`]) runs with every rank reading the
@@ -29,7 +31,6 @@ type WriteBatch<'a> =
 /// for any of it: then every rank reads the whole input.
 pub fn lacking(args: &RunArgs) -> Option<&'static str> {
     let lacking = [
-        (args.density.is_some() || args.density_file.is_some(), "a density"),
         (args.strategy.is_some_and(|s| s != cvd::Strategy::Whole), "a strategy other than whole cells"),
         (args.backend.backend == cvd::BackendChoice::Vulkan, "the Vulkan backend"),
         (args.output.is_some() || args.json.is_some(), "--output and --json"),
@@ -81,12 +82,17 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     );
     // In parts, whole cells (asked for, or not): where one process would
     // take tet-cell, said.
-    let shape = cvd::JobShape { density: false, sites: total as usize, tets: mesh.tets.len() };
+    // A density: every rank the whole mesh's, as it holds the mesh.
+    let density = crate::inputs::density(args, &mesh)?;
+    let shape = cvd::JobShape { density: density.is_some(), sites: total as usize, tets: mesh.tets.len() };
     if args.strategy.is_none() && cvd::Strategy::auto(cvd::BackendKind::Cpu, shape) != cvd::Strategy::Whole {
+        let why = match density {
+            Some(_) => "under a density".to_string(),
+            None => format!("{:.1} tets a site", mesh.tets.len() as f64 / total.max(1) as f64),
+        };
         println!(
-            "in parts: whole cells, where one process takes tet-cell ({:.1} tets a site): the cells agree to \
-             rounding, not to the bit; --strategy tet-cell splits the tets instead, every rank reading the whole input",
-            mesh.tets.len() as f64 / total.max(1) as f64
+            "in parts: whole cells, where one process takes tet-cell ({why}): the cells agree to rounding, not to \
+             the bit; --strategy tet-cell splits the tets instead, every rank reading the whole input"
         );
     }
     let cpu = CpuBackend::new(args.backend.threads)?;
@@ -97,6 +103,7 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     // weights): one process's steps (Lloyd: one process's by diagrams).
     let iterated = ClippedVoronoi::new(&mesh, &sites)
         .strategy(cvd::Strategy::Whole)
+        .density(density.as_deref())
         .k_site(args.k_site)
         .memory_budget(args.cpu_memory_budget())
         .parts_per_rank(args.parts.unwrap_or(1))
@@ -108,6 +115,7 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     let faces = !args.no_neighbors;
     let diagram = ClippedVoronoi::new(&mesh, &sites)
         .strategy(cvd::Strategy::Whole)
+        .density(density.as_deref())
         .k_site(args.k_site)
         .faces(faces)
         .memory_budget(args.cpu_memory_budget())

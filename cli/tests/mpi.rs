@@ -256,6 +256,21 @@ fn mpirun_gives_whole_cells_and_neighbours_of_one_process() {
     let said = String::from_utf8_lossy(&o.stdout);
     assert!(said.contains("in parts: whole cells, where one process takes tet-cell"), "{said}");
     same_files(&one, &out, &["cells.csv", "neighbors.csv"], "few sites, 2 ranks");
+    // A density (every rank evaluating it at the mesh's vertices) with
+    // Lloyd: one process takes tet-cell under a density; the ranks take
+    // whole cells, say so, and give one process's whole cells' bytes.
+    let dense = ["--sites", "4000", "--density", "1+8*x^2", "--iterations", "2", "--no-geometry"];
+    let one = dir.join("density-one");
+    ok(&cvd_job(&torus, &one, &[&dense[..], &["--strategy", "whole"]].concat()), "density: one process");
+    for ranks in [2, 3] {
+        let out = dir.join(format!("density-{ranks}"));
+        let o = mpirun_job(&torus, ranks, &out, &dense);
+        ok(&o, &format!("density: {ranks} ranks"));
+        let said = String::from_utf8_lossy(&o.stdout);
+        assert!(said.contains("each rank reading its rows"), "density: {said}");
+        assert!(said.contains("where one process takes tet-cell (under a density)"), "{said}");
+        same_files(&one, &out, &["cells.csv", "neighbors.csv", "sites.xyz"], &format!("density, {ranks} ranks"));
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -206,6 +206,36 @@ mod tests {
         }
     }
 
+    /// Lloyd under a density in parts: each centroid weighted by the
+    /// density, one process's steps to the bit.
+    #[test]
+    fn lloyd_under_a_density_in_parts_moves_the_sites_of_one_process() {
+        let (mesh, sites) = crowd_and_cluster();
+        let sites = &sites[..2500];
+        let rho: Vec<f64> = mesh.vertices.iter().map(|v| 1.0 + 9.0 * v[2].powi(2)).collect();
+        let cpu = crate::exec::CpuBackend::new(Some(2)).unwrap();
+        let one = ClippedVoronoi::new(&mesh, sites).strategy(Strategy::Whole).density(Some(&rho)).backend(&cpu);
+        let lloyd = one.lloyd(3, &mut |_, _| {}).unwrap();
+        let plain = ClippedVoronoi::new(&mesh, sites).strategy(Strategy::Whole).backend(&cpu);
+        let plain = plain.lloyd(3, &mut |_, _| {}).unwrap();
+        let mean_z = |s: &[[f64; 3]]| s.iter().map(|p| p[2]).sum::<f64>() / s.len() as f64;
+        assert!(mean_z(&lloyd.sites) > mean_z(&plain.sites) + 1e-3, "the density draws the sites up");
+        for (ranks, per_rank) in [(2, 1), (3, 2)] {
+            let runs = InProcess::each(ranks, |comm| {
+                let cpu = crate::exec::CpuBackend::new(Some(1)).unwrap();
+                let mine = &sites[rows(sites.len(), ranks, comm.rank())];
+                let cv = ClippedVoronoi::new(&mesh, mine).density(Some(&rho)).strategy(Strategy::Whole);
+                let cv = cv.backend(&cpu).parts_per_rank(per_rank);
+                ClippedInParts::new(cv, comm).lloyd(3, &mut |_, _| {}).unwrap()
+            });
+            for (r, run) in runs.iter().enumerate() {
+                let expected = &lloyd.sites[rows(sites.len(), ranks, r)];
+                assert_eq!(bits(expected), bits(&run.sites), "{ranks} ranks: rank {r}'s sites");
+                assert_eq!(energies(&lloyd), energies(run), "{ranks} ranks: the energies");
+            }
+        }
+    }
+
     /// Optimal transport on a mesh with its sites in parts finds one
     /// process's weights, Newton steps and masses, to the bit; a domain in
     /// two pieces is refused in parts as in one process.

@@ -94,7 +94,8 @@ impl ClippedVoronoi<'_> {
     /// one process with whole cells, neighbours by input index (with
     /// [`Self::faces`]) — with the run's totals, and what the part did.
     /// Whole cells on the CPU, with power weights ([`Self::weights`]: this
-    /// rank's rows' own); no density yet.
+    /// rank's rows' own) and a density ([`Self::density`]: every rank the
+    /// whole mesh's, as it holds the mesh).
     pub fn compute_in_parts(&self, comm: &dyn Reduce) -> Result<(Cells, PartsReport)> {
         let out = self.compute_in_parts_by_rows(comm, None)?;
         Ok((out.all_rows(), out.report))
@@ -126,11 +127,6 @@ impl ClippedVoronoi<'_> {
         if mesh.tets.is_empty() {
             return Err(Error::InvalidInput("the mesh has no tets".into()));
         }
-        if self.density.is_some() {
-            return Err(Error::InvalidInput(
-                "a mesh with its sites in parts takes no density yet; give every rank the whole input".into(),
-            ));
-        }
         let own_cpu;
         let cpu: &dyn crate::backend::Backend = match (geometry, self.backend) {
             (Some(cpu), _) => cpu,
@@ -152,9 +148,15 @@ impl ClippedVoronoi<'_> {
             crate::job::sites::check_sites(self.sites, self.weights).map_err(|e| at_row(e, first))?;
         }
         let span = weight_span(comm, self.weights)?;
-        let shape = JobShape { density: false, sites: total as usize, tets: mesh.tets.len() };
+        let shape = JobShape { density: self.density.is_some(), sites: total as usize, tets: mesh.tets.len() };
         if Self::strategy_for(self.strategy, Some(cpu), shape) != Strategy::Whole {
-            return Err(Error::InvalidInput("a mesh with its sites in parts is computed with whole cells".into()));
+            return Err(Error::InvalidInput(format!(
+                "a mesh with its sites in parts is computed with whole cells{}",
+                match shape.density {
+                    true => " (under a density one process takes tet-cell: ask for whole cells)",
+                    false => "",
+                }
+            )));
         }
         let reader = |site: u64| across.reader(site);
 
@@ -1041,6 +1043,36 @@ mod tests {
                     assert_eq!(one.total_volume.to_bits(), cells.total_volume.to_bits(), "{what}: total volume");
                     assert_eq!(one.counters.empty_cells, cells.counters.empty_cells, "{what}: empty cells");
                 }
+            }
+        }
+    }
+
+    /// A density over the mesh: every cell cut into its tets' pieces, its
+    /// mass, centroid and energy weighted, the same bits as one process
+    /// with whole cells and the density.
+    #[test]
+    fn a_density_in_parts_gives_the_bits_of_one_process() {
+        let mesh = TetMesh::voxels(8, |i, j, _| i < 4 || j < 4);
+        let mut sites = points::in_mesh(&mesh, 2500, 41);
+        sites.extend(points::clustered(600, 2, 0.02, 42).into_iter().map(|p| p.map(|x| 0.05 + 0.3 * x)));
+        // Twenty times denser at one corner than at the other.
+        let rho: Vec<f64> = mesh.vertices.iter().map(|v| 1.0 + 19.0 * v[0] * v[1]).collect();
+        let cpu = CpuBackend::new(Some(2)).unwrap();
+        let whole = ClippedVoronoi::new(&mesh, &sites).strategy(Strategy::Whole).faces(true).density(Some(&rho));
+        let one = whole.backend(&cpu).compute().unwrap();
+        let plain = ClippedVoronoi::new(&mesh, &sites).strategy(Strategy::Whole).backend(&cpu).compute().unwrap();
+        assert!(one.total_volume > 2.0 * plain.total_volume, "the density weighs the masses");
+        for (ranks, per_rank) in [(2, 1), (3, 2)] {
+            let what = format!("{ranks} ranks x {per_rank} parts");
+            let rows = |r: usize| sites.len() * r / ranks..sites.len() * (r + 1) / ranks;
+            let runs = on_ranks(ranks, |r, comm| {
+                let cpu = CpuBackend::new(Some(1)).unwrap();
+                let cv = ClippedVoronoi::new(&mesh, &sites[rows(r)]).faces(true).density(Some(&rho));
+                cv.strategy(Strategy::Whole).backend(&cpu).parts_per_rank(per_rank).compute_in_parts(comm).unwrap()
+            });
+            for (r, (cells, _)) in runs.iter().enumerate() {
+                same_rows(&one, cells, rows(r), &what);
+                assert_eq!(one.total_volume.to_bits(), cells.total_volume.to_bits(), "{what}: total mass");
             }
         }
     }
