@@ -334,10 +334,15 @@ impl ClippedVoronoi<'_> {
             }
         }
         let k_site = self.resolved_k_site();
-        // A first halo twice as wide as the ball of a cell's list (at the
-        // grid's mean density: a cut cell's walk may reach farther), then
-        // half as wide again each round.
-        let ball = (3.0 * k_site as f64 / (4.0 * std::f64::consts::PI * crate::job::knn::SITES_PER_CELL)).cbrt();
+        // A first halo twice as wide as the ball of a cell's list (a cut
+        // cell's walk may reach farther), then half as wide again each
+        // round. The ball at the density of the run's typical grid cell
+        // (the median of its occupied cells' sites, at most the grid's
+        // mean): where a crowd is packed in tight clusters, most cells are
+        // the sparse ones between, whose lists reach farthest, and a halo
+        // sized by the mean would be widened, the part computed again.
+        let typical = median_occupancy(&own_cells[run.clone()]).min(crate::job::knn::SITES_PER_CELL);
+        let ball = (3.0 * k_site as f64 / (4.0 * std::f64::consts::PI * typical)).cbrt();
         let mut halo = ((2.0 * ball).ceil() as u32).max(1);
         // The halo this sub-part last took, if the diagram's caller keeps
         // them (the optimisers' diagrams follow one another).
@@ -924,6 +929,20 @@ fn spread(
     send(comm, to, sent)
 }
 
+/// The median number of sites of the grid cells `cells` holds a site in
+/// (1 if none).
+fn median_occupancy(cells: &[[u32; 3]]) -> f64 {
+    let mut keys: Vec<u64> =
+        cells.par_iter().map(|c| (c[0] as u64) << 42 | (c[1] as u64) << 21 | c[2] as u64).collect();
+    keys.par_sort_unstable();
+    let mut counts: Vec<u32> = keys.chunk_by(|a, b| a == b).map(|run| run.len() as u32).collect();
+    if counts.is_empty() {
+        return 1.0;
+    }
+    let middle = counts.len() / 2;
+    *counts.select_nth_unstable(middle).1 as f64
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1105,6 +1124,31 @@ mod tests {
                     assert_eq!(got.index[k], expected.index[i], "{what}: index");
                     assert_eq!(got.max_face_order[k], expected.max_face_order[i], "{what}");
                 }
+            }
+        }
+    }
+
+    /// Tight clusters in a sparse crowd: the first halo is sized for the
+    /// sparse cells between the clusters, so no part is computed twice.
+    #[test]
+    fn a_clustered_crowd_takes_its_first_halo() {
+        let mesh = TetMesh::voxels(6, |_, _, _| true);
+        let mut sites = points::clustered(24_000, 6, 0.03, 61);
+        sites.retain(|p| p.iter().all(|&x| x > 1e-3 && x < 1.0 - 1e-3));
+        sites.extend(points::in_mesh(&mesh, 5_000, 62));
+        let cpu = CpuBackend::new(Some(2)).unwrap();
+        let one = ClippedVoronoi::new(&mesh, &sites).strategy(Strategy::Whole).faces(true).backend(&cpu).compute();
+        let one = one.unwrap();
+        for (ranks, per_rank) in [(2, 1), (2, 2)] {
+            let rows = |r: usize| sites.len() * r / ranks..sites.len() * (r + 1) / ranks;
+            let runs = on_ranks(ranks, |r, comm| {
+                let cpu = CpuBackend::new(Some(1)).unwrap();
+                let cv = ClippedVoronoi::new(&mesh, &sites[rows(r)]).faces(true).backend(&cpu);
+                cv.parts_per_rank(per_rank).compute_in_parts(comm).unwrap()
+            });
+            for (r, (cells, report)) in runs.iter().enumerate() {
+                same_rows(&one, cells, rows(r), &format!("{ranks} ranks x {per_rank}"));
+                assert_eq!(report.widened, 0, "{ranks} ranks x {per_rank}: rank {r} widened its halo ({report:?})");
             }
         }
     }
