@@ -205,6 +205,28 @@ fn power_cells_in_parts_are_the_one_process_cells() {
 }
 
 #[test]
+fn power_cells_of_drifting_weights_in_parts_are_the_one_process_cells() {
+    // Weights drifting across a cube, noisy, over a few spacings² and then
+    // far wider (many cells emptied): each part bounds its points' weights
+    // from the one process's grid of largest weights. (The halo grows with
+    // the weights' range: a rank may hold every point.)
+    let cube = PeriodicBox::new([0.0; 3], [16.0; 3]).unwrap();
+    let sites = crowd(&cube, 4000, 25);
+    let noise = points::uniform(sites.len(), 26);
+    let cpu = CpuBackend::new(Some(1)).unwrap();
+    for spread in [0.5, 1.5, 4.0, 60.0] {
+        let w: Vec<f64> =
+            sites.iter().zip(&noise).map(|(p, e)| spread * (p[0] / 16.0 + 0.5 * p[2] / 16.0 + e[0])).collect();
+        let whole = PeriodicVoronoi::new(cube, &sites).faces(true).backend(&cpu).weights(&w).compute().unwrap();
+        assert!(whole.cells.counters.empty_cells > 0 || spread < 10.0, "spread {spread}: some cells emptied");
+        for ranks in 2..=4 {
+            let parts = in_parts(cube, &sites, Some(&w), ranks);
+            same_cells(&format!("drift {spread}, {ranks} ranks"), &whole, &parts, true);
+        }
+    }
+}
+
+#[test]
 fn ranks_that_read_no_rows_take_part_all_the_same() {
     // All rows read by one rank (or by the last), the others none: a
     // frame of few particles, or ids that sort away from a rank.

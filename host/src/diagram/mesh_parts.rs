@@ -37,8 +37,8 @@
 
 use super::periodic::merge_faces;
 use super::periodic_parts::{
-    at_row, counter_words, kept_span, send, to_owners, weight_span, with_totals, BuiltCells, Held, PartsReport,
-    RowsAcross,
+    at_row, counter_words, distinct_positions, kept_span, send, to_owners, weight_grid_as_one, weight_span,
+    with_totals, BuiltCells, Held, PartsReport, RowsAcross,
 };
 use crate::backends::distributed::{records, Parcels, Reduce};
 use crate::diagram::particles::{cell_quantities, IndexThresholds, ParticleCells, INDEX_ORDERS};
@@ -54,7 +54,6 @@ use crate::job::weight_bounds::WeightGrid;
 use crate::passes::faces::Adjacency;
 use crate::passes::polyhedra::merge_pieces;
 use bytemuck::{Pod, Zeroable};
-use cvd_kernels::abi::SplitPoint;
 use rayon::prelude::*;
 
 /// The Morton key's bits that number a bucket (5 per axis).
@@ -287,24 +286,9 @@ impl ClippedVoronoi<'_> {
         if ((span[1] - span[0]) / scale2).max(0.0) == 0.0 {
             return Ok(WholeWeights { span, grid: None });
         }
-        // The sites as the job holds them, and the box of all of them.
-        let split: Vec<SplitPoint> =
-            own.par_iter().map(|h| SplitPoint::site(frame.to_local(h.at), (h.weight - span[0]) / scale2)).collect();
-        let mut extremes = [f64::NEG_INFINITY; 6];
-        for p in split.iter().map(SplitPoint::to_f64) {
-            for a in 0..3 {
-                (extremes[a], extremes[a + 3]) = (extremes[a].max(-p[a]), extremes[a + 3].max(p[a]));
-            }
-        }
-        comm.max(&mut extremes)?;
-        let (lo, hi) = ([0, 1, 2].map(|a| -extremes[a]), [0, 1, 2].map(|a| extremes[a + 3]));
         let volume = self.mesh.volume() / frame.scale.powi(3);
-        let mut grid = WeightGrid::new(lo, hi, distinct, volume);
-        for s in &split {
-            grid.add(s);
-        }
-        comm.max(grid.cells_mut())?;
-        Ok(WholeWeights { span, grid: Some(grid) })
+        let grid = weight_grid_as_one(comm, own, span, frame, distinct, volume)?;
+        Ok(WholeWeights { span, grid })
     }
 
     /// Sub-part `run` of this rank's sites `own` (in the one process's
@@ -853,14 +837,6 @@ fn cuts_along(n: usize, parts: usize, before: impl Fn(usize) -> i64, key: impl F
     }
     cuts.push(n);
     cuts
-}
-
-/// The distinct positions among `sites` (`-0.0` and `0.0` alike).
-fn distinct_positions(sites: &[Held]) -> usize {
-    let mut keys: Vec<[u64; 3]> = sites.iter().map(|h| h.at.map(|c| (c + 0.0).to_bits())).collect();
-    keys.par_sort_unstable();
-    keys.dedup();
-    keys.len()
 }
 
 /// Every rank's box of wanted cells (`None`: it wants none this round).

@@ -49,12 +49,14 @@ use crate::exec::CpuBackend;
 use crate::geom::exact_sum::ExactSum;
 use crate::geom::periodic_box::PeriodicBox;
 use crate::geom::timing::{timed, Timings};
-use crate::job::clip::Strategy;
+use crate::job::clip::{Frame, Strategy};
 use crate::job::sites::{Layout, Window};
+use crate::job::weight_bounds::WeightGrid;
 use crate::passes::faces::Adjacency;
 use crate::passes::pieces::ON_BOUNDARY;
 use crate::passes::polyhedra::{merge_pieces, CellPolyhedron};
 use bytemuck::{Pod, Zeroable};
+use cvd_kernels::abi::SplitPoint;
 use rayon::prelude::*;
 
 /// A point a rank holds: a site (no shift, no wall) or an image of one.
@@ -312,6 +314,18 @@ impl PeriodicVoronoi<'_> {
         comm.max(&mut extremes)?;
         let frame = ([0, 1, 2].map(|a| -extremes[a]), [0, 1, 2].map(|a| extremes[a + 3]));
         let mesh = domain.mesh(WHOLE_FRAME_TETS);
+        // The one process's grid of largest weights, from every rank's
+        // sites and images (each rank holds every duplicate of its own).
+        let weight_grid = match self.weights {
+            Some(_) => {
+                let mut distinct = [distinct_positions(&points) as i64];
+                comm.sum(&mut distinct)?;
+                let frame = Frame::of(&mesh);
+                let volume = mesh.volume() / frame.scale.powi(3);
+                weight_grid_as_one(comm, &points, kept_span, frame, distinct[0] as usize, volume)?
+            }
+            None => None,
+        };
         let diagram = ClippedVoronoi::new(&mesh, &own_sites)
             .faces(self.faces)
             .strategy(Strategy::Whole)
@@ -341,7 +355,7 @@ impl PeriodicVoronoi<'_> {
                 grid_sites,
                 answer: (answer.start, answer.end),
                 weights: self.weights.map(|_| kept_span),
-                weight_grid: None,
+                weight_grid: weight_grid.as_ref(),
                 window: if window { Window::Around } else { Window::Whole },
                 periodic: true,
             };
@@ -615,6 +629,51 @@ pub(super) fn kept_span(comm: &dyn Reduce, own: &[Held], largest: f64) -> Result
     let mut span = [-kept.values().copied().fold(f64::INFINITY, f64::min), largest];
     comm.max(&mut span)?;
     Ok([-span[0], span[1]])
+}
+
+/// The grid of largest weights whose local bounds the one process's
+/// sites take (see `WeightGrid`), from every rank's `points` (its sites,
+/// and in a periodic box their images, each with its weight): over the
+/// box of all the points as the job holds them (in `frame`, the weights
+/// shifted by `span[0]`), for `distinct` positions of all the ranks in a
+/// domain of `volume` (the frame's units), each cell the largest over the
+/// ranks. `None` when every weight is the same (no bounds are read).
+pub(super) fn weight_grid_as_one(
+    comm: &dyn Reduce,
+    points: &[Held],
+    span: [f64; 2],
+    frame: Frame,
+    distinct: usize,
+    volume: f64,
+) -> Result<Option<WeightGrid>> {
+    let scale2 = frame.scale * frame.scale;
+    if ((span[1] - span[0]) / scale2).max(0.0) == 0.0 {
+        return Ok(None);
+    }
+    let split: Vec<SplitPoint> =
+        points.par_iter().map(|h| SplitPoint::site(frame.to_local(h.at), (h.weight - span[0]) / scale2)).collect();
+    let mut extremes = [f64::NEG_INFINITY; 6];
+    for p in split.iter().map(SplitPoint::to_f64) {
+        for a in 0..3 {
+            (extremes[a], extremes[a + 3]) = (extremes[a].max(-p[a]), extremes[a + 3].max(p[a]));
+        }
+    }
+    comm.max(&mut extremes)?;
+    let (lo, hi) = ([0, 1, 2].map(|a| -extremes[a]), [0, 1, 2].map(|a| extremes[a + 3]));
+    let mut grid = WeightGrid::new(lo, hi, distinct, volume);
+    for s in &split {
+        grid.add(s);
+    }
+    comm.max(grid.cells_mut())?;
+    Ok(Some(grid))
+}
+
+/// The distinct positions among `points` (`-0.0` and `0.0` alike).
+pub(super) fn distinct_positions(points: &[Held]) -> usize {
+    let mut keys: Vec<[u64; 3]> = points.iter().map(|h| h.at.map(|c| (c + 0.0).to_bits())).collect();
+    keys.par_sort_unstable();
+    keys.dedup();
+    keys.len()
 }
 
 /// An error about a site, its index moved from this rank's rows to the
