@@ -59,6 +59,15 @@ use rayon::prelude::*;
 /// The Morton key's bits that number a bucket (5 per axis).
 const BUCKET_BITS: u32 = 15;
 
+/// How far from an even share (of the sites counted) a rank's run of the
+/// curve may end, to end where the curve's keys change in a higher bit
+/// (a more compact box of cells, a smaller halo).
+const COUNTED_SLACK: f64 = 0.05;
+
+/// The same, when the ranks are balanced by the work they measured (the
+/// measurement already holds what a less compact box costs).
+const MEASURED_SLACK: f64 = 0.01;
+
 /// What a rank of a mesh in parts gives back
 /// ([`ClippedVoronoi::compute_in_parts_by_rows`]).
 pub struct MeshInParts {
@@ -171,7 +180,11 @@ impl ClippedVoronoi<'_> {
             per_bucket[bucket(p)] += 1;
         }
         comm.sum(&mut per_bucket)?;
-        let owner = owners(&per_bucket, ranks);
+        // By count, or by the work the last diagram measured.
+        let owner = match self.halos.and_then(Halos::work).filter(|w| w.rate.len() == ranks) {
+            Some(work) => owners(&weighed(&per_bucket, &work), ranks, MEASURED_SLACK),
+            None => owners(&per_bucket, ranks, COUNTED_SLACK),
+        };
         drop(per_bucket);
         let weight = |i: usize| self.weights.map_or(0.0, |w| w[i]);
         let (mut own, mut report) = to_owners(comm, self.sites, (first, total), &owner, bucket, weight)?;
@@ -212,7 +225,7 @@ impl ClippedVoronoi<'_> {
         let (mut pairing, mut k) = (crate::job::clip::Pairing::Flood, 1);
         let mut phases = Timings::default();
         let own_keys: Vec<u32> = own.iter().map(|h| keys.key(h.at)).collect();
-        let runs = cuts_along(own.len(), sub, |i| i as i64, |i| own_keys[i]);
+        let runs = cuts_along(own.len(), sub, 0.05, |i| i as i64, |i| own_keys[i]);
         drop(own_keys);
         for s in 0..sub {
             let run = runs[s]..runs[s + 1];
@@ -268,6 +281,14 @@ impl ClippedVoronoi<'_> {
             cells.timings.add(name, *t);
         }
         report.timings = cells.timings.clone();
+        if let Some(halos) = self.halos {
+            // Seconds a site on each rank: its jobs' time over its cells.
+            let busy: f64 = phases.phases.iter().map(|p| p.1).sum();
+            let rate = busy / report.owned.max(1) as f64;
+            let rates = comm.all_gather(&rate.to_le_bytes())?;
+            let rate = rates.iter().map(|b| b.as_chunks::<8>().0.first().map_or(0.0, |&w| f64::from_le_bytes(w)));
+            halos.set_work(Work { owner, rate: rate.collect() });
+        }
         Ok(MeshInParts { cells, rows, built, pieces: pieces_merged, report })
     }
 
@@ -477,26 +498,50 @@ impl ClippedVoronoi<'_> {
     }
 }
 
-/// The halo (in grid cells) each sub-part of a rank last took, kept from
-/// one diagram in parts to the next ([`ClippedVoronoi::halos`]): the
-/// optimisers' diagrams follow one another, and a sub-part whose cells
-/// needed a wider halo than the first (power cells whose weights reach far)
-/// starts there next time, not from the first again. The halo changes no
-/// bit of the cells, only how many rounds a part takes.
+/// What a diagram in parts leaves the next ([`ClippedVoronoi::halos`]):
+/// the optimisers' diagrams follow one another.
+///
+/// The halo (in grid cells) each sub-part of a rank last took: a sub-part
+/// whose cells needed a wider halo than the first (power cells whose
+/// weights reach far) starts there next time, not from the first again.
+/// And the work each rank measured: the next diagram balances the ranks
+/// by it, each bucket of the curve weighed by the time a site took on the
+/// rank that last built it (cut cells, tight clusters and sparse space do
+/// not cost the same per site). Neither changes a bit of the cells, only
+/// how many rounds a part takes and which rank builds a cell.
 #[derive(Debug, Default)]
-pub struct Halos(std::sync::Mutex<Vec<u32>>);
+pub struct Halos {
+    halos: std::sync::Mutex<Vec<u32>>,
+    work: std::sync::Mutex<Option<Work>>,
+}
+
+/// The work the ranks measured in a diagram: each bucket's rank, and each
+/// rank's seconds per site it built (the same on every rank).
+#[derive(Clone, Debug, PartialEq)]
+struct Work {
+    owner: Vec<u32>,
+    rate: Vec<f64>,
+}
 
 impl Halos {
     fn get(&self, sub: usize) -> Option<u32> {
-        self.0.lock().unwrap_or_else(|e| e.into_inner()).get(sub).copied()
+        self.halos.lock().unwrap_or_else(|e| e.into_inner()).get(sub).copied()
     }
 
     fn set(&self, sub: usize, halo: u32) {
-        let mut halos = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        let mut halos = self.halos.lock().unwrap_or_else(|e| e.into_inner());
         if halos.len() <= sub {
             halos.resize(sub + 1, 0);
         }
         halos[sub] = halo;
+    }
+
+    fn work(&self) -> Option<Work> {
+        self.work.lock().unwrap_or_else(|e| e.into_inner()).clone()
+    }
+
+    fn set_work(&self, work: Work) {
+        *self.work.lock().unwrap_or_else(|e| e.into_inner()) = Some(work);
     }
 }
 
@@ -782,16 +827,17 @@ fn add_polyhedra(built: &mut BuiltCells, pieces: crate::passes::pieces::Pieces, 
 }
 
 /// Each bucket's rank: runs of buckets along the curve, each holding about
-/// a rank's share of the sites, cut where the curve leaves the largest
-/// octant it can within a few percent of the share (a run of a whole
-/// octant is a box; a run across a big octant's end spans both).
-fn owners(counts: &[i64], ranks: usize) -> Vec<u32> {
+/// a rank's share of `counts` (sites, or their measured work), cut where
+/// the curve leaves the largest octant it can within `slack` of the share
+/// (a run of a whole octant is a box; a run across a big octant's end
+/// spans both).
+fn owners(counts: &[i64], ranks: usize, slack: f64) -> Vec<u32> {
     let mut before = Vec::with_capacity(counts.len() + 1);
     before.push(0i64);
     for &n in counts {
         before.push(before[before.len() - 1] + n);
     }
-    let cuts = cuts_along(counts.len(), ranks, |b| before[b], |b| b as u32);
+    let cuts = cuts_along(counts.len(), ranks, slack, |b| before[b], |b| b as u32);
     let mut owner = vec![0u32; counts.len()];
     for (r, w) in cuts.windows(2).enumerate() {
         owner[w[0]..w[1]].fill(r as u32);
@@ -799,17 +845,36 @@ fn owners(counts: &[i64], ranks: usize) -> Vec<u32> {
     owner
 }
 
+/// Each bucket's sites weighed by the seconds a site took on the rank
+/// that last built the bucket's cells (a rank that measured nothing, or
+/// far less than the others, at a hundredth of their mean), in units of
+/// a thousandth of the mean rate: integer weights for [`owners`].
+fn weighed(counts: &[i64], work: &Work) -> Vec<i64> {
+    let mean = work.rate.iter().sum::<f64>() / work.rate.len().max(1) as f64;
+    if !(mean > 0.0 && mean.is_finite()) || work.owner.len() != counts.len() {
+        return counts.to_vec();
+    }
+    let rate = |r: u32| work.rate.get(r as usize).map_or(mean, |&x| x.clamp(0.01 * mean, 100.0 * mean)) / mean;
+    counts.iter().zip(&work.owner).map(|(&n, &r)| (n as f64 * rate(r) * 1000.0).round() as i64).collect()
+}
+
 /// `parts + 1` places cutting `0..n` into runs of about equal weight
 /// (`before(i)`: the weight before place `i`, growing), each cut where
 /// the curve's keys (`key(i)`, growing) change in their highest bit among
-/// the places within 5% of a part's weight of the even cut.
-fn cuts_along(n: usize, parts: usize, before: impl Fn(usize) -> i64, key: impl Fn(usize) -> u32) -> Vec<usize> {
+/// the places within `slack` of a part's weight of the even cut.
+fn cuts_along(
+    n: usize,
+    parts: usize,
+    slack: f64,
+    before: impl Fn(usize) -> i64,
+    key: impl Fn(usize) -> u32,
+) -> Vec<usize> {
     let total = before(n);
     let share = total as f64 / parts as f64;
     let mut cuts = vec![0];
     for p in 1..parts {
         let ideal = share * p as f64;
-        let (lo, hi) = (ideal - 0.05 * share, ideal + 0.05 * share);
+        let (lo, hi) = (ideal - slack * share, ideal + slack * share);
         // The first place whose weight before it is not below `x` (or
         // above it, with `inclusive`).
         let place = |x: f64, inclusive: bool| {
@@ -1127,6 +1192,29 @@ mod tests {
                 assert_eq!(report.widened, 0, "{ranks} ranks x {per_rank}: rank {r} widened its halo ({report:?})");
             }
         }
+    }
+
+    /// A rank whose sites took twice as long per site as the other's
+    /// gets fewer of them in the next diagram.
+    #[test]
+    fn ranks_are_balanced_by_the_work_they_measured() {
+        let counts = vec![10i64; 1 << 10];
+        let share = |owner: &[u32]| owner.iter().filter(|&&r| r == 0).count() as f64 / owner.len() as f64;
+        let by_count = owners(&counts, 2, COUNTED_SLACK);
+        assert!((share(&by_count) - 0.5).abs() <= 0.05, "{}", share(&by_count));
+        // Its buckets weigh twice: it takes 3/8 of the sites (then, the
+        // rates measured again, 1/3).
+        let work = Work { owner: by_count.clone(), rate: vec![2e-5, 1e-5] };
+        let by_work = owners(&weighed(&counts, &work), 2, MEASURED_SLACK);
+        assert!((share(&by_work) - 0.375).abs() <= 0.05, "{}", share(&by_work));
+        // Nothing measured: by count. A rank that measured nothing: its
+        // buckets at a hundredth of the mean, so it takes them all and
+        // half the other's (3/4).
+        let none = Work { owner: by_count.clone(), rate: vec![0.0, 0.0] };
+        assert_eq!(owners(&weighed(&counts, &none), 2, COUNTED_SLACK), by_count);
+        let idle = Work { owner: by_count.clone(), rate: vec![0.0, 1e-5] };
+        let idle = share(&owners(&weighed(&counts, &idle), 2, MEASURED_SLACK));
+        assert!((idle - 0.75).abs() <= 0.05, "{idle}");
     }
 
     /// A crowd in a cube: each rank holds its share of the sites and a
