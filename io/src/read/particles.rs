@@ -527,24 +527,27 @@ pub(super) fn atoms_in_parts<R: BufRead + Seek>(
     let (lo, hi) = (share(n, p, parts), share(n, p + 1, parts));
     let rows = match parse {
         Some((columns, domain)) => {
-            // This rank's lines' bytes: what it holds of them, the rest read.
+            // This rank's lines' bytes: what it holds of them, the bytes
+            // before read (the chunks are sized so that they are few), the
+            // rest streamed from the file: no more of the frame's text is
+            // held than the chunk counted.
             let (a, b) = (starts[p], starts[p + 1]);
             let (from, bytes) = (held.0, &held.1);
             let (inner_a, inner_b) = (a.max(from), b.min(from + bytes.len() as u64));
-            let mut read = |range: std::ops::Range<u64>| -> Result<Vec<u8>> {
-                let mut out = vec![0; (range.end - range.start) as usize];
-                lines.reader.seek(SeekFrom::Start(range.start)).map_err(&io)?;
-                lines.reader.read_exact(&mut out).map_err(&io)?;
-                Ok(out)
-            };
-            let (before_held, middle, after_held) = match inner_a < inner_b {
+            let (before_held, middle, rest) = match inner_a < inner_b {
                 true => {
-                    (read(a..inner_a)?, &bytes[(inner_a - from) as usize..(inner_b - from) as usize], read(inner_b..b)?)
+                    let mut out = vec![0; (inner_a - a) as usize];
+                    lines.reader.seek(SeekFrom::Start(a)).map_err(&io)?;
+                    lines.reader.read_exact(&mut out).map_err(&io)?;
+                    (out, &bytes[(inner_a - from) as usize..(inner_b - from) as usize], inner_b..b)
                 }
-                false => (read(a..b)?, &[][..], Vec::new()),
+                false => (Vec::new(), &[][..], a..b),
             };
-            let own = std::io::Cursor::new(before_held).chain(middle).chain(std::io::Cursor::new(after_held));
-            let mut own = Lines::at(own, lines.path.clone(), lines.frame, before + lo);
+            lines.reader.seek(SeekFrom::Start(rest.start)).map_err(&io)?;
+            let (path, frame) = (lines.path.clone(), lines.frame);
+            let streamed = (&mut lines.reader).take(rest.end - rest.start);
+            let own = std::io::Cursor::new(before_held).chain(middle).chain(streamed);
+            let mut own = Lines::at(own, path, frame, before + lo);
             parse_atoms(&mut own, columns, atoms, domain, lo..hi)?
         }
         None => Rows { positions: Vec::new(), ids: None, radii: None },
