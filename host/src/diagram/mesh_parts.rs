@@ -225,7 +225,7 @@ impl ClippedVoronoi<'_> {
         let (mut pairing, mut k) = (crate::job::clip::Pairing::Flood, 1);
         let mut phases = Timings::default();
         let own_keys: Vec<u32> = own.iter().map(|h| keys.key(h.at)).collect();
-        let runs = cuts_along(own.len(), sub, 0.05, |i| i as i64, |i| own_keys[i]);
+        let runs = cuts_along(own.len(), sub, COUNTED_SLACK, |i| i as i64, |i| own_keys[i]);
         drop(own_keys);
         for s in 0..sub {
             let run = runs[s]..runs[s + 1];

@@ -609,18 +609,16 @@ fn line_starts<R: Read + Seek>(
     let mut buffer = Vec::new();
     let mut round = 0u64;
     while counted < want {
-        buffer.resize(chunk as usize + 1, 0);
         let from = start + (round * parts + p) * chunk;
         reader.seek(SeekFrom::Start(from)).map_err(io)?;
-        let got = read_up_to(reader, &mut buffer).map_err(io)?;
         // One byte past the chunk read: whether the file ends in it.
+        buffer.clear();
+        let got = (&mut *reader).take(chunk + 1).read_to_end(&mut buffer).map_err(io)?;
         let (bytes, at_end) = (&buffer[..got.min(chunk as usize)], got <= chunk as usize);
         let mut ends = bytes.iter().filter(|&&b| b == b'\n').count() as u64;
         let unended = at_end && bytes.last().is_some_and(|&b| b != b'\n');
         ends += unended as u64;
-        let mut mine = [0u8; 16];
-        mine[..8].copy_from_slice(&ends.to_le_bytes());
-        mine[8..].copy_from_slice(&(at_end as u64).to_le_bytes());
+        let mine: Vec<u8> = [ends, at_end as u64].iter().flat_map(|w| w.to_le_bytes()).collect();
         let all = gathered_words(comm, &mine)?;
         let mut ended = false;
         let mut mine_before = counted;
@@ -679,20 +677,6 @@ fn line_starts<R: Read + Seek>(
         return Err(Error::Internal("a part's first line was found by no rank".into()));
     }
     Ok(Ok(starts))
-}
-
-/// Reads into `buffer` until it is full or the file ends: the bytes read.
-fn read_up_to<R: Read>(reader: &mut R, buffer: &mut [u8]) -> std::io::Result<usize> {
-    let mut got = 0;
-    while got < buffer.len() {
-        match reader.read(&mut buffer[got..]) {
-            Ok(0) => break,
-            Ok(k) => got += k,
-            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
-            Err(e) => return Err(e),
-        }
-    }
-    Ok(got)
 }
 
 /// `mine` (little-endian u64s) all-gathered: every rank's words, by rank.
