@@ -65,7 +65,11 @@ pub fn open(args: &RunArgs) -> cvd::Result<(RunBackend, String)> {
         return Ok((RunBackend::One(backend), why));
     }
     if args.backend.backend == BackendChoice::Vulkan {
-        return Err(cvd::Error::InvalidInput("a run in parts uses the CPU backend: drop --backend vulkan".into()));
+        return Err(cvd::Error::InvalidInput(
+            "tets in parts run on the CPU backend: drop --backend vulkan (a mesh's whole cells with the sites in \
+             parts run on it: --strategy whole, without --output and --json)"
+                .into(),
+        ));
     }
     if args.transports() && args.strategy.is_some_and(|s| s != cvd::Strategy::Whole) {
         return Err(cvd::Error::InvalidInput(

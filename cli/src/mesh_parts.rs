@@ -9,8 +9,9 @@
 //! process. Power cells (each rank its rows of `--weights` or `--radii`),
 //! a density (`--density`, `--density-file`: per mesh vertex, every rank
 //! all of it), Lloyd, L-BFGS and optimal transport (`weights.txt`
-//! likewise) too. Rank 0
-//! writes `summary.json`, with every rank's numbers.
+//! likewise) too, on the CPU or a Vulkan device (`--backend`: the cells on
+//! the device, the polyhedra on the CPU). Rank 0 writes `summary.json`,
+//! with every rank's numbers.
 //!
 //! What it does not take yet ([`lacking`]) runs with every rank reading the
 //! whole input (`cvd::backends::distributed`), and says so.
@@ -32,7 +33,6 @@ type WriteBatch<'a> =
 pub fn lacking(args: &RunArgs) -> Option<&'static str> {
     let lacking = [
         (args.strategy.is_some_and(|s| s != cvd::Strategy::Whole), "a strategy other than whole cells"),
-        (args.backend.backend == cvd::BackendChoice::Vulkan, "the Vulkan backend"),
         (args.output.is_some() || args.json.is_some(), "--output and --json"),
     ];
     lacking.iter().find(|(asked, _)| *asked).map(|(_, what)| *what)
@@ -73,10 +73,27 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     let (sites, total) = rows_of_sites(args, comm, n, |rows| cvd::geom::points::in_mesh_rows(&mesh, rows, args.seed))?;
     let first: u64 = comm.gather_u64(sites.len() as u64)?[..rank].iter().sum();
     let weights = weights_of_rows(args, comm, sites.len(), first, total)?;
-    let threads = args.backend.threads.map_or("all".to_string(), |t| t.to_string());
+    // The cells on the backend asked for (a device's too: the whole-cell
+    // kernel in a part's window); the polyhedra on the CPU.
+    let cpu = CpuBackend::new(args.backend.threads)?;
+    let chosen = match args.backend.backend {
+        cvd::BackendChoice::Cpu => None,
+        _ => Some(cvd::backends::choose(&args.backend.options())?),
+    };
+    let (backend, why): (&dyn cvd::Backend, &str) = match &chosen {
+        Some(c) if c.backend.kind() != cvd::BackendKind::Cpu => (c.backend.as_ref(), &c.why),
+        Some(c) => (&cpu, &c.why),
+        None => (&cpu, "asked for"),
+    };
+    let on = match backend.kind() {
+        cvd::BackendKind::Cpu => {
+            format!("{} CPU thread(s)", args.backend.threads.map_or("all".to_string(), |t| t.to_string()))
+        }
+        _ => backend.name(),
+    };
     println!(
-        "{name}: {} tets, {total} sites in parts over {} (each rank reading its rows), whole cells on {threads} CPU \
-         thread(s) per rank",
+        "{name}: {} tets, {total} sites in parts over {} (each rank reading its rows), whole cells on {on} per rank \
+         — {why}",
         mesh.tets.len(),
         comm.describe(),
     );
@@ -95,7 +112,6 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
              the bit; --strategy tet-cell splits the tets instead, every rank reading the whole input"
         );
     }
-    let cpu = CpuBackend::new(args.backend.threads)?;
     if let Some(warning) = crate::backend::threads_beyond_cores(args.backend.threads).filter(|_| rank == 0) {
         eprintln!("cvd: {warning}");
     }
@@ -107,7 +123,7 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
         .k_site(args.k_site)
         .memory_budget(args.cpu_memory_budget())
         .parts_per_rank(args.parts.unwrap_or(1))
-        .backend(&cpu);
+        .backend(backend);
     let iterated = cvd::cvt::clipped::ClippedInParts::new(iterated, comm);
     let optimised = optimise_in_parts(args, comm, iterated, weights.as_deref(), first, total)?;
     let Optimised { sites, cvt, weights, transport } =
@@ -120,7 +136,7 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
         .faces(faces)
         .memory_budget(args.cpu_memory_budget())
         .parts_per_rank(args.parts.unwrap_or(1))
-        .backend(&cpu);
+        .backend(backend);
     let diagram = match &weights {
         Some(w) => diagram.weights(w),
         None => diagram,
@@ -191,7 +207,7 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     if rank != 0 {
         return Ok(status);
     }
-    let mut summary = Summary::new(&name, &mesh, total as usize, cells.strategy, &cpu, &cells);
+    let mut summary = Summary::new(&name, &mesh, total as usize, cells.strategy, backend, &cells);
     summary.energy = energy;
     if let Some(record) = cvt {
         crate::outputs::write_energy_chart(&dir.join("energy.png"), &record)?;

@@ -271,6 +271,31 @@ fn mpirun_gives_whole_cells_and_neighbours_of_one_process() {
         assert!(said.contains("where one process takes tet-cell (under a density)"), "{said}");
         same_files(&one, &out, &["cells.csv", "neighbors.csv", "sites.xyz"], &format!("density, {ranks} ranks"));
     }
+    // On Vulkan (lavapipe here): each rank's cells built on the device in
+    // its window of held cells, the polyhedra on the CPU; optimal
+    // transport's diagrams too: one process's device run, byte for byte.
+    let device = ["run", "--model", "torus", "--resolution", "12", "--backend", "vulkan", "--strategy", "whole"];
+    let cases: [(&str, &[&str], &[&str]); 2] = [
+        ("device", &["--sites", "6000", "--no-picture"], &["cells.csv", "neighbors.csv", "sites.xyz"]),
+        (
+            "device-transport",
+            &["--sites", "3000", "--volumes", "lognormal:0,0.5", "--no-geometry"],
+            &["cells.csv", "neighbors.csv", "sites.xyz", "weights.txt"],
+        ),
+    ];
+    for (name, args, files) in cases {
+        let one = dir.join(format!("{name}-one"));
+        ok(&cvd_job(&device, &one, args), &format!("{name}: one process"));
+        let out = dir.join(format!("{name}-2"));
+        let o = mpirun_job(&device, 2, &out, args);
+        ok(&o, &format!("{name}: 2 ranks"));
+        let said = String::from_utf8_lossy(&o.stdout);
+        assert!(said.contains("each rank reading its rows), whole cells on vulkan"), "{name}: {said}");
+        same_files(&one, &out, files, &format!("{name}, 2 ranks"));
+        if name == "device" {
+            assert!(walls(&one.join("walls.ply")) == walls(&out.join("walls.ply")), "{name}: walls.ply");
+        }
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }
 

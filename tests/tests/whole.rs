@@ -144,3 +144,137 @@ fn vulkan_runs_the_same_whole_cells() {
     assert!(worst < 1e-5, "{worst:.2e}");
     cvd_tests::assert_no_validation_errors();
 }
+
+/// Whole cells in parts on Vulkan (lavapipe here): ranks (threads of this
+/// process), each with a run of the input's rows, build their cells on the
+/// device in a window of held grid cells — the kernel's walks kept inside
+/// it, the lists' distances read back for the part's certificate — and
+/// every row is the device's one-process cell to the bit: volume,
+/// centroid, energy, faces with their neighbours, boundary. A non-convex
+/// domain, a tight cluster in a crowd, a duplicate. With polyhedra (from
+/// the CPU, as one process takes a device's), they are one process's.
+#[test]
+fn vulkan_whole_cells_in_parts_are_its_one_process_cells() {
+    use cvd::backends::distributed::{InProcess, Reduce};
+    let Some(vulkan) = cvd_tests::vulkan() else { return };
+    let mesh = TetMesh::voxels(10, |i, j, _| i < 5 || j < 5);
+    let mut sites: Vec<[f64; 3]> =
+        points::in_mesh(&mesh, 6000, 51).into_iter().filter(|p| p[0] < 0.5 || p[1] < 0.1).collect();
+    sites.extend(points::in_mesh(&mesh, 400, 53).into_iter().filter(|p| p[0] >= 0.5));
+    sites.extend(points::clustered(1500, 2, 0.01, 52).into_iter().map(|p| p.map(|x| 0.05 + 0.4 * x)));
+    sites.push(sites[23]);
+    let n = sites.len();
+    let whole = ClippedVoronoi::new(&mesh, &sites).strategy(Strategy::Whole).faces(true);
+    let one = whole.backend(vulkan).compute().unwrap();
+    assert!(one.counters.cut_cells > 0 && one.counters.whole_cells > 0, "{:?}", one.counters);
+    let cpu = cvd::CpuBackend::new(Some(2)).unwrap();
+    let (on_cpu, _) = whole.backend(vulkan).compute_with_geometry(&cpu).unwrap();
+    let a = one.adjacency().unwrap();
+    for (ranks, per_rank, polyhedra) in [(1, 1, false), (2, 1, true), (3, 2, false), (2, 3, false), (4, 1, false)] {
+        let what = format!("{ranks} ranks x {per_rank} parts");
+        let rows = |r: usize| n * r / ranks..n * (r + 1) / ranks;
+        let runs = InProcess::each(ranks, |comm| {
+            let cv = ClippedVoronoi::new(&mesh, &sites[rows(comm.rank())]).strategy(Strategy::Whole).faces(true);
+            let cv = cv.backend(vulkan);
+            let cv = cv.parts_per_rank(per_rank);
+            match polyhedra {
+                true => {
+                    let cpu = cvd::CpuBackend::new(Some(1)).unwrap();
+                    let (cells, built, report) = cv.compute_in_parts_with_polyhedra(comm, &cpu).unwrap();
+                    (cells, report, Some(built))
+                }
+                false => {
+                    let (cells, report) = cv.compute_in_parts(comm).unwrap();
+                    (cells, report, None)
+                }
+            }
+        });
+        let mut built: Vec<_> =
+            runs.iter().flat_map(|r| r.2.iter().flat_map(|b| b.polyhedra.iter().cloned())).collect();
+        built.sort_by_key(|p| p.site);
+        if polyhedra {
+            let expected = on_cpu.polyhedra.as_ref().unwrap();
+            assert_eq!(built.len(), expected.len(), "{what}: every polyhedron once");
+            for (p, q) in built.iter().zip(expected) {
+                assert!(p == q, "{what}: the polyhedron of {} is one process's", q.site);
+            }
+        }
+        if ranks > 1 {
+            assert!(runs.iter().any(|r| r.1.widened > 0), "{what}: no part widened its halo");
+        }
+        let owned: u64 = runs.iter().map(|r| r.1.owned).sum();
+        assert_eq!(owned, n as u64, "{what}: every site owned once");
+        for (r, (cells, _, _)) in runs.iter().enumerate() {
+            assert_eq!(one.total_volume.to_bits(), cells.total_volume.to_bits(), "{what}: total volume");
+            let b = cells.adjacency().unwrap();
+            for (k, i) in rows(r).enumerate() {
+                let bits = |x: f64| x.to_bits();
+                assert_eq!(bits(one.volume[i]), bits(cells.volume[k]), "{what}: volume of {i}");
+                assert_eq!(bits(one.energy[i]), bits(cells.energy[k]), "{what}: energy of {i}");
+                assert_eq!(one.centroid[i].map(bits), cells.centroid[k].map(bits), "{what}: centroid of {i}");
+                let (x, y): (Vec<_>, Vec<_>) = (a.of(i).collect(), b.of(k).collect());
+                assert_eq!(x, y, "{what}: faces of {i}");
+                assert_eq!(bits(a.boundary[i]), bits(b.boundary[k]), "{what}: boundary of {i}");
+            }
+        }
+    }
+    cvd_tests::assert_no_validation_errors();
+}
+
+/// The lists' distances a whole-cell job keeps for a part's certificate
+/// (`ClipJob::keep` without entries) come back from the device as the
+/// CPU finds them — exact integers, list by list — for every site and for
+/// a run of them (a part's answered sites), with every list on the device
+/// at once and, under the tightest memory budget, listed in chunks.
+#[test]
+fn vulkan_keeps_the_lists_distances_the_cpu_finds() {
+    use cvd::job::kept::Keep;
+    use cvd::Backend;
+    let Some(roomy) = cvd_tests::vulkan() else { return };
+    let options =
+        cvd::backends::vulkan::VulkanOptions { device: std::env::var("CVD_TEST_DEVICE").ok(), ..Default::default() };
+    let tight = cvd::backends::vulkan::VulkanBackend::new(&options).unwrap();
+    let mesh = TetMesh::voxels(8, |i, j, _| i < 4 || j < 4);
+    let mut sites = points::in_mesh(&mesh, 2500, 61);
+    sites.extend(points::clustered(800, 2, 0.01, 62).into_iter().map(|p| p.map(|x| 0.05 + 0.3 * x)));
+    let n = sites.len();
+    let (job, _, _) = ClippedVoronoi::new(&mesh, &sites).strategy(Strategy::Whole).job().unwrap();
+    let cpu = cvd::CpuBackend::new(Some(2)).unwrap();
+    for range in [0..n, 700..2900] {
+        let mut part = if range.len() == n { job.clone() } else { job.answering(range.clone()).unwrap() };
+        part.keep = Some(Keep { k: part.site_knn.params.k, candidates: None, entries: false });
+        let on_cpu = cpu.clip(&part).unwrap();
+        let c = on_cpu.kept.as_ref().unwrap();
+        assert_eq!(c.kth2.len(), range.len());
+        assert!(c.kth2.iter().all(|&d| 0 < d && d < u64::MAX), "{range:?}: every list full");
+        // The smallest budget the job fits (in 64 KiB steps): its lists in
+        // chunks.
+        let fits = |budget: u64| {
+            tight.set_memory_budget(budget << 16);
+            tight.clip(&part).is_ok()
+        };
+        let (mut lo, mut hi) = (1u64, 1u64 << 12);
+        assert!(!fits(lo) && fits(hi), "{range:?}");
+        while hi - lo > 1 {
+            let mid = (lo + hi) / 2;
+            *if fits(mid) { &mut hi } else { &mut lo } = mid;
+        }
+        tight.set_memory_budget(hi << 16);
+        for (device, what) in [(roomy, "every list at once"), (&tight, "the tightest budget")] {
+            let out = device.clip(&part).unwrap();
+            let g = out.kept.as_ref().unwrap();
+            let what = format!("{range:?}, {what}");
+            assert_eq!((g.k, &g.kth2, &g.last2), (c.k, &c.kth2, &c.last2), "{what}");
+            // The cells those lists build: the CPU's to f32 rounding.
+            let (x, y) = (&on_cpu.sums, &out.sums);
+            let worst = (0..range.len())
+                .map(|u| {
+                    let i = (range.start + u) * cvd_kernels::abi::ACCUM_PER_SITE;
+                    (x[i] - y[i]).abs() as f64 / x[i].abs().max(1) as f64
+                })
+                .fold(0.0, f64::max);
+            assert!(worst < 1e-5, "{what}: volumes within {worst:.1e}");
+        }
+    }
+    cvd_tests::assert_no_validation_errors();
+}

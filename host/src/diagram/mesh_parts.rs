@@ -101,7 +101,8 @@ impl ClippedVoronoi<'_> {
     /// this rank's rows — the same bits as the diagram of all the sites in
     /// one process with whole cells, neighbours by input index (with
     /// [`Self::faces`]) — with the run's totals, and what the part did.
-    /// Whole cells on the CPU, with power weights ([`Self::weights`]: this
+    /// Whole cells, on the CPU or a device ([`Self::backend`]: each part a
+    /// whole-cell job in its window), with power weights ([`Self::weights`]: this
     /// rank's rows' own) and a density ([`Self::density`]: every rank the
     /// whole mesh's, as it holds the mesh).
     pub fn compute_in_parts(&self, comm: &dyn Reduce) -> Result<(Cells, PartsReport)> {
@@ -135,13 +136,14 @@ impl ClippedVoronoi<'_> {
         if mesh.tets.is_empty() {
             return Err(Error::InvalidInput("the mesh has no tets".into()));
         }
+        // The cells on the diagram's backend (the CPU's own, or a device's:
+        // the whole-cell kernel in the held window either way); the
+        // polyhedra on `geometry`, from the same run on the CPU.
         let own_cpu;
         let cpu: &dyn crate::backend::Backend = match (geometry, self.backend) {
+            (_, Some(b)) if b.kind() != crate::job::BackendKind::Cpu => b,
             (Some(cpu), _) => cpu,
-            (None, Some(b)) if b.kind() == crate::job::BackendKind::Cpu => b,
-            (None, Some(_)) => {
-                return Err(Error::InvalidInput("a mesh with its sites in parts runs on the CPU backend".into()))
-            }
+            (None, Some(b)) => b,
             (None, None) => {
                 own_cpu = CpuBackend::new(None)?;
                 &own_cpu
@@ -160,9 +162,10 @@ impl ClippedVoronoi<'_> {
         if Self::strategy_for(self.strategy, Some(cpu), shape) != Strategy::Whole {
             return Err(Error::InvalidInput(format!(
                 "a mesh with its sites in parts is computed with whole cells{}",
-                match shape.density {
-                    true => " (under a density one process takes tet-cell: ask for whole cells)",
-                    false => "",
+                match (shape.density, cpu.kind()) {
+                    (true, _) => " (under a density one process takes tet-cell: ask for whole cells)",
+                    (false, crate::job::BackendKind::Cpu) => "",
+                    (false, _) => " (a device takes tet-cell by default: ask for whole cells)",
                 }
             )));
         }
@@ -397,8 +400,21 @@ impl ClippedVoronoi<'_> {
                 part = part.weights(w);
             }
             let part = part.strategy(Strategy::Whole).backend(cpu).layout(layout).keep_reach(k_site);
+            // Walks of the pieces' run that left the box (or did not end).
+            let mut pieces_left = 0;
             let (mut cells, pieces) = match geometry {
-                Some(cpu) => part.compute_with_pieces(cpu).map(|(c, p)| (c, Some(p)))?,
+                Some(g) if cpu.kind() == crate::job::BackendKind::Cpu => {
+                    part.compute_with_pieces(g).map(|(c, p)| (c, Some(p)))?
+                }
+                // A device's cells, the pieces of a run on the CPU (as one
+                // process takes them: `ClippedVoronoi::compute_with_geometry`),
+                // certified too.
+                Some(g) => {
+                    let cells = part.compute()?;
+                    let (again, pieces) = part.faces(false).compute_with_pieces(g)?;
+                    pieces_left = again.counters.out_of_halo + again.counters.unresolved;
+                    (cells, Some(pieces))
+                }
                 None => (part.compute()?, None),
             };
             // Each list certified by the box; none of the walks left it.
@@ -419,8 +435,9 @@ impl ClippedVoronoi<'_> {
                 })
                 .count();
             drop(kept);
+            report.uncertified += uncertified as u64;
             let c = &cells.counters;
-            if window.is_whole() || (uncertified == 0 && c.out_of_halo == 0 && c.unresolved == 0) {
+            if window.is_whole() || (uncertified == 0 && c.out_of_halo == 0 && c.unresolved == 0 && pieces_left == 0) {
                 let width = halo as f64 * grid.cell_size as f64 / per_world;
                 if let Some(halos) = self.halos {
                     halos.set(sub, halo);

@@ -158,6 +158,9 @@ pub struct PartsReport {
     pub halo: f64,
     /// Times the ranks widened the halo.
     pub widened: u32,
+    /// A mesh in parts: the neighbour lists this rank's boxes did not
+    /// certify, over its rounds (each such round widened the halo).
+    pub uncertified: u64,
     /// The cells of the grid's table this rank held (a window of the whole
     /// job's grid around its points), and the whole grid's.
     pub grid_cells: [u64; 2],

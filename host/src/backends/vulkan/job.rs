@@ -194,6 +194,12 @@ impl<'a> Job<'a> {
         }
     }
 
+    /// Copies the first `bytes` of `buf` into `to` at byte `offset` (parts
+    /// of one result, each read back to its place).
+    pub(crate) fn download_into_at(&mut self, buf: BufId, to: Readback, offset: u64, bytes: u64) {
+        self.copy_to(buf, to.0, offset, bytes);
+    }
+
     /// Copies the first `bytes` of `from` into `to` at byte `offset`, at
     /// this point of the job.
     pub(crate) fn copy_to(&mut self, from: BufId, to: BufId, offset: u64, bytes: u64) {

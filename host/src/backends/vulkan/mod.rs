@@ -14,6 +14,7 @@ use crate::error::{Error, Result};
 use crate::geom::timing::timed;
 use crate::geom::timing::Timings;
 use crate::job::clip::{split_sums, ClipJob, ClipOutput, Pairing, Strategy};
+use crate::job::kept::LocalKept;
 use crate::job::knn::{KnnJob, KnnMethod, Neighbors};
 use crate::job::lloyd::LloydOutput;
 use crate::job::BackendKind;
@@ -124,10 +125,13 @@ impl Backend for VulkanBackend {
     }
 
     fn clip(&self, job: &ClipJob) -> Result<ClipOutput> {
-        if job.held.is_some() || job.is_windowed() {
-            // The lists' certificates are the CPU backend's (the device
-            // k-NN keeps no distances).
-            return Err(Error::InvalidInput("the parts of a distributed job run on the CPU backend".into()));
+        if job.held.is_some() || (job.is_windowed() && job.strategy != Strategy::Whole) {
+            // Tets in parts: their lists' certificates and the tets' first
+            // sites marked out of the halo are the CPU backend's. Whole
+            // cells in a held window (a mesh's sites in parts) run here:
+            // the walks stay in the held cells, and the lists' distances
+            // come back for the part's certificate (`ClipJob::keep`).
+            return Err(Error::InvalidInput("tets in parts run on the CPU backend".into()));
         }
         let plan = Plan::clip(&self.ctx, job)?;
         let p = &job.params;
@@ -196,19 +200,31 @@ impl Backend for VulkanBackend {
         } else {
             None
         };
-        let site_lists = |j: &mut Job, first: u64, end: u64| -> Result<()> {
+        // The lists' squared distances, when `distances` is given, copied
+        // there (from list `first`'s on).
+        let site_lists = |j: &mut Job, first: u64, end: u64, distances: Option<job::Readback>| -> Result<()> {
             match part_lists {
                 None if ks > 0 => {
                     let d2 = j.buffer(n * ks * 8)?;
                     j.dispatch("knn_grid", &[quant, g.start, g.count, g.sorted, site_nbrs, d2], &sk.params, n)?;
+                    if let Some(to) = distances {
+                        j.barrier();
+                        j.download_into(d2, to, (end - first) * ks * 8);
+                    }
                 }
                 Some((part_nbrs, part_d2)) => {
                     for at in (first..end).step_by(plan.site_chunk as usize) {
                         let count = plan.site_chunk.min(end - at);
-                        let kp = KnnParams { n_queries: count as u32, query_base: at as u32, in_order: 1, ..sk.params };
+                        // A job answering some of its sites lists them from
+                        // its first (`KnnJob::answering`).
+                        let base = sk.params.query_base + at as u32;
+                        let kp = KnnParams { n_queries: count as u32, query_base: base, in_order: 1, ..sk.params };
                         j.dispatch("knn_grid", &[quant, g.start, g.count, g.sorted, part_nbrs, part_d2], &kp, count)?;
                         j.barrier();
                         j.copy_to(part_nbrs, site_nbrs, (at - first) * ks * 4, count * ks * 4);
+                        if let Some(to) = distances {
+                            j.download_into_at(part_d2, to, (at - first) * ks * 8, count * ks * 8);
+                        }
                         j.barrier();
                     }
                 }
@@ -223,8 +239,15 @@ impl Backend for VulkanBackend {
                 .as_deref()
                 .ok_or_else(|| Error::Internal("a whole-cell job without its domain index".into()))?;
             // Whole cells keep every list (the plan has one window): one
-            // thread per site, then the sums back.
-            site_lists(&mut j, 0, sk.params.n_queries as u64)?;
+            // thread per site, then the sums back; the lists' distances
+            // too where the job keeps them.
+            let nq = sk.params.n_queries as u64;
+            let keep = kept_reach(job)?;
+            let distances = match keep {
+                Some(_) if ks > 0 => Some(j.readback(nq * ks * 8)?),
+                _ => None,
+            };
+            site_lists(&mut j, 0, nq, distances)?;
             // No buffer is empty: an unread record where there is none.
             let d = [
                 j.upload(std::slice::from_ref(&domain.params))?,
@@ -244,23 +267,27 @@ impl Backend for VulkanBackend {
             j.dispatch("clip_whole", &args, &rp, n)?;
             j.mark("clip");
             let sums_back = j.download(sums, n_sums * 8)?;
-            let lists_back = if job.face_sums_len() > 0 { Some(j.download(site_nbrs, n * ks * 4)?) } else { None };
+            let lists_back = if job.face_sums_len() > 0 { Some(j.download(site_nbrs, nq * ks * 4)?) } else { None };
             let counters_back = j.download(counters, counter::COUNT as u64 * 8)?;
             let list_back = j.download(unfinished, list_len * 4)?;
             j.mark("download");
             let done = j.run()?;
             let all: Vec<i64> = done.read(sums_back, n_sums as usize);
             let (sums, tet_volumes, faces) = split_sums(all, n as usize * ACCUM_PER_SITE, nt as usize);
+            let kept = keep.map(|kk| {
+                let d2: Vec<u64> = distances.map_or_else(Vec::new, |d| done.read(d, (nq * ks) as usize));
+                reach_of_lists(&d2, nq as usize, ks as usize, kk)
+            });
             return Ok(ClipOutput {
                 sums,
                 tet_volumes,
                 faces,
-                site_lists: read_lists(&done, lists_back, n, ks),
+                site_lists: read_lists(&done, lists_back, nq, ks),
                 counters: done.read(counters_back, counter::COUNT),
                 refined: 0,
                 unresolved: 0,
                 certified: 0,
-                kept: None,
+                kept,
                 chunks: 1,
                 unfinished: crate::job::clip::pair_list(&done.read::<u32>(list_back, list_len as usize)),
                 timings: done.timings.clone(),
@@ -268,7 +295,7 @@ impl Backend for VulkanBackend {
         }
         let cells = if job.strategy == Strategy::CellTet {
             // Cell-tet keeps every list (the plan has one window).
-            site_lists(&mut j, 0, n)?;
+            site_lists(&mut j, 0, n, None)?;
             let cells = j.buffer(n * CELL_RECORDS as u64 * 16)?;
             j.dispatch("voronoi_cells", &[sites, site_nbrs, cells, counters], p, n)?;
             j.mark("cells");
@@ -306,7 +333,7 @@ impl Backend for VulkanBackend {
         let mut pending = false;
         for (w, window) in windows.iter().enumerate() {
             if cells.is_none() {
-                site_lists(&mut j, window.first, window.end)?;
+                site_lists(&mut j, window.first, window.end, None)?;
             }
             // Floods in slabs: the window's tets; otherwise every tet, for
             // the pairs of the sites the window owns.
@@ -398,6 +425,36 @@ impl Backend for VulkanBackend {
             unfinished: left,
             timings,
         })
+    }
+}
+
+/// The entries a whole-cell job keeps of each list, if it keeps their
+/// distances only ([`crate::job::kept::Keep`] without entries: a part's
+/// certificate) — the device's lists are the job's `k_site` long, so no
+/// more than those. Lists kept whole, or from candidates (a trajectory's
+/// next frame), are the CPU backend's: none kept here.
+fn kept_reach(job: &ClipJob) -> Result<Option<u32>> {
+    let Some(keep) = job.keep.as_ref().filter(|k| !k.entries && k.candidates.is_none()) else { return Ok(None) };
+    let k = job.site_knn.params.k;
+    let kk = keep.k.max(k).max(1);
+    if k > 0 && kk > k {
+        return Err(Error::Internal(format!("{kk} entries kept of lists of {k} on the device")));
+    }
+    Ok(Some(kk))
+}
+
+/// What a job keeps of its `n` lists of `k` entries ([`LocalKept`]
+/// without entries) from their squared distances `d2`, `k` a list (none
+/// when `k` is 0: a job of one site), `kk` entries kept: as the CPU
+/// backend's lists keep them.
+fn reach_of_lists(d2: &[u64], n: usize, k: usize, kk: u32) -> LocalKept {
+    let last = |u: usize| if k == 0 { u64::MAX } else { d2[u * k + kk as usize - 1] };
+    LocalKept {
+        k: kk,
+        lists: Vec::new(),
+        last2: (0..n).map(last).collect(),
+        kth2: (0..n).map(|u| if k == 0 { 0 } else { d2[u * k + k - 1] }).collect(),
+        reused: vec![false; n],
     }
 }
 
