@@ -352,7 +352,6 @@ impl<'a> PeriodicVoronoi<'a> {
                 weights: None,
                 weight_grid: None,
                 window: Window::Whole,
-                unheld: None,
                 periodic: true,
             });
         }
