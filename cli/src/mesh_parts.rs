@@ -76,14 +76,13 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     // The cells on the backend asked for (a device's too: the whole-cell
     // kernel in a part's window); the polyhedra on the CPU.
     let cpu = CpuBackend::new(args.backend.threads)?;
-    let chosen = match args.backend.backend {
-        cvd::BackendChoice::Cpu => None,
-        _ => Some(cvd::backends::choose(&args.backend.options())?),
+    let (device, why) = match cvd::backends::decide(&args.backend.options())? {
+        cvd::backends::Decided::Cpu(why) => (None, why),
+        cvd::backends::Decided::Vulkan(device, why) => (Some(device), why),
     };
-    let (backend, why): (&dyn cvd::Backend, &str) = match &chosen {
-        Some(c) if c.backend.kind() != cvd::BackendKind::Cpu => (c.backend.as_ref(), &c.why),
-        Some(c) => (&cpu, &c.why),
-        None => (&cpu, "asked for"),
+    let backend: &dyn cvd::Backend = match &device {
+        Some(device) => device.as_ref(),
+        None => &cpu,
     };
     let on = match backend.kind() {
         cvd::BackendKind::Cpu => {

@@ -61,36 +61,73 @@ pub fn open(options: &BackendOptions) -> Result<Box<dyn Backend>> {
 /// one): see [`auto_choice`]; a GPU that cannot run the kernels leaves the
 /// CPU backend to serve, with the reason.
 pub fn choose(options: &BackendOptions) -> Result<Chosen> {
-    let cpu =
-        |why: String| -> Result<Chosen> { Ok(Chosen { backend: Box::new(CpuBackend::new(options.threads)?), why }) };
-    let vulkan = |vulkan: &VulkanOptions, why: String| -> Result<Chosen> {
-        Ok(Chosen { backend: Box::new(VulkanBackend::new(vulkan)?), why })
-    };
+    Ok(match decide(options)? {
+        Decided::Cpu(why) => Chosen { backend: Box::new(CpuBackend::new(options.threads)?), why },
+        Decided::Vulkan(vulkan, why) => Chosen { backend: vulkan, why },
+    })
+}
+
+/// What [`decide`] settled on.
+pub enum Decided {
+    /// The CPU backend (not opened: the caller opens it, once), for this
+    /// reason.
+    Cpu(String),
+    /// A Vulkan device, opened, and why.
+    Vulkan(Box<VulkanBackend>, String),
+}
+
+/// [`choose`]'s decision, opening a Vulkan device when it takes one and
+/// leaving the CPU backend to its caller (who may hold one already).
+pub fn decide(options: &BackendOptions) -> Result<Decided> {
+    let vulkan = |vulkan: &VulkanOptions, why: String| Ok(Decided::Vulkan(Box::new(VulkanBackend::new(vulkan)?), why));
     match options.choice {
-        BackendChoice::Cpu => cpu("asked for".into()),
+        BackendChoice::Cpu => Ok(Decided::Cpu("asked for".into())),
         BackendChoice::Vulkan => vulkan(&options.vulkan, "asked for".into()),
         BackendChoice::Auto if options.vulkan.device.is_some() => {
             vulkan(&options.vulkan, "the device asked for".into())
         }
         BackendChoice::Auto => {
+            // Loading the Vulkan drivers costs tens of megabytes that stay
+            // mapped: not where no GPU can be.
+            if let Some(why) = no_gpu_node() {
+                return Ok(Decided::Cpu(format!("auto: no GPU ({why})")));
+            }
             let devices = match list_devices() {
                 Ok(devices) => devices,
-                Err(Error::VulkanUnavailable(why)) => return cpu(format!("auto: no Vulkan device ({why})")),
-                Err(e) => return cpu(format!("auto: no Vulkan device ({e})")),
+                Err(Error::VulkanUnavailable(why)) => {
+                    return Ok(Decided::Cpu(format!("auto: no Vulkan device ({why})")))
+                }
+                Err(e) => return Ok(Decided::Cpu(format!("auto: no Vulkan device ({e})"))),
             };
             match auto_choice(&devices, HAS_KERNELS) {
-                AutoChoice::Cpu(why) => cpu(why),
+                AutoChoice::Cpu(why) => Ok(Decided::Cpu(why)),
                 AutoChoice::Gpu(index) => {
                     let name = devices.iter().find(|d| d.index == index).map_or("", |d| &d.name);
                     let chosen = VulkanOptions { device: Some(index.to_string()), ..options.vulkan.clone() };
                     match VulkanBackend::new(&chosen) {
-                        Ok(vk) => Ok(Chosen { backend: Box::new(vk), why: format!("auto: the GPU {name}") }),
-                        Err(e) => cpu(format!("auto: the GPU {name} cannot run the kernels ({e})")),
+                        Ok(vk) => Ok(Decided::Vulkan(Box::new(vk), format!("auto: the GPU {name}"))),
+                        Err(e) => Ok(Decided::Cpu(format!("auto: the GPU {name} cannot run the kernels ({e})"))),
                     }
                 }
             }
         }
     }
+}
+
+/// On Linux, why no GPU can be here: none of the device nodes a GPU's
+/// driver opens (DRM's `/dev/dri`, NVIDIA's `/dev/nvidia*`, WSL's
+/// `/dev/dxg`) exists. `None` elsewhere, or where one does.
+fn no_gpu_node() -> Option<String> {
+    if !cfg!(target_os = "linux") {
+        return None;
+    }
+    let any_in = |dir: &str, prefixes: &[&str]| {
+        std::fs::read_dir(dir).is_ok_and(|entries| {
+            entries.flatten().any(|e| prefixes.iter().any(|p| e.file_name().to_string_lossy().starts_with(p)))
+        })
+    };
+    let node = any_in("/dev/dri", &["renderD", "card"]) || any_in("/dev", &["nvidia", "dxg"]);
+    (!node).then(|| "no device node: /dev/dri, /dev/nvidia*, /dev/dxg".into())
 }
 
 /// Which backend to use.

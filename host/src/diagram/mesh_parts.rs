@@ -140,7 +140,7 @@ impl ClippedVoronoi<'_> {
         // the whole-cell kernel in the held window either way); the
         // polyhedra on `geometry`, from the same run on the CPU.
         let own_cpu;
-        let cpu: &dyn crate::backend::Backend = match (geometry, self.backend) {
+        let backend: &dyn crate::backend::Backend = match (geometry, self.backend) {
             (_, Some(b)) if b.kind() != crate::job::BackendKind::Cpu => b,
             (Some(cpu), _) => cpu,
             (None, Some(b)) => b,
@@ -159,10 +159,10 @@ impl ClippedVoronoi<'_> {
         }
         let span = weight_span(comm, self.weights)?;
         let shape = JobShape { density: self.density.is_some(), sites: total as usize, tets: mesh.tets.len() };
-        if Self::strategy_for(self.strategy, Some(cpu), shape) != Strategy::Whole {
+        if Self::strategy_for(self.strategy, Some(backend), shape) != Strategy::Whole {
             return Err(Error::InvalidInput(format!(
                 "a mesh with its sites in parts is computed with whole cells{}",
-                match (shape.density, cpu.kind()) {
+                match (shape.density, backend.kind()) {
                     (true, _) => " (under a density one process takes tet-cell: ask for whole cells)",
                     (false, crate::job::BackendKind::Cpu) => "",
                     (false, _) => " (a device takes tet-cell by default: ask for whole cells)",
@@ -232,7 +232,7 @@ impl ClippedVoronoi<'_> {
         drop(own_keys);
         for s in 0..sub {
             let run = runs[s]..runs[s + 1];
-            let part = self.sub_part(comm, cpu, geometry, &whole_grid, &own, &own_cells, (s, run), &mut report)?;
+            let part = self.sub_part(comm, backend, geometry, &whole_grid, &own, &own_cells, (s, run), &mut report)?;
             let Some(Part { held, answer, cells: whole, pieces, width }) = part else {
                 rows.add(comm, Vec::new(), Vec::new(), &mut report.sent)?;
                 continue;
@@ -324,7 +324,7 @@ impl ClippedVoronoi<'_> {
     fn sub_part(
         &self,
         comm: &dyn Reduce,
-        cpu: &dyn crate::backend::Backend,
+        backend: &dyn crate::backend::Backend,
         geometry: Option<&CpuBackend>,
         whole: &Whole,
         own: &[Held],
@@ -399,11 +399,11 @@ impl ClippedVoronoi<'_> {
             if let Some(w) = &weights {
                 part = part.weights(w);
             }
-            let part = part.strategy(Strategy::Whole).backend(cpu).layout(layout).keep_reach(k_site);
+            let part = part.strategy(Strategy::Whole).backend(backend).layout(layout).keep_reach(k_site);
             // Walks of the pieces' run that left the box (or did not end).
             let mut pieces_left = 0;
             let (mut cells, pieces) = match geometry {
-                Some(g) if cpu.kind() == crate::job::BackendKind::Cpu => {
+                Some(g) if backend.kind() == crate::job::BackendKind::Cpu => {
                     part.compute_with_pieces(g).map(|(c, p)| (c, Some(p)))?
                 }
                 // A device's cells, the pieces of a run on the CPU (as one
