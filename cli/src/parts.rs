@@ -53,21 +53,36 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     })?;
     let first: u64 = comm.gather_u64(sites.len() as u64)?[..rank].iter().sum();
     let weights = weights_of_rows(args, comm, sites.len(), first, total)?;
+    // The cells on the backend asked for (a device's too: each part one
+    // windowed whole-cell job); the polyhedra on the CPU.
+    let cpu = CpuBackend::new(args.backend.threads)?;
+    let (device, why) = match cvd::backends::decide(&args.backend.options())? {
+        cvd::backends::Decided::Cpu(why) => (None, why),
+        cvd::backends::Decided::Vulkan(device, why) => (Some(device), why),
+    };
+    let backend: &dyn cvd::Backend = match &device {
+        Some(device) => device.as_ref(),
+        None => &cpu,
+    };
     println!(
-        "periodic box {:?} to {:?}: {total} sites in parts over {}, whole cells on {} CPU thread(s) per rank",
+        "periodic box {:?} to {:?}: {total} sites in parts over {}, whole cells on {} per rank — {why}",
         domain.lo(),
         domain.hi(),
         comm.describe(),
-        args.backend.threads.map_or("all".to_string(), |t| t.to_string())
+        match device {
+            Some(_) => backend.name(),
+            None => format!("{} CPU thread(s)", args.backend.threads.map_or("all".to_string(), |t| t.to_string())),
+        }
     );
-    let cpu = CpuBackend::new(args.backend.threads)?;
     if let Some(warning) = crate::backend::threads_beyond_cores(args.backend.threads).filter(|_| rank == 0) {
         eprintln!("cvd: {warning}");
     }
     // The optimiser, each rank moving its own rows (and finding their
     // weights): the steps of one process.
-    let iterated =
-        PeriodicVoronoi::new(domain, &sites).k_site(args.k_site).memory_budget(args.cpu_memory_budget()).backend(&cpu);
+    let iterated = PeriodicVoronoi::new(domain, &sites)
+        .k_site(args.k_site)
+        .memory_budget(args.cpu_memory_budget())
+        .backend(backend);
     let iterated = PeriodicInParts::new(iterated, comm);
     let optimised = optimise_in_parts(args, comm, iterated, weights.as_deref(), first, total)?;
     let Optimised { sites, cvt, weights, transport } =
@@ -77,7 +92,7 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
         .k_site(args.k_site)
         .faces(faces)
         .memory_budget(args.cpu_memory_budget())
-        .backend(&cpu);
+        .backend(backend);
     let diagram = match &weights {
         Some(w) => diagram.weights(w),
         None => diagram,
@@ -131,7 +146,7 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
         return Ok(status);
     }
     let mesh = domain.mesh(cvd::diagram::periodic::WHOLE_FRAME_TETS);
-    let mut summary = Summary::new("periodic box", &mesh, total as usize, out.cells.strategy, &cpu, &out.cells);
+    let mut summary = Summary::new("periodic box", &mesh, total as usize, out.cells.strategy, backend, &out.cells);
     summary.energy = energy;
     if let Some(record) = cvt {
         crate::outputs::write_energy_chart(&dir.join("energy.png"), &record)?;
@@ -252,7 +267,6 @@ pub(crate) fn refuse_what_parts_lack(args: &RunArgs) -> cvd::Result<()> {
             "--weights with --iterations (CVT iterations keep power weights only with --transport)",
         ),
         (args.parts.is_some(), "--parts (the ranks are the parts)"),
-        (args.backend.backend == cvd::BackendChoice::Vulkan, "--backend vulkan (parts run on the CPU)"),
         (args.strategy.is_some_and(|s| s != cvd::Strategy::Whole), "--strategy other than whole"),
         (args.output.is_some() || args.json.is_some(), "--output and --json (the folder holds the files)"),
     ];

@@ -192,7 +192,7 @@ fn optimise(args: &RunArgs, inputs: &Inputs, backend: &dyn Backend) -> cvd::Resu
         Domain::Box(b) => {
             let pv = PeriodicVoronoi::new(*b, sites).strategy(args.strategy).k_site(args.k_site);
             let pv = pv.faces(!args.no_neighbors).backend(backend);
-            let ot = PeriodicVoronoi::new(*b, sites).k_site(args.k_site).backend(backend);
+            let ot = PeriodicVoronoi::new(*b, sites).strategy(args.strategy).k_site(args.k_site).backend(backend);
             optimise_on(args, inputs, &pv, ot)
         }
     }

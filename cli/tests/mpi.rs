@@ -458,10 +458,31 @@ fn mpirun_gives_a_periodic_box_in_parts_byte_for_byte() {
     let said = String::from_utf8_lossy(&o.stderr);
     assert_ne!(o.status.code(), Some(124), "the ranks waited for the one that failed: {said}");
     assert!(!o.status.success() && said.contains("bad.xyz") && said.contains("byte"), "{said}");
-    // What parts do not do yet is refused by name.
-    let o =
-        mpirun_job(BOX, 2, &dir.join("refused"), &["--box", "0,0,0,9,9,9", "--sites", "900", "--backend", "vulkan"]);
-    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("--backend vulkan"));
+    // On a device (lavapipe here): each part one windowed whole-cell job,
+    // the files one process's device run's, byte for byte; with
+    // --voronoi-index the polyhedra from a run on the CPU, as one process;
+    // optimal transport on the device (its whole cells' f32 masses round
+    // near 1e-6 of a cell: a tolerance above that).
+    let device = ["--backend", "vulkan", "--box", "0,0,0,20,30,25", "--seed", "9"];
+    let transport = ["--sites", "2500", "--volumes", "lognormal:0,0.3", "--tolerance", "1e-5"];
+    for (name, extra) in [
+        ("device", &["--sites", "8000"][..]),
+        ("device-index", &["--sites", "8000", "--voronoi-index"][..]),
+        ("device-transport", &transport[..]),
+    ] {
+        let args = [&device[..], extra].concat();
+        let one = dir.join(format!("{name}-one"));
+        ok(&cvd_job(BOX, &one, &[&args[..], &["--strategy", "whole"]].concat()), &format!("{name}: one process"));
+        let out = dir.join(format!("{name}-2"));
+        let o = mpirun_job(BOX, 2, &out, &args);
+        ok(&o, &format!("{name}: 2 ranks"));
+        let said = String::from_utf8_lossy(&o.stdout);
+        assert!(said.contains("whole cells on vulkan"), "{name}: {said}");
+        same_files(&one, &out, &["cells.csv", "neighbors.csv", "sites.xyz"], &format!("{name}, 2 ranks"));
+        if name == "device-transport" {
+            same_files(&one, &out, &["weights.txt"], "device transport, 2 ranks");
+        }
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }
 

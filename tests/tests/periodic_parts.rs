@@ -407,3 +407,91 @@ fn the_voronoi_index_in_parts_is_the_one_process_index() {
         }
     }
 }
+
+/// On a device (lavapipe here) each rank's part is one windowed whole-cell
+/// job, its lists' distances read back for the halo's certificate: every
+/// row is the device's one-process cell to the bit — plain and power
+/// cells, a cluster and duplicates in a triclinic cell, and a slab with
+/// walls.
+#[test]
+fn a_periodic_box_in_parts_on_vulkan_is_its_one_process_diagram() {
+    let Some(vulkan) = cvd_tests::vulkan() else { return };
+    let n = 6000;
+    let l = (n as f64).cbrt();
+    let b = PeriodicBox::lammps([0.0; 3], [l; 3], [0.2 * l, -0.1 * l, 0.15 * l]).unwrap();
+    let mut sites = crowd(&b, n, 31);
+    for i in (1..n).step_by(401) {
+        sites[i] = sites[i - 1];
+    }
+    let radii: Vec<f64> = points::uniform(n, 32).iter().map(|p| (0.3 + 0.9 * p[0]).powi(2)).collect();
+    let slab = PeriodicBox::new([0.0; 3], [20.0, 20.0, 10.0]).unwrap().with_periodic([true, false, true]);
+    let slab_sites: Vec<[f64; 3]> = points::uniform(4000, 33).iter().map(|p| slab.cartesian(*p)).collect();
+    // A name, the box, its sites and their weights.
+    type Case<'a> = (&'a str, PeriodicBox, &'a [[f64; 3]], Option<&'a [f64]>);
+    let cases: [Case; 3] =
+        [("crowd", b, &sites, None), ("power crowd", b, &sites, Some(&radii)), ("slab", slab, &slab_sites, None)];
+    for (name, b, sites, weights) in cases {
+        // (A device takes tet-cell by default; the parts whole cells.)
+        let one = PeriodicVoronoi::new(b, sites).faces(true).backend(vulkan).strategy(cvd::Strategy::Whole);
+        let whole = match weights {
+            Some(w) => one.weights(w).compute(),
+            None => one.compute(),
+        }
+        .unwrap();
+        for ranks in [1, 2, 3] {
+            let n = sites.len();
+            let parts = on_ranks(sites, ranks, |comm, rows, _| {
+                let diagram = PeriodicVoronoi::new(b, rows).faces(true).backend(vulkan);
+                let first = n * comm.rank() / ranks;
+                match weights {
+                    Some(w) => diagram.weights(&w[first..first + rows.len()]).compute_in_parts(comm),
+                    None => diagram.compute_in_parts(comm),
+                }
+                .unwrap()
+            });
+            same_cells(&format!("{name} on vulkan, {ranks} ranks"), &whole, &parts, weights.is_some());
+            for (_, r) in &parts {
+                assert_eq!(r.windows_dropped, 0, "{name}, {ranks} ranks: rank {}", r.rank);
+                if ranks > 1 {
+                    assert!(r.held < (n + whole.images) as u64, "{name}, {ranks} ranks: rank {} holds all", r.rank);
+                }
+            }
+        }
+        // The particles' quantities: the device's cells, each polyhedron
+        // from a run on the CPU, as one process takes them.
+        let thresholds = IndexThresholds { relative_face: 0.01, ..Default::default() };
+        let cpu = CpuBackend::new(Some(2)).unwrap();
+        let one = PeriodicVoronoi::new(b, sites).backend(vulkan);
+        let one = match weights {
+            Some(w) => one.weights(w).compute_with_polyhedra(&cpu),
+            None => one.compute_with_polyhedra(&cpu),
+        }
+        .unwrap();
+        let expected = ParticleCells::of(sites.len(), one.cells.polyhedra().unwrap(), &thresholds);
+        let n = sites.len();
+        let parts = on_ranks(sites, 2, |comm, rows, cpu| {
+            let diagram = PeriodicVoronoi::new(b, rows).backend(vulkan);
+            let first = n * comm.rank() / 2;
+            let diagram = match weights {
+                Some(w) => diagram.weights(&w[first..first + rows.len()]),
+                None => diagram,
+            };
+            diagram.compute_in_parts_with_index(comm, cpu, &thresholds).unwrap()
+        });
+        let areas: Vec<u64> = parts.iter().flat_map(|p| &p.particles.area).map(|a| a.to_bits()).collect();
+        assert!(areas == expected.area.iter().map(|a| a.to_bits()).collect::<Vec<_>>(), "{name}: areas");
+        let index: Vec<_> = parts.iter().flat_map(|p| p.particles.index.iter().copied()).collect();
+        assert!(index == expected.index, "{name}: Voronoi indices");
+        let mut volumes = 0;
+        for p in &parts {
+            let rows = p.cells.cells.volume.iter().zip(&one.cells.volume[p.report.first as usize..]);
+            assert!(rows.clone().all(|(a, b)| a.to_bits() == b.to_bits()), "{name}: the device's volumes");
+            for (poly, &(volume, _, _)) in p.built.polyhedra.iter().zip(&p.built.numbers) {
+                assert_eq!(volume.to_bits(), one.cells.volume[poly.site as usize].to_bits(), "{name}: {}", poly.site);
+                volumes += 1;
+            }
+        }
+        assert_eq!(volumes, one.cells.polyhedra().unwrap().len(), "{name}: every polyhedron once");
+    }
+    cvd_tests::assert_no_validation_errors();
+}

@@ -180,7 +180,8 @@ impl PeriodicVoronoi<'_> {
     /// on. Returns the cells of this rank's rows — the same bits as the
     /// diagram of all the sites in one process, neighbours by input index —
     /// with the run's totals (counters, total volume, images), and what
-    /// the part did. Whole cells on the CPU; with weights
+    /// the part did. Whole cells, on the diagram's backend (the CPU's, or a
+    /// device's: each part one windowed job); with weights
     /// ([`PeriodicVoronoi::weights`]: this rank's rows' own, on every rank
     /// or on none), power cells (the `walks` counter may differ from one
     /// process's). The polyhedra: [`Self::compute_in_parts_with_index`]; no
@@ -193,7 +194,8 @@ impl PeriodicVoronoi<'_> {
     /// [`Self::compute_in_parts`] with the particles' quantities of this
     /// rank's rows (their cells' polyhedra measured with `thresholds`, as
     /// [`ParticleCells::of`] measures them in one process: the same bits),
-    /// on `cpu`; and the polyhedra of the cells this rank built (the sites
+    /// on `cpu` (the cells on the diagram's device, if it has one: the
+    /// polyhedra then from a second run on `cpu`); and the polyhedra of the cells this rank built (the sites
     /// of its blocks, not its rows) with their numbers.
     pub fn compute_in_parts_with_index(
         &self,
@@ -216,11 +218,13 @@ impl PeriodicVoronoi<'_> {
         }
         let own_cpu;
         let backend: &dyn Backend = match (index, self.backend) {
+            // A device's cells, the polyhedra from a run on the CPU (as one
+            // process takes them).
+            (_, Some(b)) if b.kind() != crate::job::BackendKind::Cpu => b,
             (Some((cpu, _)), _) => cpu,
-            (None, Some(b)) if b.kind() == crate::job::BackendKind::Cpu => b,
-            (None, Some(_)) => {
-                return Err(Error::InvalidInput("a periodic box in parts runs on the CPU backend".into()))
-            }
+            // A device's too: the whole-cell kernel in the part's window,
+            // its lists' distances read back for the certificate.
+            (None, Some(b)) => b,
             (None, None) => {
                 own_cpu = CpuBackend::new(None)?;
                 &own_cpu
@@ -363,6 +367,8 @@ impl PeriodicVoronoi<'_> {
                 periodic: true,
             };
             let weights: Option<Vec<f64>> = self.weights.map(|_| held.iter().map(|h| h.weight).collect());
+            // Walks of the pieces' run on the CPU that left the window.
+            let mut pieces_left = 0;
             let (mut whole, pieces) = if answer.is_empty() {
                 (Cells { k_site, strategy: Strategy::Whole, ..Default::default() }, None)
             } else {
@@ -371,7 +377,15 @@ impl PeriodicVoronoi<'_> {
                     part = part.weights(w);
                 }
                 match index {
-                    Some((cpu, _)) => part.compute_with_pieces(cpu).map(|(c, p)| (c, Some(p)))?,
+                    Some((cpu, _)) if backend.kind() == crate::job::BackendKind::Cpu => {
+                        part.compute_with_pieces(cpu).map(|(c, p)| (c, Some(p)))?
+                    }
+                    Some((cpu, _)) => {
+                        let cells = part.compute()?;
+                        let (again, pieces) = part.faces(false).compute_with_pieces(cpu)?;
+                        pieces_left = again.counters.out_of_halo;
+                        (cells, Some(pieces))
+                    }
                     None => (part.compute()?, None),
                 }
             };
@@ -381,7 +395,8 @@ impl PeriodicVoronoi<'_> {
             let need = whole.kept.take().map_or(0.0, |kept| {
                 (0..kept.kth.len()).map(|u| kept.kth[u] + 2.0 * (kept.kth[u] - kept.reach[u])).fold(0.0, f64::max)
             });
-            let mut most = [if need > width { need } else { 0.0 }, whole.counters.out_of_halo as f64];
+            let left = whole.counters.out_of_halo + pieces_left;
+            let mut most = [if need > width { need } else { 0.0 }, left as f64];
             comm.max(&mut most)?;
             if most == [0.0; 2] {
                 break (whole, pieces, held, at, answer);
