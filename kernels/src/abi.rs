@@ -36,6 +36,14 @@ pub const INCOMPLETE_TET: u32 = u32::MAX - 1;
 /// certify that site.
 pub const OUT_OF_HALO: u32 = u32::MAX - 2;
 
+/// The `cell_start` of a grid cell inside the held cells
+/// ([`RefineParams::held_lo_x`]) whose sites a part does not hold, with a
+/// `cell_count` of 0: a search finds no site there, and a walk that must
+/// look at it gives up as outside the held cells (a part's held cells are
+/// then the box less these, not the whole box). No cell's first slot is
+/// ever this large.
+pub const UNHELD: u32 = u32::MAX;
+
 /// In the tet slot of an unfinished entry `(WHOLE_CELL, site)`: the
 /// whole-cell strategy could not build that site's cell (a full polyhedron
 /// or a breakdown); the host finishes the site from its tets' pieces. As

@@ -11,7 +11,7 @@
 //! flood queue too small leaves a piece unfinished. Most pieces never walk:
 //! the list settles them, and a short list trades k-NN time for walks.
 
-use crate::abi::{GridParams, QuantPoint, RefineParams, SplitPoint, OUT_OF_HALO};
+use crate::abi::{GridParams, QuantPoint, RefineParams, SplitPoint, OUT_OF_HALO, UNHELD};
 use crate::cell::{clip_by_bisectors, tet_vertices, BisectorRun, Clipped, Slack};
 use crate::grid::{ring_row, ring_span};
 use crate::lists::{Lists, NO_LIST};
@@ -81,7 +81,8 @@ impl<'a> GridWalk<'a> {
     }
 
     /// The index of grid cell `c` in the held cells' arrays, or
-    /// [`NO_CELL`] when its sites are not held.
+    /// [`NO_CELL`] when its sites are not held (outside the held cells'
+    /// box, or inside it and marked [`UNHELD`]).
     #[inline]
     pub fn held_cell(&self, c: [u32; 3]) -> usize {
         let (lo, dim) = (self.held_lo, self.held_dim);
@@ -92,8 +93,12 @@ impl<'a> GridWalk<'a> {
             }
             a += 1;
         }
-        (((c[2] - lo[2]) as usize * dim[1] as usize) + (c[1] - lo[1]) as usize) * dim[0] as usize
-            + (c[0] - lo[0]) as usize
+        let cell = (((c[2] - lo[2]) as usize * dim[1] as usize) + (c[1] - lo[1]) as usize) * dim[0] as usize
+            + (c[0] - lo[0]) as usize;
+        if self.cell_count[cell] == 0 && self.cell_start[cell] == UNHELD {
+            return NO_CELL;
+        }
+        cell
     }
 }
 

@@ -170,6 +170,7 @@ fn vulkan_whole_cells_in_parts_are_its_one_process_cells() {
     let cpu = cvd::CpuBackend::new(Some(2)).unwrap();
     let (on_cpu, _) = whole.backend(vulkan).compute_with_geometry(&cpu).unwrap();
     let a = one.adjacency().unwrap();
+    let mut unheld = 0;
     for (ranks, per_rank, polyhedra) in [(1, 1, false), (2, 1, true), (3, 2, false), (2, 3, false), (4, 1, false)] {
         let what = format!("{ranks} ranks x {per_rank} parts");
         let rows = |r: usize| n * r / ranks..n * (r + 1) / ranks;
@@ -202,6 +203,7 @@ fn vulkan_whole_cells_in_parts_are_its_one_process_cells() {
         if ranks > 1 {
             assert!(runs.iter().any(|r| r.1.widened > 0), "{what}: no part widened its halo");
         }
+        unheld += runs.iter().map(|r| r.1.unheld_cells).sum::<u64>();
         let owned: u64 = runs.iter().map(|r| r.1.owned).sum();
         assert_eq!(owned, n as u64, "{what}: every site owned once");
         for (r, (cells, _, _)) in runs.iter().enumerate() {
@@ -218,6 +220,8 @@ fn vulkan_whole_cells_in_parts_are_its_one_process_cells() {
             }
         }
     }
+    // Some part's box held cells it did not (marked on the device too).
+    assert!(unheld > 0, "no part's box held a cell it did not hold");
     cvd_tests::assert_no_validation_errors();
 }
 

@@ -48,13 +48,17 @@ use crate::exec::CpuBackend;
 use crate::geom::points::MortonKeys;
 use crate::geom::timing::{timed, Timings};
 use crate::job::clip::{Frame, JobShape, Strategy};
-use crate::job::held::HeldCells;
+use crate::job::held::{HeldCells, HeldSet};
 use crate::job::sites::{Layout, Window};
 use crate::job::weight_bounds::WeightGrid;
 use crate::passes::faces::Adjacency;
 use crate::passes::polyhedra::merge_pieces;
 use bytemuck::{Pod, Zeroable};
 use rayon::prelude::*;
+
+/// Groups of a sub-part's cells along the curve, each held with the cells
+/// around it (a held box each: [`HeldSet`]).
+const HELD_GROUPS: usize = 64;
 
 /// The Morton key's bits that number a bucket (5 per axis).
 const BUCKET_BITS: u32 = 15;
@@ -358,17 +362,37 @@ impl ClippedVoronoi<'_> {
             halo = halo.max(last);
         }
         let first_key = own.get(run.start).map(|h| (whole.keys.key(h.at), h.site));
+        // The halo goes around groups of the run's cells along the curve,
+        // each a compact box, not around the box of them all: a run that
+        // crosses sparse space and ends in a cluster would hold most sites
+        // in that one box.
+        let cells = &own_cells[run.clone()];
+        let n_groups = HELD_GROUPS.min(cells.len());
+        let groups: Vec<([u32; 3], [u32; 3])> = (0..n_groups)
+            .map(|g| {
+                let of = &cells[cells.len() * g / n_groups..cells.len() * (g + 1) / n_groups];
+                let lo = [0, 1, 2].map(|a| of.iter().map(|c| c[a]).min().unwrap_or(0));
+                let hi = [0, 1, 2].map(|a| of.iter().map(|c| c[a]).max().unwrap_or(0));
+                (lo, hi)
+            })
+            .collect();
         let mut done: Option<Part> = None;
         loop {
-            let want =
-                (done.is_none() && !run.is_empty()).then(|| HeldCells::around(clo, chi, halo, dims, grid.cell_size));
-            let boxes = wanted_boxes(comm, want)?;
+            let want = (done.is_none() && !run.is_empty()).then(|| {
+                let around = |(lo, hi): &([u32; 3], [u32; 3])| HeldCells::around(*lo, *hi, halo, dims, grid.cell_size);
+                HeldSet::of(groups.iter().map(around).collect())
+            });
+            let boxes = wanted_boxes(comm, want.as_ref())?;
             if boxes.iter().all(Option::is_none) {
                 break;
             }
             let (held, t) = timed(|| spread(comm, own, own_cells, &boxes, &mut report.sent));
             report.timings.add("exchange", t);
-            let (Some(window), Some(first_key)) = (want, first_key) else { continue };
+            let (Some(set), Some(first_key)) = (want, first_key) else { continue };
+            let window = set.bounds;
+            let unheld = set.unheld_bits();
+            let unheld_cells = unheld.as_ref().map_or(0, |b| b.iter().map(|w| w.count_ones() as u64).sum());
+            report.unheld_cells = report.unheld_cells.max(unheld_cells);
             let mut held = held?;
             let mut keyed: Vec<(u32, u64, Held)> =
                 held.par_iter().map(|h| (whole.keys.key(h.at), h.site, *h)).collect();
@@ -392,6 +416,7 @@ impl ClippedVoronoi<'_> {
                 weights: whole.weights.as_ref().map(|w| w.span),
                 weight_grid: whole.weights.as_ref().and_then(|w| w.grid.as_ref()),
                 window: Window::Held(window),
+                unheld: unheld.as_deref(),
                 periodic: false,
             };
             let weights: Option<Vec<f64>> = self.weights.map(|_| held.iter().map(|h| h.weight).collect());
@@ -424,6 +449,7 @@ impl ClippedVoronoi<'_> {
                 return Err(Error::Internal(format!("{} lists kept for {} cells", kept.kth.len(), listed.len())));
             }
             let shift = window.shift();
+            let clearance = set.clearance();
             let per_world = whole.quantizer.scale() / whole.frame.scale;
             let uncertified = (0..listed.len())
                 .into_par_iter()
@@ -431,13 +457,13 @@ impl ClippedVoronoi<'_> {
                     let need = kept.kth[u] + 2.0 * (kept.kth[u] - kept.reach[u]).max(0.0);
                     let d2 = if need.is_finite() { ((need * per_world).ceil() + 2.0).powi(2) as u64 } else { u64::MAX };
                     let q = whole.quantized(held[listed[u] as usize].at);
-                    !window.certifies([0, 1, 2].map(|a| q[a] - shift[a]), d2)
+                    !set.certifies([0, 1, 2].map(|a| q[a] - shift[a]), d2, clearance.as_deref())
                 })
                 .count();
-            drop(kept);
+            drop((kept, clearance));
             report.uncertified += uncertified as u64;
             let c = &cells.counters;
-            if window.is_whole() || (uncertified == 0 && c.out_of_halo == 0 && c.unresolved == 0 && pieces_left == 0) {
+            if set.is_whole() || (uncertified == 0 && c.out_of_halo == 0 && c.unresolved == 0 && pieces_left == 0) {
                 let width = halo as f64 * grid.cell_size as f64 / per_world;
                 if let Some(halos) = self.halos {
                     halos.set(sub, halo);
@@ -922,9 +948,14 @@ fn cuts_along(
 }
 
 /// Every rank's box of wanted cells (`None`: it wants none this round).
-fn wanted_boxes(comm: &dyn Reduce, want: Option<HeldCells>) -> Result<Vec<Option<HeldCells>>> {
+fn wanted_boxes(comm: &dyn Reduce, want: Option<&HeldSet>) -> Result<Vec<Option<HeldSet>>> {
     let mine: Vec<u8> = match want {
-        Some(b) => [b.lo, b.dim, b.grid, [b.cell_size, 0, 0]].concat().iter().flat_map(|w| w.to_le_bytes()).collect(),
+        Some(set) => set
+            .boxes
+            .iter()
+            .flat_map(|b| [b.lo, b.dim, b.grid, [b.cell_size, 0, 0]].concat())
+            .flat_map(|w| w.to_le_bytes())
+            .collect(),
         None => Vec::new(),
     };
     comm.all_gather(&mine)?
@@ -934,43 +965,56 @@ fn wanted_boxes(comm: &dyn Reduce, want: Option<HeldCells>) -> Result<Vec<Option
                 return Ok(None);
             }
             let w: Vec<u32> = b.as_chunks::<4>().0.iter().map(|c| u32::from_le_bytes(*c)).collect();
-            if w.len() != 12 {
-                return Err(Error::Internal(format!("a rank's box came as {} bytes", b.len())));
+            if w.len() % 12 != 0 {
+                return Err(Error::Internal(format!("a rank's boxes came as {} bytes", b.len())));
             }
-            let three = |k: usize| [w[k], w[k + 1], w[k + 2]];
-            Ok(Some(HeldCells { lo: three(0), dim: three(3), grid: three(6), cell_size: w[9] }))
+            let boxes = w
+                .chunks(12)
+                .map(|w| {
+                    let three = |k: usize| [w[k], w[k + 1], w[k + 2]];
+                    HeldCells { lo: three(0), dim: three(3), grid: three(6), cell_size: w[9] }
+                })
+                .collect();
+            Ok(Some(HeldSet::of(boxes)))
         })
         .collect()
 }
 
 /// Sends each of this rank's own sites (in grid cells `cells`) to every
-/// rank whose box holds its cell, and returns what this rank received:
-/// every site of its box. The sites go by runs along the curve, each run
-/// looking only at the boxes that meet its cells' box (a rank's
-/// neighbours, not every rank).
+/// rank whose held cells hold its cell, and returns what this rank
+/// received: every site of its held cells. The sites go by runs along the
+/// curve, each run looking only at the boxes that meet its cells' box (a
+/// rank's neighbours, not every rank).
 fn spread(
     comm: &dyn Reduce,
     own: &[Held],
     cells: &[[u32; 3]],
-    boxes: &[Option<HeldCells>],
+    sets: &[Option<HeldSet>],
     sent: &mut u64,
 ) -> Result<Vec<Held>> {
     let chunks: Vec<Vec<Vec<Held>>> = own
         .par_chunks(1 << 14)
         .zip(cells.par_chunks(1 << 14))
         .map(|(sites, cells)| {
-            let mut to = vec![Vec::new(); boxes.len()];
+            let mut to = vec![Vec::new(); sets.len()];
             let (mut lo, mut hi) = ([u32::MAX; 3], [0u32; 3]);
             for c in cells {
                 for a in 0..3 {
                     (lo[a], hi[a]) = (lo[a].min(c[a]), hi[a].max(c[a]));
                 }
             }
-            let near: Vec<(usize, HeldCells)> =
-                boxes.iter().enumerate().filter_map(|(r, b)| b.filter(|b| b.meets(lo, hi)).map(|b| (r, b))).collect();
+            let near: Vec<(usize, Vec<HeldCells>)> = sets
+                .iter()
+                .enumerate()
+                .filter_map(|(r, set)| {
+                    let boxes: Vec<HeldCells> =
+                        set.as_ref()?.boxes.iter().filter(|b| b.meets(lo, hi)).copied().collect();
+                    (!boxes.is_empty()).then_some((r, boxes))
+                })
+                .collect();
             for (s, c) in sites.iter().zip(cells) {
-                for (r, b) in &near {
-                    if b.holds(*c) {
+                for (r, boxes) in &near {
+                    if boxes.iter().any(|b| b.holds(*c)) {
                         to[*r].push(*s);
                     }
                 }
@@ -978,7 +1022,7 @@ fn spread(
             to
         })
         .collect();
-    let mut to: Vec<Vec<Held>> = vec![Vec::new(); boxes.len()];
+    let mut to: Vec<Vec<Held>> = vec![Vec::new(); sets.len()];
     for chunk in chunks {
         for (r, part) in chunk.into_iter().enumerate() {
             to[r].extend(part);
@@ -1197,7 +1241,7 @@ mod tests {
         let cpu = CpuBackend::new(Some(2)).unwrap();
         let one = ClippedVoronoi::new(&mesh, &sites).strategy(Strategy::Whole).faces(true).backend(&cpu).compute();
         let one = one.unwrap();
-        for (ranks, per_rank) in [(2, 1), (2, 2)] {
+        for (ranks, per_rank) in [(2, 1), (2, 2), (4, 1)] {
             let rows = |r: usize| sites.len() * r / ranks..sites.len() * (r + 1) / ranks;
             let runs = on_ranks(ranks, |r, comm| {
                 let cpu = CpuBackend::new(Some(1)).unwrap();
@@ -1209,6 +1253,40 @@ mod tests {
                 assert_eq!(report.widened, 0, "{ranks} ranks x {per_rank}: rank {r} widened its halo ({report:?})");
             }
         }
+    }
+
+    /// A part holds the grid cells around groups of its own cells, not the
+    /// box around them all: in a crowd of tight clusters its box holds
+    /// cells it does not hold, marked so that a walk that must look at one
+    /// gives up and a list whose ball reaches one is not certified; the
+    /// rows are still one process's to the bit, and the parts hold fewer
+    /// sites than their boxes do.
+    #[test]
+    fn a_part_holds_the_cells_around_its_own_not_their_box() {
+        let mesh = TetMesh::voxels(4, |_, _, _| true);
+        let mut sites = points::clustered(60_000, 8, 0.015, 71);
+        sites.retain(|p| p.iter().all(|&x| x > 1e-3 && x < 1.0 - 1e-3));
+        sites.extend(points::in_mesh(&mesh, 3_000, 72));
+        let cpu = CpuBackend::new(Some(2)).unwrap();
+        let mut unheld = 0;
+        // Short lists (k_site 8): the first halo is thin, and cells walk
+        // past their lists, up to the cells their parts do not hold.
+        for (ranks, per_rank, k_site) in [(2, 1, 48), (3, 2, 48), (4, 1, 48), (3, 2, 8), (4, 1, 8)] {
+            let what = format!("{ranks} ranks x {per_rank}, k_site {k_site}");
+            let whole = ClippedVoronoi::new(&mesh, &sites).strategy(Strategy::Whole).faces(true).k_site(k_site);
+            let one = whole.backend(&cpu).compute().unwrap();
+            let rows = |r: usize| sites.len() * r / ranks..sites.len() * (r + 1) / ranks;
+            let runs = on_ranks(ranks, |r, comm| {
+                let cpu = CpuBackend::new(Some(1)).unwrap();
+                let cv = ClippedVoronoi::new(&mesh, &sites[rows(r)]).faces(true).k_site(k_site).backend(&cpu);
+                cv.parts_per_rank(per_rank).compute_in_parts(comm).unwrap()
+            });
+            for (r, (cells, report)) in runs.iter().enumerate() {
+                same_rows(&one, cells, rows(r), &what);
+                unheld += report.unheld_cells;
+            }
+        }
+        assert!(unheld > 0, "no part's box held a cell it did not hold");
     }
 
     /// A rank whose sites took twice as long per site as the other's

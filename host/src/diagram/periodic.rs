@@ -352,6 +352,7 @@ impl<'a> PeriodicVoronoi<'a> {
                 weights: None,
                 weight_grid: None,
                 window: Window::Whole,
+                unheld: None,
                 periodic: true,
             });
         }

@@ -161,6 +161,9 @@ pub struct PartsReport {
     /// A mesh in parts: the neighbour lists this rank's boxes did not
     /// certify, over its rounds (each such round widened the halo).
     pub uncertified: u64,
+    /// A mesh in parts: the grid cells inside a part's box that it did not
+    /// hold (in none of its groups' boxes), the most over its parts.
+    pub unheld_cells: u64,
     /// The cells of the grid's table this rank held (a window of the whole
     /// job's grid around its points), and the whole grid's.
     pub grid_cells: [u64; 2],
@@ -364,6 +367,7 @@ impl PeriodicVoronoi<'_> {
                 weights: self.weights.map(|_| kept_span),
                 weight_grid: weight_grid.as_ref(),
                 window: if window { Window::Around } else { Window::Whole },
+                unheld: None,
                 periodic: true,
             };
             let weights: Option<Vec<f64>> = self.weights.map(|_| held.iter().map(|h| h.weight).collect());

@@ -492,6 +492,7 @@ impl<'a> ClippedVoronoi<'a> {
             }
             Some(Window::Held(held)) => {
                 site_knn = site_knn.windowed_to(held)?;
+                site_knn.unheld = self.layout.and_then(|l| l.unheld).map(std::sync::Arc::from);
                 Some(held)
             }
             _ => None,
@@ -507,7 +508,8 @@ impl<'a> ClippedVoronoi<'a> {
         });
         drop(inputs);
         // Its queries come when it runs (ClipJob::tet_knn_job).
-        let tet_knn = KnnJob::points_like(&site_knn, &[], k)?;
+        let mut tet_knn = KnnJob::points_like(&site_knn, &[], k)?;
+        tet_knn.unheld = site_knn.unheld.clone();
         if local_mesh.tets.len().checked_mul(k).is_none_or(|n| n > u32::MAX as usize) {
             return Err(Error::InvalidInput(format!(
                 "{} tets x k = {k} sites do not fit one buffer",
@@ -733,16 +735,16 @@ impl<'a> ClippedVoronoi<'a> {
             out.timings.push("host pass", t);
         }
         let (refined, out_unresolved) = (out.refined, out.unresolved);
-        let (adjacency, faces_redone) = if job.face_sums_len() > 0 {
+        let (adjacency, faces_redone, faces_left) = if job.face_sums_len() > 0 {
             // The face sums and lists go to the adjacency and are dropped
             // as soon as read.
             let (sums, lists) = (std::mem::take(&mut out.faces), std::mem::take(&mut out.site_lists));
             let (adjacency, t) = crate::geom::timing::timed(|| self.adjacency(job, map, frame, &out, sums, lists));
             out.timings.push("faces", t);
-            let (adjacency, redone) = adjacency?;
-            (Some(adjacency), redone)
+            let (adjacency, redone, left) = adjacency?;
+            (Some(adjacency), redone, left)
         } else {
-            (None, 0)
+            (None, 0, false)
         };
         let kept = out.kept.take().map(|kept| {
             let inputs = map.inputs(job.site_knn.sites.len());
@@ -755,6 +757,7 @@ impl<'a> ClippedVoronoi<'a> {
         cells.counters.unresolved = redone.unresolved + out_unresolved;
         cells.counters.missed_tets = redone.missed_tets;
         cells.counters.faces_redone = faces_redone as u64;
+        cells.counters.out_of_halo += u64::from(faces_left);
         Ok(cells)
     }
 }
@@ -772,7 +775,7 @@ impl ClippedVoronoi<'_> {
         out: &ClipOutput,
         sums: Vec<i64>,
         lists: crate::job::knn::PackedLists,
-    ) -> Result<(crate::passes::faces::Adjacency, usize)> {
+    ) -> Result<(crate::passes::faces::Adjacency, usize, bool)> {
         let k = job.params.k_site as usize;
         let n = job.params.n_sites;
         let mut cpu = None;
@@ -786,11 +789,20 @@ impl ClippedVoronoi<'_> {
         };
         let (mut faces, incomplete) =
             crate::passes::faces::from_sums(sums, &lists.view(base), k, job.params.area_scale as f64);
-        drop(lists);
         if !incomplete.is_empty() {
             // Those sites' own pieces, else every piece again.
-            let all = match crate::passes::faces::redo_sites(job, out, &incomplete) {
+            let redone = crate::passes::faces::redo_sites(job, out, &incomplete, &lists);
+            drop(lists);
+            let all = match redone {
                 Some(all) => all,
+                // A part's cell built again by a walk that had to leave its
+                // held cells: the part is done again with a wider halo
+                // (its faces here would come from another body than one
+                // process's); said as a cell out of the halo.
+                None if job.is_windowed() => {
+                    let adjacency = crate::passes::faces::assemble(faces, map, self.sites, frame.scale);
+                    return Ok((adjacency, incomplete.len(), true));
+                }
                 None => {
                     let cpu = match cpu {
                         Some(c) => c,
@@ -815,7 +827,7 @@ impl ClippedVoronoi<'_> {
                 }
             });
         }
-        Ok((crate::passes::faces::assemble(faces, map, self.sites, frame.scale), incomplete.len()))
+        Ok((crate::passes::faces::assemble(faces, map, self.sites, frame.scale), incomplete.len(), false))
     }
 }
 

@@ -361,7 +361,48 @@ pub(crate) fn build_grid(job: &KnnJob) -> CpuGrid {
     let n = g.n_sites as usize;
     let n_cells = g.n_cells as usize;
     let sites = &job.sites;
+    let (site_cell, cell_count, mut cell_start) = counted(job);
 
+    let mut sorted = vec![[0u32; 4]; n];
+    let cursor = atomic_zeros(n_cells);
+    let slots = SharedSlots::new(&mut sorted);
+    (0..n).into_par_iter().chunks(CHUNK).for_each(|chunk| {
+        let mut out = slots.share();
+        let mut counters: &[AtomicU32] = &cursor;
+        for i in chunk {
+            grid::scatter_site(i, g, sites, &site_cell, &cell_start, &mut counters, &mut out);
+        }
+    });
+    debug_assert!(cursor.iter().zip(&cell_count).all(|(c, &n)| c.load(Ordering::Relaxed) == n));
+    // Each cell's slots belong to one task.
+    let slots = SharedSlots::new(&mut sorted);
+    (0..n_cells).into_par_iter().chunks(CHUNK).for_each(|chunk| {
+        let mut out = slots.share();
+        for c in chunk {
+            grid::sort_cell(c, g, &cell_start, &cell_count, &mut out);
+        }
+    });
+    // A part's cells whose sites it does not hold (it holds none there).
+    if let Some(unheld) = &job.unheld {
+        mark_unheld(&mut cell_start, &cell_count, unheld);
+    }
+    CpuGrid { cell_start, cell_count, sorted }
+}
+
+/// The first slot and the count of each cell of `job`'s grid, as
+/// [`build_grid`] finds them (a device's grid the same).
+pub(crate) fn cell_starts(job: &KnnJob) -> (Vec<u32>, Vec<u32>) {
+    let (_, count, start) = counted(job);
+    (start, count)
+}
+
+/// The counting sort's first steps over `job`'s grid: each site's cell,
+/// each cell's count and its first slot.
+fn counted(job: &KnnJob) -> (Vec<u32>, Vec<u32>, Vec<u32>) {
+    let g = &job.params.grid;
+    let n = g.n_sites as usize;
+    let n_cells = g.n_cells as usize;
+    let sites = &job.sites;
     let mut site_cell = vec![0u32; n];
     let counts = atomic_zeros(n_cells);
     site_cell.par_chunks_mut(CHUNK).enumerate().for_each(|(c, data)| {
@@ -389,27 +430,17 @@ pub(crate) fn build_grid(job: &KnnJob) -> CpuGrid {
         let mut out = Window { start: b * scan::SCAN_BLOCK, data };
         scan::add_block_offset(b, n_cells, &mut out, &block_sums);
     });
+    (site_cell, cell_count, cell_start)
+}
 
-    let mut sorted = vec![[0u32; 4]; n];
-    let cursor = atomic_zeros(n_cells);
-    let slots = SharedSlots::new(&mut sorted);
-    (0..n).into_par_iter().chunks(CHUNK).for_each(|chunk| {
-        let mut out = slots.share();
-        let mut counters: &[AtomicU32] = &cursor;
-        for i in chunk {
-            grid::scatter_site(i, g, sites, &site_cell, &cell_start, &mut counters, &mut out);
+/// Marks the first slot of each empty cell whose bit `unheld` sets
+/// [`cvd_kernels::abi::UNHELD`] (a cell holding a site is held).
+pub(crate) fn mark_unheld(cell_start: &mut [u32], cell_count: &[u32], unheld: &[u32]) {
+    cell_start.par_iter_mut().zip(cell_count).enumerate().for_each(|(c, (start, &count))| {
+        if count == 0 && unheld.get(c / 32).is_some_and(|w| w >> (c % 32) & 1 == 1) {
+            *start = cvd_kernels::abi::UNHELD;
         }
     });
-    debug_assert!(cursor.iter().zip(&cell_count).all(|(c, &n)| c.load(Ordering::Relaxed) == n));
-    // Each cell's slots belong to one task.
-    let slots = SharedSlots::new(&mut sorted);
-    (0..n_cells).into_par_iter().chunks(CHUNK).for_each(|chunk| {
-        let mut out = slots.share();
-        for c in chunk {
-            grid::sort_cell(c, g, &cell_start, &cell_count, &mut out);
-        }
-    });
-    CpuGrid { cell_start, cell_count, sorted }
 }
 
 impl CpuBackend {

@@ -110,6 +110,132 @@ impl HeldCells {
     }
 }
 
+/// The grid cells a part holds: the cells of any of a few boxes (each
+/// around a group of its own sites' cells), inside their bounding box.
+/// The job's window is the bounding box ([`Self::bounds`]); the cells of
+/// it in no box are not held ([`Self::unheld_bits`]: their grid cells are
+/// marked, so a walk that must look at one gives up as outside).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct HeldSet {
+    /// The boxes' bounding box.
+    pub bounds: HeldCells,
+    /// The boxes (each of the same grid).
+    pub boxes: Vec<HeldCells>,
+}
+
+/// The most a [`HeldSet::clearance`] counts (cells).
+const CLEARANCE_CAP: u16 = u16::MAX;
+
+impl HeldSet {
+    /// The cells of `boxes` (at least one, all of one grid).
+    pub fn of(boxes: Vec<HeldCells>) -> Self {
+        let first = boxes[0];
+        let lo = [0, 1, 2].map(|a| boxes.iter().map(|b| b.lo[a]).min().unwrap_or(0));
+        let end = [0, 1, 2].map(|a| boxes.iter().map(|b| b.lo[a] + b.dim[a]).max().unwrap_or(0));
+        let bounds = HeldCells { lo, dim: [0, 1, 2].map(|a| end[a] - lo[a]), ..first };
+        // A box that holds the bounds holds them all.
+        let boxes = match boxes.iter().find(|b| **b == bounds) {
+            Some(b) => vec![*b],
+            None => boxes,
+        };
+        Self { bounds, boxes }
+    }
+
+    /// Whether grid cell `c` (whole grid coordinates) is held.
+    pub fn holds(&self, c: [u32; 3]) -> bool {
+        self.boxes.iter().any(|b| b.holds(c))
+    }
+
+    /// Whether every cell of the whole grid is held.
+    pub fn is_whole(&self) -> bool {
+        self.boxes.iter().any(HeldCells::is_whole)
+    }
+
+    /// One bit per cell of the bounds (x fastest), set where the cell is in
+    /// no box; `None` when every cell of the bounds is held.
+    pub fn unheld_bits(&self) -> Option<Vec<u32>> {
+        if self.boxes.len() == 1 {
+            return None;
+        }
+        let d = self.bounds.dim.map(|x| x as usize);
+        let mut bits = vec![u32::MAX; (d[0] * d[1] * d[2]).div_ceil(32)];
+        for b in &self.boxes {
+            let o = [0, 1, 2].map(|a| (b.lo[a] - self.bounds.lo[a]) as usize);
+            for z in o[2]..o[2] + b.dim[2] as usize {
+                for y in o[1]..o[1] + b.dim[1] as usize {
+                    for x in o[0]..o[0] + b.dim[0] as usize {
+                        let c = (z * d[1] + y) * d[0] + x;
+                        bits[c / 32] &= !(1 << (c % 32));
+                    }
+                }
+            }
+        }
+        let n = d[0] * d[1] * d[2];
+        let any = (0..n).any(|c| bits[c / 32] >> (c % 32) & 1 == 1);
+        any.then_some(bits)
+    }
+
+    /// For each cell of the bounds (x fastest), how many cells away the
+    /// nearest cell of the bounds in no box is (the largest offset along
+    /// any axis; at most [`CLEARANCE_CAP`]); `None` when every cell of the
+    /// bounds is held.
+    pub fn clearance(&self) -> Option<Vec<u16>> {
+        let bits = self.unheld_bits()?;
+        let d = self.bounds.dim.map(|x| x as usize);
+        let n = d[0] * d[1] * d[2];
+        let mut far = vec![CLEARANCE_CAP; n];
+        let mut front: Vec<usize> = (0..n).filter(|&c| bits[c / 32] >> (c % 32) & 1 == 1).collect();
+        for &c in &front {
+            far[c] = 0;
+        }
+        // Rings outward from the unheld cells, one cell (in any of the 26
+        // directions) a step.
+        let mut step = 0;
+        while !front.is_empty() {
+            step += 1;
+            let mut next = Vec::new();
+            for &c in &front {
+                let at = [c % d[0], c / d[0] % d[1], c / (d[0] * d[1])];
+                for dz in -1i64..=1 {
+                    for dy in -1i64..=1 {
+                        for dx in -1i64..=1 {
+                            let p = [at[0] as i64 + dx, at[1] as i64 + dy, at[2] as i64 + dz];
+                            if (0..3).any(|a| p[a] < 0 || p[a] >= d[a] as i64) {
+                                continue;
+                            }
+                            let e = (p[2] as usize * d[1] + p[1] as usize) * d[0] + p[0] as usize;
+                            if far[e] > step {
+                                far[e] = step;
+                                next.push(e);
+                            }
+                        }
+                    }
+                }
+            }
+            front = next;
+        }
+        Some(far)
+    }
+
+    /// Whether every site within `sqrt(d2)` of the point `q` (the part's
+    /// quantized coordinates, in its bounds) is held: the bounds certify
+    /// it ([`HeldCells::certifies`]), and no cell the ball may reach is in
+    /// no box — from `q`'s cell, `floor(sqrt(d2) / cell_size) + 1` cells at
+    /// most along any axis, fewer than its `clearance` ([`Self::clearance`],
+    /// `None`: every cell of the bounds held).
+    pub fn certifies(&self, q: [u32; 3], d2: u64, clearance: Option<&[u16]>) -> bool {
+        if !self.bounds.certifies(q, d2) {
+            return false;
+        }
+        let Some(far) = clearance else { return true };
+        let b = &self.bounds;
+        let c = [0, 1, 2].map(|a| (q[a] / b.cell_size).min(b.dim[a] - 1) as usize);
+        let cell = (c[2] * b.dim[1] as usize + c[1]) * b.dim[0] as usize + c[0];
+        let reach = ((d2 as f64).sqrt() / b.cell_size as f64).floor() as u64 + 1;
+        reach < far[cell] as u64
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -196,6 +322,69 @@ mod tests {
         let whole = HeldCells::around([0; 3], [9; 3], 0, GRID, 100);
         assert!(whole.certifies([0, 0, 0], u64::MAX));
         assert!(whole.certifies([999, 999, 999], u64::MAX));
+    }
+
+    #[test]
+    fn a_set_holds_the_cells_of_its_boxes_and_marks_the_rest_of_their_bounds() {
+        // Two boxes at opposite corners of a 10-cell grid.
+        let a = HeldCells::around([1, 1, 1], [2, 2, 2], 0, GRID, 100);
+        let b = HeldCells::around([6, 6, 6], [7, 7, 7], 0, GRID, 100);
+        let set = HeldSet::of(vec![a, b]);
+        assert_eq!((set.bounds.lo, set.bounds.dim), ([1; 3], [7; 3]));
+        assert!(set.holds([1, 1, 1]) && set.holds([7, 7, 7]) && !set.holds([4, 4, 4]) && !set.holds([1, 1, 7]));
+        assert!(!set.is_whole());
+        let bits = set.unheld_bits().unwrap();
+        let unheld = |c: usize| bits[c / 32] >> (c % 32) & 1 == 1;
+        for z in 0..7 {
+            for y in 0..7 {
+                for x in 0..7 {
+                    let c = (z * 7 + y) * 7 + x;
+                    assert_eq!(unheld(c), !set.holds([x as u32 + 1, y as u32 + 1, z as u32 + 1]), "{x} {y} {z}");
+                }
+            }
+        }
+        // Clearance: the largest offset to the nearest unheld cell.
+        let far = set.clearance().unwrap();
+        assert_eq!(far[0], 2, "corner (1,1,1): (3,1,1) is two cells away");
+        assert_eq!(far[(1 * 7 + 1) * 7 + 1], 1, "(2,2,2) touches (3,3,3)");
+        assert_eq!(far[(3 * 7 + 3) * 7 + 3], 0, "(4,4,4) is not held");
+        // A ball certified by the bounds, not by the cells held around it.
+        let q = [50, 50, 50];
+        assert!(set.certifies(q, 40 * 40, Some(&far)), "within the first cell: one cell away at most");
+        assert!(!set.certifies(q, 100 * 100, Some(&far)), "reaching (3,1,1)'s neighbourhood");
+        assert!(set.bounds.certifies(q, 40 * 40));
+        // One box that holds the bounds: nothing marked.
+        let big = HeldCells::around([1; 3], [7; 3], 0, GRID, 100);
+        let set = HeldSet::of(vec![a, big, b]);
+        assert_eq!((set.boxes.clone(), set.unheld_bits(), set.clearance()), (vec![big], None, None));
+        assert!(set.certifies(q, 40 * 40, None));
+    }
+
+    #[test]
+    fn a_walk_gives_up_at_a_cell_marked_unheld() {
+        use crate::job::knn::{KnnJob, KnnMethod};
+        use cvd_kernels::walk::{GridWalk, NO_CELL};
+        // Sites in a 4 x 1 x 1 row of cells; the third marked unheld (it
+        // holds none).
+        let sites: Vec<[f64; 3]> = [0.1, 0.3, 0.9].iter().map(|&x| [x, 0.5, 0.5]).collect();
+        let mut job = KnnJob::sites(&sites, 1, KnnMethod::Grid).unwrap();
+        job.params.grid = GridParams { dim_x: 4, dim_y: 1, dim_z: 1, n_cells: 4, ..job.params.grid };
+        job.params.grid.cell_size = (job.quantizer.scale() * 0.25).ceil() as u32;
+        let plain = crate::exec::build_grid(&job);
+        job.unheld = Some(vec![1 << 2].into());
+        let g = crate::exec::build_grid(&job);
+        assert_eq!(g.cell_count, plain.cell_count);
+        assert_eq!(g.cell_count[2], 0);
+        assert_eq!(g.cell_start[2], cvd_kernels::abi::UNHELD);
+        assert_eq!((&g.cell_start[..2], g.cell_start[3]), (&plain.cell_start[..2], plain.cell_start[3]));
+        let refine =
+            HeldCells::whole(&job.params.grid).in_refine(RefineParams { grid: job.params.grid, ..Default::default() });
+        let walk = GridWalk::new(&refine, &[], &g.cell_start, &g.cell_count, &g.sorted);
+        assert_eq!(walk.held_cell([2, 0, 0]), NO_CELL);
+        assert_eq!(walk.held_cell([1, 0, 0]), 1);
+        assert_eq!(walk.held_cell([3, 0, 0]), 3);
+        let walk = GridWalk::new(&refine, &[], &plain.cell_start, &plain.cell_count, &plain.sorted);
+        assert_eq!(walk.held_cell([2, 0, 0]), 2, "unmarked: an empty cell");
     }
 
     #[test]

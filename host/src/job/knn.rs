@@ -43,6 +43,11 @@ pub struct KnnJob {
     pub method: KnnMethod,
     /// The frame the points were quantized in.
     pub quantizer: Quantizer,
+    /// A part's grid cells inside its held box whose sites it does not
+    /// hold, one bit per cell of its grid (set: not held); their first slot
+    /// is marked [`cvd_kernels::abi::UNHELD`] when the grid is built, so a
+    /// walk gives up there. `None`: every cell of the grid is held.
+    pub unheld: Option<std::sync::Arc<[u32]>>,
 }
 
 /// Quantized points, shared by the jobs that read them (a site job's sites
@@ -249,7 +254,7 @@ impl KnnJob {
             local_lists: 0,
             _pad: [0; 2],
         };
-        Ok(Self { sites, queries, params, method, quantizer })
+        Ok(Self { sites, queries, params, method, quantizer, unheld: None })
     }
 }
 

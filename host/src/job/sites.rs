@@ -164,6 +164,10 @@ pub(crate) struct Layout<'a> {
     pub weight_grid: Option<&'a crate::job::weight_bounds::WeightGrid>,
     /// Which cells of the whole job's grid the job's table holds.
     pub window: Window,
+    /// Of a held window ([`Window::Held`]), the cells whose sites the part
+    /// does not hold (one bit per cell of the window, set: not held;
+    /// [`crate::job::knn::KnnJob::unheld`]); `None`: all of them.
+    pub unheld: Option<&'a [u32]>,
     /// A periodic box's sites and images: no cell is cut (else a mesh's
     /// sites, whole cells cut by its boundary).
     pub periodic: bool,

@@ -397,12 +397,13 @@ pub(crate) fn redo_sites(
     job: &crate::job::clip::ClipJob,
     out: &crate::job::clip::ClipOutput,
     which: &[u32],
+    lists: &crate::job::knn::PackedLists,
 ) -> Option<Vec<FaceCollector>> {
     use cvd_kernels::abi::ACCUM_PER_SITE;
     use cvd_kernels::clip::{FaceInputs, Paired};
     use cvd_kernels::walk::GridWalk;
     if job.strategy == crate::job::clip::Strategy::Whole {
-        return redo_whole_sites(job, which);
+        return redo_whole_sites(job, which, lists);
     }
     if job.verts.iter().any(|v| v.hi[3] != 1.0) {
         return None;
@@ -475,7 +476,11 @@ pub(crate) fn redo_sites(
 /// site's cell built again by the same body (from the domain's box, by a
 /// walk of the site grid: no list), its faces collected from its whole
 /// cell or its pieces. `None` where a cell could not be built.
-fn redo_whole_sites(job: &crate::job::clip::ClipJob, which: &[u32]) -> Option<Vec<FaceCollector>> {
+fn redo_whole_sites(
+    job: &crate::job::clip::ClipJob,
+    which: &[u32],
+    lists: &crate::job::knn::PackedLists,
+) -> Option<Vec<FaceCollector>> {
     use cvd_kernels::abi::{counter, ClipParams, RefineParams, ACCUM_PER_SITE};
     use cvd_kernels::clip::FaceInputs;
     use cvd_kernels::polyhedron::{CELL_PLANES, CELL_VERTS};
@@ -483,10 +488,13 @@ fn redo_whole_sites(job: &crate::job::clip::ClipJob, which: &[u32]) -> Option<Ve
     use std::sync::atomic::AtomicI64;
     let domain = job.domain.as_deref()?;
     let g = crate::exec::build_grid(&job.site_knn);
-    let walk = GridWalk::new(&job.refine, &[], &g.cell_start, &g.cell_count, &g.sorted);
+    // No face sums: the sink takes the faces. The cells from their lists,
+    // as the kernels built them (the same start, planes and order: the
+    // same bits; a part's walks stay in its held cells).
+    let refine =
+        RefineParams { clip: ClipParams { faces_base: 0, list_bits: lists.bits, ..job.refine.clip }, ..job.refine };
+    let walk = GridWalk::new(&refine, &lists.words, &g.cell_start, &g.cell_count, &g.sorted);
     let faces = FaceInputs { site_nbrs: &[], tet_faces: &job.tet_faces };
-    // No face sums: the sink takes the faces.
-    let refine = RefineParams { clip: ClipParams { faces_base: 0, ..job.refine.clip }, ..job.refine };
     // The cells' own sums go nowhere: only their faces count here.
     let n_sums = job.params.n_sites as usize * ACCUM_PER_SITE + job.tets.len();
     let scratch: Vec<AtomicI64> = (0..n_sums).map(|_| AtomicI64::new(0)).collect();

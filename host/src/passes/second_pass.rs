@@ -246,6 +246,7 @@ fn tet_lists(job: &ClipJob, cpu: &OnceCell<CpuBackend>, tets: impl Iterator<Item
         params,
         method: all.method,
         quantizer: all.quantizer,
+        unheld: all.unheld.clone(),
     };
     Ok(cpu.lists(&knn)?.indices)
 }

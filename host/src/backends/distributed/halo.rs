@@ -198,6 +198,7 @@ pub(crate) fn part_job(
         queries: queries.into(),
         method: job.site_knn.method,
         quantizer: job.site_knn.quantizer,
+        unheld: None,
     };
     let tet_knn = KnnJob {
         sites: quant,
@@ -205,6 +206,7 @@ pub(crate) fn part_job(
         params: KnnParams { grid, n_queries: 0, ..job.tet_knn.params },
         method: job.tet_knn.method,
         quantizer: job.tet_knn.quantizer,
+        unheld: None,
     };
     // The part's vertices, in the whole job's order.
     let mut verts: Vec<u32> = tets.iter().flat_map(|&t| job.tets[t as usize]).collect();

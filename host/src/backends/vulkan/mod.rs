@@ -191,6 +191,16 @@ impl Backend for VulkanBackend {
         // One grid of the sites answers both k-NN searches.
         let g = GridBuffers::new(&mut j, sk.params.grid)?;
         g.record(&mut j, quant)?;
+        if let Some(unheld) = &sk.unheld {
+            // A part's cells it does not hold, marked in the first slots
+            // (the counting sort's, as the host's lays them out).
+            let mut start = crate::exec::cell_starts(sk);
+            crate::exec::mark_unheld(&mut start.0, &start.1, unheld);
+            let marked = j.upload(&start.0)?;
+            j.barrier();
+            j.copy_to(marked, g.start, 0, 4 * start.0.len() as u64);
+            j.barrier();
+        }
         j.mark("grid");
         // The lists of sites `first..end`, into `site_nbrs` from its start:
         // all at once in grid order, or in parts of sites in index order,
