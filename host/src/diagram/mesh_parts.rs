@@ -965,7 +965,7 @@ fn wanted_boxes(comm: &dyn Reduce, want: Option<&HeldSet>) -> Result<Vec<Option<
                 return Ok(None);
             }
             let w: Vec<u32> = b.as_chunks::<4>().0.iter().map(|c| u32::from_le_bytes(*c)).collect();
-            if w.len() % 12 != 0 {
+            if !w.len().is_multiple_of(12) {
                 return Err(Error::Internal(format!("a rank's boxes came as {} bytes", b.len())));
             }
             let boxes = w

@@ -346,7 +346,7 @@ mod tests {
         // Clearance: the largest offset to the nearest unheld cell.
         let far = set.clearance().unwrap();
         assert_eq!(far[0], 2, "corner (1,1,1): (3,1,1) is two cells away");
-        assert_eq!(far[(1 * 7 + 1) * 7 + 1], 1, "(2,2,2) touches (3,3,3)");
+        assert_eq!(far[(7 + 1) * 7 + 1], 1, "(2,2,2) touches (3,3,3)");
         assert_eq!(far[(3 * 7 + 3) * 7 + 3], 0, "(4,4,4) is not held");
         // A ball certified by the bounds, not by the cells held around it.
         let q = [50, 50, 50];
