@@ -101,3 +101,46 @@ pub fn threads_beyond_cores(threads: Option<usize>) -> Option<String> {
         )
     })
 }
+
+/// A rank's backends in a job split by sites (a periodic box's, a mesh's
+/// whole cells): the cells on a device where one is asked for or chosen,
+/// else on the CPU pool; the polyhedra always on the CPU pool.
+pub struct PartsBackends {
+    /// The CPU pool (`--threads`).
+    pub cpu: CpuBackend,
+    /// The device, if the choice took one.
+    device: Option<Box<backends::vulkan::VulkanBackend>>,
+    /// Why this backend (as one process's header says it).
+    pub why: String,
+    threads: Option<usize>,
+}
+
+impl PartsBackends {
+    /// Opens the CPU pool, and the device `--backend` asks for or the
+    /// automatic choice takes.
+    pub fn open(args: &crate::args::BackendArgs) -> cvd::Result<Self> {
+        let cpu = CpuBackend::new(args.threads)?;
+        let (device, why) = match backends::decide(&args.options())? {
+            backends::Decided::Cpu(why) => (None, why),
+            backends::Decided::Vulkan(device, why) => (Some(device), why),
+        };
+        Ok(Self { cpu, device, why, threads: args.threads })
+    }
+
+    /// Where the cells are built.
+    pub fn cells(&self) -> &dyn Backend {
+        match &self.device {
+            Some(device) => device.as_ref(),
+            None => &self.cpu,
+        }
+    }
+
+    /// Where the cells are built, in words: the device's name, or the CPU
+    /// threads.
+    pub fn on(&self) -> String {
+        match &self.device {
+            Some(device) => device.name(),
+            None => format!("{} CPU thread(s)", self.threads.map_or("all".to_string(), |t| t.to_string())),
+        }
+    }
+}

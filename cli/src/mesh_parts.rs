@@ -20,7 +20,7 @@ use crate::args::RunArgs;
 use crate::optimise::Optimised;
 use crate::parts::{optimise_in_parts, rows_of_sites, weights_of_rows, write_part, write_polyhedra};
 use cvd::backends::distributed::Reduce;
-use cvd::{ClippedVoronoi, CpuBackend, ParticleCells};
+use cvd::{ClippedVoronoi, ParticleCells};
 use cvd_io::{Rows, Summary};
 
 /// Writes a batch of a rank's rows (their cells, their particles'
@@ -75,21 +75,8 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     let weights = weights_of_rows(args, comm, sites.len(), first, total)?;
     // The cells on the backend asked for (a device's too: the whole-cell
     // kernel in a part's window); the polyhedra on the CPU.
-    let cpu = CpuBackend::new(args.backend.threads)?;
-    let (device, why) = match cvd::backends::decide(&args.backend.options())? {
-        cvd::backends::Decided::Cpu(why) => (None, why),
-        cvd::backends::Decided::Vulkan(device, why) => (Some(device), why),
-    };
-    let backend: &dyn cvd::Backend = match &device {
-        Some(device) => device.as_ref(),
-        None => &cpu,
-    };
-    let on = match backend.kind() {
-        cvd::BackendKind::Cpu => {
-            format!("{} CPU thread(s)", args.backend.threads.map_or("all".to_string(), |t| t.to_string()))
-        }
-        _ => backend.name(),
-    };
+    let backends = crate::backend::PartsBackends::open(&args.backend)?;
+    let (cpu, backend, why, on) = (&backends.cpu, backends.cells(), &backends.why, backends.on());
     println!(
         "{name}: {} tets, {total} sites in parts over {} (each rank reading its rows), whole cells on {on} per rank \
          — {why}",
@@ -140,7 +127,7 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
         Some(w) => diagram.weights(w),
         None => diagram,
     };
-    let geometry = (!args.no_geometry).then_some(&cpu);
+    let geometry = (!args.no_geometry).then_some(cpu);
     let out = diagram.compute_in_parts_by_rows(comm, geometry)?;
     // With --voronoi-index, each cell's polyhedron measured where it was
     // built; its numbers sent to its row's rank.

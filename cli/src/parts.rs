@@ -13,7 +13,7 @@ use crate::progress::with_iterations;
 use cvd::backends::distributed::{Parcels, Reduce};
 use cvd::cvt::periodic::PeriodicInParts;
 use cvd::geom::exact_sum::ExactSum;
-use cvd::{CpuBackend, PeriodicVoronoi};
+use cvd::PeriodicVoronoi;
 use cvd_io::{CvtRecord, RankRecord, Rows, Summary};
 use std::path::Path;
 
@@ -55,24 +55,14 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     let weights = weights_of_rows(args, comm, sites.len(), first, total)?;
     // The cells on the backend asked for (a device's too: each part one
     // windowed whole-cell job); the polyhedra on the CPU.
-    let cpu = CpuBackend::new(args.backend.threads)?;
-    let (device, why) = match cvd::backends::decide(&args.backend.options())? {
-        cvd::backends::Decided::Cpu(why) => (None, why),
-        cvd::backends::Decided::Vulkan(device, why) => (Some(device), why),
-    };
-    let backend: &dyn cvd::Backend = match &device {
-        Some(device) => device.as_ref(),
-        None => &cpu,
-    };
+    let backends = crate::backend::PartsBackends::open(&args.backend)?;
+    let (cpu, backend, why) = (&backends.cpu, backends.cells(), &backends.why);
     println!(
         "periodic box {:?} to {:?}: {total} sites in parts over {}, whole cells on {} per rank — {why}",
         domain.lo(),
         domain.hi(),
         comm.describe(),
-        match device {
-            Some(_) => backend.name(),
-            None => format!("{} CPU thread(s)", args.backend.threads.map_or("all".to_string(), |t| t.to_string())),
-        }
+        backends.on()
     );
     if let Some(warning) = crate::backend::threads_beyond_cores(args.backend.threads).filter(|_| rank == 0) {
         eprintln!("cvd: {warning}");
@@ -102,7 +92,7 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     let (out, particles, built, report) = match args.voronoi_index {
         true => {
             let thresholds = args.index_thresholds()?;
-            let parts = diagram.compute_in_parts_with_index(comm, &cpu, &thresholds)?;
+            let parts = diagram.compute_in_parts_with_index(comm, cpu, &thresholds)?;
             (parts.cells, Some(parts.particles), Some(parts.built), parts.report)
         }
         false => {

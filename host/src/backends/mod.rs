@@ -207,4 +207,19 @@ mod tests {
         };
         assert!(why.contains("Intel(R) UHD Graphics") && why.contains("no SPIR-V kernels"), "{why}");
     }
+
+    #[test]
+    fn auto_skips_the_drivers_only_where_no_gpu_can_be() {
+        // Without a GPU's device node, no device the drivers list is a GPU
+        // (here: lavapipe alone, or no Vulkan at all).
+        if no_gpu_node().is_some() {
+            let devices = list_devices().unwrap_or_default();
+            assert!(devices.iter().all(|d| d.gpu_rank().is_none()), "a GPU without a device node: {devices:?}");
+            let options = BackendOptions { choice: BackendChoice::Auto, threads: Some(1), ..Default::default() };
+            let Ok(Decided::Cpu(why)) = decide(&options) else { panic!("auto took a device") };
+            assert!(why.starts_with("auto: no GPU (no device node"), "{why}");
+        }
+        let asked = BackendOptions { choice: BackendChoice::Cpu, ..Default::default() };
+        assert!(matches!(decide(&asked), Ok(Decided::Cpu(why)) if why == "asked for"));
+    }
 }
