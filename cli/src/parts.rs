@@ -172,6 +172,7 @@ pub(crate) fn totals_and_records(
         held: report.held,
         halo: report.halo,
         grid_cells: report.grid_cells,
+        tets: report.tets,
         sent_bytes: report.sent,
         seconds: clock.elapsed().as_secs_f64(),
         peak_memory_bytes: cvd::job::memory::peak().unwrap_or(0),
@@ -232,7 +233,7 @@ pub(crate) fn rows_of_sites(
 pub(crate) fn print_ranks(summary: &Summary, parts: &str) {
     for r in summary.ranks.iter().flatten() {
         println!(
-            "rank {}: {} rows read, {} sites owned in {} {parts}, {} points held (halo {:.3}; grid cells {} of {}), \
+            "rank {}: {} rows read, {} sites owned in {} {parts}, {} points held (halo {:.3}; grid cells {} of {}{}), \
              {} sent, {:.2} s, peak memory {}",
             r.rank,
             r.rows,
@@ -242,6 +243,10 @@ pub(crate) fn print_ranks(summary: &Summary, parts: &str) {
             r.halo,
             r.grid_cells[0],
             r.grid_cells[1],
+            match r.tets {
+                [_, 0] => String::new(),
+                [part, all] => format!("; tets {part} of {all}"),
+            },
             cvd::error::human(r.sent_bytes),
             r.seconds,
             cvd::error::human(r.peak_memory_bytes)
@@ -521,6 +526,8 @@ fn record_bytes(r: &RankRecord) -> Vec<u8> {
         r.peak_memory_bytes,
         r.grid_cells[0],
         r.grid_cells[1],
+        r.tets[0],
+        r.tets[1],
     ];
     words.iter().flat_map(|w| w.to_le_bytes()).collect()
 }
@@ -538,5 +545,6 @@ fn record_of(b: &[u8]) -> RankRecord {
         seconds: f64::from_bits(w(7)),
         peak_memory_bytes: w(8),
         grid_cells: [w(9), w(10)],
+        tets: [w(11), w(12)],
     }
 }

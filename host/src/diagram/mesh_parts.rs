@@ -136,6 +136,15 @@ impl ClippedVoronoi<'_> {
     }
 
     fn mesh_in_parts(&self, comm: &dyn Reduce, geometry: Option<&CpuBackend>) -> Result<MeshInParts> {
+        // The sub-parts' jobs share the mesh prepared once (and the
+        // diagrams that follow, if the caller keeps it).
+        let prepared = crate::diagram::voronoi::PreparedMesh::default();
+        let prepared = self.prepared.or(self.halos.map(|h| &h.mesh)).unwrap_or(&prepared);
+        let this = (*self).prepared(prepared);
+        this.mesh_in_parts_prepared(comm, geometry)
+    }
+
+    fn mesh_in_parts_prepared(&self, comm: &dyn Reduce, geometry: Option<&CpuBackend>) -> Result<MeshInParts> {
         let mesh = self.mesh;
         if mesh.tets.is_empty() {
             return Err(Error::InvalidInput("the mesh has no tets".into()));
@@ -244,6 +253,7 @@ impl ClippedVoronoi<'_> {
             report.held = report.held.max(held.len() as u64);
             report.halo = report.halo.max(width);
             report.grid_cells = [0, 1].map(|i| report.grid_cells[i].max(whole.grid_cells[i]));
+            report.tets = [0, 1].map(|i| report.tets[i].max(whole.tets[i]));
             for (name, t) in &whole.timings.phases {
                 phases.add(name, *t);
             }
@@ -550,12 +560,16 @@ impl ClippedVoronoi<'_> {
 /// And the work each rank measured: the next diagram balances the ranks
 /// by it, each bucket of the curve weighed by the time a site took on the
 /// rank that last built it (cut cells, tight clusters and sparse space do
-/// not cost the same per site). Neither changes a bit of the cells, only
-/// how many rounds a part takes and which rank builds a cell.
+/// not cost the same per site). And the mesh prepared for the jobs
+/// ([`crate::diagram::voronoi::PreparedMesh`]: its tets' order, its
+/// boundary, the whole-cell index), built once for all of them. None
+/// changes a bit of the cells, only how many rounds a part takes, which
+/// rank builds a cell and how often the mesh is prepared.
 #[derive(Debug, Default)]
 pub struct Halos {
     halos: std::sync::Mutex<Vec<u32>>,
     work: std::sync::Mutex<Option<Work>>,
+    mesh: crate::diagram::voronoi::PreparedMesh,
 }
 
 /// The work the ranks measured in a diagram: each bucket's rank, and each
@@ -1313,7 +1327,8 @@ mod tests {
     }
 
     /// A crowd in a cube: each rank holds its share of the sites and a
-    /// halo, not every site, and its rows are one process's.
+    /// halo, not every site, and the tets its cells may meet, not the
+    /// mesh; its rows are one process's.
     #[test]
     fn the_ranks_hold_their_share_and_a_halo() {
         let mesh = TetMesh::voxels(6, |_, _, _| true);
@@ -1331,6 +1346,11 @@ mod tests {
                 same_rows(&one, cells, rows(r), &format!("{ranks} ranks"));
                 let share = report.held as f64 / sites.len() as f64;
                 assert!(share < most, "{ranks} ranks: rank {r} holds {share:.2} of the sites ({report:?})");
+                // Its jobs held the tets their cells may meet, not the mesh.
+                let [part, all] = report.tets;
+                assert_eq!(all, mesh.tets.len() as u64);
+                let tets = part as f64 / all as f64;
+                assert!(tets < most + 0.1, "{ranks} ranks: rank {r} held {tets:.2} of the tets ({report:?})");
             }
         }
     }

@@ -863,6 +863,7 @@ fn fold(
         counters,
         chunks: whole.chunks,
         grid_cells: whole.grid_cells,
+        tets: whole.tets,
         timings: Default::default(),
         adjacency,
         polyhedra: None,

@@ -167,6 +167,9 @@ pub struct PartsReport {
     /// The cells of the grid's table this rank held (a window of the whole
     /// job's grid around its points), and the whole grid's.
     pub grid_cells: [u64; 2],
+    /// A mesh in parts: the most tets a part's job held, and the mesh's
+    /// (0 in a periodic box).
+    pub tets: [u64; 2],
     /// Times the ranks searched the whole grid again because a walk would
     /// have left a window (0 expected).
     pub windows_dropped: u32,

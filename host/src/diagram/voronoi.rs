@@ -101,6 +101,9 @@ pub struct Cells {
     /// The site grid's cells the job's table held, and the whole grid's
     /// (fewer in a part that searched a window of the grid).
     pub grid_cells: [u64; 2],
+    /// The tets the job held (a part of a mesh in parts: those its cells
+    /// may meet), and the mesh's.
+    pub tets: [u64; 2],
     /// Time per phase.
     pub timings: Timings,
     /// The cells' faces and neighbours, when asked for
@@ -173,6 +176,100 @@ pub struct ClippedVoronoi<'a> {
     /// In parts, the halos the sub-parts last took
     /// ([`crate::diagram::mesh_parts::Halos`]).
     pub(crate) halos: Option<&'a crate::diagram::mesh_parts::Halos>,
+    /// The mesh prepared once for the jobs that share it ([`PreparedMesh`]).
+    pub(crate) prepared: Option<&'a PreparedMesh>,
+}
+
+/// A mesh prepared once for the jobs that share it — the parts of a
+/// diagram in parts, each a job of its own, and the diagrams that follow
+/// one another in the optimisers: the Morton order of its tets, its
+/// boundary and the whole-cell index over it, each built the first time
+/// a job asks (the same as a job builds alone). What is cheap to make
+/// again (the mesh in its frame, its tets in that order) each job makes,
+/// so that the prepared mesh holds no second copy of it.
+#[derive(Debug, Default)]
+pub struct PreparedMesh {
+    slot: std::sync::Mutex<Option<std::sync::Arc<Prepared>>>,
+}
+
+#[derive(Debug)]
+struct Prepared {
+    /// The mesh it was prepared from: its address and sizes.
+    of: (usize, usize, usize),
+    tet_order: Vec<u32>,
+    unshared: std::sync::OnceLock<Vec<(u32, u8)>>,
+    surface: std::sync::OnceLock<crate::geom::surface::TriSurface>,
+    /// The whole-cell index, with what it was built for.
+    domain: std::sync::Mutex<Option<(IndexFor, std::sync::Arc<DomainIndex>)>>,
+}
+
+/// What a whole-cell index was built for: the flag of
+/// `DomainParams::whole`, and the density's address and length.
+type IndexFor = (u32, usize, usize);
+
+impl PreparedMesh {
+    /// `mesh` prepared in `frame` (its own frame), kept for the next job.
+    fn of(&self, mesh: &TetMesh, frame: Frame) -> std::sync::Arc<Prepared> {
+        let of = (mesh as *const TetMesh as usize, mesh.tets.len(), mesh.vertices.len());
+        let mut slot = self.slot.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(p) = slot.as_ref().filter(|p| p.of == of) {
+            return p.clone();
+        }
+        *slot = None;
+        let (tet_order, _) = in_frame(mesh, frame, None);
+        let p = std::sync::Arc::new(Prepared {
+            of,
+            tet_order,
+            unshared: Default::default(),
+            surface: Default::default(),
+            domain: Default::default(),
+        });
+        *slot = Some(p.clone());
+        p
+    }
+}
+
+/// The box (in the job's frame) of the held cells `held` of the grid of
+/// `quantizer`, a cell wider on every side.
+fn window_box(
+    held: &crate::job::held::HeldCells,
+    quantizer: &crate::geom::quantize::Quantizer,
+) -> ([f64; 3], [f64; 3]) {
+    let (origin, cell) = (quantizer.origin(), held.cell_size as f64 / quantizer.scale());
+    let lo = [0, 1, 2].map(|a| origin[a] + (held.lo[a] as f64 - 1.0) * cell);
+    let hi = [0, 1, 2].map(|a| origin[a] + ((held.lo[a] + held.dim[a]) as f64 + 1.0) * cell);
+    (lo, hi)
+}
+
+/// The tets of `mesh` whose boxes meet the box `lo..hi`, in order; `None`
+/// if that is every tet.
+fn tets_meeting(mesh: &TetMesh, (lo, hi): ([f64; 3], [f64; 3])) -> Option<Vec<u32>> {
+    let meets = |tet: &[u32; 4]| {
+        (0..3).all(|a| {
+            let c = tet.map(|v| mesh.vertices[v as usize][a]);
+            c.iter().fold(f64::INFINITY, |m, &x| m.min(x)) <= hi[a]
+                && c.iter().fold(f64::NEG_INFINITY, |m, &x| m.max(x)) >= lo[a]
+        })
+    };
+    use rayon::prelude::*;
+    let kept: Vec<u32> =
+        (0..mesh.tets.len() as u32).into_par_iter().filter(|&t| meets(&mesh.tets[t as usize])).collect();
+    (kept.len() < mesh.tets.len()).then_some(kept)
+}
+
+/// `mesh` in `frame`, its tets in Morton order of their centroids (or in
+/// `order`, that order found before), and the order.
+fn in_frame(mesh: &TetMesh, frame: Frame, order: Option<&[u32]>) -> (Vec<u32>, TetMesh) {
+    let verts: Vec<[f64; 3]> = mesh.vertices.iter().map(|&p| frame.to_local(p)).collect();
+    let mut local_mesh = TetMesh { vertices: verts, tets: Vec::new() };
+    let tet_order = match order {
+        Some(order) => order.to_vec(),
+        None => points::morton_order_by(mesh.tets.len(), |t| {
+            crate::geom::mesh::centroid_of(&local_mesh.vertices, mesh.tets[t])
+        }),
+    };
+    local_mesh.tets = tet_order.iter().map(|&t| mesh.tets[t as usize]).collect();
+    (tet_order, local_mesh)
 }
 
 impl<'a> ClippedVoronoi<'a> {
@@ -198,6 +295,7 @@ impl<'a> ClippedVoronoi<'a> {
             layout: None,
             sub_parts: 1,
             halos: None,
+            prepared: None,
         }
     }
 
@@ -207,6 +305,13 @@ impl<'a> ClippedVoronoi<'a> {
     /// memory falls with `n`, and its time grows with the halos.
     pub fn parts_per_rank(mut self, n: usize) -> Self {
         self.sub_parts = n.max(1);
+        self
+    }
+
+    /// Jobs that take their mesh's preparation from `prepared` (built by
+    /// the first that asks: [`PreparedMesh`]).
+    pub(crate) fn prepared(mut self, prepared: &'a PreparedMesh) -> Self {
+        self.prepared = Some(prepared);
         self
     }
 
@@ -456,8 +561,10 @@ impl<'a> ClippedVoronoi<'a> {
             };
             split.extend(bounds);
         }
-        let verts: Vec<[f64; 3]> = mesh.vertices.iter().map(|&p| frame.to_local(p)).collect();
-        let mut local_mesh = TetMesh { vertices: verts, tets: mesh.tets.clone() };
+        // The mesh in its frame, its tets in Morton order (prepared once
+        // for the jobs that share it, or here).
+        let prepared = self.prepared.map(|p| p.of(mesh, frame));
+        let (tet_order, local_mesh) = in_frame(mesh, frame, prepared.as_ref().map(|p| &p.tet_order[..]));
         // The frame's points: the mesh, and a layout's bounds (the sites lie
         // inside them).
         let mut frame_points = local_mesh.vertices.clone();
@@ -465,8 +572,6 @@ impl<'a> ClippedVoronoi<'a> {
             let (lo, hi) = (frame.to_local(l.lo), frame.to_local(l.hi));
             frame_points.extend((0..8).map(|c| [0, 1, 2].map(|a| if c >> a & 1 == 0 { lo[a] } else { hi[a] })));
         }
-        let tet_order = points::morton_order_by(mesh.tets.len(), |t| local_mesh.centroid(t));
-        local_mesh.tets = tet_order.iter().map(|&t| mesh.tets[t as usize]).collect();
         let n = sites.len();
         let k = match pairing {
             Pairing::Knn => self.k.unwrap_or_else(|| paper_k(n, mesh.tets.len())).min(n),
@@ -537,21 +642,41 @@ impl<'a> ClippedVoronoi<'a> {
         // mesh's boundary area.
         // The mesh's boundary, found once for the faces' bits, its area and
         // the domain's index.
-        let (unshared, surface) = (std::cell::OnceCell::new(), std::cell::OnceCell::new());
+        let (unshared, surface) = (std::sync::OnceLock::new(), std::sync::OnceLock::new());
+        let (unshared, surface) = match &prepared {
+            Some(p) => (&p.unshared, &p.surface),
+            None => (&unshared, &surface),
+        };
         let unshared = || unshared.get_or_init(|| local_mesh.unshared_faces());
         let surface = || surface.get_or_init(|| local_mesh.boundary_of(unshared()));
+        // A part of a mesh's diagram in parts (a window of held cells of the
+        // whole grid) holds only the tets its cells may meet, and the
+        // boundary's triangles there (`part_box`, see below).
+        let part_box = match (strategy, window, self.layout) {
+            (Strategy::Whole, Some(held), Some(l)) if !l.periodic && matches!(l.window, Window::Held(_)) => {
+                Some(window_box(&held, &site_knn.quantizer))
+            }
+            _ => None,
+        };
+        let part_tets = part_box.and_then(|b| tets_meeting(&local_mesh, b));
         let (tet_faces, faces_base, area_bits) = if self.faces {
             let bits = crate::passes::faces::boundary_bits_of(local_mesh.tets.len(), unshared());
             let boundary: f64 = surface().area();
             // Masses: areas times at most the largest density.
             let rho = if self.face_masses { rho_max } else { 1.0 };
-            (bits, (n * ACCUM_PER_SITE + local_mesh.tets.len()) as u32, 61.0 - ((8.0 + boundary) * rho).log2().ceil())
+            let n_tets = part_tets.as_ref().map_or(local_mesh.tets.len(), Vec::len);
+            (bits, (n * ACCUM_PER_SITE + n_tets) as u32, 61.0 - ((8.0 + boundary) * rho).log2().ceil())
+        } else if strategy == Strategy::Whole {
+            // Whole cells' pieces read the mesh's boundary here (a part's
+            // tets have a boundary of their own; the kernels read it with
+            // faces only).
+            (crate::passes::faces::boundary_bits_of(local_mesh.tets.len(), unshared()), 0, 0.0)
         } else {
             (vec![0], 0, 0.0)
         };
         let params = ClipParams {
             n_sites: n as u32,
-            n_tets: mesh.tets.len() as u32,
+            n_tets: part_tets.as_ref().map_or(mesh.tets.len(), Vec::len) as u32,
             k_site: site_knn.params.k,
             k_tet: tet_knn.params.k,
             fixed_scale: bits.exp2() as f32,
@@ -604,9 +729,45 @@ impl<'a> ClippedVoronoi<'a> {
             (None, Some(_)) => domain_whole::ALL,
             (None, None) => domain_whole::INSIDE,
         };
+        // A part's tets, boundary bits and index: the whole mesh's, of
+        // those tets (in the same order, on the whole mesh's voxel grid),
+        // and of the boundary's triangles whose boxes meet the part's.
+        if let (Some(kept), Some(b)) = (&part_tets, part_box) {
+            let tets: Vec<[u32; 4]> = kept.iter().map(|&t| local_mesh.tets[t as usize]).collect();
+            let order: Vec<u32> = kept.iter().map(|&t| tet_order[t as usize]).collect();
+            let tet_faces = crate::passes::faces::boundary_bits_among(&tet_faces, kept);
+            let grid = DomainIndex::grid_of(&local_mesh, whole);
+            let boundary = (whole == domain_whole::INSIDE).then(|| surface().meeting(b.0, b.1));
+            let part = TetMesh { vertices: local_mesh.vertices, tets };
+            let domain = std::sync::Arc::new(DomainIndex::over(&part, &verts, grid, boundary.as_ref()));
+            let job = ClipJob {
+                refine,
+                site_knn,
+                tet_knn,
+                sites: split,
+                verts,
+                tets: part.tets,
+                tet_order: order,
+                params,
+                strategy,
+                domain: Some(domain),
+                pairing,
+                tet_faces,
+                held: None,
+                keep,
+            };
+            return Ok((job, map, frame));
+        }
         let domain = (strategy == Strategy::Whole).then(|| {
             let boundary = (whole == domain_whole::INSIDE).then(surface);
-            std::sync::Arc::new(DomainIndex::new(&local_mesh, &verts, whole, boundary))
+            let build = || std::sync::Arc::new(DomainIndex::new(&local_mesh, &verts, whole, boundary));
+            let Some(p) = &prepared else { return build() };
+            let of = (whole, self.density.map_or(0, |d| d.as_ptr() as usize), self.density.map_or(0, |d| d.len()));
+            let mut domain = p.domain.lock().unwrap_or_else(|e| e.into_inner());
+            match domain.as_ref().filter(|d| d.0 == of) {
+                Some(d) => d.1.clone(),
+                None => domain.insert((of, build())).1.clone(),
+            }
         });
         let job = ClipJob {
             refine,
@@ -852,6 +1013,7 @@ fn finish(
         pairing: job.pairing,
         chunks: out.chunks,
         grid_cells: [job.site_knn.params.grid.n_cells as u64, job.refine.grid.n_cells as u64],
+        tets: [job.tets.len() as u64, mesh.tets.len() as u64],
         k: job.params.k_tet as usize,
         k_site: job.params.k_site as usize,
         ..Default::default()
@@ -1014,6 +1176,41 @@ mod tests {
         assert!(refused(ClippedVoronoi::new(&mesh, &[])).contains("no sites"));
         let bad = [[0.5, 0.5, 0.5], [0.1, f64::NAN, 0.2]];
         assert!(refused(ClippedVoronoi::new(&mesh, &bad)).contains("site 1"));
+    }
+
+    /// Jobs that share a prepared mesh take its tets' order, boundary and
+    /// whole-cell index from the first (one index for all), and are the
+    /// job built alone, to the bit; a density asks for an index of its own.
+    #[test]
+    fn jobs_sharing_a_prepared_mesh_are_the_job_built_alone() {
+        let mesh = TetMesh::voxels(5, |x, y, z| x + y + z < 11);
+        let sites = points::in_mesh(&mesh, 600, 3);
+        let prepared = PreparedMesh::default();
+        let alone = ClippedVoronoi::new(&mesh, &sites).strategy(Strategy::Whole).faces(true);
+        let (one, _, _) = alone.job().unwrap();
+        let with = alone.prepared(&prepared);
+        let (first, _, _) = with.job().unwrap();
+        let (second, _, _) = ClippedVoronoi::new(&mesh, &sites[..300]).faces(true).prepared(&prepared).job().unwrap();
+        let index = |j: &ClipJob| j.domain.clone().expect("a whole-cell job has an index");
+        assert!(std::sync::Arc::ptr_eq(&index(&first), &index(&second)), "the index was built twice");
+        for job in [&first, &second] {
+            assert_eq!((&job.tets, &job.tet_order, &job.tet_faces), (&one.tets, &one.tet_order, &one.tet_faces));
+            assert_eq!(format!("{:?}", index(job)), format!("{:?}", index(&one)));
+        }
+        let cpu = crate::exec::CpuBackend::new(Some(2)).unwrap();
+        let (a, b) = (alone.backend(&cpu).compute().unwrap(), with.backend(&cpu).compute().unwrap());
+        assert_eq!(
+            a.volume.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+            b.volume.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+        );
+        let rho = vec![2.0; mesh.vertices.len()];
+        let (dense, _, _) = with.density(Some(&rho)).job().unwrap();
+        assert!(!std::sync::Arc::ptr_eq(&index(&dense), &index(&first)), "a density took the index without one");
+        // Another mesh, prepared in its place.
+        let other = TetMesh::cube(2);
+        let (third, _, _) =
+            ClippedVoronoi::new(&other, &sites[..50]).strategy(Strategy::Whole).prepared(&prepared).job().unwrap();
+        assert_eq!(third.tets.len(), other.tets.len());
     }
 
     #[test]

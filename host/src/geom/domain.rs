@@ -46,6 +46,11 @@ impl DomainIndex {
     /// mesh's boundary when the caller has it ([`TetMesh::boundary`]),
     /// else found here when needed.
     pub fn new(mesh: &TetMesh, verts: &[SplitPoint], whole: u32, boundary: Option<&TriSurface>) -> Self {
+        Self::over(mesh, verts, Self::grid_of(mesh, whole), boundary)
+    }
+
+    /// The voxel grid of `mesh`'s index ([`Self::new`]), with no hierarchy.
+    pub fn grid_of(mesh: &TetMesh, whole: u32) -> DomainParams {
         let n_tets = mesh.tets.len().max(1);
         let (lo, hi) = mesh.bounding_box();
         let extent = [0, 1, 2].map(|a| (hi[a] - lo[a]).max(0.0));
@@ -59,7 +64,7 @@ impl DomainIndex {
         let dims = extent.map(|e| ((e / side).ceil() as u32).clamp(1, 1 << 10));
         // The rounding of coordinates of order 1 in f32, many times over.
         let pad = 1e-6 * (1.0 + longest) as f32;
-        let mut params = DomainParams {
+        DomainParams {
             lo_x: lo[0] as f32,
             lo_y: lo[1] as f32,
             lo_z: lo[2] as f32,
@@ -71,7 +76,17 @@ impl DomainIndex {
             margin: pad,
             whole,
             _pad: [0; 2],
-        };
+        }
+    }
+
+    /// The index of `mesh`'s tets on the voxel grid `params`, which may be
+    /// another mesh's ([`Self::grid_of`]: a part of a mesh listed on the
+    /// whole mesh's grid, each voxel listing its tets in the same order).
+    /// `boundary`: as for [`Self::new`] (a part's: the whole mesh's
+    /// boundary, or the triangles of it the part's cells may reach).
+    pub fn over(mesh: &TetMesh, verts: &[SplitPoint], mut params: DomainParams, boundary: Option<&TriSurface>) -> Self {
+        let (whole, pad) = (params.whole, params.margin);
+        let dims = [params.dim_x, params.dim_y, params.dim_z];
         // Each tet's voxel range, from its padded f32 box (computed again
         // in each pass rather than held: 24 bytes a tet).
         let range_of = |t: usize| {

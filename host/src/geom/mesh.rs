@@ -142,13 +142,7 @@ impl TetMesh {
 
     /// Centroid of tet `t`.
     pub fn centroid(&self, t: usize) -> [f64; 3] {
-        let mut c = [0.0f64; 3];
-        for &v in &self.tets[t] {
-            for (a, ca) in c.iter_mut().enumerate() {
-                *ca += self.vertices[v as usize][a] / 4.0;
-            }
-        }
-        c
+        centroid_of(&self.vertices, self.tets[t])
     }
 
     /// Centroid of every tet.
@@ -221,6 +215,17 @@ impl TetMesh {
         tets.shrink_to_fit();
         Self { vertices, tets }
     }
+}
+
+/// The centroid of `tet` on `vertices`.
+pub fn centroid_of(vertices: &[[f64; 3]], tet: [u32; 4]) -> [f64; 3] {
+    let mut c = [0.0f64; 3];
+    for v in tet {
+        for (a, ca) in c.iter_mut().enumerate() {
+            *ca += vertices[v as usize][a] / 4.0;
+        }
+    }
+    c
 }
 
 #[cfg(test)]

@@ -98,6 +98,17 @@ pub(crate) fn boundary_bits_of(n_tets: usize, unshared: &[(u32, u8)]) -> Vec<u32
     bits
 }
 
+/// Of the boundary bits `bits` ([`boundary_bits`]) of a mesh, those of
+/// its tets `kept` (in their order: a part of the mesh).
+pub(crate) fn boundary_bits_among(bits: &[u32], kept: &[u32]) -> Vec<u32> {
+    let mut among = vec![0u32; kept.len().div_ceil(8).max(1)];
+    for (u, &t) in kept.iter().enumerate() {
+        let t = t as usize;
+        among[u / 8] |= (bits[t / 8] >> (4 * (t % 8)) & 0xf) << (4 * (u % 8));
+    }
+    among
+}
+
 /// One face of a piece: its site, its maker (a site, or [`TET_FACE`] +
 /// f), its area, its tet and its outward unit normal, in the job's frame
 /// and indices.

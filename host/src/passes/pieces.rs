@@ -411,8 +411,19 @@ pub(crate) fn to_world(
             owner[u] = i as u32;
         }
     }
-    let local = crate::geom::mesh::TetMesh { vertices: Vec::new(), tets: job.tets.clone() };
-    let bits = crate::passes::faces::boundary_bits(&local);
+    // The job's boundary bits where it holds them (with faces, or whole
+    // cells: a part's tets are not its mesh, nor their boundary its
+    // boundary), else found here.
+    let whole = job.strategy == crate::job::clip::Strategy::Whole;
+    let held_bits = job.tet_faces.len() == job.tets.len().div_ceil(8).max(1);
+    let found;
+    let bits = if held_bits && (whole || job.params.faces_base != 0) {
+        &job.tet_faces
+    } else {
+        let local = crate::geom::mesh::TetMesh { vertices: Vec::new(), tets: job.tets.clone() };
+        found = crate::passes::faces::boundary_bits(&local);
+        &found
+    };
     let mut parts: Vec<Part> = collected.into_iter().map(|c| c.0).collect();
     parts.par_iter_mut().for_each(|part| {
         // Each face's maker: the input site, or where the face lies.

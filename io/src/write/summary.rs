@@ -82,6 +82,11 @@ pub struct Summary {
     pub ranks: Option<Vec<RankRecord>>,
 }
 
+/// A rank's tets: none held (a periodic box in parts).
+fn no_tets(tets: &[u64; 2]) -> bool {
+    tets[1] == 0
+}
+
 /// One rank of a periodic box in parts.
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
 pub struct RankRecord {
@@ -100,6 +105,10 @@ pub struct RankRecord {
     /// The cells of the site grid's table it held (the window of the whole
     /// job's grid around its points), and the whole grid's.
     pub grid_cells: [u64; 2],
+    /// A mesh in parts: the most tets a part of it held (those its cells
+    /// may meet), and the mesh's (0 in a periodic box).
+    #[serde(skip_serializing_if = "no_tets")]
+    pub tets: [u64; 2],
     /// Bytes it sent to other ranks.
     pub sent_bytes: u64,
     /// Seconds from reading its rows to its rows written.

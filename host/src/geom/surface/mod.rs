@@ -190,6 +190,20 @@ impl TriSurface {
         dot(a, cross(b, c)) / 6.0
     }
 
+    /// The triangles whose boxes meet the box `lo..hi` (on the same
+    /// vertices, in the same order).
+    pub fn meeting(&self, lo: [f64; 3], hi: [f64; 3]) -> TriSurface {
+        let meets = |t: &[u32; 3]| {
+            (0..3).all(|a| {
+                let c = t.map(|v| self.vertices[v as usize][a]);
+                c.iter().fold(f64::INFINITY, |m, &x| m.min(x)) <= hi[a]
+                    && c.iter().fold(f64::NEG_INFINITY, |m, &x| m.max(x)) >= lo[a]
+            })
+        };
+        let triangles = self.triangles.iter().filter(|t| meets(t)).copied().collect();
+        TriSurface { vertices: self.vertices.clone(), triangles }
+    }
+
     /// The total area.
     pub fn area(&self) -> f64 {
         (0..self.triangles.len())
