@@ -732,43 +732,32 @@ impl<'a> ClippedVoronoi<'a> {
         // A part's tets, boundary bits and index: the whole mesh's, of
         // those tets (in the same order, on the whole mesh's voxel grid),
         // and of the boundary's triangles whose boxes meet the part's.
-        if let (Some(kept), Some(b)) = (&part_tets, part_box) {
-            let tets: Vec<[u32; 4]> = kept.iter().map(|&t| local_mesh.tets[t as usize]).collect();
-            let order: Vec<u32> = kept.iter().map(|&t| tet_order[t as usize]).collect();
-            let tet_faces = crate::passes::faces::boundary_bits_among(&tet_faces, kept);
-            let grid = DomainIndex::grid_of(&local_mesh, whole);
-            let boundary = (whole == domain_whole::INSIDE).then(|| surface().meeting(b.0, b.1));
-            let part = TetMesh { vertices: local_mesh.vertices, tets };
-            let domain = std::sync::Arc::new(DomainIndex::over(&part, &verts, grid, boundary.as_ref()));
-            let job = ClipJob {
-                refine,
-                site_knn,
-                tet_knn,
-                sites: split,
-                verts,
-                tets: part.tets,
-                tet_order: order,
-                params,
-                strategy,
-                domain: Some(domain),
-                pairing,
-                tet_faces,
-                held: None,
-                keep,
-            };
-            return Ok((job, map, frame));
-        }
-        let domain = (strategy == Strategy::Whole).then(|| {
-            let boundary = (whole == domain_whole::INSIDE).then(surface);
-            let build = || std::sync::Arc::new(DomainIndex::new(&local_mesh, &verts, whole, boundary));
-            let Some(p) = &prepared else { return build() };
-            let of = (whole, self.density.map_or(0, |d| d.as_ptr() as usize), self.density.map_or(0, |d| d.len()));
-            let mut domain = p.domain.lock().unwrap_or_else(|e| e.into_inner());
-            match domain.as_ref().filter(|d| d.0 == of) {
-                Some(d) => d.1.clone(),
-                None => domain.insert((of, build())).1.clone(),
+        let (tets, tet_order, tet_faces, domain) = match (&part_tets, part_box) {
+            (Some(kept), Some(b)) => {
+                let tets: Vec<[u32; 4]> = kept.iter().map(|&t| local_mesh.tets[t as usize]).collect();
+                let order: Vec<u32> = kept.iter().map(|&t| tet_order[t as usize]).collect();
+                let tet_faces = crate::passes::faces::boundary_bits_among(&tet_faces, kept);
+                let grid = DomainIndex::grid_of(&local_mesh, whole);
+                let boundary = (whole == domain_whole::INSIDE).then(|| surface().meeting(b.0, b.1));
+                let part = TetMesh { vertices: local_mesh.vertices, tets };
+                let domain = std::sync::Arc::new(DomainIndex::over(&part, &verts, grid, boundary.as_ref()));
+                (part.tets, order, tet_faces, Some(domain))
             }
-        });
+            _ => {
+                let domain = (strategy == Strategy::Whole).then(|| {
+                    let boundary = (whole == domain_whole::INSIDE).then(surface);
+                    let build = || std::sync::Arc::new(DomainIndex::new(&local_mesh, &verts, whole, boundary));
+                    let Some(p) = &prepared else { return build() };
+                    let density = self.density.map_or((0, 0), |d| (d.as_ptr() as usize, d.len()));
+                    let mut domain = p.domain.lock().unwrap_or_else(|e| e.into_inner());
+                    match domain.as_ref().filter(|d| d.0 == (whole, density.0, density.1)) {
+                        Some(d) => d.1.clone(),
+                        None => domain.insert(((whole, density.0, density.1), build())).1.clone(),
+                    }
+                });
+                (local_mesh.tets, tet_order, tet_faces, domain)
+            }
+        };
         let job = ClipJob {
             refine,
             site_knn,
@@ -776,7 +765,7 @@ impl<'a> ClippedVoronoi<'a> {
             sites: split,
             // The density rides in each vertex record's w.
             verts,
-            tets: local_mesh.tets,
+            tets,
             tet_order,
             params,
             strategy,
