@@ -244,13 +244,8 @@ fn window_box(
 /// The tets of `mesh` whose boxes meet the box `lo..hi`, in order; `None`
 /// if that is every tet.
 fn tets_meeting(mesh: &TetMesh, (lo, hi): ([f64; 3], [f64; 3])) -> Option<Vec<u32>> {
-    let meets = |tet: &[u32; 4]| {
-        (0..3).all(|a| {
-            let c = tet.map(|v| mesh.vertices[v as usize][a]);
-            c.iter().fold(f64::INFINITY, |m, &x| m.min(x)) <= hi[a]
-                && c.iter().fold(f64::NEG_INFINITY, |m, &x| m.max(x)) >= lo[a]
-        })
-    };
+    let meets =
+        |tet: &[u32; 4]| crate::geom::vec3::box_meets(tet.iter().map(|&v| &mesh.vertices[v as usize]), (lo, hi));
     use rayon::prelude::*;
     let kept: Vec<u32> =
         (0..mesh.tets.len() as u32).into_par_iter().filter(|&t| meets(&mesh.tets[t as usize])).collect();

@@ -64,3 +64,9 @@ pub fn bounding_box<'a>(points: impl IntoIterator<Item = &'a P>) -> (P, P) {
     }
     (lo, hi)
 }
+
+/// Whether the bounding box of `points` meets the box `lo..=hi`.
+pub fn box_meets<'a>(points: impl IntoIterator<Item = &'a P>, (lo, hi): (P, P)) -> bool {
+    let (min, max) = bounding_box(points);
+    (0..3).all(|a| min[a] <= hi[a] && max[a] >= lo[a])
+}

@@ -193,13 +193,8 @@ impl TriSurface {
     /// The triangles whose boxes meet the box `lo..hi` (on the same
     /// vertices, in the same order).
     pub fn meeting(&self, lo: [f64; 3], hi: [f64; 3]) -> TriSurface {
-        let meets = |t: &[u32; 3]| {
-            (0..3).all(|a| {
-                let c = t.map(|v| self.vertices[v as usize][a]);
-                c.iter().fold(f64::INFINITY, |m, &x| m.min(x)) <= hi[a]
-                    && c.iter().fold(f64::NEG_INFINITY, |m, &x| m.max(x)) >= lo[a]
-            })
-        };
+        let meets =
+            |t: &[u32; 3]| crate::geom::vec3::box_meets(t.iter().map(|&v| &self.vertices[v as usize]), (lo, hi));
         let triangles = self.triangles.iter().filter(|t| meets(t)).copied().collect();
         TriSurface { vertices: self.vertices.clone(), triangles }
     }
