@@ -240,12 +240,14 @@ pub struct RunArgs {
     /// the driver's kernel compilation), as benchmarks do.
     #[arg(long)]
     pub warm_up: bool,
-    /// Compute in N parts by space, one after another, each with the sites
-    /// of a halo around its tets: the same results to the bit, the lists and
-    /// grids of one part in memory at a time. Started by `mpirun -np P`
-    /// (a build with the `mpi` feature): N parts per rank, P x N in all.
-    /// Cells only (cells.csv, sites.xyz, summary.json): no neighbours,
-    /// polyhedra or transport yet. CPU backend.
+    /// Compute in N parts, one after another: the same results to the bit,
+    /// one part's lists and grids in memory at a time. Without `mpirun`:
+    /// the diagram in N parts (whole cells: runs of the sites; tet-cell:
+    /// runs of the tets, with the sites of a halo around them). Under
+    /// `mpirun -np P` (a build with the `mpi` feature), a mesh's sites in
+    /// parts: each rank's share in N parts, P x N in all (by default 4 a
+    /// rank, fewer where a part would own fewer than 16 384 sites; a part's
+    /// job then holds less than the rows the rank writes). docs/PARALLEL.md.
     #[arg(long, value_name = "N")]
     pub parts: Option<usize>,
     /// In parts: the first round's halo, LISTED,BEYOND grid cells (about 5

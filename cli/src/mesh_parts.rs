@@ -108,9 +108,8 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
         .density(density.as_deref())
         .k_site(args.k_site)
         .memory_budget(args.cpu_memory_budget())
-        .parts_per_rank(args.parts.unwrap_or(1))
         .backend(backend);
-    let iterated = cvd::cvt::clipped::ClippedInParts::new(iterated, comm);
+    let iterated = cvd::cvt::clipped::ClippedInParts::new(parts_asked(iterated, args.parts), comm);
     let optimised = optimise_in_parts(args, comm, iterated, weights.as_deref(), first, total)?;
     let Optimised { sites, cvt, weights, transport } =
         optimised.unwrap_or(Optimised { sites, cvt: None, weights, transport: None });
@@ -121,11 +120,10 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
         .k_site(args.k_site)
         .faces(faces)
         .memory_budget(args.cpu_memory_budget())
-        .parts_per_rank(args.parts.unwrap_or(1))
         .backend(backend);
     let diagram = match &weights {
-        Some(w) => diagram.weights(w),
-        None => diagram,
+        Some(w) => parts_asked(diagram.weights(w), args.parts),
+        None => parts_asked(diagram, args.parts),
     };
     let geometry = (!args.no_geometry).then_some(cpu);
     let out = diagram.compute_in_parts_by_rows(comm, geometry)?;
@@ -212,4 +210,13 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     crate::parts::print_ranks(&summary, "buckets of the curve");
     println!("wrote {}: {}", dir.display(), written.join(", "));
     Ok(status)
+}
+
+/// `diagram` with `--parts` per rank where asked for (else the engine's
+/// choice: [`cvd::diagram::mesh_parts::auto_parts`]).
+fn parts_asked(diagram: ClippedVoronoi<'_>, parts: Option<usize>) -> ClippedVoronoi<'_> {
+    match parts {
+        Some(n) => diagram.parts_per_rank(n),
+        None => diagram,
+    }
 }

@@ -173,6 +173,7 @@ pub(crate) fn totals_and_records(
         halo: report.halo,
         grid_cells: report.grid_cells,
         tets: report.tets,
+        parts: report.parts,
         sent_bytes: report.sent,
         seconds: clock.elapsed().as_secs_f64(),
         peak_memory_bytes: cvd::job::memory::peak().unwrap_or(0),
@@ -245,7 +246,8 @@ pub(crate) fn print_ranks(summary: &Summary, parts: &str) {
             r.grid_cells[1],
             match r.tets {
                 [_, 0] => String::new(),
-                [part, all] => format!("; tets {part} of {all}"),
+                [part, all] =>
+                    format!("; tets {part} of {all}; in {} part{}", r.parts, if r.parts == 1 { "" } else { "s" }),
             },
             cvd::error::human(r.sent_bytes),
             r.seconds,
@@ -528,6 +530,7 @@ fn record_bytes(r: &RankRecord) -> Vec<u8> {
         r.grid_cells[1],
         r.tets[0],
         r.tets[1],
+        r.parts,
     ];
     words.iter().flat_map(|w| w.to_le_bytes()).collect()
 }
@@ -546,5 +549,6 @@ fn record_of(b: &[u8]) -> RankRecord {
         peak_memory_bytes: w(8),
         grid_cells: [w(9), w(10)],
         tets: [w(11), w(12)],
+        parts: w(13),
     }
 }

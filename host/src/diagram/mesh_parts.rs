@@ -72,6 +72,23 @@ const COUNTED_SLACK: f64 = 0.05;
 /// measurement already holds what a less compact box costs).
 const MEASURED_SLACK: f64 = 0.01;
 
+/// The parts a rank computes its share of the sites in, one after another,
+/// unless the caller says ([`ClippedVoronoi::parts_per_rank`]): 4, fewer
+/// where a part would own fewer than [`AUTO_PART_SITES`] sites (its halo
+/// would outweigh it). A rank holds the rows it reads (about 640 bytes a
+/// row with faces) and one part's job (about 1 kB a held site with
+/// faces): in 4 parts the job falls under the rows, for 3-7 % more time
+/// (docs/BENCHMARKS.md, "Parts per rank by default").
+pub fn auto_parts(total: u64, ranks: usize) -> usize {
+    (total / ranks.max(1) as u64 / AUTO_PART_SITES).clamp(1, AUTO_PARTS as u64) as usize
+}
+
+/// The most parts [`auto_parts`] takes.
+const AUTO_PARTS: usize = 4;
+
+/// The fewest sites a part of [`auto_parts`] owns.
+pub const AUTO_PART_SITES: u64 = 16_384;
+
 /// What a rank of a mesh in parts gives back
 /// ([`ClippedVoronoi::compute_in_parts_by_rows`]).
 pub struct MeshInParts {
@@ -209,9 +226,10 @@ impl ClippedVoronoi<'_> {
         let mut distinct = [distinct_positions(&own) as i64];
         comm.sum(&mut distinct)?;
         // Every rank takes the same number of sub-parts (each a round).
-        let mut sub = [self.sub_parts.max(1) as f64];
+        let mut sub = [self.sub_parts.unwrap_or_else(|| auto_parts(total, ranks)).max(1) as f64];
         comm.max(&mut sub)?;
         let sub = sub[0] as usize;
+        report.parts = sub as u64;
 
         // The whole job's frame, quantization and grid.
         let frame = Frame::of(mesh);

@@ -170,6 +170,9 @@ pub struct PartsReport {
     /// A mesh in parts: the most tets a part's job held, and the mesh's
     /// (0 in a periodic box).
     pub tets: [u64; 2],
+    /// A mesh in parts: the parts this rank computed its sites in, one
+    /// after another (0 in a periodic box).
+    pub parts: u64,
     /// Times the ranks searched the whole grid again because a walk would
     /// have left a window (0 expected).
     pub windows_dropped: u32,

@@ -171,8 +171,9 @@ pub struct ClippedVoronoi<'a> {
     /// ([`Layout`]).
     pub(crate) layout: Option<Layout<'a>>,
     /// With the sites in parts ([`Self::compute_in_parts`]): the parts each
-    /// rank computes in turn ([`Self::parts_per_rank`]).
-    pub(crate) sub_parts: usize,
+    /// rank computes in turn ([`Self::parts_per_rank`]; none: chosen by the
+    /// sites a rank owns).
+    pub(crate) sub_parts: Option<usize>,
     /// In parts, the halos the sub-parts last took
     /// ([`crate::diagram::mesh_parts::Halos`]).
     pub(crate) halos: Option<&'a crate::diagram::mesh_parts::Halos>,
@@ -288,18 +289,20 @@ impl<'a> ClippedVoronoi<'a> {
             candidates: None,
             memory_budget: None,
             layout: None,
-            sub_parts: 1,
+            sub_parts: None,
             halos: None,
             prepared: None,
         }
     }
 
     /// With the sites in parts ([`Self::compute_in_parts`]): each rank
-    /// computes its sites in `n` parts, one after another (default 1):
-    /// each part's job holds a share of them and its halo, so a rank's
-    /// memory falls with `n`, and its time grows with the halos.
+    /// computes its sites in `n` parts, one after another: each part's job
+    /// holds a share of them and its halo, so a rank's memory falls with
+    /// `n`, and its time grows with the halos. By default
+    /// [`crate::diagram::mesh_parts::auto_parts`]: 4, fewer where a part
+    /// would own fewer than 16 384 sites.
     pub fn parts_per_rank(mut self, n: usize) -> Self {
-        self.sub_parts = n.max(1);
+        self.sub_parts = Some(n.max(1));
         self
     }
 

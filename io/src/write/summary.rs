@@ -87,6 +87,10 @@ fn no_tets(tets: &[u64; 2]) -> bool {
     tets[1] == 0
 }
 
+fn is_zero(n: &u64) -> bool {
+    *n == 0
+}
+
 /// One rank of a periodic box in parts.
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
 pub struct RankRecord {
@@ -109,6 +113,10 @@ pub struct RankRecord {
     /// may meet), and the mesh's (0 in a periodic box).
     #[serde(skip_serializing_if = "no_tets")]
     pub tets: [u64; 2],
+    /// A mesh in parts: the parts it computed its sites in, one after
+    /// another (0, not written, in a periodic box).
+    #[serde(skip_serializing_if = "is_zero")]
+    pub parts: u64,
     /// Bytes it sent to other ranks.
     pub sent_bytes: u64,
     /// Seconds from reading its rows to its rows written.
