@@ -108,7 +108,19 @@ pub fn wheel(root: &Path, kernels: bool) -> Result<PathBuf, Problem> {
         .arg(&out)
         .args(if kernels { &["--features", "vulkan"][..] } else { &[] })
         .env("PATH", &path)
-        .env("CARGO_TARGET_DIR", &target);
+        .env("CARGO_TARGET_DIR", &target)
+        // The workspace's features for every crate, as `cargo test
+        // --workspace` resolves them: built alone, the package would resolve
+        // the build tools' features differently (voro++'s bindings in the
+        // tests ask more of proc-macro2 and syn), rebuild rust-gpu's code
+        // generator with them and then the kernels, 15 to 25 minutes on two
+        // cores. Through the workspace, the wheel reuses them and compiles
+        // only the library, its readers and the bindings. (The package is
+        // the same: only `cvd`'s `clap` feature, for the CLI, comes along
+        // unused.) On the command line, not in the environment: the build
+        // script's own cargo, which builds the kernels for SPIR-V, must not
+        // see it.
+        .args(["--config", "resolver.feature-unification=\"workspace\"", "-Z", "feature-unification"]);
     run(build, "maturin build")?;
     let built = std::fs::read_dir(&out)
         .map_err(|e| format!("reading {}: {e}", out.display()))?
