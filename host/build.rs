@@ -1,16 +1,15 @@
 //! With the `vulkan` feature (the default), compiles the kernels crate with
-//! rust-gpu, twice at once:
+//! rust-gpu into one SPIR-V module per entry point (rust-gpu's multimodule
+//! output), each keeping only the capabilities its own code needs. The
+//! library's Vulkan backend loads them, and exports them to other engines
+//! (`cvd::spirv`, `cargo xtask spirv`): the modules it runs are the ones it
+//! exports. They are embedded through a generated table,
+//! `$OUT_DIR/kernel_modules.rs`. (rust-gpu's single module with every
+//! entry point is not built: `spirv-opt` over the whole module took about
+//! five times as long as over every entry point's module in turn.)
 //!
-//! - one SPIR-V module with every entry point, which the library embeds and
-//!   its Vulkan backend loads (`CVD_KERNELS_SPV`);
-//! - one module per entry point (rust-gpu's multimodule output, in its own
-//!   target folder so that neither build invalidates the other), each keeping
-//!   only the capabilities its own code needs, for other engines
-//!   (`cvd::spirv`, `cargo xtask spirv`). They are embedded through a
-//!   generated table, `$OUT_DIR/kernel_modules.rs`.
-//!
-//! Without it the module is empty and so is the table: the CPU backend
-//! needs no SPIR-V, and the build takes minutes less.
+//! Without it the table is empty: the CPU backend needs no SPIR-V, and the
+//! build takes minutes less.
 
 fn main() {
     #[cfg(feature = "vulkan")]
@@ -19,9 +18,6 @@ fn main() {
     {
         println!("cargo::rerun-if-changed=build.rs");
         let out = std::path::PathBuf::from(std::env::var_os("OUT_DIR").expect("cargo sets OUT_DIR"));
-        let module = out.join("no-kernels.spv");
-        std::fs::write(&module, []).unwrap_or_else(|e| fail("writing no-kernels.spv", e));
-        println!("cargo::rustc-env=CVD_KERNELS_SPV={}", module.display());
         std::fs::write(out.join("kernel_modules.rs"), "&[]").unwrap_or_else(|e| fail("writing kernel_modules.rs", e));
     }
 }
@@ -52,25 +48,11 @@ mod kernels {
         // another clone's when clones share a target directory.
         let manifest = std::env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR");
         let kernels = PathBuf::from(manifest).join("..").join("kernels");
-        let single = builder(&kernels);
-        let mut multi = builder(&kernels).multimodule(true).target_dir_path("spirv-builder-multimodule");
-        // The single build forwards the compiler's warnings already.
-        multi.build_script.forward_rustc_warnings = Some(false);
-        let (single, multi) = std::thread::scope(|s| {
-            let m = s.spawn(|| multi.build());
-            let single = single.build();
-            (single, m.join().unwrap_or_else(|_| fail("building the per-entry-point SPIR-V modules", "panic")))
-        });
-        let single = single.unwrap_or_else(|e| fail("building the SPIR-V kernels", e));
-        let multi = multi.unwrap_or_else(|e| fail("building the per-entry-point SPIR-V modules", e));
-
-        let module = single.module.unwrap_single();
-        println!("cargo::rustc-env=CVD_KERNELS_SPV={}", module.display());
-        let entry_points = single.entry_points.join(",");
-        println!("cargo::rustc-env=CVD_KERNELS_ENTRY_POINTS={entry_points}");
+        let multi = builder(&kernels).multimodule(true);
+        let multi = multi.build().unwrap_or_else(|e| fail("building the SPIR-V kernels", e));
 
         let ModuleResult::MultiModule(modules) = &multi.module else {
-            fail("building the per-entry-point SPIR-V modules", "rust-gpu returned a single module");
+            fail("building the SPIR-V kernels", "rust-gpu returned a single module, not one per entry point");
         };
         let out = PathBuf::from(std::env::var_os("OUT_DIR").expect("cargo sets OUT_DIR")).join("modules");
         std::fs::create_dir_all(&out).unwrap_or_else(|e| fail("creating OUT_DIR/modules", e));

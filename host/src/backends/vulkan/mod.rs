@@ -7,7 +7,6 @@ mod pipelines;
 mod plan;
 
 pub use context::{list_devices, validation_errors, DeviceInfo, VulkanOptions};
-pub use pipelines::KERNELS_SPV;
 
 use crate::backend::Backend;
 use crate::error::{Error, Result};
@@ -29,7 +28,7 @@ use pipelines::{Pipelines, KERNELS};
 use plan::Plan;
 
 /// Whether this build embeds the kernels' SPIR-V (the `vulkan` feature).
-pub const HAS_KERNELS: bool = !KERNELS_SPV.is_empty();
+pub const HAS_KERNELS: bool = !crate::spirv::MODULES.is_empty();
 
 /// Why a build without the kernels cannot run on Vulkan.
 const NO_KERNELS: &str = "this build of cvd has no SPIR-V kernels: it was built without the `vulkan` \

@@ -1,6 +1,7 @@
-//! Compute pipelines for the kernels' entry points, from the embedded
-//! SPIR-V module, created on first use (a driver may take seconds to
-//! compile one: lavapipe does).
+//! Compute pipelines for the kernels' entry points, each from its own
+//! embedded SPIR-V module (the modules the library exports:
+//! [`crate::spirv::MODULES`]), created on first use (a driver may take
+//! seconds to compile one: lavapipe does).
 
 use super::context::Context;
 use crate::error::{Error, Result, VkContext};
@@ -9,10 +10,6 @@ use cvd_kernels::interface::EntryPoint;
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
-
-/// The kernels' SPIR-V module, built by rust-gpu at compile time (empty in
-/// a build without the `vulkan` feature).
-pub const KERNELS_SPV: &[u8] = include_bytes!(env!("CVD_KERNELS_SPV"));
 
 /// The interface of one entry point: storage buffers at bindings
 /// `0..bindings` of set 0, and a push-constant block.
@@ -31,15 +28,15 @@ pub(crate) const KERNELS: &[EntryPoint] = cvd_kernels::interface::ENTRY_POINTS;
 /// A ready compute pipeline.
 pub(crate) struct Kernel {
     pub spec: KernelSpec,
+    module: vk::ShaderModule,
     pub set_layout: vk::DescriptorSetLayout,
     pub layout: vk::PipelineLayout,
     pub pipeline: vk::Pipeline,
 }
 
-/// The shader module and the pipelines made from it so far.
+/// The pipelines made so far.
 pub(crate) struct Pipelines {
     device: ash::Device,
-    module: vk::ShaderModule,
     cache: vk::PipelineCache,
     made: Mutex<HashMap<&'static str, Arc<Kernel>>>,
     /// Nanoseconds spent creating pipelines (the driver compiles them).
@@ -48,21 +45,10 @@ pub(crate) struct Pipelines {
 
 impl Pipelines {
     pub(crate) fn new(ctx: &Context) -> Result<Self> {
-        let words = ash::util::read_spv(&mut std::io::Cursor::new(KERNELS_SPV))
-            .map_err(|e| Error::InvalidInput(format!("embedded SPIR-V is malformed: {e}")))?;
-        let info = vk::ShaderModuleCreateInfo::default().code(&words);
-        // SAFETY: valid SPIR-V from the build.
-        let module = unsafe { ctx.device.create_shader_module(&info, None) }.call("vkCreateShaderModule")?;
         // SAFETY: empty cache.
         let cache = unsafe { ctx.device.create_pipeline_cache(&vk::PipelineCacheCreateInfo::default(), None) }
             .call("vkCreatePipelineCache")?;
-        Ok(Self {
-            device: ctx.device.clone(),
-            module,
-            cache,
-            made: Mutex::new(HashMap::new()),
-            compile_ns: AtomicU64::new(0),
-        })
+        Ok(Self { device: ctx.device.clone(), cache, made: Mutex::new(HashMap::new()), compile_ns: AtomicU64::new(0) })
     }
 
     /// The pipeline for entry point `name`, created if needed.
@@ -95,6 +81,13 @@ impl Pipelines {
 
     fn create(&self, spec: KernelSpec) -> Result<Kernel> {
         let dev = &self.device;
+        let spirv = crate::spirv::MODULES.iter().find(|m| m.entry_point == spec.spirv_name).map(|m| m.spirv);
+        let spirv = spirv.ok_or_else(|| Error::Internal(format!("no SPIR-V module for the kernel {}", spec.name)))?;
+        let words = ash::util::read_spv(&mut std::io::Cursor::new(spirv))
+            .map_err(|e| Error::Internal(format!("the embedded SPIR-V of {} is malformed: {e}", spec.name)))?;
+        // SAFETY: valid SPIR-V from the build.
+        let module = unsafe { dev.create_shader_module(&vk::ShaderModuleCreateInfo::default().code(&words), None) }
+            .call("vkCreateShaderModule")?;
         let bindings: Vec<_> = (0..spec.bindings)
             .map(|b| {
                 vk::DescriptorSetLayoutBinding::default()
@@ -115,12 +108,12 @@ impl Pipelines {
         let entry = std::ffi::CString::new(spec.spirv_name).expect("kernel names have no NUL");
         let stage = vk::PipelineShaderStageCreateInfo::default()
             .stage(vk::ShaderStageFlags::COMPUTE)
-            .module(self.module)
+            .module(module)
             .name(&entry);
         let info = [vk::ComputePipelineCreateInfo::default().stage(stage).layout(layout)];
         let pipeline = unsafe { dev.create_compute_pipelines(self.cache, &info, None) }
             .map_err(|(_, e)| Error::Vulkan { call: "vkCreateComputePipelines", result: e })?[0];
-        Ok(Kernel { spec, set_layout, layout, pipeline })
+        Ok(Kernel { spec, module, set_layout, layout, pipeline })
     }
 }
 
@@ -133,9 +126,9 @@ impl Drop for Pipelines {
                 self.device.destroy_pipeline(k.pipeline, None);
                 self.device.destroy_pipeline_layout(k.layout, None);
                 self.device.destroy_descriptor_set_layout(k.set_layout, None);
+                self.device.destroy_shader_module(k.module, None);
             }
             self.device.destroy_pipeline_cache(self.cache, None);
-            self.device.destroy_shader_module(self.module, None);
         }
     }
 }
