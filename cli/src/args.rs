@@ -256,6 +256,12 @@ pub struct RunArgs {
     /// sites and leave more tets to later rounds; the results are the same.
     #[arg(long, value_name = "LISTED,BEYOND", value_parser = two_counts)]
     pub halo: Option<[u32; 2]>,
+    /// Under `mpirun`, a mesh's sites in parts: the folder where each rank
+    /// keeps the faces of the rows it will write until it writes them (a
+    /// file of its own, unlinked as soon as it is made), not in memory.
+    /// Default: the output folder.
+    #[arg(long, value_name = "DIR")]
+    pub scratch: Option<std::path::PathBuf>,
     #[command(flatten)]
     pub backend: BackendArgs,
 }

@@ -54,6 +54,12 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     } else {
         crate::progress::quiet_stdout();
     }
+    if let Some(scratch) = args.scratch.as_deref().filter(|s| !s.is_dir()) {
+        return Err(cvd::Error::InvalidInput(format!(
+            "--scratch {}: no such folder (each rank keeps the rows it will write in a file there)",
+            scratch.display()
+        )));
+    }
     let n = args.sites.unwrap_or_else(|| cvd::mesher::models::default_sites(&args.model).unwrap_or(5000)) as u64;
     if args.sites_file.is_none() {
         crate::inputs::check_memory(args, n.div_ceil(ranks as u64), mesh.tets.len() as u64)?;
@@ -114,12 +120,15 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     let Optimised { sites, cvt, weights, transport } =
         optimised.unwrap_or(Optimised { sites, cvt: None, weights, transport: None });
     let faces = !args.no_neighbors;
+    // The rows' faces wait for their writing in a file, not in memory.
+    let scratch = args.scratch.as_deref().unwrap_or(&dir);
     let diagram = ClippedVoronoi::new(&mesh, &sites)
         .strategy(cvd::Strategy::Whole)
         .density(density.as_deref())
         .k_site(args.k_site)
         .faces(faces)
         .memory_budget(args.cpu_memory_budget())
+        .spill_rows_to(scratch)
         .backend(backend);
     let diagram = match &weights {
         Some(w) => parts_asked(diagram.weights(w), args.parts),
@@ -134,13 +143,14 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
         false => None,
     };
     let cvd::diagram::mesh_parts::MeshInParts { cells, rows: by_rows, built, pieces, report } = out;
-    // The rows with their faces in batches: a rank holds its rows' faces
-    // once (as received), and a batch's at a time.
+    // The rows with their faces in batches, read back from the scratch
+    // file: a rank holds a batch's faces at a time.
     let batches = |w: &mut dyn std::io::Write, write: &WriteBatch| {
         // At least one batch: rank 0 writes the header with no rows too.
         for start in (0..by_rows.len().max(1)).step_by(1 << 16) {
             let range = start..(start + (1 << 16)).min(by_rows.len());
-            let (batch, particles) = (by_rows.cells(range.clone()), particles.as_ref().map(|p| p.rows(range)));
+            let batch = by_rows.cells(range.clone()).map_err(std::io::Error::other)?;
+            let particles = particles.as_ref().map(|p| p.rows(range));
             write(w, &batch, particles.as_ref(), Rows { first: first + start as u64, total, periodic: false })?;
         }
         Ok(())

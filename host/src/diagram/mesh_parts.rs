@@ -40,6 +40,7 @@ use super::periodic_parts::{
     at_row, counter_words, distinct_positions, kept_span, send, to_owners, weight_grid_as_one, weight_span,
     with_totals, BuiltCells, Held, PartsReport, RowsAcross,
 };
+use super::spill::Spill;
 use crate::backends::distributed::{records, Parcels, Reduce};
 use crate::diagram::particles::{cell_quantities, IndexThresholds, ParticleCells, INDEX_ORDERS};
 use crate::diagram::voronoi::{Cells, ClippedVoronoi};
@@ -75,10 +76,11 @@ const MEASURED_SLACK: f64 = 0.01;
 /// The parts a rank computes its share of the sites in, one after another,
 /// unless the caller says ([`ClippedVoronoi::parts_per_rank`]): 4, fewer
 /// where a part would own fewer than [`AUTO_PART_SITES`] sites (its halo
-/// would outweigh it). A rank holds the rows it reads (about 640 bytes a
-/// row with faces) and one part's job (about 1 kB a held site with
-/// faces): in 4 parts the job falls under the rows, for 3-7 % more time
-/// (docs/BENCHMARKS.md, "Parts per rank by default").
+/// would outweigh it). A rank holds one part's job (about 1 kB a held
+/// site with faces) and the rows it receives (about 640 bytes a row with
+/// faces, unless they wait in a file: [`ClippedVoronoi::spill_rows_to`]):
+/// 4 parts cost 3-7 % more time than one (docs/BENCHMARKS.md, "Parts per
+/// rank by default").
 pub fn auto_parts(total: u64, ranks: usize) -> usize {
     (total / ranks.max(1) as u64 / AUTO_PART_SITES).clamp(1, AUTO_PARTS as u64) as usize
 }
@@ -128,7 +130,7 @@ impl ClippedVoronoi<'_> {
     /// whole mesh's, as it holds the mesh).
     pub fn compute_in_parts(&self, comm: &dyn Reduce) -> Result<(Cells, PartsReport)> {
         let out = self.compute_in_parts_by_rows(comm, None)?;
-        Ok((out.all_rows(), out.report))
+        Ok((out.all_rows()?, out.report))
     }
 
     /// [`Self::compute_in_parts`] with the polyhedra of the cells this rank
@@ -141,7 +143,7 @@ impl ClippedVoronoi<'_> {
     ) -> Result<(Cells, BuiltCells, PartsReport)> {
         let mut out = self.compute_in_parts_by_rows(comm, Some(cpu))?;
         let built = out.built.take().ok_or_else(|| Error::Internal("no polyhedra came back".into()))?;
-        Ok((out.all_rows(), built, out.report))
+        Ok((out.all_rows()?, built, out.report))
     }
 
     /// [`Self::compute_in_parts`] (with the polyhedra on `geometry`), the
@@ -226,7 +228,7 @@ impl ClippedVoronoi<'_> {
         let mut distinct = [distinct_positions(&own) as i64];
         comm.sum(&mut distinct)?;
         // Every rank takes the same number of sub-parts (each a round).
-        let mut sub = [self.sub_parts.unwrap_or_else(|| auto_parts(total, ranks)).max(1) as f64];
+        let mut sub = [self.sub_parts.unwrap_or_else(|| auto_parts(total, ranks)) as f64];
         comm.max(&mut sub)?;
         let sub = sub[0] as usize;
         report.parts = sub as u64;
@@ -252,7 +254,11 @@ impl ClippedVoronoi<'_> {
 
         // The sub-parts in turn, each one's rows (and the halves of its
         // faces that others' cells share) sent to their readers.
-        let mut rows = Received::default();
+        let kept = match self.spill.filter(|_| self.faces) {
+            Some(dir) => Spill::to_file(dir, &format!("rows-{}", comm.rank()))?,
+            None => Spill::default(),
+        };
+        let mut rows = Received::new(first, self.sites.len(), self.faces, kept);
         let mut built = geometry.map(|_| BuiltCells::default());
         let mut pieces_merged = 0;
         let mut counted = vec![0i64; counter_words(&Default::default()).len() + 1];
@@ -296,7 +302,7 @@ impl ClippedVoronoi<'_> {
             timings.add("rows", clock.elapsed().as_secs_f64());
         }
         let clock = std::time::Instant::now();
-        let rows = MeshRows::of(rows, first, self.sites.len(), self.faces)?;
+        let rows = MeshRows::of(rows)?;
         let mut cells = rows.numbers();
         timings.add("rows", clock.elapsed().as_secs_f64());
 
@@ -686,14 +692,35 @@ struct MeshHalf {
     face: MeshFace,
 }
 
-/// The rows and halves a reader received, one parcel of each per round.
-#[derive(Default)]
+/// What a reader received of its rows: each row's numbers, its faces kept
+/// (with [`ClippedVoronoi::faces`]) until they are read, in memory or in a
+/// file ([`ClippedVoronoi::spill_rows_to`]), and the halves of faces the
+/// other sides' cells sent.
 struct Received {
-    rows: Vec<Vec<u8>>,
+    first: u64,
+    faces: bool,
+    /// Each row's place in `kept` and its count of faces (`u32::MAX`: not
+    /// come yet).
+    at: Vec<(u64, u32)>,
+    /// Each row's volume, centroid and energy.
+    numbers: Cells,
+    kept: Spill,
     halves: Vec<MeshHalf>,
 }
 
 impl Received {
+    /// Room for the `len` rows from `first`, their faces (if `faces`) to be
+    /// kept in `kept`.
+    fn new(first: u64, len: usize, faces: bool, kept: Spill) -> Self {
+        let numbers = Cells {
+            volume: vec![0.0; len],
+            centroid: vec![[0.0; 3]; len],
+            energy: vec![0.0; len],
+            ..Default::default()
+        };
+        Self { first, faces, at: vec![(0, u32::MAX); len], numbers, kept, halves: Vec::new() }
+    }
+
     /// One round: `rows` and `halves` to their readers, and this rank's
     /// kept.
     fn add(&mut self, comm: &dyn Reduce, rows: Vec<Vec<u8>>, halves: Vec<Vec<MeshHalf>>, sent: &mut u64) -> Result<()> {
@@ -708,10 +735,41 @@ impl Received {
             .map(|(_, h)| (h.len() * size_of::<MeshHalf>()) as u64)
             .sum::<u64>();
         let got = comm.exchange(Parcels::of(rows))?;
-        self.rows.push(got.bytes);
+        self.take_rows(got.bytes)?;
         let got =
             comm.exchange(Parcels::of(halves.into_iter().map(|h| bytemuck::cast_slice(&h).to_vec()).collect()))?;
         self.halves.extend(records::<MeshHalf>(&got.bytes));
+        Ok(())
+    }
+
+    /// The rows in `bytes` (each a [`MeshRow`] and its faces): their
+    /// numbers taken, their bytes kept when they have faces.
+    fn take_rows(&mut self, bytes: Vec<u8>) -> Result<()> {
+        let (first, len) = (self.first, self.at.len());
+        let mut found = Vec::new();
+        let mut k = 0;
+        while k < bytes.len() {
+            let head = bytes.get(k..k + size_of::<MeshRow>());
+            let row: MeshRow = bytemuck::pod_read_unaligned(
+                head.ok_or_else(|| Error::Internal(format!("a row cut short at byte {k} of its parcel")))?,
+            );
+            let i = row.site.checked_sub(first).map(|i| i as usize).filter(|&i| i < len);
+            let i = i.ok_or_else(|| Error::Internal(format!("row {} sent to the reader of {first}..", row.site)))?;
+            if self.at[i].1 != u32::MAX {
+                return Err(Error::Internal(format!("row {} came back twice", row.site)));
+            }
+            self.at[i].1 = row.faces as u32;
+            (self.numbers.volume[i], self.numbers.centroid[i]) = (row.volume, row.centroid);
+            self.numbers.energy[i] = row.energy;
+            found.push((i, k));
+            k += size_of::<MeshRow>() + row.faces as usize * size_of::<MeshFace>();
+        }
+        if self.faces && !bytes.is_empty() {
+            let at = self.kept.append(bytes)?;
+            for (i, k) in found {
+                self.at[i].0 = at + k as u64;
+            }
+        }
         Ok(())
     }
 }
@@ -719,8 +777,8 @@ impl Received {
 impl MeshInParts {
     /// The cells of all this rank's rows with their faces, and the run's
     /// totals.
-    pub fn all_rows(&self) -> Cells {
-        Cells { adjacency: self.rows.cells(0..self.rows.len()).adjacency, ..self.cells.clone() }
+    pub fn all_rows(&self) -> Result<Cells> {
+        Ok(Cells { adjacency: self.rows.cells(0..self.rows.len())?.adjacency, ..self.cells.clone() })
     }
 
     /// The particles' quantities (`--voronoi-index`: surface area,
@@ -736,7 +794,7 @@ impl MeshInParts {
             .built
             .as_ref()
             .ok_or_else(|| Error::InvalidInput("the Voronoi index needs the cells' polyhedra".into()))?;
-        let (first, len) = (self.rows.first, self.rows.len());
+        let (first, len) = (self.rows.first(), self.rows.len());
         let across = RowsAcross::of(comm, len)?;
         let measured: Vec<Measured> = built
             .polyhedra
@@ -785,84 +843,70 @@ struct Measured {
 /// them: read in batches ([`Self::cells`]).
 pub struct MeshRows {
     received: Received,
-    /// Each row's parcel and place in it.
-    at: Vec<(u32, usize)>,
-    first: u64,
-    faces: bool,
 }
 
 impl MeshRows {
-    /// The `len` rows from `first` in `received`, each found.
-    fn of(mut received: Received, first: u64, len: usize, faces: bool) -> Result<Self> {
-        let mut at = vec![(u32::MAX, 0usize); len];
-        for (p, bytes) in received.rows.iter().enumerate() {
-            let mut k = 0;
-            while k < bytes.len() {
-                let row: MeshRow = bytemuck::pod_read_unaligned(&bytes[k..k + size_of::<MeshRow>()]);
-                let i = row.site.checked_sub(first).filter(|&i| (i as usize) < len);
-                let i =
-                    i.ok_or_else(|| Error::Internal(format!("row {} sent to the reader of {first}..", row.site)))?;
-                at[i as usize] = (p as u32, k);
-                k += size_of::<MeshRow>() + row.faces as usize * size_of::<MeshFace>();
-            }
-        }
-        if let Some(i) = at.iter().position(|a| a.0 == u32::MAX) {
-            return Err(Error::Internal(format!("no cell came back for site {}", first + i as u64)));
+    /// The rows `received`, each found.
+    fn of(mut received: Received) -> Result<Self> {
+        if let Some(i) = received.at.iter().position(|a| a.1 == u32::MAX) {
+            return Err(Error::Internal(format!("no cell came back for site {}", received.first + i as u64)));
         }
         received.halves.par_sort_by_key(|h| h.site);
-        Ok(Self { received, at, first, faces })
+        Ok(Self { received })
     }
 
     /// This rank's rows.
     pub fn len(&self) -> usize {
-        self.at.len()
+        self.received.at.len()
     }
 
     /// Whether this rank has no rows.
     pub fn is_empty(&self) -> bool {
-        self.at.is_empty()
+        self.received.at.is_empty()
     }
 
     /// The input index of this rank's first row.
     pub fn first(&self) -> u64 {
-        self.first
+        self.received.first
     }
 
-    fn row(&self, i: usize) -> (MeshRow, &[u8]) {
-        let (p, k) = self.at[i];
-        let bytes = &self.received.rows[p as usize][k..];
-        (bytemuck::pod_read_unaligned(&bytes[..size_of::<MeshRow>()]), &bytes[size_of::<MeshRow>()..])
+    /// Where the rows' faces are kept until read: a file's path, or
+    /// "memory".
+    pub fn kept_in(&self) -> String {
+        self.received.kept.place()
     }
 
     /// Every row's volume, centroid and energy.
     fn numbers(&self) -> Cells {
-        let mut cells = Cells::default();
-        for i in 0..self.len() {
-            let (row, _) = self.row(i);
-            cells.volume.push(row.volume);
-            cells.centroid.push(row.centroid);
-            cells.energy.push(row.energy);
-        }
-        cells
+        self.received.numbers.clone()
     }
 
     /// Rows `range` (of this rank's) as cells with their faces, each row's
     /// faces merged with the halves from the other sides as one process
-    /// adds them: the cell's own first, then the other side's.
-    pub fn cells(&self, range: std::ops::Range<usize>) -> Cells {
-        let mut cells = Cells::default();
+    /// adds them: the cell's own first, then the other side's. Fails only
+    /// where the rows kept in a file cannot be read back.
+    pub fn cells(&self, range: std::ops::Range<usize>) -> Result<Cells> {
+        let Received { first, faces, at, numbers, kept, halves } = &self.received;
+        let mut cells = Cells {
+            volume: numbers.volume[range.clone()].to_vec(),
+            centroid: numbers.centroid[range.clone()].to_vec(),
+            energy: numbers.energy[range.clone()].to_vec(),
+            ..Default::default()
+        };
+        if !faces {
+            return Ok(cells);
+        }
         let mut adj = Adjacency { offsets: vec![0], ..Default::default() };
-        let halves = &self.received.halves;
+        let mut bytes = Vec::new();
         for i in range {
-            let (row, faces) = self.row(i);
-            cells.volume.push(row.volume);
-            cells.centroid.push(row.centroid);
-            cells.energy.push(row.energy);
-            if !self.faces {
-                continue;
+            let (place, count) = at[i];
+            kept.read(place, size_of::<MeshRow>() + count as usize * size_of::<MeshFace>(), &mut bytes)?;
+            let row: MeshRow = bytemuck::pod_read_unaligned(&bytes[..size_of::<MeshRow>()]);
+            let site = first + i as u64;
+            if row.site != site {
+                return Err(Error::Internal(format!("row {} read back where row {site} was kept", row.site)));
             }
-            let site = self.first + i as u64;
-            let own = records::<MeshFace>(&faces[..row.faces as usize * size_of::<MeshFace>()]);
+            let own = records::<MeshFace>(&bytes[size_of::<MeshRow>()..]);
             let lo = halves.partition_point(|h| h.site < site);
             let others = halves[lo..].iter().take_while(|h| h.site == site).map(|h| h.face);
             let merged =
@@ -876,8 +920,8 @@ impl MeshRows {
             adj.boundary.push(row.boundary + 0.0);
             adj.boundary_vector.push(row.boundary_vector.map(|v| v + 0.0));
         }
-        cells.adjacency = self.faces.then_some(adj);
-        cells
+        cells.adjacency = Some(adj);
+        Ok(cells)
     }
 }
 
@@ -1131,6 +1175,9 @@ mod tests {
         let (one, _) = whole.compute_with_polyhedra(&cpu).unwrap();
         let one_polyhedra = one.polyhedra.as_ref().unwrap();
         assert!(one.counters.cut_cells > 0 && one.counters.whole_cells > 0);
+        // The second run of each keeps its rows' faces in files there.
+        let scratch = std::env::temp_dir().join(format!("cvd-mesh-parts-{}", std::process::id()));
+        std::fs::create_dir_all(&scratch).unwrap();
         for (ranks, per_rank) in [(1, 1), (2, 1), (3, 2), (4, 1), (2, 3)] {
             let what = format!("{ranks} ranks x {per_rank} parts");
             let rows = |r: usize| sites.len() * r / ranks..sites.len() * (r + 1) / ranks;
@@ -1138,9 +1185,12 @@ mod tests {
                 let cpu = CpuBackend::new(Some(1)).unwrap();
                 let cv = ClippedVoronoi::new(&mesh, &sites[rows(r)]).faces(true).backend(&cpu).parts_per_rank(per_rank);
                 let (cells, report) = cv.compute_in_parts(comm).unwrap();
-                let (with, built, _) = cv.compute_in_parts_with_polyhedra(comm, &cpu).unwrap();
-                (cells, report, with, built)
+                let spilled = cv.spill_rows_to(&scratch).compute_in_parts_by_rows(comm, Some(&cpu)).unwrap();
+                assert!(spilled.rows.kept_in().starts_with(scratch.to_str().unwrap()), "{}", spilled.rows.kept_in());
+                let with = spilled.all_rows().unwrap();
+                (cells, report, with, spilled.built.unwrap())
             });
+            assert_eq!(std::fs::read_dir(&scratch).unwrap().count(), 0, "{what}: no spill file left behind");
             let mut polyhedra: Vec<_> = runs.iter().flat_map(|r| r.3.polyhedra.iter().cloned()).collect();
             polyhedra.sort_by_key(|p| p.site);
             assert!(polyhedra == *one_polyhedra, "{what}: the ranks' polyhedra are one process's, each once");
@@ -1148,7 +1198,7 @@ mod tests {
             assert_eq!(owned, sites.len() as u64, "{what}: every site owned once");
             for (r, (cells, _, with, built)) in runs.iter().enumerate() {
                 same_rows(&one, cells, rows(r), &what);
-                same_rows(&one, with, rows(r), &format!("{what}, with polyhedra"));
+                same_rows(&one, with, rows(r), &format!("{what}, with polyhedra, the rows spilled"));
                 assert_eq!(one.total_volume.to_bits(), cells.total_volume.to_bits(), "{what}: total volume");
                 assert_eq!(
                     (one.counters.whole_cells, one.counters.cut_cells, one.counters.duplicate_sites),
@@ -1161,6 +1211,7 @@ mod tests {
                 }
             }
         }
+        std::fs::remove_dir(&scratch).unwrap();
     }
 
     /// Power cells in parts are one process's: weights that drift across

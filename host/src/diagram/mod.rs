@@ -8,5 +8,6 @@ pub mod mesh_parts;
 pub mod particles;
 pub mod periodic;
 pub mod periodic_parts;
+mod spill;
 pub mod trajectory;
 pub mod voronoi;

@@ -179,6 +179,9 @@ pub struct ClippedVoronoi<'a> {
     pub(crate) halos: Option<&'a crate::diagram::mesh_parts::Halos>,
     /// The mesh prepared once for the jobs that share it ([`PreparedMesh`]).
     pub(crate) prepared: Option<&'a PreparedMesh>,
+    /// In parts, where a rank keeps its rows' faces until they are read
+    /// ([`Self::spill_rows_to`]; none: in memory).
+    pub(crate) spill: Option<&'a std::path::Path>,
 }
 
 /// A mesh prepared once for the jobs that share it — the parts of a
@@ -292,6 +295,7 @@ impl<'a> ClippedVoronoi<'a> {
             sub_parts: None,
             halos: None,
             prepared: None,
+            spill: None,
         }
     }
 
@@ -303,6 +307,18 @@ impl<'a> ClippedVoronoi<'a> {
     /// would own fewer than 16 384 sites.
     pub fn parts_per_rank(mut self, n: usize) -> Self {
         self.sub_parts = Some(n.max(1));
+        self
+    }
+
+    /// With the sites in parts ([`Self::compute_in_parts_by_rows`]): each
+    /// rank keeps the faces of the rows it receives in a file of its own in
+    /// `dir` until they are read, not in memory (with faces, about 640
+    /// bytes a row: the most a rank holds beside one part's job). The file
+    /// is unlinked as soon as it is made, so nothing is left behind; its
+    /// pages are the system's to write out and drop. The cells are the
+    /// same bits either way.
+    pub fn spill_rows_to(mut self, dir: &'a std::path::Path) -> Self {
+        self.spill = Some(dir);
         self
     }
 
