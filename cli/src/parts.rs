@@ -440,10 +440,13 @@ fn write_section(
     // Written first to a file of this rank's own beside it (a part's text
     // may be larger than the numbers it is made from: a million cells'
     // faces are 1.4 GB), then copied into place once every rank's length
-    // is known.
+    // is known. Rank 0's own file, at the start of a new file, becomes the
+    // file: only the others' parts are copied (into one file at once, the
+    // copies contend for it).
     let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
     let own = path.with_file_name(format!(".{name}.{}.part", comm.rank()));
     let own_io = |source| cvd::Error::Write { path: own.display().to_string(), source };
+    let becomes_the_file = comm.rank() == 0 && !append;
     let written =
         std::fs::File::options().read(true).write(true).create(true).truncate(true).open(&own).and_then(|f| {
             let mut out = std::io::BufWriter::with_capacity(1 << 20, f);
@@ -454,7 +457,9 @@ fn write_section(
             f.rewind()?;
             Ok((f, length))
         });
-    let _ = std::fs::remove_file(&own);
+    if !becomes_the_file || written.is_err() {
+        let _ = std::fs::remove_file(&own);
+    }
     let (mut part, length) = match written {
         Ok(w) => (Some(w.0), w.1),
         Err(e) => {
@@ -464,6 +469,9 @@ fn write_section(
     };
     let lengths = comm.gather_u64(length)?;
     if lengths.contains(&u64::MAX) {
+        if becomes_the_file {
+            let _ = std::fs::remove_file(&own);
+        }
         return Err(cvd::Error::InvalidInput(format!("{}: a rank could not write its part", path.display())));
     }
     let total: u64 = lengths.iter().sum();
@@ -478,7 +486,14 @@ fn write_section(
                 f.set_len(base + total).map(|()| base)
             })
         } else {
-            std::fs::File::create(path).and_then(|f| f.set_len(total)).map(|()| 0)
+            // Rank 0's own part, made the file and lengthened.
+            std::fs::rename(&own, path)
+                .and_then(|()| std::fs::OpenOptions::new().write(true).open(path))
+                .and_then(|f| f.set_len(total))
+                .map(|()| 0)
+                .inspect_err(|_| {
+                    let _ = std::fs::remove_file(&own);
+                })
         };
         match sized {
             Ok(base) => made[1] = base as i64,
@@ -497,6 +512,7 @@ fn write_section(
     let wrote = std::fs::OpenOptions::new().write(true).open(path).and_then(|mut f| {
         f.seek(std::io::SeekFrom::Start(at))?;
         let copied = match part.as_mut() {
+            Some(_) if becomes_the_file => length,
             Some(part) => std::io::copy(part, &mut f)?,
             None => 0,
         };
