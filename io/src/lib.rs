@@ -6,6 +6,7 @@
 //! JSON. The engine (`cvd`) knows no file format; this crate knows no
 //! command line.
 
+mod numbers;
 pub mod read;
 pub mod write;
 

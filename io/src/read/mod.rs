@@ -53,6 +53,7 @@ pub use vtk::parse_vtk;
 pub use vtu::parse_vtu;
 pub use xyz::{parse_values, parse_xyz};
 
+use crate::numbers::Dec;
 use cvd::error::{Error, Result};
 use cvd::geom::mesh::{signed_volume, TetMesh};
 use lex::parse_error;
@@ -93,7 +94,7 @@ pub fn write_sites_xyz_rows(w: &mut dyn Write, sites: &[[f64; 3]], rows: Rows) -
         writeln!(w, "{}", rows.total)?;
     }
     write_rows(w, sites.len(), |i, t| {
-        let [x, y, z] = sites[i];
+        let [x, y, z] = sites[i].map(Dec);
         writeln!(t, "{x} {y} {z}")
     })
 }
@@ -129,8 +130,8 @@ pub fn write_values(path: &Path, values: &[f64]) -> Result<()> {
 /// Writes `values` one per line: a file of values, or one part of it in a
 /// run in parts (the parts laid end to end are the whole file).
 pub fn write_values_rows(w: &mut dyn Write, values: &[f64]) -> std::io::Result<()> {
-    for v in values {
-        writeln!(w, "{v}")?;
+    for &v in values {
+        writeln!(w, "{}", Dec(v))?;
     }
     Ok(())
 }

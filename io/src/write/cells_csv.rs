@@ -8,6 +8,7 @@
 //! volume 0 and the site as its centroid). Numbers are written so that
 //! they read back exactly.
 
+use crate::numbers::{Dec, Exp};
 use crate::read::{write_file, write_rows, Rows};
 use cvd::diagram::voronoi::Cells;
 use cvd::error::{Error, Result};
@@ -91,9 +92,9 @@ pub fn write_cells_csv_rows(
     write_rows(w, cells.volume.len(), |i, t| {
         let (v, c, e) = (cells.volume[i], cells.centroid[i], cells.energy[i]);
         let site = ids.map_or(rows.first + i as u64, |ids| ids[i]);
-        write!(t, "{site},{v:e},{},{},{},{e:e}", c[0], c[1], c[2])?;
+        write!(t, "{site},{},{},{},{},{}", Exp(v), Dec(c[0]), Dec(c[1]), Dec(c[2]), Exp(e))?;
         if let Some(a) = faces {
-            write!(t, ",{:e},{}", a.surface_area(i), a.offsets[i + 1] - a.offsets[i])?;
+            write!(t, ",{},{}", Exp(a.surface_area(i)), a.offsets[i + 1] - a.offsets[i])?;
         }
         if let Some(p) = particles {
             write!(t, ",{},{}", p.coordination[i], p.max_face_order[i])?;

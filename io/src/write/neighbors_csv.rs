@@ -9,6 +9,7 @@
 //! face is shared with (its site plus that many box lengths; see
 //! [`Adjacency::shifts`]), and there is no boundary.
 
+use crate::numbers::{Dec, Exp};
 use crate::read::{write_file, write_rows, Rows};
 use cvd::error::Result;
 use cvd::passes::faces::Adjacency;
@@ -41,7 +42,7 @@ pub fn write_neighbors_csv_rows(w: &mut dyn Write, adjacency: &Adjacency, rows: 
     write_rows(w, adjacency.len(), |i, t| {
         let site = rows.first + i as u64;
         for (e, (j, area, n)) in (adjacency.offsets[i]..).zip(adjacency.of(i)) {
-            write!(t, "{site},{j},{area:e},{},{},{}", n[0], n[1], n[2])?;
+            write!(t, "{site},{j},{},{},{},{}", Exp(area), Dec(n[0]), Dec(n[1]), Dec(n[2]))?;
             if periodic {
                 let s = adjacency.shift(e);
                 write!(t, ",{},{},{}", s[0], s[1], s[2])?;
@@ -53,7 +54,7 @@ pub fn write_neighbors_csv_rows(w: &mut dyn Write, adjacency: &Adjacency, rows: 
             // The boundary part's mean outward normal, made unit.
             let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
             let n = if len > 0.0 { v.map(|c| c / len) } else { [0.0; 3] };
-            writeln!(t, "{site},-1,{b:e},{},{},{}", n[0], n[1], n[2])?;
+            writeln!(t, "{site},-1,{},{},{},{}", Exp(b), Dec(n[0]), Dec(n[1]), Dec(n[2]))?;
         }
         Ok(())
     })
