@@ -31,11 +31,7 @@ type WriteBatch<'a> =
 /// What a mesh with its sites in parts does not take yet, if `args` asks
 /// for any of it: then every rank reads the whole input.
 pub fn lacking(args: &RunArgs) -> Option<&'static str> {
-    let lacking = [
-        (args.strategy.is_some_and(|s| s != cvd::Strategy::Whole), "a strategy other than whole cells"),
-        (args.output.is_some() || args.json.is_some(), "--output and --json"),
-    ];
-    lacking.iter().find(|(asked, _)| *asked).map(|(_, what)| *what)
+    args.strategy.is_some_and(|s| s != cvd::Strategy::Whole).then_some("a strategy other than whole cells")
 }
 
 /// Runs a mesh with its sites in parts over `comm`'s ranks.
@@ -219,6 +215,7 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     print!("{summary}");
     crate::parts::print_ranks(&summary, "buckets of the curve");
     println!("wrote {}: {}", dir.display(), written.join(", "));
+    crate::parts::write_copies(args, &dir)?;
     Ok(status)
 }
 

@@ -152,7 +152,22 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
     print!("{summary}");
     print_ranks(&summary, "blocks");
     println!("wrote {}: {}", dir.display(), written.join(", "));
+    write_copies(args, &dir)?;
     Ok(status)
+}
+
+/// What `--output` and `--json` ask for, as one process writes them:
+/// copies of the folder's `cells.csv` and `summary.json` (by rank 0, once
+/// every rank has written its part).
+pub(crate) fn write_copies(args: &RunArgs, dir: &Path) -> cvd::Result<()> {
+    for (copy, file) in [(&args.output, "cells.csv"), (&args.json, "summary.json")] {
+        if let Some(path) = copy {
+            std::fs::copy(dir.join(file), path)
+                .map_err(|source| cvd::Error::Write { path: path.display().to_string(), source })?;
+            println!("wrote {} ({file})", path.display());
+        }
+    }
+    Ok(())
 }
 
 /// The energy of every rank's `cells` (its rows'), and every rank's record
@@ -265,7 +280,6 @@ pub(crate) fn refuse_what_parts_lack(args: &RunArgs) -> cvd::Result<()> {
         ),
         (args.parts.is_some(), "--parts (the ranks are the parts)"),
         (args.strategy.is_some_and(|s| s != cvd::Strategy::Whole), "--strategy other than whole"),
-        (args.output.is_some() || args.json.is_some(), "--output and --json (the folder holds the files)"),
     ];
     match lacking.iter().find(|(asked, _)| *asked) {
         Some((_, what)) => Err(cvd::Error::InvalidInput(format!(

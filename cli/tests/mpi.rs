@@ -255,6 +255,16 @@ fn mpirun_gives_whole_cells_and_neighbours_of_one_process() {
         }
     }
     assert_eq!(std::fs::read_dir(scratch).unwrap().count(), 0, "the ranks' rows left nothing in --scratch");
+    // --output and --json: copies of the folder's cells.csv (one process's
+    // bytes) and summary.json, each rank reading its rows.
+    let (csv, json) = (dir.join("copy.csv"), dir.join("copy.json"));
+    let copies = ["--output", csv.to_str().unwrap(), "--json", json.to_str().unwrap()];
+    let out = dir.join("copies-2");
+    let o = mpirun_job(&torus, 2, &out, &[&cases[0].1[..3], &copies[..]].concat());
+    ok(&o, "2 ranks, --output and --json");
+    assert!(String::from_utf8_lossy(&o.stdout).contains("each rank reading its rows"));
+    assert!(read(&csv) == read(&dir.join("cells-one").join("cells.csv")), "--output: one process's cells.csv");
+    assert!(read(&json) == read(&out.join("summary.json")), "--json: the run's summary.json");
     // A scratch folder that is not there: refused by name, before anything
     // is computed.
     let out = dir.join("no-scratch");
@@ -470,6 +480,14 @@ fn mpirun_gives_a_periodic_box_in_parts_byte_for_byte() {
     let o = mpirun_env(BOX, 3, &out, &cases[2].1, &[("CVD_MPI_ROUND_BYTES", "4096")]);
     ok(&o, "3 ranks, exchanges of 4096 bytes per pair and call");
     same_files(&one, &out, &["cells.csv", "neighbors.csv", "sites.xyz"], "in rounds");
+    // --output and --json: copies of the folder's cells.csv (one process's
+    // bytes) and summary.json.
+    let out = dir.join("made-copies");
+    let (csv, json) = (dir.join("copy.csv"), dir.join("copy.json"));
+    let copies = ["--output", csv.to_str().unwrap(), "--json", json.to_str().unwrap()];
+    ok(&mpirun_job(BOX, 2, &out, &[&cases[2].1[..], &copies[..]].concat()), "2 ranks, --output and --json");
+    assert!(read(&csv) == read(&one.join("cells.csv")), "--output: one process's cells.csv");
+    assert!(read(&json) == read(&out.join("summary.json")), "--json: the run's summary.json");
     // A bad line in one rank's part: it says so, and every rank ends (none
     // waits for it), within a bound.
     let bad = dir.join("bad.xyz");
