@@ -30,14 +30,14 @@ struct Shortest {
 }
 
 impl Shortest {
-    fn of(x: f64) -> Self {
-        let mut buffer = zmij::Buffer::new();
-        let text = buffer.format_finite(x.abs()).as_bytes();
+    /// From zmij's `text` of a number's magnitude (in either notation),
+    /// and its sign.
+    fn of(text: &[u8], negative: bool) -> Self {
         let (mantissa, exponent) = match text.iter().position(|&c| c == b'e') {
             Some(e) => (&text[..e], parse_exponent(&text[e + 1..])),
             None => (text, 0),
         };
-        let mut out = Self { negative: x.is_sign_negative(), digits: [0; 32], len: 0, point: 0 };
+        let mut out = Self { negative, digits: [0; 32], len: 0, point: 0 };
         let mut before_point = 0;
         let mut seen_point = false;
         for &c in mantissa {
@@ -118,7 +118,7 @@ impl fmt::Display for Dec {
             }
             return f.write_str(text);
         }
-        let s = Shortest::of(self.0);
+        let s = Shortest::of(text.as_bytes(), self.0.is_sign_negative());
         if s.negative {
             f.write_str("-")?;
         }
