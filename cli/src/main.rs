@@ -13,6 +13,7 @@ mod mesh_parts;
 mod optimise;
 mod outputs;
 mod parts;
+mod pictures;
 mod progress;
 mod run;
 

@@ -6,7 +6,8 @@
 //! `cells.csv`, `neighbors.csv` and `sites.xyz` at their place in the
 //! files, and the polyhedra of the cells it built as its piece of
 //! `cells.pvtu` and its section of `walls.ply`: the same bytes as one
-//! process. Power cells (each rank its rows of `--weights` or `--radii`),
+//! process. The pictures are drawn as the pieces are made (see
+//! [`crate::pictures`]). Power cells (each rank its rows of `--weights` or `--radii`),
 //! a density (`--density`, `--density-file`: per mesh vertex, every rank
 //! all of it), Lloyd, L-BFGS and optimal transport (`weights.txt`
 //! likewise) too, on the CPU or a Vulkan device (`--backend`: the cells on
@@ -19,6 +20,7 @@
 use crate::args::RunArgs;
 use crate::optimise::Optimised;
 use crate::parts::{optimise_in_parts, rows_of_sites, weights_of_rows, write_part, write_polyhedra};
+use crate::pictures::PartsPictures;
 use cvd::backends::distributed::Reduce;
 use cvd::{ClippedVoronoi, ParticleCells};
 use cvd_io::{Rows, Summary};
@@ -131,7 +133,13 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
         None => parts_asked(diagram, args.parts),
     };
     let geometry = (!args.no_geometry).then_some(cpu);
-    let out = diagram.compute_in_parts_by_rows(comm, geometry)?;
+    // The pictures drawn (and pieces written) as each sub-part's pieces
+    // are made.
+    let mut pictures = geometry.and_then(|_| PartsPictures::asked(args, &mesh, &dir));
+    let out = match (geometry, &mut pictures) {
+        (Some(cpu), Some(p)) => diagram.compute_in_parts_visiting(comm, cpu, &mut |pieces| p.visit(pieces, rank))?,
+        _ => diagram.compute_in_parts_by_rows(comm, geometry)?,
+    };
     // With --voronoi-index, each cell's polyhedron measured where it was
     // built; its numbers sent to its row's rank.
     let particles = match args.voronoi_index {
@@ -179,9 +187,9 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
         let mut tally = [pieces as i64, lids as i64];
         comm.sum(&mut tally)?;
         pieces_and_lids = Some((tally[0] as usize, tally[1] as u64));
-        if rank == 0 {
-            println!("in parts: no pictures or pieces.vtu (each rank holds the pieces of its own cells only)");
-        }
+    }
+    if let Some(pictures) = pictures {
+        written.extend(pictures.finish(comm, &dir)?);
     }
 
     // The run's numbers: totals from every rank, each rank's record.

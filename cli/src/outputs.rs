@@ -10,7 +10,7 @@ use cvd_io::{Section, Summary};
 use std::path::{Path, PathBuf};
 
 /// Pixels along the longer side of picture.png and cells.png.
-const PICTURE_SIZE: usize = 1024;
+pub(crate) const PICTURE_SIZE: usize = 1024;
 
 /// What the outputs are written from.
 pub struct Results<'a> {
@@ -121,7 +121,7 @@ pub const OUTPUTS: &[Output] = &[
         write: |path, r, progress| match (r.mesh, r.pieces) {
             (Some(mesh), Some(pieces)) => {
                 let z = Section::middle(mesh).z;
-                cvd_io::write_cells_view_png(path, pieces, r.sites, z, PICTURE_SIZE, progress)
+                cvd_io::write_cells_view_png(path, mesh, pieces, z, PICTURE_SIZE, progress)
             }
             _ => Ok(()),
         },

@@ -103,8 +103,8 @@ pub fn run(args: &RunArgs) -> cvd::Result<u8> {
         Some(t) if !t.converged => NOT_CONVERGED,
         _ => 0,
     };
-    // In parts, every rank writes the polyhedra of the cells it built; the
-    // pictures and pieces.vtu (every rank's pieces) are left out.
+    // In parts, every rank writes the polyhedra of the cells it built and
+    // draws their pieces; the ranks' drawings are combined.
     let parts = run_backend.parts();
     if let Some((parts, polyhedra)) = parts.and_then(|p| Some((p, diagram.cells.polyhedra.take()?))) {
         let cells = &diagram.cells;
@@ -112,9 +112,12 @@ pub fn run(args: &RunArgs) -> cvd::Result<u8> {
             let i = polyhedra[k].site as usize;
             (cells.volume[i], cells.centroid[i], cells.energy[i])
         };
-        let wrote = crate::parts::write_polyhedra(parts.comm(), &dir, &polyhedra, &numbers)?;
-        if writes {
-            println!("in parts: no pictures or pieces.vtu (each rank holds the pieces of its own cells only)");
+        let mut wrote = crate::parts::write_polyhedra(parts.comm(), &dir, &polyhedra, &numbers)?;
+        if let (Domain::Mesh(mesh), Some(pieces)) = (&inputs.domain, &diagram.pieces) {
+            if let Some(mut pictures) = crate::pictures::PartsPictures::asked(args, mesh, &dir) {
+                pictures.visit(pieces, parts.rank())?;
+                wrote.extend(pictures.finish(parts.comm(), &dir)?);
+            }
         }
         let lids: u64 = polyhedra.iter().map(|p| p.repaired_holes as u64).sum();
         let mut tally = [diagram.pieces.take().map_or(0, |p| p.len()) as i64, lids as i64];

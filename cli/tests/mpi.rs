@@ -156,7 +156,7 @@ fn mpirun_gives_whole_cells_and_neighbours_of_one_process() {
     let weights_file = dir.join("weights.txt");
     cvd_io::write_values(&weights_file, &weights).unwrap();
     let (file, weights_file) = (file.to_str().unwrap(), weights_file.to_str().unwrap());
-    let torus = ["run", "--model", "torus", "--resolution", "12", "--backend", "cpu", "--no-picture"];
+    let torus = ["run", "--model", "torus", "--resolution", "12", "--backend", "cpu"];
     // Where the ranks of the first case keep their rows until written.
     let scratch = dir.join("scratch");
     std::fs::create_dir_all(&scratch).unwrap();
@@ -165,9 +165,9 @@ fn mpirun_gives_whole_cells_and_neighbours_of_one_process() {
         ("cells", vec!["--sites-file", file, "--no-geometry", "--scratch", scratch]),
         ("lbfgs", vec!["--sites", "6000", "--iterations", "3", "--optimizer", "lbfgs", "--no-geometry"]),
         ("lloyd", vec!["--sites", "6000", "--iterations", "3", "--no-geometry"]),
-        ("geometry", vec!["--sites-file", file]),
+        ("geometry", vec!["--sites-file", file, "--pieces"]),
         ("power", vec!["--sites-file", file, "--weights", weights_file, "--no-geometry"]),
-        ("index", vec!["--sites", "5000", "--voronoi-index", "--relative-face-threshold", "0.01"]),
+        ("index", vec!["--sites", "5000", "--voronoi-index", "--relative-face-threshold", "0.01", "--no-picture"]),
         ("transport", vec!["--sites", "3000", "--volumes", "lognormal:0,0.5", "--no-geometry"]),
         ("tet-cell", vec!["--sites", "3000", "--strategy", "tet-cell", "--no-geometry", "--no-neighbors"]),
     ];
@@ -209,6 +209,15 @@ fn mpirun_gives_whole_cells_and_neighbours_of_one_process() {
             // process wrote it.
             assert!(walls(&one.join("walls.ply")) == walls(&out.join("walls.ply")), "{ranks} ranks: walls.ply");
             assert_eq!(s["pieces"], summary(&one)["pieces"], "{ranks} ranks: pieces");
+            // The pictures, each rank drawing its own cells' pieces: one
+            // process's bytes. The pieces' files: one process's pieces,
+            // each once, as VTK reads them.
+            same_files(&one, &out, &["picture.png", "cells.png"], &format!("{name}, {ranks} ranks"));
+            if vtk_here() {
+                let (whole, parts) = (vtk_pieces(&one.join("pieces.vtu")), vtk_pieces(&out.join("pieces.pvtu")));
+                assert!(whole.len() > 11_000 && whole.iter().any(|p| p.1 == -1), "{} pieces", whole.len());
+                assert!(parts == whole, "{ranks} ranks: pieces.pvtu holds {} pieces of {}", parts.len(), whole.len());
+            }
             if vtk_here() {
                 let (whole, parts) = (vtk_cells(&one.join("cells.vtu")), vtk_cells(&out.join("cells.pvtu")));
                 assert!(whole.len() > 11_000, "one process's cells.vtu: {} cells", whole.len());
@@ -728,6 +737,26 @@ fn vtk_cells(path: &Path) -> Vec<(i64, f64, f64, i64)> {
         .collect();
     cells.sort_by_key(|c| c.0);
     cells
+}
+
+/// The pieces of a `pieces.vtu` or `pieces.pvtu` as VTK reads them,
+/// sorted: (site, tet, stored volume's bits, faces).
+fn vtk_pieces(path: &Path) -> Vec<(i64, i64, u64, i64)> {
+    let script = env!("CARGO_MANIFEST_DIR").to_string() + "/../tests/scripts/read_pieces_vtk.py";
+    let o = Command::new("python3").arg(script).arg(path).output().unwrap();
+    assert!(o.status.success(), "VTK on {}: {}", path.display(), String::from_utf8_lossy(&o.stderr));
+    let json: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let mut pieces: Vec<(i64, i64, u64, i64)> = json["pieces"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| {
+            let i = |k: usize| p[k].as_i64().unwrap();
+            (i(0), i(1), p[2].as_f64().unwrap().to_bits(), i(3))
+        })
+        .collect();
+    pieces.sort_unstable();
+    pieces
 }
 
 /// Whether `python3` with VTK runs here (skipped with the reason; under

@@ -282,7 +282,7 @@ fn the_3d_view_shows_the_lower_cells_shaded() {
     let sites = points::in_mesh(&mesh, 120, 2);
     let (_, pieces) = diagram(&mesh, &sites);
     let path = temp_dir("view").join("cells.png");
-    cvd_io::write_cells_view_png(&path, &pieces, &sites, 0.5, 300, &mut |_, _| {}).unwrap();
+    cvd_io::write_cells_view_png(&path, &mesh, &pieces, 0.5, 300, &mut |_, _| {}).unwrap();
     let decoder = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&path).unwrap()));
     let mut reader = decoder.read_info().unwrap();
     let mut buf = vec![0; reader.output_buffer_size().unwrap()];
@@ -297,10 +297,74 @@ fn the_3d_view_shows_the_lower_cells_shaded() {
     let drawn = pixels.iter().filter(|&&p| p != [255; 3]).count();
     assert!(drawn > pixels.len() / 5, "{drawn} of {} pixels drawn", pixels.len());
     // Only the cells below the cut: below every site, nothing is drawn.
-    cvd_io::write_cells_view_png(&path, &pieces, &sites, -1.0, 300, &mut |_, _| {}).unwrap();
+    cvd_io::write_cells_view_png(&path, &mesh, &pieces, -1.0, 300, &mut |_, _| {}).unwrap();
     let mut reader =
         png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&path).unwrap())).read_info().unwrap();
     let mut buf = vec![0; reader.output_buffer_size().unwrap()];
     reader.next_frame(&mut buf).unwrap();
     assert!(buf.iter().all(|&c| c == 255), "nothing below the lowest site");
+}
+
+/// The pictures drawn in parts — each rank the pieces of the cells it
+/// builds, a sub-part's at a time, the ranks' images combined — are one
+/// process's, byte for byte: on a holed block with a tight cluster in a
+/// crowd (where most pixels of a cluster's cells are walls), for 1 to 3
+/// ranks of 1 or 2 sub-parts each. The pieces the ranks are handed are
+/// one process's, each once, by input index.
+#[test]
+fn pictures_drawn_in_parts_are_one_process_pictures() {
+    use cvd::backends::distributed::{InProcess, Reduce};
+    use cvd_io::{CellsView, SectionImage};
+    let mesh = TetMesh::voxels(6, |i, j, _| !(i == 3 && j == 2));
+    let mut sites = points::in_mesh(&mesh, 3000, 61);
+    let centre = [0.3, 0.6, 0.5];
+    sites
+        .extend(points::clustered(600, 1, 0.01, 62).iter().map(|p| [0, 1, 2].map(|a| centre[a] + 0.05 * (p[a] - 0.5))));
+    let n = sites.len();
+    let whole = ClippedVoronoi::new(&mesh, &sites).strategy(Strategy::Whole);
+    let cpu = CpuBackend::new(Some(2)).unwrap();
+    let (_, pieces) = whole.compute_with_pieces(&cpu).unwrap();
+    let section = Section::middle(&mesh);
+    let dir = temp_dir("parts-pictures");
+    let png = |name: &str| std::fs::read(dir.join(name)).unwrap();
+    cvd_io::write_section_png(&dir.join("one.png"), &mesh, &pieces, section, 400, &mut |_, _| {}).unwrap();
+    cvd_io::write_cells_view_png(&dir.join("one-view.png"), &mesh, &pieces, section.z, 400, &mut |_, _| {}).unwrap();
+    let key = |p: &cvd::Piece| (p.site, p.tet, p.vertices.len());
+    let mut expected: Vec<_> = pieces.iter().map(|p| key(&p)).collect();
+    expected.sort_unstable();
+    for (ranks, per_rank) in [(1, 2), (2, 1), (3, 2)] {
+        let what = format!("{ranks} ranks x {per_rank} parts");
+        let rows = |r: usize| n * r / ranks..n * (r + 1) / ranks;
+        let handed = InProcess::each(ranks, |comm| {
+            let cv = ClippedVoronoi::new(&mesh, &sites[rows(comm.rank())]).strategy(Strategy::Whole);
+            let cpu = CpuBackend::new(Some(1)).unwrap();
+            let (mut image, mut view) = (SectionImage::new(&mesh, section, 400), CellsView::new(&mesh, section.z, 400));
+            let mut handed = Vec::new();
+            cv.parts_per_rank(per_rank)
+                .compute_in_parts_visiting(comm, &cpu, &mut |pieces| {
+                    image.draw(pieces, &mut |_, _| {});
+                    view.draw(pieces, &mut |_, _| {});
+                    handed.extend(pieces.iter().map(|p| key(&p)));
+                    Ok(())
+                })
+                .unwrap();
+            image.combine(&mut |v| comm.max(v)).unwrap();
+            view.combine(&mut |v| comm.max(v)).unwrap();
+            if comm.rank() == 0 {
+                image.write_png(&dir.join(format!("{ranks}-{per_rank}.png"))).unwrap();
+                view.write_png(&dir.join(format!("{ranks}-{per_rank}-view.png"))).unwrap();
+            }
+            handed
+        });
+        let mut handed: Vec<_> = handed.into_iter().flatten().collect();
+        handed.sort_unstable();
+        assert!(
+            handed == expected,
+            "{what}: the pieces handed are one process's ({} of {})",
+            handed.len(),
+            expected.len()
+        );
+        assert!(png(&format!("{ranks}-{per_rank}.png")) == png("one.png"), "{what}: picture.png");
+        assert!(png(&format!("{ranks}-{per_rank}-view.png")) == png("one-view.png"), "{what}: cells.png");
+    }
 }

@@ -53,9 +53,14 @@ use crate::job::held::{HeldCells, HeldSet};
 use crate::job::sites::{Layout, Window};
 use crate::job::weight_bounds::WeightGrid;
 use crate::passes::faces::Adjacency;
+use crate::passes::pieces::Pieces;
 use crate::passes::polyhedra::merge_pieces;
 use bytemuck::{Pod, Zeroable};
 use rayon::prelude::*;
+
+/// What is handed each sub-part's pieces
+/// ([`ClippedVoronoi::compute_in_parts_visiting`]).
+type Visit<'v> = &'v mut dyn FnMut(&Pieces) -> Result<()>;
 
 /// Groups of a sub-part's cells along the curve, each held with the cells
 /// around it (a held box each: [`HeldSet`]).
@@ -151,19 +156,37 @@ impl ClippedVoronoi<'_> {
     /// ([`MeshRows::cells`]): a rank then holds its rows' faces once, not
     /// twice.
     pub fn compute_in_parts_by_rows(&self, comm: &dyn Reduce, geometry: Option<&CpuBackend>) -> Result<MeshInParts> {
-        self.mesh_in_parts(comm, geometry)
+        self.mesh_in_parts(comm, geometry, &mut |_| Ok(()))
     }
 
-    fn mesh_in_parts(&self, comm: &dyn Reduce, geometry: Option<&CpuBackend>) -> Result<MeshInParts> {
+    /// [`Self::compute_in_parts_by_rows`], handing `visit` the pieces of
+    /// the cells this rank builds, a sub-part's at a time, as they are
+    /// made (each site named by its input index; they are dropped after):
+    /// to draw or write them without holding them all.
+    pub fn compute_in_parts_visiting(
+        &self,
+        comm: &dyn Reduce,
+        geometry: &CpuBackend,
+        visit: &mut dyn FnMut(&Pieces) -> Result<()>,
+    ) -> Result<MeshInParts> {
+        self.mesh_in_parts(comm, Some(geometry), visit)
+    }
+
+    fn mesh_in_parts(&self, comm: &dyn Reduce, geometry: Option<&CpuBackend>, visit: Visit) -> Result<MeshInParts> {
         // The sub-parts' jobs share the mesh prepared once (and the
         // diagrams that follow, if the caller keeps it).
         let prepared = crate::diagram::voronoi::PreparedMesh::default();
         let prepared = self.prepared.or(self.halos.map(|h| &h.mesh)).unwrap_or(&prepared);
         let this = (*self).prepared(prepared);
-        this.mesh_in_parts_prepared(comm, geometry)
+        this.mesh_in_parts_prepared(comm, geometry, visit)
     }
 
-    fn mesh_in_parts_prepared(&self, comm: &dyn Reduce, geometry: Option<&CpuBackend>) -> Result<MeshInParts> {
+    fn mesh_in_parts_prepared(
+        &self,
+        comm: &dyn Reduce,
+        geometry: Option<&CpuBackend>,
+        visit: Visit,
+    ) -> Result<MeshInParts> {
         let mesh = self.mesh;
         if mesh.tets.is_empty() {
             return Err(Error::InvalidInput("the mesh has no tets".into()));
@@ -285,7 +308,7 @@ impl ClippedVoronoi<'_> {
             let clock = std::time::Instant::now();
             if let (Some(built), Some(pieces)) = (built.as_mut(), pieces) {
                 pieces_merged += pieces.len() as u64;
-                add_polyhedra(built, pieces, &held, &whole);
+                add_polyhedra(built, pieces, &held, &whole, visit)?;
                 timings.add("polyhedra", clock.elapsed().as_secs_f64());
             }
             let clock = std::time::Instant::now();
@@ -926,9 +949,12 @@ impl MeshRows {
 }
 
 /// The polyhedra of a part's cells (`pieces` of its job over `held`), by
-/// input index, added to `built` with their cells' numbers.
-fn add_polyhedra(built: &mut BuiltCells, pieces: crate::passes::pieces::Pieces, held: &[Held], whole: &Cells) {
+/// input index, added to `built` with their cells' numbers; the pieces,
+/// named by input index, handed to `visit`.
+fn add_polyhedra(built: &mut BuiltCells, mut pieces: Pieces, held: &[Held], whole: &Cells, visit: Visit) -> Result<()> {
     let mut polyhedra = merge_pieces(&pieces);
+    pieces.relabel(|i| held[i as usize].site as u32);
+    visit(&pieces)?;
     drop(pieces);
     built.numbers.extend(polyhedra.iter().map(|p| {
         let u = p.site as usize;
@@ -943,6 +969,7 @@ fn add_polyhedra(built: &mut BuiltCells, pieces: crate::passes::pieces::Pieces, 
         }
     });
     built.polyhedra.extend(polyhedra);
+    Ok(())
 }
 
 /// Each bucket's rank: runs of buckets along the curve, each holding about

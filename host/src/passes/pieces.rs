@@ -70,6 +70,9 @@ pub struct Pieces {
     scale: f64,
     /// The pieces in (site, tet) order, as (part, piece in the part).
     order: Vec<(u32, u32)>,
+    /// The site each site index stands for, where [`Pieces::relabel`]
+    /// gave them other names (empty: itself).
+    labels: Vec<u32>,
 }
 
 /// One task's pieces, packed.
@@ -102,6 +105,27 @@ impl Pieces {
         });
     }
 
+    /// Each site `i` named `label(i)` from now on (`site`, `get`, and the
+    /// makers of the faces that are sites'): the pieces of a job over some
+    /// of the sites, numbered as the whole input numbers them. The names
+    /// must keep the sites apart.
+    pub fn relabel(&mut self, label: impl Fn(u32) -> u32 + Sync) {
+        let labels: Vec<u32> = (0..self.origins.len() as u32).map(&label).collect();
+        self.map_makers(|m| if m >= 0 { i64::from(label(m as u32)) } else { m });
+        self.labels = labels;
+    }
+
+    /// The name of site index `i` (see [`Pieces::relabel`]).
+    fn label(&self, i: u32) -> u32 {
+        self.labels.get(i as usize).copied().unwrap_or(i)
+    }
+
+    /// Where the site of piece `k` lies.
+    pub fn origin(&self, k: usize) -> [f64; 3] {
+        let (part, p) = self.order[k];
+        self.origins[self.parts[part as usize].sites[p as usize] as usize]
+    }
+
     /// Number of pieces.
     pub fn len(&self) -> usize {
         self.order.len()
@@ -115,7 +139,7 @@ impl Pieces {
     /// The site of piece `k`.
     pub fn site(&self, k: usize) -> u32 {
         let (part, p) = self.order[k];
-        self.parts[part as usize].sites[p as usize]
+        self.label(self.parts[part as usize].sites[p as usize])
     }
 
     /// The tet of piece `k` ([`Piece::WHOLE`] for a whole cell).
@@ -128,8 +152,8 @@ impl Pieces {
     pub fn get(&self, k: usize) -> Piece {
         let (part, p) = self.order[k];
         let (part, p) = (&self.parts[part as usize], p as usize);
-        let mut piece = Piece { site: part.sites[p], tet: part.tets[p], ..Piece::default() };
-        part.unpack(p, self.origins[piece.site as usize], self.scale, &mut piece.vertices, |ring, maker| {
+        let mut piece = Piece { site: self.label(part.sites[p]), tet: part.tets[p], ..Piece::default() };
+        part.unpack(p, self.origins[part.sites[p] as usize], self.scale, &mut piece.vertices, |ring, maker| {
             piece.face_vertices.extend(ring);
             piece.face_ends.push(piece.face_vertices.len() as u32);
             piece.face_makers.push(maker);
@@ -463,5 +487,5 @@ pub(crate) fn to_world(
         .filter(|&(k, p)| kept(parts[k as usize].sites[p as usize]))
         .collect();
     order.par_sort_unstable_by_key(|&(k, p)| (parts[k as usize].sites[p as usize], parts[k as usize].tets[p as usize]));
-    Pieces { parts, origins: input.to_vec(), scale: frame.scale, order }
+    Pieces { parts, origins: input.to_vec(), scale: frame.scale, order, labels: Vec::new() }
 }

@@ -161,18 +161,31 @@ pub fn write_cells_vtu_with(
 /// Writes `cells.pvtu`: the pieces (`cells.vtu` files, named relative to
 /// it) as one grid, as VTK and ParaView read a grid written in parts.
 pub fn write_cells_pvtu(path: &Path, pieces: &[String]) -> Result<()> {
-    let mut text = String::from(
-        "<?xml version=\"1.0\"?>\n<VTKFile type=\"PUnstructuredGrid\" version=\"1.0\" \
-         byte_order=\"LittleEndian\" header_type=\"UInt64\">\n<PUnstructuredGrid GhostLevel=\"0\">\n\
-         <PCellData Scalars=\"site\">\n",
-    );
-    for (kind, name, components) in [
+    let arrays = [
         ("Int32", "site", 1),
         ("Float64", "volume", 1),
         ("Float64", "centroid", 3),
         ("Float64", "energy", 1),
         ("Int32", "neighbors", 1),
-    ] {
+    ];
+    write_pvtu(path, &arrays, pieces)
+}
+
+/// `pieces.pvtu`: a parallel VTK file listing `pieces` (file names
+/// relative to it), each a `pieces.vtu` of some of the pieces.
+pub fn write_pieces_pvtu(path: &Path, pieces: &[String]) -> Result<()> {
+    write_pvtu(path, &[("Int32", "site", 1), ("Int32", "tet", 1), ("Float64", "volume", 1)], pieces)
+}
+
+/// A parallel VTK file over `pieces` whose cells carry `arrays` (type,
+/// name, components).
+fn write_pvtu(path: &Path, arrays: &[(&str, &str, u32)], pieces: &[String]) -> Result<()> {
+    let mut text = String::from(
+        "<?xml version=\"1.0\"?>\n<VTKFile type=\"PUnstructuredGrid\" version=\"1.0\" \
+         byte_order=\"LittleEndian\" header_type=\"UInt64\">\n<PUnstructuredGrid GhostLevel=\"0\">\n\
+         <PCellData Scalars=\"site\">\n",
+    );
+    for (kind, name, components) in arrays {
         text += &format!("<PDataArray type=\"{kind}\" Name=\"{name}\" NumberOfComponents=\"{components}\"/>\n");
     }
     text += "</PCellData>\n<PPoints>\n<PDataArray type=\"Float64\" NumberOfComponents=\"3\"/>\n</PPoints>\n";

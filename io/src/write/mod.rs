@@ -27,15 +27,15 @@ pub mod walls_ply;
 pub use cells_csv::{
     read_cells_csv, write_cells_csv, write_cells_csv_rows, write_cells_csv_with, CellRow, ParticleRow,
 };
-pub use cells_vtu::{write_cells_pvtu, write_cells_vtu, write_cells_vtu_with, CellNumbers};
+pub use cells_vtu::{write_cells_pvtu, write_cells_vtu, write_cells_vtu_with, write_pieces_pvtu, CellNumbers};
 pub use neighbors_csv::{write_neighbors_csv, write_neighbors_csv_rows};
-pub use picture::{write_section_png, Section};
+pub use picture::{write_section_png, Section, SectionImage};
 pub use plot::{write_chart_png, write_line_chart_png, Axes, Series};
 pub use summary::{
     CvtRecord, IndexCounts, ParticlesRecord, PeriodicRecord, RankRecord, Summary, Times, TransportRecord,
 };
 pub use trajectory::{FrameRecord, TrajectorySummary};
-pub use view::write_cells_view_png;
+pub use view::{write_cells_view_png, CellsView};
 pub use vtu::write_pieces_vtu;
 pub use walls_ply::{write_walls_ply, Walls};
 

@@ -3,6 +3,11 @@
 //! polygon and filled with its site's colour; pixels where the site
 //! changes are drawn dark (cell walls) and pixels where the mesh ends
 //! black (the mesh's cross-section outline).
+//!
+//! A pixel two pieces cover takes the lower site, whatever order they are
+//! drawn in: so the pieces can be drawn in parts (each process of a
+//! distributed run its own cells') and the parts' images combined
+//! ([`SectionImage::combine`]) into the one image of all of them.
 
 use super::Progress;
 use cvd::error::Result;
@@ -69,7 +74,7 @@ impl Raster {
     }
 
     /// Fills the convex polygon `poly` (world x, y, in order) with `site`:
-    /// every pixel whose centre lies inside.
+    /// every pixel whose centre lies inside (and holds no lower site).
     fn fill(&mut self, poly: &[[f64; 2]], site: u32) {
         let (ymin, ymax) = poly.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| (a.min(p[1]), b.max(p[1])));
         // Rows and columns whose pixel centres lie in [from, to].
@@ -105,7 +110,9 @@ impl Raster {
             }
             let (c0, c1) = cols(xmin - self.slack, xmax + self.slack);
             if c0 <= c1 {
-                self.label[r * self.width..][c0 as usize..=c1 as usize].fill(site);
+                for label in &mut self.label[r * self.width..][c0 as usize..=c1 as usize] {
+                    *label = (*label).min(site);
+                }
             }
         }
     }
@@ -151,6 +158,61 @@ pub(super) fn colour(site: u32) -> [u8; 3] {
     [0, 1, 2].map(|k| 110 + ((h >> (16 * k)) % 141) as u8)
 }
 
+/// The section of a diagram's pieces by a plane, as each pixel's site:
+/// drawn from any number of sets of pieces, in any order, the same image.
+pub struct SectionImage {
+    raster: Raster,
+    section: Section,
+}
+
+impl SectionImage {
+    /// An empty image of `mesh`'s section by `section`, `size` pixels
+    /// along the longer side of the mesh's box.
+    pub fn new(mesh: &TetMesh, section: Section, size: usize) -> Self {
+        Self { raster: Raster::new(mesh, size.max(16)), section }
+    }
+
+    /// Draws the section of `pieces`, reporting progress in pieces.
+    pub fn draw(&mut self, pieces: &Pieces, progress: Progress<'_>) {
+        let z = self.section.z;
+        let total = pieces.len() as u64;
+        for (i, piece) in pieces.iter().enumerate() {
+            let (lo, hi) =
+                piece.vertices.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v[2]), b.max(v[2])));
+            if lo <= z && z <= hi {
+                let poly = cut(&piece, z);
+                if !poly.is_empty() {
+                    self.raster.fill(&poly, piece.site);
+                }
+            }
+            if i % 4096 == 4095 {
+                progress(i as u64 + 1, total);
+            }
+        }
+        progress(total, total);
+    }
+
+    /// Combines this image with the images of the same section that other
+    /// processes drew of other pieces: `max` replaces each value by its
+    /// largest over the processes (an all-reduce). Every process ends with
+    /// the image of all their pieces.
+    pub fn combine(&mut self, max: &mut dyn FnMut(&mut [f64]) -> Result<()>) -> Result<()> {
+        // The lowest site as the largest of their negatives (exact: a u32
+        // is exact in an f64).
+        let mut values: Vec<f64> = self.raster.label.iter().map(|&l| -f64::from(l)).collect();
+        max(&mut values)?;
+        for (label, v) in self.raster.label.iter_mut().zip(values) {
+            *label = (-v) as u32;
+        }
+        Ok(())
+    }
+
+    /// Writes the image as a PNG.
+    pub fn write_png(&self, path: &Path) -> Result<()> {
+        super::write_png(path, self.raster.width, self.raster.height, &paint(&self.raster))
+    }
+}
+
 /// Draws the pieces' section by `section` into a PNG of `size` pixels
 /// along the longer side of the mesh's box, reporting progress in pieces.
 pub fn write_section_png(
@@ -161,23 +223,9 @@ pub fn write_section_png(
     size: usize,
     progress: Progress<'_>,
 ) -> Result<()> {
-    let mut raster = Raster::new(mesh, size.max(16));
-    let total = pieces.len() as u64;
-    for (i, piece) in pieces.iter().enumerate() {
-        let (lo, hi) =
-            piece.vertices.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v[2]), b.max(v[2])));
-        if lo <= section.z && section.z <= hi {
-            let poly = cut(&piece, section.z);
-            if !poly.is_empty() {
-                raster.fill(&poly, piece.site);
-            }
-        }
-        if i % 4096 == 4095 {
-            progress(i as u64 + 1, total);
-        }
-    }
-    progress(total, total);
-    super::write_png(path, raster.width, raster.height, &paint(&raster))
+    let mut image = SectionImage::new(mesh, section, size);
+    image.draw(pieces, progress);
+    image.write_png(path)
 }
 
 /// RGB pixels: white outside, site colours inside, walls dark grey, the

@@ -5,10 +5,18 @@
 //! from the viewer's upper left. Drawn by a small software rasteriser:
 //! orthographic projection, a depth buffer, each face fanned into
 //! triangles and shaded by its normal.
+//!
+//! The image's frame is fixed by the mesh and the plane (not by the cells
+//! drawn), and a pixel two faces cover at the same depth takes the larger
+//! colour, whatever order they are drawn in: so the pieces can be drawn in
+//! parts (each process of a distributed run its own cells') and the
+//! parts' images combined ([`CellsView::combine`]) into the one image of
+//! all of them.
 
 use super::picture::colour;
 use super::Progress;
 use cvd::error::Result;
+use cvd::geom::mesh::TetMesh;
 use cvd::passes::pieces::Pieces;
 use std::path::Path;
 
@@ -53,105 +61,184 @@ impl Camera {
     }
 }
 
-/// Draws the cells of `pieces` whose sites (`sites`, input order) lie at
-/// `z <= cut` into a PNG `size` pixels wide, reporting progress in pieces.
-pub fn write_cells_view_png(
-    path: &Path,
-    pieces: &Pieces,
-    sites: &[[f64; 3]],
-    cut: f64,
-    size: usize,
-    progress: Progress<'_>,
-) -> Result<()> {
-    let camera = Camera::new();
-    let shown = |k: &usize| sites.get(pieces.site(*k) as usize).is_some_and(|s| s[2] <= cut);
-    // The image's extent: every shown vertex, projected.
-    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
-    for p in (0..pieces.len()).filter(shown).map(|k| pieces.get(k)) {
-        for &v in &p.vertices {
-            let s = camera.project(v);
-            for a in 0..2 {
-                lo[a] = lo[a].min(s[a]);
-                hi[a] = hi[a].max(s[a]);
-            }
-        }
-    }
-    let width = size.max(16);
-    let span = (hi[0] - lo[0]).max(hi[1] - lo[1]).max(f64::MIN_POSITIVE);
-    let scale = 0.94 * width as f64 / span;
-    let height = (((hi[1] - lo[1]).max(0.0) * scale) as usize + width / 16).clamp(16, 4 * width);
-    let (cx, cy) = (0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]));
-    let to_pixel =
-        |s: V3| -> V3 { [(s[0] - cx) * scale + width as f64 / 2.0, height as f64 / 2.0 - (s[1] - cy) * scale, s[2]] };
-    let mut depth = vec![f64::INFINITY; width * height];
-    let mut rgb = vec![255u8; width * height * 3];
-    let light = unit([-0.5, 0.3, 1.0]);
-    let total = pieces.len() as u64;
-    for i in 0..pieces.len() {
-        if i % 4096 == 4095 {
-            progress(i as u64 + 1, total);
-        }
-        if !shown(&i) {
-            continue;
-        }
-        let piece = pieces.get(i);
-        let base = colour(piece.site);
-        for face in piece.faces() {
-            let corners: Vec<V3> = face.iter().map(|&k| piece.vertices[k as usize]).collect();
-            // Newell's normal: outward, as the loop runs counter-clockwise
-            // seen from outside.
-            let mut n = [0.0; 3];
-            for (k, a) in corners.iter().enumerate() {
-                let b = corners[(k + 1) % corners.len()];
-                n = [
-                    n[0] + (a[1] - b[1]) * (a[2] + b[2]),
-                    n[1] + (a[2] - b[2]) * (a[0] + b[0]),
-                    n[2] + (a[0] - b[0]) * (a[1] + b[1]),
-                ];
-            }
-            let n = unit(n);
-            if dot(n, camera.forward) >= 0.0 {
-                continue;
-            }
-            let shade = 0.35 + 0.65 * dot(n, light).max(0.0);
-            let c = base.map(|b| (b as f64 * shade).round().clamp(0.0, 255.0) as u8);
-            let screen: Vec<V3> = corners.iter().map(|&p| to_pixel(camera.project(p))).collect();
-            for k in 1..screen.len().saturating_sub(1) {
-                triangle([screen[0], screen[k], screen[k + 1]], c, width, height, &mut depth, &mut rgb);
-            }
-        }
-    }
-    progress(total, total);
-    super::write_png(path, width, height, &rgb)
+/// A colour packed as `0xRRGGBB`.
+fn pack(c: [u8; 3]) -> u32 {
+    u32::from_be_bytes([0, c[0], c[1], c[2]])
 }
 
-/// Fills a triangle (pixel x, pixel y, depth) where it is nearer than what
-/// is drawn.
-fn triangle(t: [V3; 3], c: [u8; 3], width: usize, height: usize, depth: &mut [f64], rgb: &mut [u8]) {
-    let area = (t[1][0] - t[0][0]) * (t[2][1] - t[0][1]) - (t[1][1] - t[0][1]) * (t[2][0] - t[0][0]);
-    if area.abs() < 1e-12 {
-        return;
+/// The view of the cells whose sites lie at `z <= cut`: each pixel's
+/// depth and colour, drawn from any number of sets of pieces, in any
+/// order, the same image.
+pub struct CellsView {
+    cut: f64,
+    width: usize,
+    height: usize,
+    /// The frame's centre on the screen and pixels per world unit.
+    centre: [f64; 2],
+    scale: f64,
+    /// Per pixel: the depth of what is drawn there (infinite for nothing)
+    /// and its colour (`0xRRGGBB`).
+    depth: Vec<f64>,
+    colour: Vec<u32>,
+}
+
+impl CellsView {
+    /// An empty view, `size` pixels wide, framing every tet of `mesh` that
+    /// reaches below the plane `z = cut` (the cells below it, and as much
+    /// of them above it as such a tet spans).
+    pub fn new(mesh: &TetMesh, cut: f64, size: usize) -> Self {
+        let camera = Camera::new();
+        let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+        for tet in &mesh.tets {
+            let corners = tet.map(|v| mesh.vertices[v as usize]);
+            if corners.iter().all(|c| c[2] > cut) {
+                continue;
+            }
+            for c in corners {
+                let s = camera.project(c);
+                for a in 0..2 {
+                    lo[a] = lo[a].min(s[a]);
+                    hi[a] = hi[a].max(s[a]);
+                }
+            }
+        }
+        if lo[0] > hi[0] {
+            (lo, hi) = ([0.0; 2], [0.0; 2]);
+        }
+        let width = size.max(16);
+        let span = (hi[0] - lo[0]).max(hi[1] - lo[1]).max(f64::MIN_POSITIVE);
+        let scale = 0.94 * width as f64 / span;
+        let height = (((hi[1] - lo[1]).max(0.0) * scale) as usize + width / 16).clamp(16, 4 * width);
+        let centre = [0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1])];
+        let pixels = width * height;
+        Self { cut, width, height, centre, scale, depth: vec![f64::INFINITY; pixels], colour: vec![0xff_ffff; pixels] }
     }
-    let x0 = t.iter().map(|p| p[0]).fold(f64::INFINITY, f64::min).floor().max(0.0) as usize;
-    let x1 = (t.iter().map(|p| p[0]).fold(f64::NEG_INFINITY, f64::max).ceil() as usize).min(width.saturating_sub(1));
-    let y0 = t.iter().map(|p| p[1]).fold(f64::INFINITY, f64::min).floor().max(0.0) as usize;
-    let y1 = (t.iter().map(|p| p[1]).fold(f64::NEG_INFINITY, f64::max).ceil() as usize).min(height.saturating_sub(1));
-    for y in y0..=y1 {
-        for x in x0..=x1 {
-            let (px, py) = (x as f64 + 0.5, y as f64 + 0.5);
-            // Barycentric weights by edge functions.
-            let w = [1, 2, 0].map(|k| {
-                let (a, b) = (t[k], t[(k + 1) % 3]);
-                ((b[0] - a[0]) * (py - a[1]) - (b[1] - a[1]) * (px - a[0])) / area
-            });
-            if w.iter().all(|&v| v >= -1e-9) {
-                let d = w[0] * t[0][2] + w[1] * t[1][2] + w[2] * t[2][2];
-                let i = y * width + x;
-                if d < depth[i] {
-                    depth[i] = d;
-                    rgb[3 * i..3 * i + 3].copy_from_slice(&c);
+
+    /// Draws the pieces of `pieces` whose sites lie at `z <= cut`,
+    /// reporting progress in pieces.
+    pub fn draw(&mut self, pieces: &Pieces, progress: Progress<'_>) {
+        let light = unit([-0.5, 0.3, 1.0]);
+        let (width, height, centre, scale) = (self.width as f64, self.height as f64, self.centre, self.scale);
+        let camera = Camera::new();
+        let to_pixel = |p: V3| -> V3 {
+            let s = camera.project(p);
+            [(s[0] - centre[0]) * scale + width / 2.0, height / 2.0 - (s[1] - centre[1]) * scale, s[2]]
+        };
+        let mut drawn = Vec::new();
+        let total = pieces.len() as u64;
+        for i in 0..pieces.len() {
+            if i % 4096 == 4095 {
+                progress(i as u64 + 1, total);
+            }
+            if pieces.origin(i)[2] > self.cut {
+                continue;
+            }
+            let piece = pieces.get(i);
+            let base = colour(piece.site);
+            for face in piece.faces() {
+                let corners: Vec<V3> = face.iter().map(|&k| piece.vertices[k as usize]).collect();
+                // Newell's normal: outward, as the loop runs counter-clockwise
+                // seen from outside.
+                let mut n = [0.0; 3];
+                for (k, a) in corners.iter().enumerate() {
+                    let b = corners[(k + 1) % corners.len()];
+                    n = [
+                        n[0] + (a[1] - b[1]) * (a[2] + b[2]),
+                        n[1] + (a[2] - b[2]) * (a[0] + b[0]),
+                        n[2] + (a[0] - b[0]) * (a[1] + b[1]),
+                    ];
+                }
+                let n = unit(n);
+                if dot(n, camera.forward) >= 0.0 {
+                    continue;
+                }
+                let shade = 0.35 + 0.65 * dot(n, light).max(0.0);
+                let c = pack(base.map(|b| (b as f64 * shade).round().clamp(0.0, 255.0) as u8));
+                drawn.clear();
+                drawn.extend(corners.iter().map(|&p| to_pixel(p)));
+                for k in 1..drawn.len().saturating_sub(1) {
+                    self.triangle([drawn[0], drawn[k], drawn[k + 1]], c);
+                }
+            }
+        }
+        progress(total, total);
+    }
+
+    /// Combines this view with the views of the same frame that other
+    /// processes drew of other pieces: `max` replaces each value by its
+    /// largest over the processes (an all-reduce). Every process ends with
+    /// the view of all their pieces.
+    pub fn combine(&mut self, max: &mut dyn FnMut(&mut [f64]) -> Result<()>) -> Result<()> {
+        // The nearest depth, as the largest of the negatives; then, of the
+        // colours drawn at that depth, the largest.
+        let mut near: Vec<f64> = self.depth.iter().map(|&d| -d).collect();
+        max(&mut near)?;
+        let mut colours: Vec<f64> = self
+            .depth
+            .iter()
+            .zip(&near)
+            .zip(&self.colour)
+            .map(|((&d, &n), &c)| if d == -n { f64::from(c) } else { -1.0 })
+            .collect();
+        max(&mut colours)?;
+        for (k, (n, c)) in near.into_iter().zip(colours).enumerate() {
+            (self.depth[k], self.colour[k]) = (-n, c as u32);
+        }
+        Ok(())
+    }
+
+    /// Writes the view as a PNG.
+    pub fn write_png(&self, path: &Path) -> Result<()> {
+        let rgb: Vec<u8> = self.colour.iter().flat_map(|&c| [(c >> 16) as u8, (c >> 8) as u8, c as u8]).collect();
+        super::write_png(path, self.width, self.height, &rgb)
+    }
+
+    /// Fills a triangle (pixel x, pixel y, depth) where it is nearer than
+    /// what is drawn (or as near, and of a larger colour).
+    fn triangle(&mut self, t: [V3; 3], c: u32) {
+        let (width, height) = (self.width, self.height);
+        let area = (t[1][0] - t[0][0]) * (t[2][1] - t[0][1]) - (t[1][1] - t[0][1]) * (t[2][0] - t[0][0]);
+        if area.abs() < 1e-12 {
+            return;
+        }
+        let x0 = t.iter().map(|p| p[0]).fold(f64::INFINITY, f64::min).floor().max(0.0) as usize;
+        let x1 =
+            (t.iter().map(|p| p[0]).fold(f64::NEG_INFINITY, f64::max).ceil() as usize).min(width.saturating_sub(1));
+        let y0 = t.iter().map(|p| p[1]).fold(f64::INFINITY, f64::min).floor().max(0.0) as usize;
+        let y1 =
+            (t.iter().map(|p| p[1]).fold(f64::NEG_INFINITY, f64::max).ceil() as usize).min(height.saturating_sub(1));
+        for y in y0..=y1 {
+            for x in x0..=x1 {
+                let (px, py) = (x as f64 + 0.5, y as f64 + 0.5);
+                // Barycentric weights by edge functions.
+                let w = [1, 2, 0].map(|k| {
+                    let (a, b) = (t[k], t[(k + 1) % 3]);
+                    ((b[0] - a[0]) * (py - a[1]) - (b[1] - a[1]) * (px - a[0])) / area
+                });
+                if w.iter().all(|&v| v >= -1e-9) {
+                    let d = w[0] * t[0][2] + w[1] * t[1][2] + w[2] * t[2][2];
+                    let i = y * width + x;
+                    if d < self.depth[i] || (d == self.depth[i] && c > self.colour[i]) {
+                        (self.depth[i], self.colour[i]) = (d, c);
+                    }
                 }
             }
         }
     }
+}
+
+/// Draws the cells of `pieces` whose sites lie at `z <= cut` into a PNG
+/// `size` pixels wide (framing the tets of `mesh` that reach below the
+/// plane), reporting progress in pieces.
+pub fn write_cells_view_png(
+    path: &Path,
+    mesh: &TetMesh,
+    pieces: &Pieces,
+    cut: f64,
+    size: usize,
+    progress: Progress<'_>,
+) -> Result<()> {
+    let mut view = CellsView::new(mesh, cut, size);
+    view.draw(pieces, progress);
+    view.write_png(path)
 }

@@ -1,7 +1,8 @@
 //! `pieces.vtu`: the pieces as a VTK XML UnstructuredGrid (ASCII), one
 //! `VTK_POLYHEDRON` (cell type 42) per piece in the classic
 //! `faces`/`faceoffsets` layout that ParaView and meshio read, with cell
-//! data `site` and `tet` (input indices) and `volume`. Each piece has its
+//! data `site` and `tet` (input indices; -1 for a whole cell, in no tet)
+//! and `volume`. Each piece has its
 //! own points, so that cells can be moved apart (ParaView's Shrink filter).
 //!
 //! Pieces are written by increasing vertex count, then in the order given:
@@ -121,9 +122,13 @@ fn write_body(w: &mut dyn Write, pieces: &[&Piece], progress: Progress<'_>) -> s
         writeln!(w, "{}", p.site)?;
     }
     writeln!(w, "</DataArray>")?;
+    // A whole cell (in no tet) as -1: Int32, as VTK reads it.
     writeln!(w, r#"<DataArray type="Int32" Name="tet" format="ascii">"#)?;
     for p in pieces {
-        writeln!(w, "{}", p.tet)?;
+        match p.tet {
+            Piece::WHOLE => writeln!(w, "-1")?,
+            tet => writeln!(w, "{tet}")?,
+        }
     }
     writeln!(w, "</DataArray>")?;
     writeln!(w, r#"<DataArray type="Float64" Name="volume" format="ascii">"#)?;
