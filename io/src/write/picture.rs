@@ -13,7 +13,11 @@ use super::Progress;
 use cvd::error::Result;
 use cvd::geom::mesh::TetMesh;
 use cvd::passes::pieces::{Piece, Pieces};
+use rayon::prelude::*;
 use std::path::Path;
+
+/// Pieces cut between two progress reports.
+const BATCH: usize = 1 << 16;
 
 /// The cutting plane `z = z`.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -172,24 +176,31 @@ impl SectionImage {
         Self { raster: Raster::new(mesh, size.max(16)), section }
     }
 
-    /// Draws the section of `pieces`, reporting progress in pieces.
+    /// Draws the section of `pieces`, reporting progress in pieces (the
+    /// pieces cut on the threads, their polygons filled in order).
     pub fn draw(&mut self, pieces: &Pieces, progress: Progress<'_>) {
         let z = self.section.z;
-        let total = pieces.len() as u64;
-        for (i, piece) in pieces.iter().enumerate() {
-            let (lo, hi) =
-                piece.vertices.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v[2]), b.max(v[2])));
-            if lo <= z && z <= hi {
-                let poly = cut(&piece, z);
-                if !poly.is_empty() {
-                    self.raster.fill(&poly, piece.site);
-                }
+        let total = pieces.len();
+        for start in (0..total).step_by(BATCH) {
+            let end = (start + BATCH).min(total);
+            let polygons: Vec<(u32, Vec<[f64; 2]>)> = (start..end)
+                .into_par_iter()
+                .filter_map(|k| {
+                    let piece = pieces.get(k);
+                    let (lo, hi) = piece
+                        .vertices
+                        .iter()
+                        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v[2]), b.max(v[2])));
+                    let poly = if lo <= z && z <= hi { cut(&piece, z) } else { Vec::new() };
+                    (!poly.is_empty()).then_some((piece.site, poly))
+                })
+                .collect();
+            for (site, poly) in polygons {
+                self.raster.fill(&poly, site);
             }
-            if i % 4096 == 4095 {
-                progress(i as u64 + 1, total);
-            }
+            progress(end as u64, total as u64);
         }
-        progress(total, total);
+        progress(total as u64, total as u64);
     }
 
     /// Combines this image with the images of the same section that other
