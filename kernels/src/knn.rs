@@ -8,7 +8,9 @@
 
 use crate::abi::{GridParams, KnnParams, QuantPoint, NO_SITE};
 use crate::buffers::OutBuf;
-use crate::grid::{cell_coords, cell_index, diff, ring_row, ring_span};
+use crate::grid::{
+    cell_coords, cell_index, cell_lo, diff, in_cell_key, key_shift, ring_row, ring_span, sub_key, DENSE, KEY_BITS,
+};
 
 /// `max(a - b, 0)` in 64 bits.
 #[inline]
@@ -216,7 +218,7 @@ struct Search<'a> {
 
 /// Offers every site of grid cell `c`, unless the list is full and the
 /// whole cell is farther than its worst entry.
-#[inline]
+#[inline(always)]
 fn visit_cell<N, D>(s: &Search, c: [u32; 3], best: &mut Best, nbr: &mut N, d2: &mut D)
 where
     N: OutBuf<u32> + ?Sized,
@@ -228,6 +230,20 @@ where
     let cell = cell_index(s.g, c);
     let start = s.cell_start[cell] as usize;
     let end = start + s.cell_count[cell] as usize;
+    if s.cell_count[cell] > DENSE {
+        visit_dense(s, c, start, end, best, nbr, d2);
+        return;
+    }
+    offer_range(s, start, end, best, nbr, d2);
+}
+
+/// Offers the sites `sorted[start..end]`.
+#[inline(always)]
+fn offer_range<N, D>(s: &Search, start: usize, end: usize, best: &mut Best, nbr: &mut N, d2: &mut D)
+where
+    N: OutBuf<u32> + ?Sized,
+    D: OutBuf<u64> + ?Sized,
+{
     let mut j = start;
     while j < end {
         let site = s.sorted[j];
@@ -235,6 +251,124 @@ where
             best.offer(dist2(s.q, &site), site[3], nbr, d2);
         }
         j += 1;
+    }
+}
+
+/// A dense cell's node holding this many sites or fewer is read whole.
+const LEAF: u32 = 64;
+
+/// Room for the nodes waiting in a dense cell's descent: at most 7 a level
+/// below the root's 8.
+const NODES: usize = 7 * KEY_BITS as usize + 8;
+
+/// The squared distance from `q` to the box of sub-cells `from..from +
+/// side` (per axis) of the cell at `lo`, sub-cells `1 << shift` wide
+/// ([`crate::grid::key_shift`]).
+#[inline]
+fn node_dist2(q: [u32; 3], lo: [u32; 3], shift: u32, from: [u32; 3], side: u32) -> u64 {
+    let mut d2 = 0u64;
+    let mut a = 0;
+    while a < 3 {
+        let low = lo[a] as u64 + ((from[a] as u64) << shift);
+        let high = lo[a] as u64 + (((from[a] + side) as u64) << shift);
+        let x = q[a] as u64;
+        let gap = if x < low { low - x } else { sub_floor0_u64(x, high) };
+        d2 += gap * gap;
+        a += 1;
+    }
+    d2
+}
+
+/// The first place in `sorted[from..to]` (a dense cell at `lo`, in key
+/// order; `shift` from [`crate::grid::key_shift`]) whose key is at least
+/// `key`.
+#[inline]
+fn first_at_least(s: &Search, (shift, lo): (u32, [u32; 3]), mut from: usize, mut to: usize, key: u32) -> usize {
+    while from < to {
+        let mid = from + (to - from) / 2;
+        if in_cell_key(shift, lo, &s.sorted[mid]) < key {
+            from = mid + 1;
+        } else {
+            to = mid;
+        }
+    }
+    from
+}
+
+/// Offers the sites of dense cell `c` (`sorted[start..end]`, in key
+/// order): down the implicit octree of its sub-cells, nearest child
+/// first, skipping a node farther than the list's worst entry once the
+/// list is full. Offers the sites a full scan would that could enter the
+/// list: the same list. (Kept out of line, and cold, on the CPU: the plain cells
+/// loop stays small.)
+#[cfg_attr(not(target_arch = "spirv"), inline(never), cold)]
+fn visit_dense<N, D>(s: &Search, c: [u32; 3], start: usize, end: usize, best: &mut Best, nbr: &mut N, d2: &mut D)
+where
+    N: OutBuf<u32> + ?Sized,
+    D: OutBuf<u64> + ?Sized,
+{
+    let (lo, shift) = (cell_lo(s.g, c), key_shift(s.g));
+    // A node: its sites' range, its level and its first sub-cell (8 bits
+    // an axis, the level above them).
+    let mut stack = [[0u32; 3]; NODES];
+    stack[0] = [start as u32, end as u32, 0];
+    let mut top = 1usize;
+    while top > 0 {
+        top -= 1;
+        let [a, b, packed] = stack[top];
+        let level = packed >> 24;
+        let from = [packed & 0xff, (packed >> 8) & 0xff, (packed >> 16) & 0xff];
+        let side = 1u32 << (KEY_BITS - level);
+        if best.found == best.k && node_dist2(s.q, lo, shift, from, side) > best.worst_d {
+            continue;
+        }
+        if b - a <= LEAF || level == KEY_BITS {
+            offer_range(s, a as usize, b as usize, best, nbr, d2);
+            continue;
+        }
+        // The children, by key: child `o` holds bit `o & 1` of x, `o >> 1
+        // & 1` of y, `o >> 2` of z below the node's first sub-cell.
+        let half = side / 2;
+        let mut bounds = [0u32; 9];
+        bounds[0] = a;
+        bounds[8] = b;
+        let mut o = 1;
+        while o < 8 {
+            let first = [from[0] + (o & 1) * half, from[1] + ((o >> 1) & 1) * half, from[2] + (o >> 2) * half];
+            let at = first_at_least(s, (shift, lo), bounds[o as usize - 1] as usize, b as usize, sub_key(first));
+            bounds[o as usize] = at as u32;
+            o += 1;
+        }
+        // The non-empty children within reach, farthest first on the
+        // stack (so the nearest is taken next).
+        let mut order = [(0u64, 0u32); 8];
+        let mut n = 0usize;
+        let mut o = 0;
+        while o < 8 {
+            if bounds[o as usize] < bounds[o as usize + 1] {
+                let first = [from[0] + (o & 1) * half, from[1] + ((o >> 1) & 1) * half, from[2] + (o >> 2) * half];
+                let d = node_dist2(s.q, lo, shift, first, half);
+                if best.found < best.k || d <= best.worst_d {
+                    let mut j = n;
+                    while j > 0 && order[j - 1].0 < d {
+                        order[j] = order[j - 1];
+                        j -= 1;
+                    }
+                    order[j] = (d, o);
+                    n += 1;
+                }
+            }
+            o += 1;
+        }
+        let mut j = 0;
+        while j < n {
+            let o = order[j].1;
+            let first = [from[0] + (o & 1) * half, from[1] + ((o >> 1) & 1) * half, from[2] + (o >> 2) * half];
+            let packed = ((level + 1) << 24) | (first[2] << 16) | (first[1] << 8) | first[0];
+            stack[top] = [bounds[o as usize], bounds[o as usize + 1], packed];
+            top += 1;
+            j += 1;
+        }
     }
 }
 

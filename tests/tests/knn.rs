@@ -12,6 +12,9 @@ enum Layout {
     Clustered,
     Duplicates,
     Lattice,
+    /// A tight cluster in a crowd, some of its sites repeated: grid cells
+    /// of hundreds of sites, searched down their own octree.
+    TightInCrowd,
 }
 
 fn make_points(layout: Layout, n: usize, seed: u64) -> Vec<[f64; 3]> {
@@ -24,6 +27,12 @@ fn make_points(layout: Layout, n: usize, seed: u64) -> Vec<[f64; 3]> {
             (0..n).map(|i| base[(i * 7919) % base.len()]).collect()
         }
         Layout::Lattice => points::lattice(n, (n as f64).cbrt().ceil() as usize + 1, seed),
+        Layout::TightInCrowd => {
+            let mut p = points::uniform(n / 3, seed);
+            let blob = points::clustered(n - n / 3, 1, 0.002, seed ^ 7);
+            p.extend(blob.iter().enumerate().map(|(i, q)| if i % 5 == 4 { blob[i - 1] } else { *q }));
+            p
+        }
     }
 }
 
@@ -56,7 +65,13 @@ fn check_all(job_for: impl Fn(KnnMethod) -> KnnJob) {
 }
 
 fn layout() -> impl Strategy<Value = Layout> {
-    prop_oneof![Just(Layout::Uniform), Just(Layout::Clustered), Just(Layout::Duplicates), Just(Layout::Lattice)]
+    prop_oneof![
+        Just(Layout::Uniform),
+        Just(Layout::Clustered),
+        Just(Layout::Duplicates),
+        Just(Layout::Lattice),
+        Just(Layout::TightInCrowd)
+    ]
 }
 
 fn size() -> impl Strategy<Value = usize> {
@@ -78,6 +93,20 @@ proptest! {
         // Queries spread wider than the sites, so some lie outside the grid.
         let queries: Vec<[f64; 3]> = points::uniform(nq, seed ^ 1).iter().map(|p| p.map(|c| c * 1.4 - 0.2)).collect();
         check_all(|m| KnnJob::points(&sites, &queries, k, m).unwrap());
+    }
+}
+
+/// Cells of hundreds of sites (a cluster of radius 0.002 among 5 000
+/// sites: about 6 000 a cell at the grid's 5 a cell on average), each
+/// searched down its octree: the reference's lists, for lists shorter and
+/// longer than a leaf, sites and queries inside and beside the cluster.
+#[test]
+fn dense_cells_give_the_reference_lists() {
+    let sites = make_points(Layout::TightInCrowd, 9000, 11);
+    let blob = points::clustered(400, 1, 0.003, 12);
+    for k in [1, 20, 48, 100] {
+        check_all(|m| KnnJob::sites(&sites, k, m).unwrap());
+        check_all(|m| KnnJob::points(&sites, &blob, k, m).unwrap());
     }
 }
 
