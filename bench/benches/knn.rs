@@ -20,6 +20,9 @@ struct Options {
     device: Option<String>,
     repeat: usize,
     json: Option<String>,
+    /// `uniform`, or `tight`: a quarter of the sites in a cluster of σ =
+    /// 0.002 among the rest (grid cells of thousands of sites).
+    layout: String,
 }
 
 fn parse_list(s: &str) -> Vec<usize> {
@@ -35,6 +38,7 @@ fn options() -> Options {
         device: None,
         repeat: 3,
         json: None,
+        layout: "uniform".into(),
     };
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
@@ -47,6 +51,7 @@ fn options() -> Options {
             "--device" => o.device = Some(value()),
             "--repeat" => o.repeat = value().parse().expect("--repeat N"),
             "--json" => o.json = Some(value()),
+            "--layout" => o.layout = value(),
             "--bench" => {}
             other => panic!("unknown option {other}"),
         }
@@ -58,6 +63,7 @@ fn options() -> Options {
 struct Row {
     method: String,
     backend: String,
+    layout: String,
     n: usize,
     k: usize,
     /// Best of the repeats, seconds (GPU: device time from timestamps).
@@ -119,13 +125,22 @@ fn main() {
         rows.push(row);
     };
     for &n in &o.sizes {
-        let sites = points::uniform(n, 42);
+        let sites = match o.layout.as_str() {
+            "uniform" => points::uniform(n, 42),
+            "tight" => {
+                let mut sites = points::uniform(n - n / 4, 42);
+                sites.extend(points::clustered(n / 4, 1, 0.002, 43).iter().map(|p| p.map(|c| c.clamp(0.0, 1.0))));
+                sites
+            }
+            other => panic!("--layout {other}: uniform or tight"),
+        };
         for &k in &o.ks {
             let grid_job = KnnJob::sites(&sites, k, KnnMethod::Grid).expect("job");
             let (cpu_grid, t) = best_of(o.repeat, || timed(|| grid_job.run(&cpu).expect("cpu grid")));
             let row = |method: &str, b: &str, s: f64, phases: String, agrees| Row {
                 method: method.into(),
                 backend: b.into(),
+                layout: o.layout.clone(),
                 n,
                 k,
                 seconds: s,

@@ -719,13 +719,18 @@ fn walls(path: &Path) -> Vec<(i32, i32, Vec<[u64; 3]>)> {
     walls
 }
 
+/// What `tests/scripts/SCRIPT` (Python with VTK) prints of `path`.
+fn vtk_read(script: &str, path: &Path) -> serde_json::Value {
+    let script = env!("CARGO_MANIFEST_DIR").to_string() + "/../tests/scripts/" + script;
+    let o = Command::new("python3").arg(script).arg(path).output().unwrap();
+    assert!(o.status.success(), "VTK on {}: {}", path.display(), String::from_utf8_lossy(&o.stderr));
+    serde_json::from_slice(&o.stdout).unwrap()
+}
+
 /// The cells of a `cells.vtu` or `cells.pvtu` as VTK reads them, by site:
 /// (site, stored volume, VTK's measure of the polyhedron, faces).
 fn vtk_cells(path: &Path) -> Vec<(i64, f64, f64, i64)> {
-    let script = env!("CARGO_MANIFEST_DIR").to_string() + "/../tests/scripts/read_cells_vtu.py";
-    let o = Command::new("python3").arg(script).arg(path).output().unwrap();
-    assert!(o.status.success(), "VTK on {}: {}", path.display(), String::from_utf8_lossy(&o.stderr));
-    let json: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let json = vtk_read("read_cells_vtu.py", path);
     let mut cells: Vec<(i64, f64, f64, i64)> = json["cells"]
         .as_array()
         .unwrap()
@@ -742,10 +747,7 @@ fn vtk_cells(path: &Path) -> Vec<(i64, f64, f64, i64)> {
 /// The pieces of a `pieces.vtu` or `pieces.pvtu` as VTK reads them,
 /// sorted: (site, tet, stored volume's bits, faces).
 fn vtk_pieces(path: &Path) -> Vec<(i64, i64, u64, i64)> {
-    let script = env!("CARGO_MANIFEST_DIR").to_string() + "/../tests/scripts/read_pieces_vtk.py";
-    let o = Command::new("python3").arg(script).arg(path).output().unwrap();
-    assert!(o.status.success(), "VTK on {}: {}", path.display(), String::from_utf8_lossy(&o.stderr));
-    let json: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let json = vtk_read("read_pieces_vtk.py", path);
     let mut pieces: Vec<(i64, i64, u64, i64)> = json["pieces"]
         .as_array()
         .unwrap()
