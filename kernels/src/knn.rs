@@ -295,6 +295,14 @@ fn first_at_least(s: &Search, (shift, lo): (u32, [u32; 3]), mut from: usize, mut
     from
 }
 
+/// The first sub-cell of child `o` of a node whose first sub-cell is
+/// `from` (children `half` sub-cells wide): bit `o & 1` of x, `o >> 1 & 1`
+/// of y, `o >> 2` of z, as the key orders them.
+#[inline]
+fn child_first(from: [u32; 3], o: u32, half: u32) -> [u32; 3] {
+    [from[0] + (o & 1) * half, from[1] + ((o >> 1) & 1) * half, from[2] + (o >> 2) * half]
+}
+
 /// Offers the sites of dense cell `c` (`sorted[start..end]`, in key
 /// order): down the implicit octree of its sub-cells, nearest child
 /// first, skipping a node farther than the list's worst entry once the
@@ -326,15 +334,14 @@ where
             offer_range(s, a as usize, b as usize, best, nbr, d2);
             continue;
         }
-        // The children, by key: child `o` holds bit `o & 1` of x, `o >> 1
-        // & 1` of y, `o >> 2` of z below the node's first sub-cell.
+        // The children's ranges, in key order (see `child_first`).
         let half = side / 2;
         let mut bounds = [0u32; 9];
         bounds[0] = a;
         bounds[8] = b;
         let mut o = 1;
         while o < 8 {
-            let first = [from[0] + (o & 1) * half, from[1] + ((o >> 1) & 1) * half, from[2] + (o >> 2) * half];
+            let first = child_first(from, o, half);
             let at = first_at_least(s, (shift, lo), bounds[o as usize - 1] as usize, b as usize, sub_key(first));
             bounds[o as usize] = at as u32;
             o += 1;
@@ -346,7 +353,7 @@ where
         let mut o = 0;
         while o < 8 {
             if bounds[o as usize] < bounds[o as usize + 1] {
-                let first = [from[0] + (o & 1) * half, from[1] + ((o >> 1) & 1) * half, from[2] + (o >> 2) * half];
+                let first = child_first(from, o, half);
                 let d = node_dist2(s.q, lo, shift, first, half);
                 if best.found < best.k || d <= best.worst_d {
                     let mut j = n;
@@ -363,7 +370,7 @@ where
         let mut j = 0;
         while j < n {
             let o = order[j].1;
-            let first = [from[0] + (o & 1) * half, from[1] + ((o >> 1) & 1) * half, from[2] + (o >> 2) * half];
+            let first = child_first(from, o, half);
             let packed = ((level + 1) << 24) | (first[2] << 16) | (first[1] << 8) | first[0];
             stack[top] = [bounds[o as usize], bounds[o as usize + 1], packed];
             top += 1;
