@@ -153,7 +153,7 @@ fn in_parts(args: &RunArgs, comm: &dyn Reduce) -> cvd::Result<u8> {
         // At least one batch: rank 0 writes the header with no rows too.
         for start in (0..by_rows.len().max(1)).step_by(1 << 16) {
             let range = start..(start + (1 << 16)).min(by_rows.len());
-            let batch = by_rows.cells(range.clone()).map_err(std::io::Error::other)?;
+            let batch = by_rows.cells(&cells, range.clone()).map_err(std::io::Error::other)?;
             let particles = particles.as_ref().map(|p| p.rows(range));
             write(w, &batch, particles.as_ref(), Rows { first: first + start as u64, total, periodic: false })?;
         }

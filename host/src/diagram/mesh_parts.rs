@@ -325,8 +325,8 @@ impl ClippedVoronoi<'_> {
             timings.add("rows", clock.elapsed().as_secs_f64());
         }
         let clock = std::time::Instant::now();
-        let rows = MeshRows::of(rows)?;
-        let mut cells = rows.numbers();
+        let mut rows = MeshRows::of(rows)?;
+        let mut cells = rows.take_numbers();
         timings.add("rows", clock.elapsed().as_secs_f64());
 
         // The run's totals.
@@ -801,7 +801,7 @@ impl MeshInParts {
     /// The cells of all this rank's rows with their faces, and the run's
     /// totals.
     pub fn all_rows(&self) -> Result<Cells> {
-        Ok(Cells { adjacency: self.rows.cells(0..self.rows.len())?.adjacency, ..self.cells.clone() })
+        Ok(Cells { adjacency: self.rows.cells(&self.cells, 0..self.rows.len())?.adjacency, ..self.cells.clone() })
     }
 
     /// The particles' quantities (`--voronoi-index`: surface area,
@@ -899,17 +899,20 @@ impl MeshRows {
         self.received.kept.place()
     }
 
-    /// Every row's volume, centroid and energy.
-    fn numbers(&self) -> Cells {
-        self.received.numbers.clone()
+    /// Every row's volume, centroid and energy, taken out (the rank's
+    /// [`MeshInParts::cells`] holds them, not these rows too).
+    fn take_numbers(&mut self) -> Cells {
+        std::mem::take(&mut self.received.numbers)
     }
 
     /// Rows `range` (of this rank's) as cells with their faces, each row's
     /// faces merged with the halves from the other sides as one process
-    /// adds them: the cell's own first, then the other side's. Fails only
-    /// where the rows kept in a file cannot be read back.
-    pub fn cells(&self, range: std::ops::Range<usize>) -> Result<Cells> {
-        let Received { first, faces, at, numbers, kept, halves } = &self.received;
+    /// adds them: the cell's own first, then the other side's; their
+    /// volumes, centroids and energies from `numbers` (the rank's
+    /// [`MeshInParts::cells`]). Fails only where the rows kept in a file
+    /// cannot be read back.
+    pub fn cells(&self, numbers: &Cells, range: std::ops::Range<usize>) -> Result<Cells> {
+        let Received { first, faces, at, kept, halves, .. } = &self.received;
         let mut cells = Cells {
             volume: numbers.volume[range.clone()].to_vec(),
             centroid: numbers.centroid[range.clone()].to_vec(),
