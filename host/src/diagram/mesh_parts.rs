@@ -909,10 +909,14 @@ impl MeshRows {
     /// faces merged with the halves from the other sides as one process
     /// adds them: the cell's own first, then the other side's; their
     /// volumes, centroids and energies from `numbers` (the rank's
-    /// [`MeshInParts::cells`]). Fails only where the rows kept in a file
-    /// cannot be read back.
+    /// [`MeshInParts::cells`]). Fails where the rows kept in a file cannot
+    /// be read back, or `numbers` or these rows have no row of `range`.
     pub fn cells(&self, numbers: &Cells, range: std::ops::Range<usize>) -> Result<Cells> {
         let Received { first, faces, at, kept, halves, .. } = &self.received;
+        let n = numbers.volume.len().min(numbers.centroid.len()).min(numbers.energy.len()).min(at.len());
+        if range.start > range.end || range.end > n {
+            return Err(Error::InvalidInput(format!("rows {range:?} asked of {n}")));
+        }
         let mut cells = Cells {
             volume: numbers.volume[range.clone()].to_vec(),
             centroid: numbers.centroid[range.clone()].to_vec(),
@@ -1218,6 +1222,10 @@ mod tests {
                 let spilled = cv.spill_rows_to(&scratch).compute_in_parts_by_rows(comm, Some(&cpu)).unwrap();
                 assert!(spilled.rows.kept_in().starts_with(scratch.to_str().unwrap()), "{}", spilled.rows.kept_in());
                 let with = spilled.all_rows().unwrap();
+                // Rows past this rank's, or numbers of no row: an error.
+                let past = spilled.rows.len() + 1;
+                assert!(spilled.rows.cells(&spilled.cells, 0..past).is_err());
+                assert!(spilled.rows.cells(&Cells::default(), 0..1).is_err() || spilled.rows.is_empty());
                 (cells, report, with, spilled.built.unwrap())
             });
             assert_eq!(std::fs::read_dir(&scratch).unwrap().count(), 0, "{what}: no spill file left behind");
