@@ -186,6 +186,7 @@ pub(crate) fn totals_and_records(
         owned: report.owned,
         held: report.held,
         halo: report.halo,
+        widened: report.widened as u64,
         grid_cells: report.grid_cells,
         tets: report.tets,
         parts: report.parts,
@@ -249,7 +250,7 @@ pub(crate) fn rows_of_sites(
 pub(crate) fn print_ranks(summary: &Summary, parts: &str) {
     for r in summary.ranks.iter().flatten() {
         println!(
-            "rank {}: {} rows read, {} sites owned in {} {parts}, {} points held (halo {:.3}; grid cells {} of {}{}), \
+            "rank {}: {} rows read, {} sites owned in {} {parts}, {} points held (halo {:.3}{}; grid cells {} of {}{}), \
              {} sent, {:.2} s, peak memory {}",
             r.rank,
             r.rows,
@@ -257,6 +258,11 @@ pub(crate) fn print_ranks(summary: &Summary, parts: &str) {
             r.blocks,
             r.held,
             r.halo,
+            match r.widened {
+                0 => String::new(),
+                1 => ", widened once".to_string(),
+                n => format!(", widened {n} times"),
+            },
             r.grid_cells[0],
             r.grid_cells[1],
             match r.tets {
@@ -561,6 +567,7 @@ fn record_bytes(r: &RankRecord) -> Vec<u8> {
         r.tets[0],
         r.tets[1],
         r.parts,
+        r.widened,
     ];
     words.iter().flat_map(|w| w.to_le_bytes()).collect()
 }
@@ -580,5 +587,6 @@ fn record_of(b: &[u8]) -> RankRecord {
         grid_cells: [w(9), w(10)],
         tets: [w(11), w(12)],
         parts: w(13),
+        widened: w(14),
     }
 }

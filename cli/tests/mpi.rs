@@ -372,6 +372,7 @@ fn a_mesh_in_parts_holds_a_fraction_of_one_process_memory() {
         );
         for r in summary(&out)["ranks"].as_array().unwrap() {
             assert_eq!(r["parts"], 4, "{ranks} ranks: the parts a rank takes by default");
+            assert_eq!(r["widened"], 0, "{ranks} ranks: uniform sites take their first halo");
             let share = r["peak_memory_bytes"].as_f64().unwrap() / peak;
             eprintln!("{ranks} ranks x 4 parts: rank {} peak {:.3} of one process's", r["rank"], share);
             assert!(share <= most, "{ranks} ranks: rank {} peaked at {share:.3} of one process's", r["rank"]);

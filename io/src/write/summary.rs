@@ -106,6 +106,9 @@ pub struct RankRecord {
     pub held: u64,
     /// The halo's width.
     pub halo: f64,
+    /// Times a part of it was done again with a wider halo (a cell whose
+    /// list or walk reached past what it held), over its parts.
+    pub widened: u64,
     /// The cells of the site grid's table it held (the window of the whole
     /// job's grid around its points), and the whole grid's.
     pub grid_cells: [u64; 2],
