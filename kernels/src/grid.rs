@@ -7,9 +7,9 @@
 //! same bits run after run. A dense bin (more than [`DENSE`] sites: a
 //! tight cluster in a crowd) is ordered along a Morton curve of its own
 //! ([`in_cell_key`], ties by index) instead: its sites then form an
-//! implicit octree that the k-NN descends rather than reading them all. [`ring_span`] and [`ring_row`] list the cells
-//! of a Chebyshev ring around a cell: the k-NN and the walks search the grid
-//! ring by ring.
+//! implicit octree that the k-NN descends rather than reading them all.
+//! [`ring_span`] and [`ring_row`] list the cells of a Chebyshev ring around
+//! a cell: the k-NN and the walks search the grid ring by ring.
 
 use crate::abi::{GridParams, QuantPoint};
 use crate::buffers::{AtomicCounters, OutBuf};
