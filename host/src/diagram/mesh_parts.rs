@@ -22,9 +22,11 @@
 //! - certifies each cell: its neighbour list is the one process's when the
 //!   ball through its last entry lies inside the box
 //!   ([`HeldCells::certifies`]), and a grid walk that must look at a cell
-//!   outside gives up (`Counters::out_of_halo`). A rank with a cell not
-//!   certified asks again with a halo half as wide again (at most the
-//!   whole grid, which certifies every cell);
+//!   outside gives up (`Counters::out_of_halo`). The halo goes around
+//!   groups of the part's cells along the curve, each its own: a group
+//!   with a cell not certified (or whose walk left) asks again with a halo
+//!   half as wide again, the others keep theirs (at most the whole grid,
+//!   which certifies every cell);
 //! - sends each row, with its faces (the other side's halves from the rank
 //!   that built that side, as one process adds them), to the rank that
 //!   read its site.
@@ -412,32 +414,37 @@ impl ClippedVoronoi<'_> {
         // sized by the mean would be widened, the part computed again.
         let typical = median_occupancy(&own_cells[run.clone()]).min(crate::job::knn::SITES_PER_CELL);
         let ball = (3.0 * k_site as f64 / (4.0 * std::f64::consts::PI * typical)).cbrt();
-        let mut halo = ((2.0 * ball).ceil() as u32).max(1);
-        // The halo this sub-part last took, if the diagram's caller keeps
-        // them (the optimisers' diagrams follow one another).
-        if let Some(last) = self.halos.and_then(|h| h.get(sub)) {
-            halo = halo.max(last);
-        }
+        let first_halo = ((2.0 * ball).ceil() as u32).max(1);
         let first_key = own.get(run.start).map(|h| (whole.keys.key(h.at), h.site));
         // The halo goes around groups of the run's cells along the curve,
         // each a compact box, not around the box of them all: a run that
         // crosses sparse space and ends in a cluster would hold most sites
-        // in that one box.
+        // in that one box. Each group's halo is widened on its own, where
+        // its cells need it (the tails of a cluster alone in a large
+        // domain reach far; the rest of the run does not).
         let cells = &own_cells[run.clone()];
         let n_groups = HELD_GROUPS.min(cells.len());
+        let group_start = |g: usize| cells.len() * g / n_groups;
         let groups: Vec<([u32; 3], [u32; 3])> = (0..n_groups)
             .map(|g| {
-                let of = &cells[cells.len() * g / n_groups..cells.len() * (g + 1) / n_groups];
+                let of = &cells[group_start(g)..group_start(g + 1)];
                 let lo = [0, 1, 2].map(|a| of.iter().map(|c| c[a]).min().unwrap_or(0));
                 let hi = [0, 1, 2].map(|a| of.iter().map(|c| c[a]).max().unwrap_or(0));
                 (lo, hi)
             })
             .collect();
+        // The halos this sub-part's groups last took, if the diagram's
+        // caller keeps them (the optimisers' diagrams follow one another,
+        // their runs much the same).
+        let last = self.halos.map(|h| h.get(sub)).unwrap_or_default();
+        let mut halos: Vec<u32> = (0..n_groups).map(|g| first_halo.max(last.get(g).copied().unwrap_or(0))).collect();
         let mut done: Option<Part> = None;
         loop {
             let want = (done.is_none() && !run.is_empty()).then(|| {
-                let around = |(lo, hi): &([u32; 3], [u32; 3])| HeldCells::around(*lo, *hi, halo, dims, grid.cell_size);
-                HeldSet::of(groups.iter().map(around).collect())
+                let around = |(lo, hi): &([u32; 3], [u32; 3]), halo: u32| {
+                    HeldCells::around(*lo, *hi, halo, dims, grid.cell_size)
+                };
+                HeldSet::of(groups.iter().zip(&halos).map(|(g, &h)| around(g, h)).collect())
             });
             let boxes = wanted_boxes(comm, want.as_ref())?;
             if boxes.iter().all(Option::is_none) {
@@ -508,7 +515,7 @@ impl ClippedVoronoi<'_> {
             let shift = window.shift();
             let clearance = set.clearance();
             let per_world = whole.quantizer.scale() / whole.frame.scale;
-            let uncertified = (0..listed.len())
+            let uncertified: Vec<u32> = (0..listed.len())
                 .into_par_iter()
                 .filter(|&u| {
                     let need = kept.kth[u] + 2.0 * (kept.kth[u] - kept.reach[u]).max(0.0);
@@ -516,20 +523,39 @@ impl ClippedVoronoi<'_> {
                     let q = whole.quantized(held[listed[u] as usize].at);
                     !set.certifies([0, 1, 2].map(|a| q[a] - shift[a]), d2, clearance.as_deref())
                 })
-                .count();
-            drop((kept, clearance));
-            report.uncertified += uncertified as u64;
+                .map(|u| listed[u])
+                .collect();
+            drop(clearance);
+            report.uncertified += uncertified.len() as u64;
             let c = &cells.counters;
-            if set.is_whole() || (uncertified == 0 && c.out_of_halo == 0 && c.unresolved == 0 && pieces_left == 0) {
-                let width = halo as f64 * grid.cell_size as f64 / per_world;
-                if let Some(halos) = self.halos {
-                    halos.set(sub, halo);
+            let left = c.out_of_halo + c.unresolved + pieces_left;
+            if set.is_whole() || (uncertified.is_empty() && left == 0) {
+                let width =
+                    halos.iter().copied().max().unwrap_or(first_halo) as f64 * grid.cell_size as f64 / per_world;
+                if let Some(h) = self.halos {
+                    h.set(sub, halos.clone());
                 }
                 done = Some(Part { held, answer, cells, pieces, width });
-            } else {
-                halo = halo.saturating_add(halo.div_ceil(2));
-                report.widened += 1;
+                continue;
             }
+            // The groups of the cells not certified and of those whose walks
+            // left, half as wide again; every group where a walk left that
+            // the job did not name (a device's pieces, a cell not even the
+            // host could finish).
+            let unnamed = left > 0 && (pieces_left > 0 || kept.left.is_empty());
+            let failed = uncertified.iter().chain(&kept.left);
+            let mut widen = vec![unnamed; n_groups];
+            for &i in failed {
+                let at = (i as usize).checked_sub(answer.start).filter(|&a| a < run.len());
+                let at = at.ok_or_else(|| Error::Internal(format!("cell {i} of a part left beyond its run")))?;
+                widen[(0..n_groups).rev().find(|&g| group_start(g) <= at).unwrap_or(0)] = true;
+            }
+            for (h, w) in halos.iter_mut().zip(widen) {
+                if w {
+                    *h = h.saturating_add(h.div_ceil(2));
+                }
+            }
+            report.widened += 1;
         }
         Ok(done)
     }
@@ -601,9 +627,10 @@ impl ClippedVoronoi<'_> {
 /// What a diagram in parts leaves the next ([`ClippedVoronoi::halos`]):
 /// the optimisers' diagrams follow one another.
 ///
-/// The halo (in grid cells) each sub-part of a rank last took: a sub-part
-/// whose cells needed a wider halo than the first (power cells whose
-/// weights reach far) starts there next time, not from the first again.
+/// The halos (in grid cells) each group of each sub-part of a rank last
+/// took: a group whose cells needed a wider halo than the first (power
+/// cells whose weights reach far) starts there next time, not from the
+/// first again.
 /// And the work each rank measured: the next diagram balances the ranks
 /// by it, each bucket of the curve weighed by the time a site took on the
 /// rank that last built it (cut cells, tight clusters and sparse space do
@@ -614,7 +641,7 @@ impl ClippedVoronoi<'_> {
 /// rank builds a cell and how often the mesh is prepared.
 #[derive(Debug, Default)]
 pub struct Halos {
-    halos: std::sync::Mutex<Vec<u32>>,
+    halos: std::sync::Mutex<Vec<Vec<u32>>>,
     work: std::sync::Mutex<Option<Work>>,
     mesh: crate::diagram::voronoi::PreparedMesh,
 }
@@ -628,16 +655,16 @@ struct Work {
 }
 
 impl Halos {
-    fn get(&self, sub: usize) -> Option<u32> {
-        self.halos.lock().unwrap_or_else(|e| e.into_inner()).get(sub).copied()
+    fn get(&self, sub: usize) -> Vec<u32> {
+        self.halos.lock().unwrap_or_else(|e| e.into_inner()).get(sub).cloned().unwrap_or_default()
     }
 
-    fn set(&self, sub: usize, halo: u32) {
-        let mut halos = self.halos.lock().unwrap_or_else(|e| e.into_inner());
-        if halos.len() <= sub {
-            halos.resize(sub + 1, 0);
+    fn set(&self, sub: usize, halos: Vec<u32>) {
+        let mut all = self.halos.lock().unwrap_or_else(|e| e.into_inner());
+        if all.len() <= sub {
+            all.resize(sub + 1, Vec::new());
         }
-        halos[sub] = halo;
+        all[sub] = halos;
     }
 
     fn work(&self) -> Option<Work> {
@@ -1373,6 +1400,41 @@ mod tests {
                 same_rows(&one, cells, rows(r), &format!("{ranks} ranks x {per_rank}"));
                 assert_eq!(report.widened, 0, "{ranks} ranks x {per_rank}: rank {r} widened its halo ({report:?})");
             }
+        }
+    }
+
+    /// Clusters alone in a large domain: their tails' cells reach the
+    /// domain's empty corners, walk out of any first halo and are not
+    /// certified; the groups they are in are widened (each on its own,
+    /// round after round) until they finish, and the rows are one
+    /// process's to the bit.
+    #[test]
+    fn clusters_alone_in_a_large_domain_widen_where_their_tails_are() {
+        let mesh = TetMesh::voxels(4, |_, _, _| true);
+        let mut sites: Vec<[f64; 3]> =
+            points::clustered(6_000, 3, 0.05, 81).into_iter().map(|p| p.map(|x| 0.3 + 0.4 * x)).collect();
+        sites.retain(|p| p.iter().all(|&x| x > 1e-3 && x < 1.0 - 1e-3));
+        let cpu = CpuBackend::new(Some(2)).unwrap();
+        let one = ClippedVoronoi::new(&mesh, &sites).strategy(Strategy::Whole).faces(true).backend(&cpu).compute();
+        let one = one.unwrap();
+        for (ranks, per_rank) in [(2, 1), (2, 2), (3, 1)] {
+            let what = format!("{ranks} ranks x {per_rank}");
+            let rows = |r: usize| sites.len() * r / ranks..sites.len() * (r + 1) / ranks;
+            let runs = on_ranks(ranks, |r, comm| {
+                let cpu = CpuBackend::new(Some(1)).unwrap();
+                let cv = ClippedVoronoi::new(&mesh, &sites[rows(r)]).faces(true).backend(&cpu);
+                cv.parts_per_rank(per_rank).compute_in_parts(comm).unwrap()
+            });
+            for (r, (cells, _)) in runs.iter().enumerate() {
+                same_rows(&one, cells, rows(r), &what);
+                assert_eq!(one.total_volume.to_bits(), cells.total_volume.to_bits(), "{what}: total volume");
+                assert_eq!(
+                    (one.counters.whole_cells, one.counters.cut_cells),
+                    (cells.counters.whole_cells, cells.counters.cut_cells),
+                    "{what}: each cell counted once"
+                );
+            }
+            assert!(runs.iter().any(|r| r.1.widened > 0), "{what}: the tails widened their groups");
         }
     }
 

@@ -16,7 +16,9 @@ use crate::job::sites::{Layout, SiteMap, Window};
 use crate::job::BackendKind;
 use crate::passes::pieces::{PieceCollector, Pieces};
 use crate::passes::polyhedra::{merge_pieces, CellPolyhedron};
-use cvd_kernels::abi::{counter, domain_whole, ClipParams, RefineParams, SplitPoint, ACCUM_PER_SITE, NO_SITE};
+use cvd_kernels::abi::{
+    counter, domain_whole, ClipParams, RefineParams, SplitPoint, ACCUM_PER_SITE, NO_SITE, WHOLE_CELL,
+};
 use cvd_kernels::clip::NoPieces;
 use cvd_kernels::lists::NO_LIST;
 use std::sync::Mutex;
@@ -899,20 +901,31 @@ impl<'a> ClippedVoronoi<'a> {
             out.timings.push("host pass", t);
         }
         let (refined, out_unresolved) = (out.refined, out.unresolved);
+        // A part's cells whose walks had to leave its window (job sites):
+        // the part does them again with a wider halo.
+        let mut left: Vec<u32> = if job.is_windowed() && out.counters.get(counter::HALO).is_some_and(|&h| h > 0) {
+            out.unfinished.iter().filter(|e| e[0] == WHOLE_CELL).map(|e| e[1]).collect()
+        } else {
+            Vec::new()
+        };
         let (adjacency, faces_redone, faces_left) = if job.face_sums_len() > 0 {
             // The face sums and lists go to the adjacency and are dropped
             // as soon as read.
             let (sums, lists) = (std::mem::take(&mut out.faces), std::mem::take(&mut out.site_lists));
             let (adjacency, t) = crate::geom::timing::timed(|| self.adjacency(job, map, frame, &out, sums, lists));
             out.timings.push("faces", t);
-            let (adjacency, redone, left) = adjacency?;
-            (Some(adjacency), redone, left)
+            let (adjacency, redone, faces_left) = adjacency?;
+            left.extend(&faces_left);
+            (Some(adjacency), redone, !faces_left.is_empty())
         } else {
             (None, 0, false)
         };
         let kept = out.kept.take().map(|kept| {
             let inputs = map.inputs(job.site_knn.sites.len());
-            kept_lists(kept, inputs, &job.site_knn, frame.scale, self.candidates)
+            let mut left: Vec<u32> = left.iter().map(|&u| inputs[u as usize]).collect();
+            left.sort_unstable();
+            left.dedup();
+            KeptLists { left, ..kept_lists(kept, inputs, &job.site_knn, frame.scale, self.candidates) }
         });
         let mut cells = finish(self.mesh, self.density, self.sites, job, map, frame, out);
         cells.adjacency = adjacency;
@@ -939,7 +952,7 @@ impl ClippedVoronoi<'_> {
         out: &ClipOutput,
         sums: Vec<i64>,
         lists: crate::job::knn::PackedLists,
-    ) -> Result<(crate::passes::faces::Adjacency, usize, bool)> {
+    ) -> Result<(crate::passes::faces::Adjacency, usize, Vec<u32>)> {
         let k = job.params.k_site as usize;
         let n = job.params.n_sites;
         let mut cpu = None;
@@ -965,7 +978,7 @@ impl ClippedVoronoi<'_> {
                 // process's); said as a cell out of the halo.
                 None if job.is_windowed() => {
                     let adjacency = crate::passes::faces::assemble(faces, map, self.sites, frame.scale);
-                    return Ok((adjacency, incomplete.len(), true));
+                    return Ok((adjacency, incomplete.len(), incomplete));
                 }
                 None => {
                     let cpu = match cpu {
@@ -991,7 +1004,8 @@ impl ClippedVoronoi<'_> {
                 }
             });
         }
-        Ok((crate::passes::faces::assemble(faces, map, self.sites, frame.scale), incomplete.len(), false))
+        let redone = incomplete.len();
+        Ok((crate::passes::faces::assemble(faces, map, self.sites, frame.scale), redone, Vec::new()))
     }
 }
 
@@ -1155,7 +1169,7 @@ fn kept_lists(kept: LocalKept, inputs: Vec<u32>, knn: &KnnJob, scale: f64, c: Op
         let mid = beyond.len() / 2;
         beyond.select_nth_unstable_by(mid, f64::total_cmp).1.max(0.0)
     };
-    KeptLists { k: kept.k as usize, lists: kept.lists, reach, kth, inputs, reused, skin }
+    KeptLists { k: kept.k as usize, lists: kept.lists, reach, kth, inputs, reused, skin, left: Vec::new() }
 }
 
 #[cfg(test)]

@@ -115,4 +115,8 @@ pub struct KeptLists {
     /// The median reach beyond the `k_site`-th entry of the lists searched
     /// afresh, where they are most of them (else 0).
     pub skin: f64,
+    /// A part's cells (input indices, increasing) whose walks had to leave
+    /// its window (`Counters::out_of_halo`): the part does them again with
+    /// a wider halo.
+    pub left: Vec<u32>,
 }
