@@ -25,8 +25,8 @@
 //!   outside gives up (`Counters::out_of_halo`). The halo goes around
 //!   groups of the part's cells along the curve, each its own: a group
 //!   with a cell not certified (or whose walk left) asks again with a halo
-//!   half as wide again, the others keep theirs (at most the whole grid,
-//!   which certifies every cell);
+//!   twice as wide, the others keep theirs (at most the whole grid, which
+//!   certifies every cell);
 //! - sends each row, with its faces (the other side's halves from the rank
 //!   that built that side, as one process adds them), to the rank that
 //!   read its site.
@@ -406,8 +406,8 @@ impl ClippedVoronoi<'_> {
         }
         let k_site = self.resolved_k_site();
         // A first halo twice as wide as the ball of a cell's list (a cut
-        // cell's walk may reach farther), then half as wide again each
-        // round. The ball at the density of the run's typical grid cell
+        // cell's walk may reach farther), then twice as wide each round
+        // where a group's cells need it. The ball at the density of the run's typical grid cell
         // (the median of its occupied cells' sites, at most the grid's
         // mean): where a crowd is packed in tight clusters, most cells are
         // the sparse ones between, whose lists reach farthest, and a halo
@@ -539,9 +539,11 @@ impl ClippedVoronoi<'_> {
                 continue;
             }
             // The groups of the cells not certified and of those whose walks
-            // left, half as wide again; every group where a walk left that
-            // the job did not name (a device's pieces, a cell not even the
-            // host could finish).
+            // left, twice as wide (only those: overshooting costs a few
+            // groups, not the part; 1.5x took more rounds, 3x held more,
+            // docs/BENCHMARKS.md "Halos widened group by group"); every
+            // group where a walk left that the job did not name (a device's
+            // pieces, a cell not even the host could finish).
             let unnamed = left > 0 && (pieces_left > 0 || kept.left.is_empty());
             let failed = uncertified.iter().chain(&kept.left);
             let mut widen = vec![unnamed; n_groups];
@@ -552,7 +554,7 @@ impl ClippedVoronoi<'_> {
             }
             for (h, w) in halos.iter_mut().zip(widen) {
                 if w {
-                    *h = h.saturating_add(h.div_ceil(2));
+                    *h = h.saturating_mul(2);
                 }
             }
             report.widened += 1;
