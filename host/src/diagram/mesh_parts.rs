@@ -453,6 +453,7 @@ impl ClippedVoronoi<'_> {
             let (held, t) = timed(|| spread(comm, own, own_cells, &boxes, &mut report.sent));
             report.timings.add("exchange", t);
             let (Some(set), Some(first_key)) = (want, first_key) else { continue };
+            let round = std::time::Instant::now();
             let window = set.bounds;
             let unheld = set.unheld_bits();
             let unheld_cells = unheld.as_ref().map_or(0, |b| b.iter().map(|w| w.count_ones() as u64).sum());
@@ -558,6 +559,8 @@ impl ClippedVoronoi<'_> {
                 }
             }
             report.widened += 1;
+            // The round's job, done again: its time said apart.
+            report.timings.add("done again", round.elapsed().as_secs_f64());
         }
         Ok(done)
     }
