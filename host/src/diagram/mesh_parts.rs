@@ -51,7 +51,7 @@ use crate::exec::CpuBackend;
 use crate::geom::points::MortonKeys;
 use crate::geom::timing::{timed, Timings};
 use crate::job::clip::{Frame, JobShape, Strategy};
-use crate::job::held::{HeldCells, HeldSet};
+use crate::job::held::{HeldCells, HeldMask, HeldSet};
 use crate::job::sites::{Layout, Window};
 use crate::job::weight_bounds::WeightGrid;
 use crate::passes::faces::Adjacency;
@@ -65,8 +65,12 @@ use rayon::prelude::*;
 type Visit<'v> = &'v mut dyn FnMut(&Pieces) -> Result<()>;
 
 /// Groups of a sub-part's cells along the curve, each held with the cells
-/// around it (a held box each: [`HeldSet`]).
-const HELD_GROUPS: usize = 64;
+/// around it (a held box each: [`HeldSet`]). Fine enough that a group in
+/// the sparse space beside a cluster holds its own neighbourhood, not the
+/// cluster's core (4 096 against 64: 23 % fewer sites held on a clustered
+/// crowd, uniform sites the same; docs/BENCHMARKS.md "Halos widened group
+/// by group"); the boxes go only to the ranks that send the part sites.
+const HELD_GROUPS: usize = 4096;
 
 /// The Morton key's bits that number a bucket (5 per axis).
 const BUCKET_BITS: u32 = 15;
@@ -439,6 +443,12 @@ impl ClippedVoronoi<'_> {
         let last = self.halos.map(|h| h.get(sub)).unwrap_or_default();
         let mut halos: Vec<u32> = (0..n_groups).map(|g| first_halo.max(last.get(g).copied().unwrap_or(0))).collect();
         let mut done: Option<Part> = None;
+        // The box of this rank's own sites' cells (the sites it sends).
+        let own_box = (!own_cells.is_empty()).then(|| {
+            let lo = [0, 1, 2].map(|a| own_cells.iter().map(|c| c[a]).min().unwrap_or(0));
+            let hi = [0, 1, 2].map(|a| own_cells.iter().map(|c| c[a]).max().unwrap_or(0));
+            (lo, hi)
+        });
         loop {
             let want = (done.is_none() && !run.is_empty()).then(|| {
                 let around = |(lo, hi): &([u32; 3], [u32; 3]), halo: u32| {
@@ -446,8 +456,8 @@ impl ClippedVoronoi<'_> {
                 };
                 HeldSet::of(groups.iter().zip(&halos).map(|(g, &h)| around(g, h)).collect())
             });
-            let boxes = wanted_boxes(comm, want.as_ref())?;
-            if boxes.iter().all(Option::is_none) {
+            let (boxes, any) = wanted_boxes(comm, want.as_ref(), own_box)?;
+            if !any {
                 break;
             }
             let (held, t) = timed(|| spread(comm, own, own_cells, &boxes, &mut report.sent));
@@ -1089,20 +1099,53 @@ fn cuts_along(
     cuts
 }
 
-/// Every rank's box of wanted cells (`None`: it wants none this round).
-fn wanted_boxes(comm: &dyn Reduce, want: Option<&HeldSet>) -> Result<Vec<Option<HeldSet>>> {
-    let mine: Vec<u8> = match want {
-        Some(set) => set
-            .boxes
-            .iter()
-            .flat_map(|b| [b.lo, b.dim, b.grid, [b.cell_size, 0, 0]].concat())
-            .flat_map(|w| w.to_le_bytes())
-            .collect(),
-        None => Vec::new(),
-    };
-    comm.all_gather(&mine)?
+/// The held cells of the ranks this rank sends sites to, and whether any
+/// rank wants any this round. Every rank tells all the bounds of the cells
+/// it wants and the box of its own sites' cells (`own`), a few words each;
+/// a rank's boxes (a part's groups: thousands) then go only to the ranks
+/// whose own cells meet its bounds — the ranks that send it sites, its
+/// neighbours — not to all. `None` for a rank that wants nothing or that
+/// this rank sends nothing to.
+fn wanted_boxes(
+    comm: &dyn Reduce,
+    want: Option<&HeldSet>,
+    own: Option<([u32; 3], [u32; 3])>,
+) -> Result<(Vec<Option<HeldSet>>, bool)> {
+    let words = |b: &HeldCells| [b.lo, b.dim, b.grid, [b.cell_size, 0, 0]].concat();
+    let mut mine = [0u32; 20];
+    if let Some(set) = want {
+        mine[0] = 1;
+        mine[1..13].copy_from_slice(&words(&set.bounds));
+    }
+    if let Some((lo, hi)) = own {
+        mine[13] = 1;
+        mine[14..17].copy_from_slice(&lo);
+        mine[17..20].copy_from_slice(&hi);
+    }
+    let bytes: Vec<u8> = mine.iter().flat_map(|w| w.to_le_bytes()).collect();
+    let said: Vec<Vec<u32>> = comm
+        .all_gather(&bytes)?
         .iter()
-        .map(|b| {
+        .map(|b| b.as_chunks::<4>().0.iter().map(|c| u32::from_le_bytes(*c)).collect())
+        .collect();
+    if let Some(w) = said.iter().find(|w| w.len() != 20) {
+        return Err(Error::Internal(format!("a rank's wanted bounds came as {} words", w.len())));
+    }
+    let any = said.iter().any(|w| w[0] == 1);
+    // This rank's boxes to each rank whose own cells meet its bounds.
+    let to: Vec<Vec<u8>> = said
+        .iter()
+        .map(|w| match want {
+            Some(set) if w[13] == 1 && set.bounds.meets([w[14], w[15], w[16]], [w[17], w[18], w[19]]) => {
+                set.boxes.iter().flat_map(words).flat_map(|w| w.to_le_bytes()).collect()
+            }
+            _ => Vec::new(),
+        })
+        .collect();
+    let got = comm.exchange(Parcels::of(to))?;
+    let sets = (0..got.len())
+        .map(|r| {
+            let b = got.get(r);
             if b.is_empty() {
                 return Ok(None);
             }
@@ -1119,7 +1162,8 @@ fn wanted_boxes(comm: &dyn Reduce, want: Option<&HeldSet>) -> Result<Vec<Option<
                 .collect();
             Ok(Some(HeldSet::of(boxes)))
         })
-        .collect()
+        .collect::<Result<_>>()?;
+    Ok((sets, any))
 }
 
 /// Sends each of this rank's own sites (in grid cells `cells`) to every
@@ -1134,30 +1178,39 @@ fn spread(
     sets: &[Option<HeldSet>],
     sent: &mut u64,
 ) -> Result<Vec<Held>> {
+    // The cells each rank holds, as a mask, for the ranks whose held
+    // cells meet this rank's (a rank's neighbours, not every rank).
+    let boxed = |cells: &[[u32; 3]]| {
+        let (mut lo, mut hi) = ([u32::MAX; 3], [0u32; 3]);
+        for c in cells {
+            for a in 0..3 {
+                (lo[a], hi[a]) = (lo[a].min(c[a]), hi[a].max(c[a]));
+            }
+        }
+        (lo, hi)
+    };
+    let (lo, hi) = boxed(cells);
+    let masks: Vec<Option<HeldMask>> = sets
+        .par_iter()
+        .map(|set| set.as_ref().filter(|s| !cells.is_empty() && s.boxes.iter().any(|b| b.meets(lo, hi))))
+        .map(|set| set.map(HeldSet::mask))
+        .collect();
     let chunks: Vec<Vec<Vec<Held>>> = own
         .par_chunks(1 << 14)
         .zip(cells.par_chunks(1 << 14))
         .map(|(sites, cells)| {
             let mut to = vec![Vec::new(); sets.len()];
-            let (mut lo, mut hi) = ([u32::MAX; 3], [0u32; 3]);
-            for c in cells {
-                for a in 0..3 {
-                    (lo[a], hi[a]) = (lo[a].min(c[a]), hi[a].max(c[a]));
-                }
-            }
-            let near: Vec<(usize, Vec<HeldCells>)> = sets
-                .iter()
-                .enumerate()
-                .filter_map(|(r, set)| {
-                    let boxes: Vec<HeldCells> =
-                        set.as_ref()?.boxes.iter().filter(|b| b.meets(lo, hi)).copied().collect();
-                    (!boxes.is_empty()).then_some((r, boxes))
+            let (lo, hi) = boxed(cells);
+            let near: Vec<(usize, &HeldMask)> = (0..sets.len())
+                .filter_map(|r| {
+                    let boxes = &sets[r].as_ref()?.boxes;
+                    masks[r].as_ref().filter(|_| boxes.iter().any(|b| b.meets(lo, hi))).map(|m| (r, m))
                 })
                 .collect();
             for (s, c) in sites.iter().zip(cells) {
-                for (r, boxes) in &near {
-                    if boxes.iter().any(|b| b.holds(*c)) {
-                        to[*r].push(*s);
+                for &(r, mask) in &near {
+                    if mask.holds(*c) {
+                        to[r].push(*s);
                     }
                 }
             }
