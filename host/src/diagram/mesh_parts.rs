@@ -1253,6 +1253,17 @@ mod tests {
         InProcess::each(ranks, |comm| run(comm.rank(), comm))
     }
 
+    /// The cells of `sites` in `mesh` with their faces, each of `ranks` ranks
+    /// reading an even share of the rows, in `per_rank` parts.
+    fn in_parts(mesh: &TetMesh, sites: &[[f64; 3]], ranks: usize, per_rank: usize) -> Vec<(Cells, PartsReport)> {
+        let rows = |r: usize| sites.len() * r / ranks..sites.len() * (r + 1) / ranks;
+        on_ranks(ranks, |r, comm| {
+            let cpu = CpuBackend::new(Some(1)).unwrap();
+            let cv = ClippedVoronoi::new(mesh, &sites[rows(r)]).faces(true).backend(&cpu);
+            cv.parts_per_rank(per_rank).compute_in_parts(comm).unwrap()
+        })
+    }
+
     /// Rows `rows` of the one-process cells `one` are `part`'s, bit for bit
     /// (volumes, centroids, energies, faces and boundary).
     fn same_rows(one: &Cells, part: &Cells, rows: std::ops::Range<usize>, what: &str) {
@@ -1449,11 +1460,7 @@ mod tests {
         let one = one.unwrap();
         for (ranks, per_rank) in [(2, 1), (2, 2), (4, 1)] {
             let rows = |r: usize| sites.len() * r / ranks..sites.len() * (r + 1) / ranks;
-            let runs = on_ranks(ranks, |r, comm| {
-                let cpu = CpuBackend::new(Some(1)).unwrap();
-                let cv = ClippedVoronoi::new(&mesh, &sites[rows(r)]).faces(true).backend(&cpu);
-                cv.parts_per_rank(per_rank).compute_in_parts(comm).unwrap()
-            });
+            let runs = in_parts(&mesh, &sites, ranks, per_rank);
             for (r, (cells, report)) in runs.iter().enumerate() {
                 same_rows(&one, cells, rows(r), &format!("{ranks} ranks x {per_rank}"));
                 assert_eq!(report.widened, 0, "{ranks} ranks x {per_rank}: rank {r} widened its halo ({report:?})");
@@ -1478,11 +1485,7 @@ mod tests {
         for (ranks, per_rank) in [(2, 1), (2, 2), (3, 1)] {
             let what = format!("{ranks} ranks x {per_rank}");
             let rows = |r: usize| sites.len() * r / ranks..sites.len() * (r + 1) / ranks;
-            let runs = on_ranks(ranks, |r, comm| {
-                let cpu = CpuBackend::new(Some(1)).unwrap();
-                let cv = ClippedVoronoi::new(&mesh, &sites[rows(r)]).faces(true).backend(&cpu);
-                cv.parts_per_rank(per_rank).compute_in_parts(comm).unwrap()
-            });
+            let runs = in_parts(&mesh, &sites, ranks, per_rank);
             for (r, (cells, _)) in runs.iter().enumerate() {
                 same_rows(&one, cells, rows(r), &what);
                 assert_eq!(one.total_volume.to_bits(), cells.total_volume.to_bits(), "{what}: total volume");
