@@ -417,6 +417,35 @@ mod tests {
     }
 
     #[test]
+    fn overlapping_boxes_hold_their_union() {
+        // Boxes that overlap, nest, touch and stand apart, in a 10-cell grid:
+        // the unheld bits, the mask and the boxes agree on every cell.
+        let boxes = vec![
+            HeldCells::around([1, 1, 1], [3, 3, 3], 1, GRID, 100),
+            HeldCells::around([2, 2, 2], [2, 2, 2], 0, GRID, 100),
+            HeldCells::around([3, 1, 2], [6, 2, 2], 0, GRID, 100),
+            HeldCells::around([7, 0, 0], [7, 0, 9], 0, GRID, 100),
+            HeldCells::around([5, 5, 5], [8, 8, 8], 0, GRID, 100),
+        ];
+        let set = HeldSet::of(boxes);
+        let (lo, d) = (set.bounds.lo, set.bounds.dim);
+        let bits = set.unheld_bits().unwrap();
+        let mask = set.mask();
+        let mut held = 0;
+        for c in 0..1000u32 {
+            let c = [c % 10, c / 10 % 10, c / 100];
+            let by_boxes = set.boxes.iter().any(|b| b.holds(c));
+            assert_eq!(mask.holds(c), by_boxes, "{c:?}");
+            if set.bounds.holds(c) {
+                let at = (((c[2] - lo[2]) * d[1] + c[1] - lo[1]) * d[0] + c[0] - lo[0]) as usize;
+                assert_eq!(bits[at / 32] >> (at % 32) & 1 == 1, !by_boxes, "{c:?}");
+            }
+            held += by_boxes as u32;
+        }
+        assert!(held > 64 && held < 1000, "{held} cells held");
+    }
+
+    #[test]
     fn a_walk_gives_up_at_a_cell_marked_unheld() {
         use crate::job::knn::{KnnJob, KnnMethod};
         use cvd_kernels::walk::{GridWalk, NO_CELL};
