@@ -401,13 +401,6 @@ impl ClippedVoronoi<'_> {
     ) -> Result<Option<Part>> {
         let grid = &whole.grid;
         let dims = [grid.dim_x, grid.dim_y, grid.dim_z];
-        let (mut clo, mut chi) = ([u32::MAX; 3], [0u32; 3]);
-        for c in &own_cells[run.clone()] {
-            for a in 0..3 {
-                clo[a] = clo[a].min(c[a]);
-                chi[a] = chi[a].max(c[a]);
-            }
-        }
         let k_site = self.resolved_k_site();
         // A first halo twice as wide as the ball of a cell's list (a cut
         // cell's walk may reach farther), then twice as wide each round
@@ -428,15 +421,8 @@ impl ClippedVoronoi<'_> {
         // domain reach far; the rest of the run does not).
         let cells = &own_cells[run.clone()];
         let n_groups = HELD_GROUPS.min(cells.len());
-        let group_start = |g: usize| cells.len() * g / n_groups;
-        let groups: Vec<([u32; 3], [u32; 3])> = (0..n_groups)
-            .map(|g| {
-                let of = &cells[group_start(g)..group_start(g + 1)];
-                let lo = [0, 1, 2].map(|a| of.iter().map(|c| c[a]).min().unwrap_or(0));
-                let hi = [0, 1, 2].map(|a| of.iter().map(|c| c[a]).max().unwrap_or(0));
-                (lo, hi)
-            })
-            .collect();
+        let starts: Vec<usize> = (0..=n_groups).map(|g| cells.len() * g / n_groups).collect();
+        let groups: Vec<([u32; 3], [u32; 3])> = starts.windows(2).map(|w| cells_box(&cells[w[0]..w[1]])).collect();
         // The halos this sub-part's groups last took, if the diagram's
         // caller keeps them (the optimisers' diagrams follow one another,
         // their runs much the same).
@@ -444,11 +430,7 @@ impl ClippedVoronoi<'_> {
         let mut halos: Vec<u32> = (0..n_groups).map(|g| first_halo.max(last.get(g).copied().unwrap_or(0))).collect();
         let mut done: Option<Part> = None;
         // The box of this rank's own sites' cells (the sites it sends).
-        let own_box = (!own_cells.is_empty()).then(|| {
-            let lo = [0, 1, 2].map(|a| own_cells.iter().map(|c| c[a]).min().unwrap_or(0));
-            let hi = [0, 1, 2].map(|a| own_cells.iter().map(|c| c[a]).max().unwrap_or(0));
-            (lo, hi)
-        });
+        let own_box = (!own_cells.is_empty()).then(|| cells_box(own_cells));
         loop {
             let want = (done.is_none() && !run.is_empty()).then(|| {
                 let around = |(lo, hi): &([u32; 3], [u32; 3]), halo: u32| {
@@ -460,7 +442,7 @@ impl ClippedVoronoi<'_> {
             if !any {
                 break;
             }
-            let (held, t) = timed(|| spread(comm, own, own_cells, &boxes, &mut report.sent));
+            let (held, t) = timed(|| spread(comm, own, own_cells, own_box, &boxes, &mut report.sent));
             report.timings.add("exchange", t);
             let (Some(set), Some(first_key)) = (want, first_key) else { continue };
             let round = std::time::Instant::now();
@@ -561,7 +543,7 @@ impl ClippedVoronoi<'_> {
             for &i in failed {
                 let at = (i as usize).checked_sub(answer.start).filter(|&a| a < run.len());
                 let at = at.ok_or_else(|| Error::Internal(format!("cell {i} of a part left beyond its run")))?;
-                widen[(0..n_groups).rev().find(|&g| group_start(g) <= at).unwrap_or(0)] = true;
+                widen[starts.partition_point(|&s| s <= at) - 1] = true;
             }
             for (h, w) in halos.iter_mut().zip(widen) {
                 if w {
@@ -1169,30 +1151,23 @@ fn wanted_boxes(
 /// Sends each of this rank's own sites (in grid cells `cells`) to every
 /// rank whose held cells hold its cell, and returns what this rank
 /// received: every site of its held cells. The sites go by runs along the
-/// curve, each run looking only at the boxes that meet its cells' box (a
-/// rank's neighbours, not every rank).
+/// curve, each run looking only at the ranks whose held cells' bounds
+/// meet its cells' box (a rank's neighbours, not every rank), and each
+/// site's cell up in their masks of held cells (`own_box`: the box of all
+/// of `cells`).
 fn spread(
     comm: &dyn Reduce,
     own: &[Held],
     cells: &[[u32; 3]],
+    own_box: Option<([u32; 3], [u32; 3])>,
     sets: &[Option<HeldSet>],
     sent: &mut u64,
 ) -> Result<Vec<Held>> {
     // The cells each rank holds, as a mask, for the ranks whose held
-    // cells meet this rank's (a rank's neighbours, not every rank).
-    let boxed = |cells: &[[u32; 3]]| {
-        let (mut lo, mut hi) = ([u32::MAX; 3], [0u32; 3]);
-        for c in cells {
-            for a in 0..3 {
-                (lo[a], hi[a]) = (lo[a].min(c[a]), hi[a].max(c[a]));
-            }
-        }
-        (lo, hi)
-    };
-    let (lo, hi) = boxed(cells);
+    // cells' bounds meet this rank's (a rank's neighbours, not every rank).
     let masks: Vec<Option<HeldMask>> = sets
         .par_iter()
-        .map(|set| set.as_ref().filter(|s| !cells.is_empty() && s.boxes.iter().any(|b| b.meets(lo, hi))))
+        .map(|set| set.as_ref().filter(|s| own_box.is_some_and(|(lo, hi)| s.bounds.meets(lo, hi))))
         .map(|set| set.map(HeldSet::mask))
         .collect();
     let chunks: Vec<Vec<Vec<Held>>> = own
@@ -1200,11 +1175,11 @@ fn spread(
         .zip(cells.par_chunks(1 << 14))
         .map(|(sites, cells)| {
             let mut to = vec![Vec::new(); sets.len()];
-            let (lo, hi) = boxed(cells);
+            let (lo, hi) = cells_box(cells);
             let near: Vec<(usize, &HeldMask)> = (0..sets.len())
                 .filter_map(|r| {
-                    let boxes = &sets[r].as_ref()?.boxes;
-                    masks[r].as_ref().filter(|_| boxes.iter().any(|b| b.meets(lo, hi))).map(|m| (r, m))
+                    let bounds = sets[r].as_ref()?.bounds;
+                    masks[r].as_ref().filter(|_| bounds.meets(lo, hi)).map(|m| (r, m))
                 })
                 .collect();
             for (s, c) in sites.iter().zip(cells) {
@@ -1224,6 +1199,18 @@ fn spread(
         }
     }
     send(comm, to, sent)
+}
+
+/// The box of grid cells `cells` (inclusive; empty: `[u32::MAX; 3]` to
+/// `[0; 3]`, meeting nothing).
+fn cells_box(cells: &[[u32; 3]]) -> ([u32; 3], [u32; 3]) {
+    let (mut lo, mut hi) = ([u32::MAX; 3], [0u32; 3]);
+    for c in cells {
+        for a in 0..3 {
+            (lo[a], hi[a]) = (lo[a].min(c[a]), hi[a].max(c[a]));
+        }
+    }
+    (lo, hi)
 }
 
 /// The median number of sites of the grid cells `cells` holds a site in
