@@ -431,6 +431,7 @@ impl ClippedVoronoi<'_> {
         let mut done: Option<Part> = None;
         // The box of this rank's own sites' cells (the sites it sends).
         let own_box = (!own_cells.is_empty()).then(|| cells_box(own_cells));
+        let domain = crate::geom::vec3::bounding_box(self.mesh.vertices.iter());
         loop {
             let want = (done.is_none() && !run.is_empty()).then(|| {
                 let around = |(lo, hi): &([u32; 3], [u32; 3]), halo: u32| {
@@ -508,15 +509,16 @@ impl ClippedVoronoi<'_> {
             let shift = window.shift();
             let clearance = set.clearance();
             let per_world = whole.quantizer.scale() / whole.frame.scale;
-            let uncertified: Vec<u32> = (0..listed.len())
+            // Each cell not certified, with the ball its list needs held.
+            let uncertified: Vec<(u32, f64)> = (0..listed.len())
                 .into_par_iter()
-                .filter(|&u| {
+                .filter_map(|u| {
                     let need = kept.kth[u] + 2.0 * (kept.kth[u] - kept.reach[u]).max(0.0);
                     let d2 = if need.is_finite() { ((need * per_world).ceil() + 2.0).powi(2) as u64 } else { u64::MAX };
                     let q = whole.quantized(held[listed[u] as usize].at);
-                    !set.certifies([0, 1, 2].map(|a| q[a] - shift[a]), d2, clearance.as_deref())
+                    let certified = set.certifies([0, 1, 2].map(|a| q[a] - shift[a]), d2, clearance.as_deref());
+                    (!certified).then_some((listed[u], need))
                 })
-                .map(|u| listed[u])
                 .collect();
             drop(clearance);
             report.uncertified += uncertified.len() as u64;
@@ -532,22 +534,46 @@ impl ClippedVoronoi<'_> {
                 continue;
             }
             // The groups of the cells not certified and of those whose walks
-            // left, twice as wide (only those: overshooting costs a few
-            // groups, not the part; 1.5x took more rounds, 3x held more,
-            // docs/BENCHMARKS.md "Halos widened group by group"); every
-            // group where a walk left that the job did not name (a device's
-            // pieces, a cell not even the host could finish).
+            // left, and only those (overshooting costs a few groups, not the
+            // part): each as wide as its cells' walks need among the sites
+            // held ([`walk_reach`]: more sites only shrink a cell, so the
+            // next round certifies them), or twice as wide where that is not
+            // known (power cells; 1.5x took more rounds, 3x held more,
+            // docs/BENCHMARKS.md "Halos widened group by group"). Every
+            // group twice as wide where a walk left that the job did not
+            // name (a device's pieces, a cell not even the host could
+            // finish).
             let unnamed = left > 0 && (pieces_left > 0 || kept.left.is_empty());
-            let failed = uncertified.iter().chain(&kept.left);
-            let mut widen = vec![unnamed; n_groups];
-            for &i in failed {
-                let at = (i as usize).checked_sub(answer.start).filter(|&a| a < run.len());
-                let at = at.ok_or_else(|| Error::Internal(format!("cell {i} of a part left beyond its run")))?;
-                widen[starts.partition_point(|&s| s <= at) - 1] = true;
+            let failed: Vec<(u32, f64)> = uncertified.into_iter().chain(kept.left.iter().map(|&i| (i, 0.0))).collect();
+            let cell_world = grid.cell_size as f64 / per_world;
+            let wanted: Vec<(usize, Option<u32>)> = failed
+                .par_iter()
+                .map(|&(i, list)| {
+                    let at = (i as usize).checked_sub(answer.start).filter(|&a| a < run.len());
+                    let at = at.ok_or_else(|| Error::Internal(format!("cell {i} of a part left beyond its run")))?;
+                    let reach = match self.weights {
+                        Some(_) => None,
+                        None => walk_reach(&held, i as usize, domain).map(|r| r.max(list)),
+                    };
+                    let cells = reach.map(|r| match r * (1.0 + 1e-3) / cell_world {
+                        c if c < (u32::MAX - 1) as f64 => c.ceil() as u32 + 1,
+                        _ => u32::MAX,
+                    });
+                    Ok((starts.partition_point(|&s| s <= at) - 1, cells))
+                })
+                .collect::<Result<_>>()?;
+            // Each group's new halo: at least one cell wider.
+            let mut widen: Vec<Option<u32>> = vec![None; n_groups];
+            for (g, cells) in wanted {
+                let h = halos[g];
+                let cells = cells.unwrap_or(h.saturating_mul(2)).max(h.saturating_add(1));
+                widen[g] = Some(widen[g].map_or(cells, |c| c.max(cells)));
             }
             for (h, w) in halos.iter_mut().zip(widen) {
-                if w {
-                    *h = h.saturating_mul(2);
+                match w {
+                    _ if unnamed => *h = h.saturating_mul(2).max(w.unwrap_or(0)),
+                    Some(cells) => *h = cells,
+                    None => {}
                 }
             }
             report.widened += 1;
@@ -1201,6 +1227,55 @@ fn spread(
     send(comm, to, sent)
 }
 
+/// The most sites nearest a cell [`walk_reach`] clips it by.
+const REACH_CLIPPED: usize = 4096;
+
+/// Twice the distance from site `u` of `held` to the farthest vertex of
+/// its cell among them, in the box `domain` (input units): a grid walk over
+/// every site within it builds the cell whatever other sites there are,
+/// for more sites only shrink the cell (and a site that cuts a cell lies
+/// nearer one of its vertices than the cell's own site does, so within
+/// twice the farthest vertex). The cell is clipped by the held sites
+/// nearest it, in order, until the next lies beyond that or after
+/// [`REACH_CLIPPED`] of them (a cell clipped by fewer is larger: its reach
+/// bounds the cell's). `None` where the cell cannot be told (its planes
+/// broke down, or nothing of it is left in the box).
+fn walk_reach(held: &[Held], u: usize, (lo, hi): ([f64; 3], [f64; 3])) -> Option<f64> {
+    use cvd_kernels::glam::{Vec3, Vec4};
+    use cvd_kernels::polyhedron::{Cell, Clip};
+    let s = held.get(u)?.at;
+    let between = |p: [f64; 3]| [0, 1, 2].map(|a| p[a] - s[a]);
+    let mut near: Vec<(f64, u32)> = held
+        .iter()
+        .enumerate()
+        .filter_map(|(j, h)| {
+            let d = between(h.at);
+            let d2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+            (d2 > 0.0).then_some((d2, j as u32))
+        })
+        .collect();
+    if near.len() > REACH_CLIPPED {
+        near.select_nth_unstable_by(REACH_CLIPPED, |a, b| a.0.total_cmp(&b.0));
+        near.truncate(REACH_CLIPPED);
+    }
+    near.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+    let v = |p: [f64; 3]| Vec3::from(between(p).map(|x| x as f32));
+    let mut cell = Cell::cuboid(v(lo), v(hi));
+    for (d2, j) in near {
+        let r2 = cell.bounds().0 as f64;
+        if d2 > 4.0 * r2 * (1.0 + 1e-4) {
+            break;
+        }
+        let p = v(held[j as usize].at);
+        match cell.clip(Vec4::new(p.x, p.y, p.z, 0.5 * p.length_squared())) {
+            Clip::Broken | Clip::Empty => return None,
+            // Left unclipped, the cell is only larger: its reach still bounds.
+            Clip::Overflow | Clip::Cut | Clip::Unchanged => {}
+        }
+    }
+    (!cell.is_empty()).then(|| 2.0 * (cell.bounds().0 as f64).sqrt())
+}
+
 /// The box of grid cells `cells` (inclusive; empty: `[u32::MAX; 3]` to
 /// `[0; 3]`, meeting nothing).
 fn cells_box(cells: &[[u32; 3]]) -> ([u32; 3], [u32; 3]) {
@@ -1233,6 +1308,49 @@ mod tests {
     use crate::backends::distributed::InProcess;
     use crate::geom::mesh::TetMesh;
     use crate::geom::points;
+
+    /// A cell's walk reach among the sites held ([`walk_reach`]): on a
+    /// lattice twice its cube's half-diagonal, for a site alone twice the
+    /// way to the box's farthest corner; and among any subset of the sites
+    /// holding the cell's own, it reaches every neighbour the one process
+    /// finds among all the sites (a blob beside sparse sites, so that the
+    /// nearest the reach clips by run out before the cell is told).
+    #[test]
+    fn a_walk_reaches_every_site_that_cuts_the_cell() {
+        let unit = ([0.0; 3], [1.0; 3]);
+        let held = |at: &[[f64; 3]]| -> Vec<Held> {
+            at.iter().enumerate().map(|(i, &p)| Held::site(p, i as u64, 0.0, 0)).collect()
+        };
+        let lattice: Vec<[f64; 3]> =
+            (0..125).map(|i| [i % 5, i / 5 % 5, i / 25].map(|c| (c as f64 + 0.5) / 5.0)).collect();
+        let centre = 62;
+        let reach = walk_reach(&held(&lattice), centre, unit).unwrap();
+        assert!((reach - 0.2 * 3f64.sqrt()).abs() < 1e-6, "{reach}");
+        let alone = walk_reach(&held(&[[0.25, 0.5, 0.5]]), 0, unit).unwrap();
+        assert!((alone - 2.0 * (0.75f64 * 0.75 + 0.5).sqrt()).abs() < 1e-6, "{alone}");
+
+        let mut sites = points::clustered(6000, 1, 0.01, 3);
+        sites.retain(|p| p.iter().all(|&x| x > 0.0 && x < 1.0));
+        sites.extend(points::uniform(300, 4));
+        let mesh = TetMesh::cube(2);
+        let one = ClippedVoronoi::new(&mesh, &sites).faces(true).compute().unwrap();
+        let a = one.adjacency().unwrap();
+        let all = held(&sites);
+        let mut rng = points::Rng::new(5);
+        for u in (0..sites.len()).step_by(37) {
+            // Every site, or a random third and the cell's own.
+            let some: Vec<Held> =
+                all.iter().enumerate().filter(|&(j, _)| j == u || rng.below(3) == 0).map(|(_, h)| *h).collect();
+            let at = some.iter().position(|h| h.site == u as u64).unwrap();
+            for (held, at) in [(&all, u), (&some, at)] {
+                let reach = walk_reach(held, at, unit).unwrap();
+                for (v, _, _) in a.of(u) {
+                    let d = crate::geom::vec3::norm(crate::geom::vec3::sub(sites[u], sites[v as usize]));
+                    assert!(d <= reach, "site {u}: neighbour {v} at {d} beyond {reach}");
+                }
+            }
+        }
+    }
 
     /// `run(rank, comm)` on each of `ranks` ranks, as threads; their
     /// results by rank.
