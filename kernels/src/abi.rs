@@ -294,8 +294,11 @@ pub struct ClipParams {
     /// `u32` entries, fewer for lists packed into whole words per list
     /// (see `lists`).
     pub list_bits: u32,
-    /// To a multiple of 16 bytes.
-    pub _pad: u32,
+    /// The first site with face sums: site `j`'s begin at `faces_base +
+    /// (j - faces_first) * (k_site + FACE_SUMS_EXTRA)` (`clip::add_faces`).
+    /// A whole-cell job answering a run of the sites it holds (a part's)
+    /// sums the faces of that run only; 0 otherwise (every site's).
+    pub faces_first: u32,
 }
 
 /// Push constants of the second pass (`refine`): the clipping

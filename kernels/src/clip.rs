@@ -206,7 +206,8 @@ pub struct FaceInputs<'a> {
 /// Adds the faces of site `j`'s piece of tet `t` (their `areas` by plane,
 /// from [`piece_moments`] or [`Polyhedron::face_areas`]) to the site's face sums
 /// (`sign` = 1), or takes them back (`-1`), when `p.faces_base` is not 0:
-/// from `faces_base + j * (k_site + FACE_SUMS_EXTRA)`, the area shared with
+/// from `faces_base + (j - faces_first) * (k_site + FACE_SUMS_EXTRA)`
+/// (nothing for a site before `faces_first`), the area shared with
 /// each neighbour of the site's list (the bisector face that neighbour
 /// made), then the area on the domain's boundary (the faces of the tet
 /// flagged in `tet_faces`), the area of bisector faces made by sites
@@ -224,11 +225,11 @@ pub fn add_faces<const P: usize, const V: usize, A: AtomicSums>(
     sign: i64,
     sums: &mut A,
 ) {
-    if p.faces_base == 0 {
+    if p.faces_base == 0 || j < p.faces_first as usize {
         return;
     }
     let k = p.k_site as usize;
-    let base = p.faces_base as usize + j * (k + FACE_SUMS_EXTRA);
+    let base = p.faces_base as usize + (j - p.faces_first as usize) * (k + FACE_SUMS_EXTRA);
     let lists = Lists::of(p, inputs.site_nbrs);
     let list = lists.slot(j);
     let boundary = inputs.tet_faces[t / 8] >> (4 * (t % 8));

@@ -148,7 +148,7 @@ structure!(ClipParams {
     weight_range: f32,
     face_masses: u32,
     list_bits: u32,
-    _pad: u32
+    faces_first: u32
 });
 structure!(DomainParams {
     lo_x: f32,

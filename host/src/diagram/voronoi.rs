@@ -675,6 +675,9 @@ impl<'a> ClippedVoronoi<'a> {
             _ => None,
         };
         let part_tets = part_box.and_then(|b| tets_meeting(&local_mesh, b));
+        // The sites with face sums: the listed ones (a whole-cell job's
+        // answered run: each cell sums its own faces only), else every site.
+        let faces = listed.clone();
         let (tet_faces, faces_base, area_bits) = if self.faces {
             let bits = crate::passes::faces::boundary_bits_of(local_mesh.tets.len(), unshared());
             let boundary: f64 = surface().area();
@@ -718,7 +721,9 @@ impl<'a> ClippedVoronoi<'a> {
             face_masses: (self.face_masses && self.density.is_some()) as u32,
             // Plain lists; a backend that packs its lists says so.
             list_bits: 32,
-            _pad: 0,
+            // A part's whole cells sum the faces of the run it answers
+            // only (the sites it holds around them build no cell).
+            faces_first: faces.start as u32,
         };
         let q = &site_knn.quantizer;
         let lo = q.origin();
@@ -790,6 +795,7 @@ impl<'a> ClippedVoronoi<'a> {
             tet_faces,
             held: None,
             keep,
+            face_sites: faces.len() as u32,
         };
         Ok((job, map, frame))
     }
@@ -965,7 +971,9 @@ impl ClippedVoronoi<'_> {
             c.packed_lists(&job.site_knn, cvd_kernels::lists::width(n))?
         };
         let (mut faces, incomplete) =
-            crate::passes::faces::from_sums(sums, &lists.view(base), k, job.params.area_scale as f64);
+            crate::passes::faces::from_sums(sums, &lists.view(base), k, job.params.area_scale as f64, {
+                (job.params.faces_first as usize, n as usize)
+            });
         if !incomplete.is_empty() {
             // Those sites' own pieces, else every piece again.
             let redone = crate::passes::faces::redo_sites(job, out, &incomplete, &lists);
@@ -1193,6 +1201,62 @@ mod tests {
         assert!(refused(ClippedVoronoi::new(&mesh, &[])).contains("no sites"));
         let bad = [[0.5, 0.5, 0.5], [0.1, f64::NAN, 0.2]];
         assert!(refused(ClippedVoronoi::new(&mesh, &bad)).contains("site 1"));
+    }
+
+    /// A job answering a run of the sites it lays out sums the faces of
+    /// that run only (`faces_first` on, one slot row per answered site),
+    /// and those cells and faces are the bits of the job answering every
+    /// site; the sites held around them get no faces.
+    #[test]
+    fn a_run_answered_sums_its_own_faces_only() {
+        let mesh = TetMesh::cube(3);
+        let sites = points::uniform(3000, 21);
+        let order = crate::geom::points::morton_order(&sites);
+        let laid = |answer: (usize, usize)| {
+            let layout = Layout {
+                order: &order,
+                lo: [0.0; 3],
+                hi: [1.0; 3],
+                grid_sites: sites.len(),
+                answer,
+                weights: None,
+                weight_grid: None,
+                window: Window::Whole,
+                unheld: None,
+                periodic: false,
+            };
+            ClippedVoronoi::new(&mesh, &sites).faces(true).strategy(Strategy::Whole).layout(layout)
+        };
+        let (job, _, _) = laid((1000, 1700)).job().unwrap();
+        let per = job.params.k_site as usize + cvd_kernels::clip::FACE_SUMS_EXTRA;
+        assert_eq!((job.params.faces_first, job.face_sums_len()), (1000, 700 * per));
+        let (all, run) = (laid((0, sites.len())).compute().unwrap(), laid((1000, 1700)).compute().unwrap());
+        let (a, b) = (all.adjacency().unwrap(), run.adjacency().unwrap());
+        let mut place = vec![0; sites.len()];
+        for (p, &i) in order.iter().enumerate() {
+            place[i as usize] = p;
+        }
+        let answered = |i: usize| (1000..1700).contains(&place[i]);
+        let mut faces = 0;
+        for i in 0..sites.len() {
+            let (mine, theirs): (Vec<_>, Vec<_>) = (b.of(i).collect(), a.of(i).collect());
+            if answered(i) {
+                assert_eq!(run.volume[i].to_bits(), all.volume[i].to_bits(), "site {i}");
+                assert_eq!(b.boundary[i].to_bits(), a.boundary[i].to_bits(), "site {i}'s boundary");
+                // A face with a cell not built holds this side's half.
+                let ids = |f: &[(u32, f64, [f64; 3])]| f.iter().map(|e| e.0).collect::<Vec<_>>();
+                assert_eq!(ids(&mine), ids(&theirs), "site {i}'s neighbours");
+                for (m, t) in mine.iter().zip(&theirs).filter(|(m, _)| answered(m.0 as usize)) {
+                    assert_eq!(m, t, "site {i}'s face with {}", m.0);
+                    faces += 1;
+                }
+            } else {
+                // Only the halves the answered cells gave it.
+                assert_eq!(run.volume[i], 0.0, "site {i} held, not answered");
+                assert!(mine.iter().all(|m| answered(m.0 as usize)), "site {i}: a face of its own");
+            }
+        }
+        assert!(faces > 700 * 10, "{faces} faces");
     }
 
     /// Jobs that share a prepared mesh take its tets' order, boundary and

@@ -194,6 +194,10 @@ pub struct ClipJob {
     /// frame, and the last frame's as candidates ([`crate::job::kept`]);
     /// `None`: nothing kept.
     pub keep: Option<crate::job::kept::Keep>,
+    /// With faces: how many sites have face sums, from
+    /// [`ClipParams::faces_first`] (a part's whole cells: the run it
+    /// answers, not every site it holds).
+    pub face_sites: u32,
 }
 
 impl ClipJob {
@@ -254,7 +258,7 @@ impl ClipJob {
         if self.params.faces_base == 0 {
             0
         } else {
-            self.params.n_sites as usize * (self.params.k_site as usize + cvd_kernels::clip::FACE_SUMS_EXTRA)
+            self.face_sites as usize * (self.params.k_site as usize + cvd_kernels::clip::FACE_SUMS_EXTRA)
         }
     }
 }

@@ -195,19 +195,30 @@ impl FaceRows {
 }
 
 /// Each unique site's faces from the kernels' sums (`sums`, `k +`
-/// [`FACE_SUMS_EXTRA`](cvd_kernels::clip::FACE_SUMS_EXTRA) per site, in
-/// units of `1 / area_scale`) and its list `lists[u * k..]`, the sums
-/// dropped as soon as read; the sites with faces outside their list are
-/// returned apart, to be completed.
-pub(crate) fn from_sums(sums: Vec<i64>, lists: &Lists, k: usize, area_scale: f64) -> (FaceRows, Vec<u32>) {
+/// [`FACE_SUMS_EXTRA`](cvd_kernels::clip::FACE_SUMS_EXTRA) per site from
+/// site `first` of the job's `n`, in units of `1 / area_scale`; the other
+/// sites have none) and its list `lists[u * k..]`, the sums dropped as soon
+/// as read; the sites with faces outside their list are returned apart, to
+/// be completed.
+pub(crate) fn from_sums(
+    sums: Vec<i64>,
+    lists: &Lists,
+    k: usize,
+    area_scale: f64,
+    (first, n): (usize, usize),
+) -> (FaceRows, Vec<u32>) {
     use cvd_kernels::clip::{FACE_SPILLS, FACE_SUMS_EXTRA};
     let per = k + FACE_SUMS_EXTRA;
+    let summed = first..first + sums.len() / per;
+    // Site `u`'s sums, if it has any.
+    let of = |u: usize| summed.contains(&u).then(|| &sums[(u - first) * per..(u - first + 1) * per]);
     // Site `u`'s faces into `row`: its list's slots, then the spilled
     // (maker + 1, area) pairs; one entry per maker (a maker in the list
     // may have spilled too, its pieces finished by the host's pass with no
     // list to look it up in), by maker.
-    let row_of = |u: usize, s: &[i64], row: &mut Vec<(u32, i64)>| {
+    let row_of = |u: usize, row: &mut Vec<(u32, i64)>| {
         row.clear();
+        let Some(s) = of(u) else { return };
         row.extend((0..k).filter(|&q| s[q] != 0).map(|q| (lists.get(lists.slot(u), q), s[q])));
         for spill in 0..FACE_SPILLS {
             let (key, area) = (s[k + 5 + 2 * spill], s[k + 6 + 2 * spill]);
@@ -224,11 +235,10 @@ pub(crate) fn from_sums(sums: Vec<i64>, lists: &Lists, k: usize, area_scale: f64
             same
         });
     };
-    let lens: Vec<usize> = sums
-        .par_chunks_exact(per)
-        .enumerate()
-        .map_init(Vec::new, |row, (u, s)| {
-            row_of(u, s, row);
+    let lens: Vec<usize> = (0..n)
+        .into_par_iter()
+        .map_init(Vec::new, |row, u| {
+            row_of(u, row);
             row.len()
         })
         .collect();
@@ -242,15 +252,18 @@ pub(crate) fn from_sums(sums: Vec<i64>, lists: &Lists, k: usize, area_scale: f64
     let rows = split_rows(&mut neighbors, lens.iter().copied())
         .into_par_iter()
         .zip(split_rows(&mut areas, lens.iter().copied()));
-    rows.zip(sums.par_chunks_exact(per)).enumerate().for_each_init(Vec::new, |row, (u, ((ns, as_), s))| {
-        row_of(u, s, row);
+    rows.enumerate().for_each_init(Vec::new, |row, (u, (ns, as_))| {
+        row_of(u, row);
         for (e, &(v, a)) in row.iter().enumerate() {
             (ns[e], as_[e]) = (v, a as f64 / area_scale);
         }
     });
-    let boundary = sums.par_chunks_exact(per).map(|s| s[k] as f64 / area_scale).collect();
-    let vector = sums.par_chunks_exact(per).map(|s| [2, 3, 4].map(|c| s[k + c] as f64 / area_scale)).collect();
-    let incomplete = sums.chunks_exact(per).enumerate().filter(|(_, s)| s[k + 1] != 0).map(|(u, _)| u as u32).collect();
+    let boundary = (0..n).into_par_iter().map(|u| of(u).map_or(0.0, |s| s[k] as f64 / area_scale)).collect();
+    let vector = (0..n)
+        .into_par_iter()
+        .map(|u| of(u).map_or([0.0; 3], |s| [2, 3, 4].map(|c| s[k + c] as f64 / area_scale)))
+        .collect();
+    let incomplete = summed.clone().filter(|&u| of(u).is_some_and(|s| s[k + 1] != 0)).map(|u| u as u32).collect();
     (FaceRows { offsets, neighbors, areas, boundary, vector, redone: HashMap::new() }, incomplete)
 }
 

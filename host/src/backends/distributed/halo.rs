@@ -249,6 +249,7 @@ pub(crate) fn part_job(
         tet_faces: vec![0],
         held: Some(held),
         keep: None,
+        face_sites: n as u32,
     };
     Ok((part, sites))
 }
