@@ -970,10 +970,9 @@ impl ClippedVoronoi<'_> {
             let c = cpu.insert(crate::exec::CpuBackend::new(None)?);
             c.packed_lists(&job.site_knn, cvd_kernels::lists::width(n))?
         };
+        let summed = (job.params.faces_first as usize, n as usize);
         let (mut faces, incomplete) =
-            crate::passes::faces::from_sums(sums, &lists.view(base), k, job.params.area_scale as f64, {
-                (job.params.faces_first as usize, n as usize)
-            });
+            crate::passes::faces::from_sums(sums, &lists.view(base), k, job.params.area_scale as f64, summed);
         if !incomplete.is_empty() {
             // Those sites' own pieces, else every piece again.
             let redone = crate::passes::faces::redo_sites(job, out, &incomplete, &lists);
