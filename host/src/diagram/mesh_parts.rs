@@ -538,7 +538,8 @@ impl ClippedVoronoi<'_> {
             // part): each as wide as its cells' walks need among the sites
             // held ([`walk_reach`]: more sites only shrink a cell, so the
             // next round certifies them), or twice as wide where that is not
-            // known (power cells; 1.5x took more rounds, 3x held more,
+            // known (power cells, cells past the first [`REACH_CELLS`]; 1.5x
+            // took more rounds, 3x held more,
             // docs/BENCHMARKS.md "Halos widened group by group"). Every
             // group twice as wide where a walk left that the job did not
             // name (a device's pieces, a cell not even the host could
@@ -548,11 +549,16 @@ impl ClippedVoronoi<'_> {
             let cell_world = grid.cell_size as f64 / per_world;
             let wanted: Vec<(usize, Option<u32>)> = failed
                 .par_iter()
-                .map(|&(i, list)| {
+                .enumerate()
+                .map(|(f, &(i, list))| {
                     let at = (i as usize).checked_sub(answer.start).filter(|&a| a < run.len());
                     let at = at.ok_or_else(|| Error::Internal(format!("cell {i} of a part left beyond its run")))?;
+                    // Each reach reads every site held: for the first
+                    // `REACH_CELLS` cells only (a few hundred fail a round
+                    // where any do).
                     let reach = match self.weights {
                         Some(_) => None,
+                        None if f >= REACH_CELLS => None,
                         None => walk_reach(&held, i as usize, domain).map(|r| r.max(list)),
                     };
                     let cells = reach.map(|r| match r * (1.0 + 1e-3) / cell_world {
@@ -1229,6 +1235,10 @@ fn spread(
 
 /// The most sites nearest a cell [`walk_reach`] clips it by.
 const REACH_CLIPPED: usize = 4096;
+
+/// The most cells of a round whose reach is told ([`walk_reach`]); the
+/// groups of the others are twice as wide.
+const REACH_CELLS: usize = 1024;
 
 /// Twice the distance from site `u` of `held` to the farthest vertex of
 /// its cell among them, in the box `domain` (input units): a grid walk over
