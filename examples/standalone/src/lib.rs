@@ -603,6 +603,8 @@ pub fn run(spirv_dir: &Path, verts: &[[f64; 3]], tets: &[[u32; 4]], sites: &[[f6
         ("face_masses", U(0)),
         // The lists as knn_grid writes them: plain u32 entries.
         ("list_bits", U(32)),
+        // Face sums, were there any, for every site.
+        ("faces_first", U(0)),
     ];
 
     let used = [
