@@ -118,9 +118,11 @@ pub struct MeshInParts {
     pub report: PartsReport,
 }
 
-/// A rank's part job and what it computed.
+/// A rank's part job and what it computed: the input index and place of
+/// each site it held (in its job's order).
 struct Part {
-    held: Vec<Held>,
+    held: Vec<u64>,
+    at: Vec<[f64; 3]>,
     answer: std::ops::Range<usize>,
     cells: Cells,
     pieces: Option<crate::passes::pieces::Pieces>,
@@ -299,7 +301,7 @@ impl ClippedVoronoi<'_> {
         for s in 0..sub {
             let run = runs[s]..runs[s + 1];
             let part = self.sub_part(comm, backend, geometry, &whole_grid, &own, &own_cells, (s, run), &mut report)?;
-            let Some(Part { held, answer, cells: whole, pieces, width }) = part else {
+            let Some(Part { held, at, answer, cells: whole, pieces, width }) = part else {
                 rows.add(comm, Vec::new(), Vec::new(), &mut report.sent)?;
                 continue;
             };
@@ -319,14 +321,14 @@ impl ClippedVoronoi<'_> {
             }
             let clock = std::time::Instant::now();
             let mut seen = std::collections::HashSet::new();
-            let duplicates = held[answer.clone()].iter().filter(|h| !seen.insert(h.at.map(f64::to_bits))).count();
+            let duplicates = at[answer.clone()].iter().filter(|p| !seen.insert(p.map(f64::to_bits))).count();
             drop(seen);
             for (c, w) in counted.iter_mut().zip(counter_words(&whole.counters).into_iter().chain([duplicates as i64]))
             {
                 *c += w;
             }
             let (to_rows, to_halves) = self.rows_of_part(&whole, &held, answer, &reader, ranks)?;
-            drop((whole, held));
+            drop((whole, held, at));
             rows.add(comm, to_rows, to_halves, &mut report.sent)?;
             timings.add("rows", clock.elapsed().as_secs_f64());
         }
@@ -451,19 +453,21 @@ impl ClippedVoronoi<'_> {
             let unheld = set.unheld_bits();
             let unheld_cells = unheld.as_ref().map_or(0, |b| b.iter().map(|w| w.count_ones() as u64).sum());
             report.unheld_cells = report.unheld_cells.max(unheld_cells);
-            let mut held = held?;
+            // In the one process's order; then each held site's input index
+            // and place only (a part holds many sites around its own).
             let mut keyed: Vec<(u32, u64, Held)> =
-                held.par_iter().map(|h| (whole.keys.key(h.at), h.site, *h)).collect();
+                held?.into_par_iter().map(|h| (whole.keys.key(h.at), h.site, h)).collect();
             keyed.par_sort_unstable_by_key(|k| (k.0, k.1));
             let start = keyed.partition_point(|k| (k.0, k.1) < first_key);
-            held = keyed.into_iter().map(|k| k.2).collect();
+            let held: Vec<u64> = keyed.iter().map(|k| k.1).collect();
+            let at: Vec<[f64; 3]> = keyed.iter().map(|k| k.2.at).collect();
+            let weights: Option<Vec<f64>> = self.weights.map(|_| keyed.iter().map(|k| k.2.weight).collect());
+            drop(keyed);
             let answer = start..start + run.len();
-            if answer.end > held.len()
-                || held[answer.clone()].iter().zip(&own[run.clone()]).any(|(a, b)| a.site != b.site)
+            if answer.end > held.len() || held[answer.clone()].iter().zip(&own[run.clone()]).any(|(&a, b)| a != b.site)
             {
                 return Err(Error::Internal("a sub-part's sites are not a run of its part's order".into()));
             }
-            let at: Vec<[f64; 3]> = held.iter().map(|h| h.at).collect();
             let order: Vec<u32> = (0..held.len() as u32).collect();
             let layout = Layout {
                 order: &order,
@@ -477,7 +481,6 @@ impl ClippedVoronoi<'_> {
                 unheld: unheld.as_deref(),
                 periodic: false,
             };
-            let weights: Option<Vec<f64>> = self.weights.map(|_| held.iter().map(|h| h.weight).collect());
             let mut part = ClippedVoronoi { sites: &at, ..*self };
             if let Some(w) = &weights {
                 part = part.weights(w);
@@ -515,7 +518,7 @@ impl ClippedVoronoi<'_> {
                 .filter_map(|u| {
                     let need = kept.kth[u] + 2.0 * (kept.kth[u] - kept.reach[u]).max(0.0);
                     let d2 = if need.is_finite() { ((need * per_world).ceil() + 2.0).powi(2) as u64 } else { u64::MAX };
-                    let q = whole.quantized(held[listed[u] as usize].at);
+                    let q = whole.quantized(at[listed[u] as usize]);
                     let certified = set.certifies([0, 1, 2].map(|a| q[a] - shift[a]), d2, clearance.as_deref());
                     (!certified).then_some((listed[u], need))
                 })
@@ -530,7 +533,7 @@ impl ClippedVoronoi<'_> {
                 if let Some(h) = self.halos {
                     h.set(sub, halos.clone());
                 }
-                done = Some(Part { held, answer, cells, pieces, width });
+                done = Some(Part { held, at, answer, cells, pieces, width });
                 continue;
             }
             // The groups of the cells not certified and of those whose walks
@@ -551,21 +554,22 @@ impl ClippedVoronoi<'_> {
                 .par_iter()
                 .enumerate()
                 .map(|(f, &(i, list))| {
-                    let at = (i as usize).checked_sub(answer.start).filter(|&a| a < run.len());
-                    let at = at.ok_or_else(|| Error::Internal(format!("cell {i} of a part left beyond its run")))?;
+                    let place = (i as usize).checked_sub(answer.start).filter(|&a| a < run.len());
+                    let place =
+                        place.ok_or_else(|| Error::Internal(format!("cell {i} of a part left beyond its run")))?;
                     // Each reach reads every site held: for the first
                     // `REACH_CELLS` cells only (a few hundred fail a round
                     // where any do).
                     let reach = match self.weights {
                         Some(_) => None,
                         None if f >= REACH_CELLS => None,
-                        None => walk_reach(&held, i as usize, domain).map(|r| r.max(list)),
+                        None => walk_reach(&at, i as usize, domain).map(|r| r.max(list)),
                     };
                     let cells = reach.map(|r| match r * (1.0 + 1e-3) / cell_world {
                         c if c < (u32::MAX - 1) as f64 => c.ceil() as u32 + 1,
                         _ => u32::MAX,
                     });
-                    Ok((starts.partition_point(|&s| s <= at) - 1, cells))
+                    Ok((starts.partition_point(|&s| s <= place) - 1, cells))
                 })
                 .collect::<Result<_>>()?;
             // Each group's new halo: at least one cell wider.
@@ -596,7 +600,7 @@ impl ClippedVoronoi<'_> {
     fn rows_of_part(
         &self,
         whole: &Cells,
-        held: &[Held],
+        held: &[u64],
         answer: std::ops::Range<usize>,
         reader: &(dyn Fn(u64) -> Option<usize> + Sync),
         ranks: usize,
@@ -608,24 +612,24 @@ impl ClippedVoronoi<'_> {
         let chunk = |us: Vec<usize>| -> Result<RowsAndHalves> {
             let (mut rows, mut halves) = (vec![Vec::new(); ranks], vec![Vec::new(); ranks]);
             for u in us {
-                let h = held[u];
+                let site = held[u];
                 let mut faces: Vec<MeshFace> = Vec::new();
                 let (mut boundary, mut boundary_vector) = (0.0, [0.0; 3]);
                 if self.faces {
                     for (v, area, normal) in a.of(u) {
                         let other = held[v as usize];
-                        faces.push(MeshFace { neighbor: other.site, area, normal });
+                        faces.push(MeshFace { neighbor: other, area, normal });
                         if !answer.contains(&(v as usize)) {
                             // The one process's, from the other side:
                             // exactly opposite (a zero stays +0).
-                            let half = MeshFace { neighbor: h.site, area, normal: normal.map(|c| 0.0 - c) };
-                            halves[reader_of(other.site)?].push(MeshHalf { site: other.site, face: half });
+                            let half = MeshFace { neighbor: site, area, normal: normal.map(|c| 0.0 - c) };
+                            halves[reader_of(other)?].push(MeshHalf { site: other, face: half });
                         }
                     }
                     (boundary, boundary_vector) = (a.boundary[u], a.boundary_vector[u]);
                 }
                 let row = MeshRow {
-                    site: h.site,
+                    site,
                     volume: whole.volume[u],
                     centroid: whole.centroid[u],
                     energy: whole.energy[u],
@@ -633,7 +637,7 @@ impl ClippedVoronoi<'_> {
                     boundary_vector,
                     faces: faces.len() as u64,
                 };
-                let out = &mut rows[reader_of(h.site)?];
+                let out = &mut rows[reader_of(site)?];
                 out.extend_from_slice(bytemuck::bytes_of(&row));
                 out.extend_from_slice(bytemuck::cast_slice(&faces));
             }
@@ -1014,9 +1018,9 @@ impl MeshRows {
 /// The polyhedra of a part's cells (`pieces` of its job over `held`), by
 /// input index, added to `built` with their cells' numbers; the pieces,
 /// named by input index, handed to `visit`.
-fn add_polyhedra(built: &mut BuiltCells, mut pieces: Pieces, held: &[Held], whole: &Cells, visit: Visit) -> Result<()> {
+fn add_polyhedra(built: &mut BuiltCells, mut pieces: Pieces, held: &[u64], whole: &Cells, visit: Visit) -> Result<()> {
     let mut polyhedra = merge_pieces(&pieces);
-    pieces.relabel(|i| held[i as usize].site as u32);
+    pieces.relabel(|i| held[i as usize] as u32);
     visit(&pieces)?;
     drop(pieces);
     built.numbers.extend(polyhedra.iter().map(|p| {
@@ -1024,10 +1028,10 @@ fn add_polyhedra(built: &mut BuiltCells, mut pieces: Pieces, held: &[Held], whol
         (whole.volume[u], whole.centroid[u], whole.energy[u])
     }));
     polyhedra.par_iter_mut().for_each(|p| {
-        p.site = held[p.site as usize].site as u32;
+        p.site = held[p.site as usize] as u32;
         for m in &mut p.face_neighbors {
-            if let Some(h) = usize::try_from(*m).ok().and_then(|u| held.get(u)) {
-                *m = h.site as i64;
+            if let Some(&site) = usize::try_from(*m).ok().and_then(|u| held.get(u)) {
+                *m = site as i64;
             }
         }
     });
@@ -1240,7 +1244,7 @@ const REACH_CLIPPED: usize = 4096;
 /// groups of the others are twice as wide.
 const REACH_CELLS: usize = 1024;
 
-/// Twice the distance from site `u` of `held` to the farthest vertex of
+/// Twice the distance from site `u` of `held` (their places) to the farthest vertex of
 /// its cell among them, in the box `domain` (input units): a grid walk over
 /// every site within it builds the cell whatever other sites there are,
 /// for more sites only shrink the cell (and a site that cuts a cell lies
@@ -1250,16 +1254,16 @@ const REACH_CELLS: usize = 1024;
 /// [`REACH_CLIPPED`] of them (a cell clipped by fewer is larger: its reach
 /// bounds the cell's). `None` where the cell cannot be told (its planes
 /// broke down, or nothing of it is left in the box).
-fn walk_reach(held: &[Held], u: usize, (lo, hi): ([f64; 3], [f64; 3])) -> Option<f64> {
+fn walk_reach(held: &[[f64; 3]], u: usize, (lo, hi): ([f64; 3], [f64; 3])) -> Option<f64> {
     use cvd_kernels::glam::{Vec3, Vec4};
     use cvd_kernels::polyhedron::{Cell, Clip};
-    let s = held.get(u)?.at;
+    let s = *held.get(u)?;
     let between = |p: [f64; 3]| [0, 1, 2].map(|a| p[a] - s[a]);
     let mut near: Vec<(f64, u32)> = held
         .iter()
         .enumerate()
-        .filter_map(|(j, h)| {
-            let d = between(h.at);
+        .filter_map(|(j, &h)| {
+            let d = between(h);
             let d2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
             (d2 > 0.0).then_some((d2, j as u32))
         })
@@ -1276,7 +1280,7 @@ fn walk_reach(held: &[Held], u: usize, (lo, hi): ([f64; 3], [f64; 3])) -> Option
         if d2 > 4.0 * r2 * (1.0 + 1e-4) {
             break;
         }
-        let p = v(held[j as usize].at);
+        let p = v(held[j as usize]);
         match cell.clip(Vec4::new(p.x, p.y, p.z, 0.5 * p.length_squared())) {
             Clip::Broken | Clip::Empty => return None,
             // Left unclipped, the cell is only larger: its reach still bounds.
@@ -1328,15 +1332,12 @@ mod tests {
     #[test]
     fn a_walk_reaches_every_site_that_cuts_the_cell() {
         let unit = ([0.0; 3], [1.0; 3]);
-        let held = |at: &[[f64; 3]]| -> Vec<Held> {
-            at.iter().enumerate().map(|(i, &p)| Held::site(p, i as u64, 0.0, 0)).collect()
-        };
         let lattice: Vec<[f64; 3]> =
             (0..125).map(|i| [i % 5, i / 5 % 5, i / 25].map(|c| (c as f64 + 0.5) / 5.0)).collect();
         let centre = 62;
-        let reach = walk_reach(&held(&lattice), centre, unit).unwrap();
+        let reach = walk_reach(&lattice, centre, unit).unwrap();
         assert!((reach - 0.2 * 3f64.sqrt()).abs() < 1e-6, "{reach}");
-        let alone = walk_reach(&held(&[[0.25, 0.5, 0.5]]), 0, unit).unwrap();
+        let alone = walk_reach(&[[0.25, 0.5, 0.5]], 0, unit).unwrap();
         assert!((alone - 2.0 * (0.75f64 * 0.75 + 0.5).sqrt()).abs() < 1e-6, "{alone}");
 
         let mut sites = points::clustered(6000, 1, 0.01, 3);
@@ -1345,14 +1346,13 @@ mod tests {
         let mesh = TetMesh::cube(2);
         let one = ClippedVoronoi::new(&mesh, &sites).faces(true).compute().unwrap();
         let a = one.adjacency().unwrap();
-        let all = held(&sites);
         let mut rng = points::Rng::new(5);
         for u in (0..sites.len()).step_by(37) {
             // Every site, or a random third and the cell's own.
-            let some: Vec<Held> =
-                all.iter().enumerate().filter(|&(j, _)| j == u || rng.below(3) == 0).map(|(_, h)| *h).collect();
-            let at = some.iter().position(|h| h.site == u as u64).unwrap();
-            for (held, at) in [(&all, u), (&some, at)] {
+            let kept: Vec<usize> = (0..sites.len()).filter(|&j| j == u || rng.below(3) == 0).collect();
+            let some: Vec<[f64; 3]> = kept.iter().map(|&j| sites[j]).collect();
+            let at = kept.iter().position(|&j| j == u).unwrap();
+            for (held, at) in [(&sites, u), (&some, at)] {
                 let reach = walk_reach(held, at, unit).unwrap();
                 for (v, _, _) in a.of(u) {
                     let d = crate::geom::vec3::norm(crate::geom::vec3::sub(sites[u], sites[v as usize]));
