@@ -572,20 +572,14 @@ impl ClippedVoronoi<'_> {
                     Ok((starts.partition_point(|&s| s <= place) - 1, cells))
                 })
                 .collect::<Result<_>>()?;
-            // Each group's new halo: at least one cell wider.
-            let mut widen: Vec<Option<u32>> = vec![None; n_groups];
+            // Each failing group's new halo at least a cell wider than its
+            // last.
+            let mut next: Vec<u32> = halos.iter().map(|&h| if unnamed { h.saturating_mul(2) } else { h }).collect();
             for (g, cells) in wanted {
                 let h = halos[g];
-                let cells = cells.unwrap_or(h.saturating_mul(2)).max(h.saturating_add(1));
-                widen[g] = Some(widen[g].map_or(cells, |c| c.max(cells)));
+                next[g] = next[g].max(cells.unwrap_or(h.saturating_mul(2)).max(h.saturating_add(1)));
             }
-            for (h, w) in halos.iter_mut().zip(widen) {
-                match w {
-                    _ if unnamed => *h = h.saturating_mul(2).max(w.unwrap_or(0)),
-                    Some(cells) => *h = cells,
-                    None => {}
-                }
-            }
+            halos = next;
             report.widened += 1;
             // The round's job, done again: its time said apart.
             report.timings.add("done again", round.elapsed().as_secs_f64());
@@ -1212,11 +1206,8 @@ fn spread(
         .map(|(sites, cells)| {
             let mut to = vec![Vec::new(); sets.len()];
             let (lo, hi) = cells_box(cells);
-            let near: Vec<(usize, &HeldMask)> = (0..sets.len())
-                .filter_map(|r| {
-                    let bounds = sets[r].as_ref()?.bounds;
-                    masks[r].as_ref().filter(|_| bounds.meets(lo, hi)).map(|m| (r, m))
-                })
+            let near: Vec<(usize, &HeldMask)> = (masks.iter().enumerate())
+                .filter_map(|(r, m)| m.as_ref().filter(|m| m.bounds().meets(lo, hi)).map(|m| (r, m)))
                 .collect();
             for (s, c) in sites.iter().zip(cells) {
                 for &(r, mask) in &near {
@@ -1255,16 +1246,15 @@ const REACH_CELLS: usize = 1024;
 /// bounds the cell's). `None` where the cell cannot be told (its planes
 /// broke down, or nothing of it is left in the box).
 fn walk_reach(held: &[[f64; 3]], u: usize, (lo, hi): ([f64; 3], [f64; 3])) -> Option<f64> {
+    use crate::geom::vec3::{dot, sub};
     use cvd_kernels::glam::{Vec3, Vec4};
     use cvd_kernels::polyhedron::{Cell, Clip};
     let s = *held.get(u)?;
-    let between = |p: [f64; 3]| [0, 1, 2].map(|a| p[a] - s[a]);
     let mut near: Vec<(f64, u32)> = held
         .iter()
         .enumerate()
         .filter_map(|(j, &h)| {
-            let d = between(h);
-            let d2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+            let d2 = dot(sub(h, s), sub(h, s));
             (d2 > 0.0).then_some((d2, j as u32))
         })
         .collect();
@@ -1273,7 +1263,7 @@ fn walk_reach(held: &[[f64; 3]], u: usize, (lo, hi): ([f64; 3], [f64; 3])) -> Op
         near.truncate(REACH_CLIPPED);
     }
     near.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
-    let v = |p: [f64; 3]| Vec3::from(between(p).map(|x| x as f32));
+    let v = |p: [f64; 3]| Vec3::from(sub(p, s).map(|x| x as f32));
     let mut cell = Cell::cuboid(v(lo), v(hi));
     for (d2, j) in near {
         let r2 = cell.bounds().0 as f64;

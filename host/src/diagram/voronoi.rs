@@ -675,9 +675,6 @@ impl<'a> ClippedVoronoi<'a> {
             _ => None,
         };
         let part_tets = part_box.and_then(|b| tets_meeting(&local_mesh, b));
-        // The sites with face sums: the listed ones (a whole-cell job's
-        // answered run: each cell sums its own faces only), else every site.
-        let faces = listed.clone();
         let (tet_faces, faces_base, area_bits) = if self.faces {
             let bits = crate::passes::faces::boundary_bits_of(local_mesh.tets.len(), unshared());
             let boundary: f64 = surface().area();
@@ -721,9 +718,10 @@ impl<'a> ClippedVoronoi<'a> {
             face_masses: (self.face_masses && self.density.is_some()) as u32,
             // Plain lists; a backend that packs its lists says so.
             list_bits: 32,
-            // A part's whole cells sum the faces of the run it answers
-            // only (the sites it holds around them build no cell).
-            faces_first: faces.start as u32,
+            // The listed sites sum faces: a whole-cell job's answered run
+            // (each cell its own; the sites a part holds around them build
+            // no cell), else every site.
+            faces_first: listed.start as u32,
         };
         let q = &site_knn.quantizer;
         let lo = q.origin();
@@ -795,7 +793,7 @@ impl<'a> ClippedVoronoi<'a> {
             tet_faces,
             held: None,
             keep,
-            face_sites: faces.len() as u32,
+            face_sites: listed.len() as u32,
         };
         Ok((job, map, frame))
     }

@@ -271,6 +271,11 @@ pub struct HeldMask {
 }
 
 impl HeldMask {
+    /// The bounds of the cells held.
+    pub fn bounds(&self) -> &HeldCells {
+        &self.bounds
+    }
+
     /// Whether grid cell `c` (whole grid coordinates) is held: as
     /// [`HeldSet::holds`].
     pub fn holds(&self, c: [u32; 3]) -> bool {
