@@ -162,14 +162,157 @@ pub trait RingVisitor<T> {
     /// Site `s` was met (the centre's own site too, if it has one); true
     /// ends the walk.
     fn visit(&mut self, on: &mut T, s: u32) -> bool;
+    /// Whether a site in the box `lo..hi` (the walk's frame) could change
+    /// `on` (true unless the visitor can tell: then a walk gives up at a
+    /// cell it does not hold).
+    #[inline]
+    fn may_cut(&self, _on: &T, _lo: [f32; 3], _hi: [f32; 3]) -> bool {
+        true
+    }
+}
+
+/// The most boxes of unheld cells a walk sets aside ([`walk_rings`]):
+/// past that, each new cell goes into the box it grows least.
+const PENDING: usize = 4;
+
+/// Whether a site in the box `lo..hi` (the polyhedron's frame) could cut
+/// `poly`, whose site is at `site` (the same frame): whether some vertex
+/// lies nearer the box than its own site (within a thousandth, for
+/// rounding). A site cuts a cell only so: the cell is what lies nearer its
+/// own site than the other, and the nearer part of a convex cell holds one
+/// of its vertices.
+#[inline]
+pub fn box_may_cut<const P: usize, const V: usize>(
+    poly: &Polyhedron<P, V>,
+    site: Point,
+    lo: [f32; 3],
+    hi: [f32; 3],
+) -> bool {
+    let mut i = 0;
+    while i < (poly.n_verts as usize).min(V) {
+        let v = poly.verts[i];
+        let x = [v.x, v.y, v.z];
+        let mut d2 = 0.0;
+        let mut a = 0;
+        while a < 3 {
+            let gap = if x[a] < lo[a] {
+                lo[a] - x[a]
+            } else if x[a] > hi[a] {
+                x[a] - hi[a]
+            } else {
+                0.0
+            };
+            d2 += gap * gap;
+            a += 1;
+        }
+        if d2 <= (v - site).length_squared() * (1.0 + 1e-3) {
+            return true;
+        }
+        i += 1;
+    }
+    false
+}
+
+/// The box of grid cells `c0..=c1` in the walk's frame, wider by twice the
+/// margin by which a site may sit outside its cell.
+#[inline]
+fn cells_box(w: &GridWalk, c0: [u32; 3], c1: [u32; 3]) -> ([f32; 3], [f32; 3]) {
+    let lo = [w.lo.x, w.lo.y, w.lo.z];
+    let (mut a_lo, mut a_hi) = ([0.0f32; 3], [0.0f32; 3]);
+    let mut a = 0;
+    while a < 3 {
+        a_lo[a] = lo[a] + c0[a] as f32 * w.cell_len - 2.0 * w.margin;
+        a_hi[a] = lo[a] + (c1[a] + 1) as f32 * w.cell_len + 2.0 * w.margin;
+        a += 1;
+    }
+    (a_lo, a_hi)
+}
+
+/// Unheld cells a walk met that its polyhedron could reach then, kept as
+/// a few boxes of cells (lower and upper corners) to test against the
+/// finished polyhedron ([`walk_rings`]).
+struct Pending {
+    lo: [[u32; 3]; PENDING],
+    hi: [[u32; 3]; PENDING],
+    n: usize,
+}
+
+impl Pending {
+    /// Sets cell `c` aside. When the boxes are full, those no site in
+    /// which could cut `on` any more (it only shrinks) go first.
+    #[inline]
+    fn add<T, R: RingVisitor<T>>(&mut self, w: &GridWalk, visitor: &R, on: &T, c: [u32; 3]) {
+        if self.n == PENDING {
+            let (mut b, mut kept) = (0, 0);
+            while b < PENDING {
+                let (lo, hi) = cells_box(w, self.lo[b], self.hi[b]);
+                if visitor.may_cut(on, lo, hi) {
+                    self.lo[kept] = self.lo[b];
+                    self.hi[kept] = self.hi[b];
+                    kept += 1;
+                }
+                b += 1;
+            }
+            self.n = kept;
+        }
+        if self.n < PENDING {
+            self.lo[self.n] = c;
+            self.hi[self.n] = c;
+            self.n += 1;
+            return;
+        }
+        // Into the box whose volume (in cells) grows least.
+        let (mut best, mut growth) = (0, u64::MAX);
+        let mut b = 0;
+        while b < PENDING {
+            let (mut before, mut after) = (1u64, 1u64);
+            let mut a = 0;
+            while a < 3 {
+                let (l, h) = (self.lo[b][a], self.hi[b][a]);
+                before *= (h - l + 1) as u64;
+                after *= (h.max(c[a]) - l.min(c[a]) + 1) as u64;
+                a += 1;
+            }
+            if after - before < growth {
+                (best, growth) = (b, after - before);
+            }
+            b += 1;
+        }
+        let mut a = 0;
+        while a < 3 {
+            self.lo[best][a] = self.lo[best][a].min(c[a]);
+            self.hi[best][a] = self.hi[best][a].max(c[a]);
+            a += 1;
+        }
+    }
+
+    /// How a walk that ended so (`end`) ends with these cells set aside:
+    /// given up if a site in one could still cut the visitor's `on`.
+    #[inline]
+    fn settle<T, R: RingVisitor<T>>(&self, w: &GridWalk, visitor: &R, on: &T, end: u32) -> u32 {
+        let mut b = 0;
+        while b < self.n {
+            let (lo, hi) = cells_box(w, self.lo[b], self.hi[b]);
+            if visitor.may_cut(on, lo, hi) {
+                return walk_end::OUT_OF_HALO;
+            }
+            b += 1;
+        }
+        end
+    }
 }
 
 /// Walks the site grid ring by ring around `x` (clipping frame), handing
 /// [`RingVisitor::visit`] every site of each cell within the visitor's
 /// reach, until the sites not met yet all lie beyond it, the rings cover
-/// the grid, the visitor ends the walk, or a cell within reach is not held.
-/// Returns how it ended ([`walk_end`]). A walk over held cells only is the
-/// same walk whatever else is held.
+/// the grid, or the visitor ends the walk. Returns how it ended
+/// ([`walk_end`]). A cell within reach that is not held is passed over
+/// where no site in it could change what the visitor works on
+/// ([`RingVisitor::may_cut`]: then, or when the walk ends — it only
+/// shrinks); otherwise the walk gives up ([`walk_end::OUT_OF_HALO`]). A
+/// walk over held cells only is the same walk whatever else is held, and
+/// the same as over every cell wherever the sites it passed over could
+/// not cut.
 #[inline]
 pub fn walk_rings<T, R: RingVisitor<T>>(w: &GridWalk, x: Point, visitor: &mut R, on: &mut T) -> u32 {
     let g = w.grid;
@@ -182,6 +325,7 @@ pub fn walk_rings<T, R: RingVisitor<T>>(w: &GridWalk, x: Point, visitor: &mut R,
     let x = [x.x, x.y, x.z];
     let lo = [w.lo.x, w.lo.y, w.lo.z];
     let mut r = 0u32;
+    let mut pending = Pending { lo: [[0; 3]; PENDING], hi: [[0; 3]; PENDING], n: 0 };
     loop {
         let (z0, z1) = ring_span(c[2], r, dims[2]);
         let (y0, y1) = ring_span(c[1], r, dims[1]);
@@ -194,18 +338,23 @@ pub fn walk_rings<T, R: RingVisitor<T>>(w: &GridWalk, x: Point, visitor: &mut R,
                 while xc <= last {
                     let cell = [xc, y, z];
                     if cell_gap2(w, x, cell) <= visitor.reach2() {
-                        let cell = w.held_cell(cell);
-                        if cell == NO_CELL {
-                            return walk_end::OUT_OF_HALO;
-                        }
-                        let start = w.cell_start[cell] as usize;
-                        let end = start + w.cell_count[cell] as usize;
-                        let mut k = start;
-                        while k < end {
-                            if visitor.visit(on, w.sorted[k][3]) {
-                                return walk_end::STOPPED;
+                        let at = cell;
+                        let cell = w.held_cell(at);
+                        if cell != NO_CELL {
+                            let start = w.cell_start[cell] as usize;
+                            let end = start + w.cell_count[cell] as usize;
+                            let mut k = start;
+                            while k < end {
+                                if visitor.visit(on, w.sorted[k][3]) {
+                                    return pending.settle(w, visitor, on, walk_end::STOPPED);
+                                }
+                                k += 1;
                             }
-                            k += 1;
+                        } else {
+                            let (blo, bhi) = cells_box(w, at, at);
+                            if visitor.may_cut(on, blo, bhi) {
+                                pending.add(w, visitor, on, at);
+                            }
                         }
                     }
                     xc += step;
@@ -228,11 +377,11 @@ pub fn walk_rings<T, R: RingVisitor<T>>(w: &GridWalk, x: Point, visitor: &mut R,
         }
         if gap == f32::INFINITY {
             // The rings cover the grid: every site was met.
-            return walk_end::DONE;
+            return pending.settle(w, visitor, on, walk_end::DONE);
         }
         let gap = gap - w.margin;
         if gap > 0.0 && gap * gap > visitor.reach2() * (1.0 + 1e-5) {
-            return walk_end::DONE;
+            return pending.settle(w, visitor, on, walk_end::DONE);
         }
         r += 1;
     }
@@ -248,6 +397,8 @@ struct FrameClip<'a> {
     frame: SplitPoint,
     /// Sites farther from site `i` than this (squared) cannot cut.
     reach2: f32,
+    /// Power weights: a walk rules out no cell it does not hold.
+    weighted: bool,
 }
 
 impl<const P: usize, const V: usize> RingVisitor<Polyhedron<P, V>> for FrameClip<'_> {
@@ -273,6 +424,17 @@ impl<const P: usize, const V: usize> RingVisitor<Polyhedron<P, V>> for FrameClip
         }
         self.run.clip(poly, n, h, s)
     }
+
+    #[inline]
+    fn may_cut(&self, poly: &Polyhedron<P, V>, lo: [f32; 3], hi: [f32; 3]) -> bool {
+        // Power cells: a heavy site far off may cut (no region is ruled out).
+        if self.weighted {
+            return true;
+        }
+        let f = point(self.frame.hi);
+        let site = point(self.sites[self.i as usize].hi) - f;
+        box_may_cut(poly, site, [lo[0] - f.x, lo[1] - f.y, lo[2] - f.z], [hi[0] - f.x, hi[1] - f.y, hi[2] - f.z])
+    }
 }
 
 /// Clips `poly`, in the frame whose origin is `frame` (near the cell, away
@@ -293,7 +455,8 @@ pub fn clip_in_frame<const P: usize, const V: usize>(
     let mut run = BisectorRun::new(poly, Slack::default());
     run.out.walks = 1;
     run.out.security_missed = false;
-    let mut clip = FrameClip { run, i: i as u32, sites, frame: *frame, reach2 };
+    let weighted = w.weight_range > 0.0;
+    let mut clip = FrameClip { run, i: i as u32, sites, frame: *frame, reach2, weighted };
     if walk_rings(&w, point(sites[i].hi), &mut clip, poly) == walk_end::OUT_OF_HALO {
         clip.run.out.security_missed = true;
         clip.run.out.out_of_halo = true;
@@ -311,6 +474,8 @@ struct CellClip<'a> {
     /// Sites farther than this (squared) cannot cut what is wanted of the
     /// piece ([`walk_to_cell`]).
     cap2: f32,
+    /// Power weights: a walk rules out no cell it does not hold.
+    weighted: bool,
 }
 
 impl<const P: usize, const V: usize> RingVisitor<Polyhedron<P, V>> for CellClip<'_> {
@@ -336,6 +501,31 @@ impl<const P: usize, const V: usize> RingVisitor<Polyhedron<P, V>> for CellClip<
             return false;
         }
         self.run.clip(poly, n, h, s)
+    }
+
+    #[inline]
+    fn may_cut(&self, poly: &Polyhedron<P, V>, lo: [f32; 3], hi: [f32; 3]) -> bool {
+        if self.weighted {
+            return true;
+        }
+        // The piece is relative to its site; sites beyond the cap cannot
+        // cut what is wanted of it.
+        let x = point(self.sites[self.i as usize].hi);
+        let (lo, hi) = ([lo[0] - x.x, lo[1] - x.y, lo[2] - x.z], [hi[0] - x.x, hi[1] - x.y, hi[2] - x.z]);
+        let mut gap2 = 0.0;
+        let mut a = 0;
+        while a < 3 {
+            let gap = if lo[a] > 0.0 {
+                lo[a]
+            } else if hi[a] < 0.0 {
+                -hi[a]
+            } else {
+                0.0
+            };
+            gap2 += gap * gap;
+            a += 1;
+        }
+        gap2 <= self.cap2 && box_may_cut(poly, Point::ZERO, lo, hi)
     }
 }
 
@@ -406,7 +596,8 @@ pub fn walk_to_cell<const P: usize, const V: usize>(
     run.out.walks = 1;
     // A ring walk meets every site: no security radius to miss.
     run.out.security_missed = false;
-    let mut clip = CellClip { run, i: i as u32, sites, inner, cap2 };
+    let weighted = w.weight_range > 0.0;
+    let mut clip = CellClip { run, i: i as u32, sites, inner, cap2, weighted };
     if walk_rings(&w, point(si.hi), &mut clip, poly) == walk_end::OUT_OF_HALO {
         clip.run.out.security_missed = true;
         clip.run.out.out_of_halo = true;

@@ -21,12 +21,14 @@
 //!   frame, grid, order and quantization as the one process;
 //! - certifies each cell: its neighbour list is the one process's when the
 //!   ball through its last entry lies inside the box
-//!   ([`HeldCells::certifies`]), and a grid walk that must look at a cell
-//!   outside gives up (`Counters::out_of_halo`). The halo goes around
-//!   groups of the part's cells along the curve, each its own: a group
-//!   with a cell not certified (or whose walk left) asks again with a halo
-//!   twice as wide, the others keep theirs (at most the whole grid, which
-//!   certifies every cell);
+//!   ([`HeldCells::certifies`]), and a grid walk passes over a cell outside
+//!   where no site there could cut its cell, else gives up
+//!   (`Counters::out_of_halo`). The halo goes around groups of the part's
+//!   cells along the curve, each its own: a group with a list not
+//!   certified asks again with a halo as wide as the list's ball, a cell
+//!   whose walk left with the grid cells around its vertices' balls among
+//!   the sites held ([`flower_cover`]), the others keep theirs (at most
+//!   the whole grid, which certifies every cell);
 //! - sends each row, with its faces (the other side's halves from the rank
 //!   that built that side, as one process adds them), to the rank that
 //!   read its site.
@@ -430,16 +432,27 @@ impl ClippedVoronoi<'_> {
         // their runs much the same).
         let last = self.halos.map(|h| h.get(sub)).unwrap_or_default();
         let mut halos: Vec<u32> = (0..n_groups).map(|g| first_halo.max(last.get(g).copied().unwrap_or(0))).collect();
+        // Boxes around cells whose walks left, holding where a site that
+        // cuts them can be ([`flower_cover`]).
+        let mut covers: Vec<HeldCells> = Vec::new();
         let mut done: Option<Part> = None;
         // The box of this rank's own sites' cells (the sites it sends).
         let own_box = (!own_cells.is_empty()).then(|| cells_box(own_cells));
-        let domain = crate::geom::vec3::bounding_box(self.mesh.vertices.iter());
+        // The box the kernels clip a whole cell from: the mesh's and the
+        // sites' box, a hundredth of its diagonal wider.
+        let domain = {
+            let (lo, hi) = crate::geom::vec3::bounding_box(self.mesh.vertices.iter().chain([&whole.lo, &whole.hi]));
+            let diag = (0..3).map(|a| (hi[a] - lo[a]).powi(2)).sum::<f64>().sqrt();
+            let margin = 0.01 * diag.max(1e-3 * whole.frame.scale);
+            (lo.map(|x| x - margin), hi.map(|x| x + margin))
+        };
         loop {
             let want = (done.is_none() && !run.is_empty()).then(|| {
                 let around = |(lo, hi): &([u32; 3], [u32; 3]), halo: u32| {
                     HeldCells::around(*lo, *hi, halo, dims, grid.cell_size)
                 };
-                HeldSet::of(groups.iter().zip(&halos).map(|(g, &h)| around(g, h)).collect())
+                let boxes = groups.iter().zip(&halos).map(|(g, &h)| around(g, h));
+                HeldSet::of(boxes.chain(covers.iter().copied()).collect())
             });
             let (boxes, any) = wanted_boxes(comm, want.as_ref(), own_box)?;
             if !any {
@@ -538,47 +551,62 @@ impl ClippedVoronoi<'_> {
             }
             // The groups of the cells not certified and of those whose walks
             // left, and only those (overshooting costs a few groups, not the
-            // part): each as wide as its cells' walks need among the sites
-            // held ([`walk_reach`]: more sites only shrink a cell, so the
-            // next round certifies them), or twice as wide where that is not
-            // known (power cells, cells past the first [`REACH_CELLS`]; 1.5x
-            // took more rounds, 3x held more,
-            // docs/BENCHMARKS.md "Halos widened group by group"). Every
-            // group twice as wide where a walk left that the job did not
-            // name (a device's pieces, a cell not even the host could
-            // finish).
+            // part). A list not certified: its group as wide as the list's
+            // ball. A walk that left: boxes holding the balls of its cell's
+            // vertices among the sites held ([`flower_cover`]: every site that
+            // can cut it lies in one, and a walk passes over the cells it
+            // does not hold that no site in could cut), and its group a cell
+            // wider; where the cell is not known (power cells, cells past the
+            // first [`REACH_CELLS`]), its group twice as wide. Every group
+            // twice as wide where a walk left that the job did not name (a
+            // device's pieces, a cell not even the host could finish).
             let unnamed = left > 0 && (pieces_left > 0 || kept.left.is_empty());
-            let failed: Vec<(u32, f64)> = uncertified.into_iter().chain(kept.left.iter().map(|&i| (i, 0.0))).collect();
+            let failed: Vec<(u32, Option<f64>)> = uncertified
+                .into_iter()
+                .map(|(i, need)| (i, Some(need)))
+                .chain(kept.left.iter().map(|&i| (i, None)))
+                .collect();
             let cell_world = grid.cell_size as f64 / per_world;
-            let wanted: Vec<(usize, Option<u32>)> = failed
+            let grid_map = GridMap::of(whole);
+            let wanted: Vec<(usize, Option<u32>, Vec<HeldCells>)> = failed
                 .par_iter()
                 .enumerate()
                 .map(|(f, &(i, list))| {
                     let place = (i as usize).checked_sub(answer.start).filter(|&a| a < run.len());
                     let place =
                         place.ok_or_else(|| Error::Internal(format!("cell {i} of a part left beyond its run")))?;
-                    // Each reach reads every site held: for the first
-                    // `REACH_CELLS` cells only (a few hundred fail a round
+                    let group = starts.partition_point(|&s| s <= place) - 1;
+                    if let Some(need) = list {
+                        let cells = match need * (1.0 + 1e-3) / cell_world {
+                            c if c < (u32::MAX - 1) as f64 => c.ceil() as u32 + 1,
+                            _ => u32::MAX,
+                        };
+                        return Ok((group, Some(cells), Vec::new()));
+                    }
+                    // Each cell clipped by every site held: for the first
+                    // `REACH_CELLS` cells only (a few hundred leave a round
                     // where any do).
-                    let reach = match self.weights {
+                    let cell = match self.weights {
                         Some(_) => None,
                         None if f >= REACH_CELLS => None,
-                        None => walk_reach(&at, i as usize, domain).map(|r| r.max(list)),
+                        None => cell_among(&at, i as usize, domain),
                     };
-                    let cells = reach.map(|r| match r * (1.0 + 1e-3) / cell_world {
-                        c if c < (u32::MAX - 1) as f64 => c.ceil() as u32 + 1,
-                        _ => u32::MAX,
-                    });
-                    Ok((starts.partition_point(|&s| s <= place) - 1, cells))
+                    Ok(match cell {
+                        Some(cell) => (group, None, flower_cover(&cell, at[i as usize], &grid_map)),
+                        None => (group, Some(halos[group].saturating_mul(2)), Vec::new()),
+                    })
                 })
                 .collect::<Result<_>>()?;
             // Each failing group's new halo at least a cell wider than its
             // last.
             let mut next: Vec<u32> = halos.iter().map(|&h| if unnamed { h.saturating_mul(2) } else { h }).collect();
-            for (g, cells) in wanted {
+            let mut seen: std::collections::HashSet<HeldCells> = covers.iter().copied().collect();
+            for (g, cells, boxes) in wanted {
                 let h = halos[g];
-                next[g] = next[g].max(cells.unwrap_or(h.saturating_mul(2)).max(h.saturating_add(1)));
+                next[g] = next[g].max(cells.unwrap_or(0).max(h.saturating_add(1)));
+                covers.extend(boxes.into_iter().filter(|b| seen.insert(*b)));
             }
+            drop(seen);
             halos = next;
             report.widened += 1;
             // The round's job, done again: its time said apart.
@@ -1228,24 +1256,27 @@ fn spread(
     send(comm, to, sent)
 }
 
-/// The most sites nearest a cell [`walk_reach`] clips it by.
+/// The most sites nearest a cell [`cell_among`] clips it by.
 const REACH_CLIPPED: usize = 4096;
 
-/// The most cells of a round whose reach is told ([`walk_reach`]); the
-/// groups of the others are twice as wide.
+/// The most cells of a round whose cell is clipped on the host
+/// ([`cell_among`]); the groups of the others are twice as wide.
 const REACH_CELLS: usize = 1024;
 
-/// Twice the distance from site `u` of `held` (their places) to the farthest vertex of
-/// its cell among them, in the box `domain` (input units): a grid walk over
-/// every site within it builds the cell whatever other sites there are,
-/// for more sites only shrink the cell (and a site that cuts a cell lies
-/// nearer one of its vertices than the cell's own site does, so within
-/// twice the farthest vertex). The cell is clipped by the held sites
-/// nearest it, in order, until the next lies beyond that or after
-/// [`REACH_CLIPPED`] of them (a cell clipped by fewer is larger: its reach
-/// bounds the cell's). `None` where the cell cannot be told (its planes
-/// broke down, or nothing of it is left in the box).
-fn walk_reach(held: &[[f64; 3]], u: usize, (lo, hi): ([f64; 3], [f64; 3])) -> Option<f64> {
+/// Site `u`'s cell among the sites `held` (their places) in the box
+/// `(lo, hi)` (the kernels' box of a whole cell), relative to the site:
+/// clipped by the held sites nearest it, in order, until the next lies
+/// beyond twice its farthest vertex (no site farther can cut it) or after
+/// [`REACH_CLIPPED`] of them. More sites only shrink a cell, so this one
+/// holds the cell among any sites that include these (a cell clipped by
+/// fewer is larger): every site that cuts that one lies nearer one of
+/// this one's vertices than its own site ([`flower_cover`]). `None` where
+/// it cannot be told (its planes broke down, or nothing of it is left).
+fn cell_among(
+    held: &[[f64; 3]],
+    u: usize,
+    (lo, hi): ([f64; 3], [f64; 3]),
+) -> Option<Box<cvd_kernels::polyhedron::Cell>> {
     use crate::geom::vec3::{dot, sub};
     use cvd_kernels::glam::{Vec3, Vec4};
     use cvd_kernels::polyhedron::{Cell, Clip};
@@ -1264,7 +1295,7 @@ fn walk_reach(held: &[[f64; 3]], u: usize, (lo, hi): ([f64; 3], [f64; 3])) -> Op
     }
     near.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
     let v = |p: [f64; 3]| Vec3::from(sub(p, s).map(|x| x as f32));
-    let mut cell = Cell::cuboid(v(lo), v(hi));
+    let mut cell = Box::new(Cell::cuboid(v(lo), v(hi)));
     for (d2, j) in near {
         let r2 = cell.bounds().0 as f64;
         if d2 > 4.0 * r2 * (1.0 + 1e-4) {
@@ -1273,11 +1304,125 @@ fn walk_reach(held: &[[f64; 3]], u: usize, (lo, hi): ([f64; 3], [f64; 3])) -> Op
         let p = v(held[j as usize]);
         match cell.clip(Vec4::new(p.x, p.y, p.z, 0.5 * p.length_squared())) {
             Clip::Broken | Clip::Empty => return None,
-            // Left unclipped, the cell is only larger: its reach still bounds.
+            // Left unclipped, the cell is only larger: it still bounds.
             Clip::Overflow | Clip::Cut | Clip::Unchanged => {}
         }
     }
-    (!cell.is_empty()).then(|| 2.0 * (cell.bounds().0 as f64).sqrt())
+    (!cell.is_empty()).then_some(cell)
+}
+
+/// Input points in a grid's cells: continuous cell coordinates.
+struct GridMap {
+    /// The grid's cells per axis.
+    dims: [u32; 3],
+    /// A cell's side in quantized units.
+    cell_size: u32,
+    /// Cells per input unit.
+    per_cell: f64,
+    /// The input point at the grid's corner.
+    origin: [f64; 3],
+}
+
+impl GridMap {
+    /// The whole job's grid.
+    fn of(whole: &Whole) -> Self {
+        let g = &whole.grid;
+        let per_cell = whole.quantizer.scale() / whole.frame.scale / g.cell_size as f64;
+        let origin = whole.frame.to_world(whole.quantizer.origin());
+        Self { dims: [g.dim_x, g.dim_y, g.dim_z], cell_size: g.cell_size, per_cell, origin }
+    }
+
+    /// Point `p` in cell coordinates (cell `c` spans `c..c + 1`).
+    fn at(&self, p: [f64; 3]) -> [f64; 3] {
+        [0, 1, 2].map(|a| (p[a] - self.origin[a]) * self.per_cell)
+    }
+}
+
+/// The most boxes [`flower_cover`] gives a cell.
+const COVER_BOXES: usize = 256;
+
+/// Boxes of the whole job's grid cells holding every point nearer a vertex
+/// of `cell` (relative to its site `s`, input units) than `s` is: where
+/// every site lies that can cut the cell or any smaller one (a walk passes
+/// over the other cells it does not hold: [`cvd_kernels::walk::walk_rings`]).
+/// Each ball a little wider (a thousandth, and a twentieth of a cell) for
+/// the kernels' rounding. Boxes are halved, the largest first, while they
+/// meet the balls and lie in none whole, until [`COVER_BOXES`].
+fn flower_cover(cell: &cvd_kernels::polyhedron::Cell, s: [f64; 3], grid: &GridMap) -> Vec<HeldCells> {
+    let (dims, per_cell, to_grid) = (grid.dims, grid.per_cell, |p| grid.at(p));
+    let balls: Vec<([f64; 3], f64)> = cell.verts[..(cell.n_verts as usize).min(cell.verts.len())]
+        .iter()
+        .map(|v| {
+            let p = [v.x as f64, v.y as f64, v.z as f64];
+            let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt() * per_cell * (1.0 + 1e-3) + 0.05;
+            (to_grid([s[0] + p[0], s[1] + p[1], s[2] + p[2]]), r)
+        })
+        .collect();
+    // A box of cells `lo..=hi` against the balls: (meets one, inside one).
+    let test = |lo: [u32; 3], hi: [u32; 3]| {
+        let mut meets = false;
+        for &(c, r) in &balls {
+            let (mut near, mut far) = (0.0, 0.0);
+            for a in 0..3 {
+                let (l, h) = (lo[a] as f64, hi[a] as f64 + 1.0);
+                let gap = (l - c[a]).max(c[a] - h).max(0.0);
+                let most = (c[a] - l).abs().max((h - c[a]).abs());
+                near += gap * gap;
+                far += most * most;
+            }
+            if far <= r * r {
+                return (true, true);
+            }
+            meets |= near <= r * r;
+        }
+        (meets, false)
+    };
+    // The balls' box, in the grid.
+    let mut lo = [u32::MAX; 3];
+    let mut hi = [0u32; 3];
+    for &(c, r) in &balls {
+        for a in 0..3 {
+            let cell = |x: f64| x.floor().clamp(0.0, (dims[a] - 1) as f64) as u32;
+            lo[a] = lo[a].min(cell(c[a] - r));
+            hi[a] = hi[a].max(cell(c[a] + r));
+        }
+    }
+    if balls.is_empty() {
+        return Vec::new();
+    }
+    let boxed = |lo: [u32; 3], hi: [u32; 3]| HeldCells {
+        lo,
+        dim: [0, 1, 2].map(|a| hi[a] - lo[a] + 1),
+        grid: dims,
+        cell_size: grid.cell_size,
+    };
+    let volume = |lo: [u32; 3], hi: [u32; 3]| (0..3).map(|a| (hi[a] - lo[a] + 1) as u64).product::<u64>();
+    let mut done = Vec::new();
+    let mut todo = std::collections::BinaryHeap::new();
+    match test(lo, hi) {
+        (false, _) => return Vec::new(),
+        (true, true) => return vec![boxed(lo, hi)],
+        (true, false) => todo.push((volume(lo, hi), lo, hi)),
+    }
+    while let Some((v, lo, hi)) = todo.pop() {
+        if v == 1 || done.len() + todo.len() + 2 > COVER_BOXES {
+            done.push(boxed(lo, hi));
+            continue;
+        }
+        let a = (0..3).max_by_key(|&a| hi[a] - lo[a]).unwrap_or(0);
+        let mid = lo[a] + (hi[a] - lo[a]) / 2;
+        let (mut h0, mut l1) = (hi, lo);
+        h0[a] = mid;
+        l1[a] = mid + 1;
+        for (l, h) in [(lo, h0), (l1, hi)] {
+            match test(l, h) {
+                (false, _) => {}
+                (true, true) => done.push(boxed(l, h)),
+                (true, false) => todo.push((volume(l, h), l, h)),
+            }
+        }
+    }
+    done
 }
 
 /// The box of grid cells `cells` (inclusive; empty: `[u32::MAX; 3]` to
@@ -1313,22 +1458,36 @@ mod tests {
     use crate::geom::mesh::TetMesh;
     use crate::geom::points;
 
-    /// A cell's walk reach among the sites held ([`walk_reach`]): on a
-    /// lattice twice its cube's half-diagonal, for a site alone twice the
-    /// way to the box's farthest corner; and among any subset of the sites
-    /// holding the cell's own, it reaches every neighbour the one process
-    /// finds among all the sites (a blob beside sparse sites, so that the
-    /// nearest the reach clips by run out before the cell is told).
+    /// A cell clipped among any subset of the sites holding its own
+    /// ([`cell_among`]) has boxes of grid cells ([`flower_cover`]) that hold
+    /// every neighbour the one process finds among all the sites: on a
+    /// lattice, around a site alone in the box, and on a blob beside sparse
+    /// sites (so that the nearest sites it clips by run out before the cell
+    /// is told); and a site farther than twice its farthest vertex in none.
     #[test]
-    fn a_walk_reaches_every_site_that_cuts_the_cell() {
+    fn a_cells_cover_holds_every_site_that_cuts_it() {
         let unit = ([0.0; 3], [1.0; 3]);
+        let map = GridMap { dims: [20; 3], cell_size: 1, per_cell: 20.0, origin: [0.0; 3] };
+        let cell_of = |p: [f64; 3]| map.at(p).map(|x| (x.floor() as u32).min(19));
+        let covered = |boxes: &[HeldCells], p: [f64; 3]| boxes.iter().any(|b| b.holds(cell_of(p)));
         let lattice: Vec<[f64; 3]> =
             (0..125).map(|i| [i % 5, i / 5 % 5, i / 25].map(|c| (c as f64 + 0.5) / 5.0)).collect();
-        let centre = 62;
-        let reach = walk_reach(&lattice, centre, unit).unwrap();
-        assert!((reach - 0.2 * 3f64.sqrt()).abs() < 1e-6, "{reach}");
-        let alone = walk_reach(&[[0.25, 0.5, 0.5]], 0, unit).unwrap();
-        assert!((alone - 2.0 * (0.75f64 * 0.75 + 0.5).sqrt()).abs() < 1e-6, "{alone}");
+        let cell = cell_among(&lattice, 62, unit).unwrap();
+        let cover = flower_cover(&cell, lattice[62], &map);
+        for (j, &p) in lattice.iter().enumerate() {
+            let d = [0, 1, 2].map(|a| ((p[a] - 0.5) * 5.0).round().abs() as u32);
+            // The cube's 6 face neighbours cut it; 3 cells along an axis do not.
+            if d.iter().sum::<u32>() == 1 {
+                assert!(covered(&cover, p), "lattice site {j} cuts the centre's cell");
+            }
+            if d.contains(&2) && d.iter().sum::<u32>() >= 4 {
+                assert!(!covered(&cover, p), "lattice site {j} is far beyond the centre's cell");
+            }
+        }
+        let alone = cell_among(&[[0.25, 0.5, 0.5]], 0, unit).unwrap();
+        let cover = flower_cover(&alone, [0.25, 0.5, 0.5], &map);
+        let all = [[0.0, 0.0, 0.0], [0.999, 0.999, 0.999], [0.999, 0.0, 0.5]];
+        assert!(all.iter().all(|&p| covered(&cover, p)), "a site alone: its cell is the box, any site cuts it");
 
         let mut sites = points::clustered(6000, 1, 0.01, 3);
         sites.retain(|p| p.iter().all(|&x| x > 0.0 && x < 1.0));
@@ -1337,19 +1496,23 @@ mod tests {
         let one = ClippedVoronoi::new(&mesh, &sites).faces(true).compute().unwrap();
         let a = one.adjacency().unwrap();
         let mut rng = points::Rng::new(5);
+        let (mut boxes, mut told) = (0, 0);
         for u in (0..sites.len()).step_by(37) {
             // Every site, or a random third and the cell's own.
             let kept: Vec<usize> = (0..sites.len()).filter(|&j| j == u || rng.below(3) == 0).collect();
             let some: Vec<[f64; 3]> = kept.iter().map(|&j| sites[j]).collect();
             let at = kept.iter().position(|&j| j == u).unwrap();
             for (held, at) in [(&sites, u), (&some, at)] {
-                let reach = walk_reach(held, at, unit).unwrap();
+                let cell = cell_among(held, at, unit).unwrap();
+                let cover = flower_cover(&cell, sites[u], &map);
+                assert!(!cover.is_empty() && cover.len() <= COVER_BOXES, "site {u}: {} boxes", cover.len());
+                (boxes, told) = (boxes + cover.len(), told + 1);
                 for (v, _, _) in a.of(u) {
-                    let d = crate::geom::vec3::norm(crate::geom::vec3::sub(sites[u], sites[v as usize]));
-                    assert!(d <= reach, "site {u}: neighbour {v} at {d} beyond {reach}");
+                    assert!(covered(&cover, sites[v as usize]), "site {u}: neighbour {v} in no box of its cover");
                 }
             }
         }
+        assert!(boxes > told, "the covers were cut finer than one box each");
     }
 
     /// `run(rank, comm)` on each of `ranks` ranks, as threads; their

@@ -908,7 +908,9 @@ impl<'a> ClippedVoronoi<'a> {
         // A part's cells whose walks had to leave its window (job sites):
         // the part does them again with a wider halo.
         let mut left: Vec<u32> = if job.is_windowed() && out.counters.get(counter::HALO).is_some_and(|&h| h > 0) {
-            out.unfinished.iter().filter(|e| e[0] == WHOLE_CELL).map(|e| e[1]).collect()
+            // A whole cell's site, or a cut cell's (a piece of it in a tet).
+            let sites = job.params.n_sites;
+            out.unfinished.iter().filter(|e| e[0] == WHOLE_CELL || e[1] < sites).map(|e| e[1]).collect()
         } else {
             Vec::new()
         };

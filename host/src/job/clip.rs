@@ -238,9 +238,10 @@ impl ClipJob {
     }
 
     /// Whether the job holds a window of its grid's cells only (a part's:
-    /// [`Self::held`], or [`crate::job::knn::KnnJob::windowed`]).
+    /// [`Self::held`], or [`crate::job::knn::KnnJob::windowed`]), or not
+    /// every cell of its window (`KnnJob::unheld`).
     pub fn is_windowed(&self) -> bool {
-        !HeldCells::of(&self.refine).is_whole()
+        !HeldCells::of(&self.refine).is_whole() || self.site_knn.unheld.is_some()
     }
 
     /// The tets' k-NN job with its queries, every tet's centroid.

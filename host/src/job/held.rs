@@ -4,7 +4,7 @@
 use cvd_kernels::abi::{GridParams, RefineParams};
 
 /// The grid cells whose sites a part holds: a box of the whole job's grid.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct HeldCells {
     /// The box's first cell, in the whole grid's cell coordinates.
     pub lo: [u32; 3],
@@ -475,6 +475,80 @@ mod tests {
         assert_eq!(walk.held_cell([3, 0, 0]), 3);
         let walk = GridWalk::new(&refine, &[], &plain.cell_start, &plain.cell_count, &plain.sorted);
         assert_eq!(walk.held_cell([2, 0, 0]), 2, "unmarked: an empty cell");
+    }
+
+    /// A walk passes over a cell it does not hold when no site there could
+    /// change what it works on (told when the cell is met, or when the walk
+    /// ends: what it works on only shrinks), and gives up otherwise.
+    #[test]
+    fn a_walk_passes_over_an_unheld_cell_no_site_in_could_cut() {
+        use crate::job::knn::{KnnJob, KnnMethod};
+        use cvd_kernels::walk::{walk_end, walk_rings, GridWalk, RingVisitor};
+        // Sites in a 4 x 1 x 1 row of cells; the third marked unheld (it
+        // holds none).
+        let sites: Vec<[f64; 3]> = [0.1, 0.15, 0.3, 0.9].iter().map(|&x| [x, 0.5, 0.5]).collect();
+        let mut job = KnnJob::sites(&sites, 1, KnnMethod::Grid).unwrap();
+        job.params.grid = GridParams { dim_x: 4, dim_y: 1, dim_z: 1, n_cells: 4, ..job.params.grid };
+        job.params.grid.cell_size = (job.quantizer.scale() * 0.25).ceil() as u32;
+        job.unheld = Some(vec![1 << 2].into());
+        let g = crate::exec::build_grid(&job);
+        let cell_len = job.params.grid.cell_size as f32;
+        let refine = HeldCells::whole(&job.params.grid).in_refine(RefineParams {
+            grid: job.params.grid,
+            cell_len,
+            ..Default::default()
+        });
+        let walk = GridWalk::new(&refine, &[], &g.cell_start, &g.cell_count, &g.sorted);
+        // Meets every site within reach; a site in a box could cut while
+        // fewer than `cut_until` sites were met.
+        struct Visitor {
+            met: Vec<u32>,
+            cut_until: usize,
+        }
+        impl RingVisitor<()> for Visitor {
+            fn reach2(&self) -> f32 {
+                f32::INFINITY
+            }
+            fn visit(&mut self, _: &mut (), s: u32) -> bool {
+                self.met.push(s);
+                false
+            }
+            fn may_cut(&self, _: &(), _: [f32; 3], _: [f32; 3]) -> bool {
+                self.met.len() < self.cut_until
+            }
+        }
+        let x = cvd_kernels::polyhedron::Point::new(0.5 * cell_len, 0.0, 0.0);
+        let mut ends = Vec::new();
+        for cut_until in [0, 4, usize::MAX] {
+            let mut v = Visitor { met: Vec::new(), cut_until };
+            ends.push(walk_rings(&walk, x, &mut v, &mut ()));
+            v.met.sort_unstable();
+            assert_eq!(v.met, [0, 1, 2, 3], "every held site met (cut until {cut_until})");
+        }
+        // Could not cut when met; could then, not at the end; could always.
+        assert_eq!(ends, [walk_end::DONE, walk_end::DONE, walk_end::OUT_OF_HALO]);
+    }
+
+    /// Whether a site in a box could cut a cell: only where the box comes
+    /// nearer one of its vertices than its own site.
+    #[test]
+    fn a_box_may_cut_a_cell_only_within_a_vertex_ball() {
+        use cvd_kernels::glam::Vec3;
+        use cvd_kernels::polyhedron::Cell;
+        use cvd_kernels::walk::box_may_cut;
+        // A unit cube around its site: vertex balls of radius sqrt(3) / 2
+        // about its corners.
+        let cell = Cell::cuboid(Vec3::splat(-0.5), Vec3::splat(0.5));
+        let site = cvd_kernels::polyhedron::Point::ZERO;
+        let r = 3f32.sqrt() / 2.0;
+        // Beyond a face's centre (the nearest corner at sqrt(0.5 + d²)).
+        let near = |d: f32| box_may_cut(&cell, site, [0.5 + d, -0.01, -0.01], [2.0, 0.01, 0.01]);
+        assert!(near(0.49));
+        assert!(!near(0.55));
+        // Beyond a corner, along the diagonal.
+        let corner = |d: f32| box_may_cut(&cell, site, [0.5 + d; 3], [3.0; 3]);
+        assert!(corner(0.99 * r / 3f32.sqrt()));
+        assert!(!corner(1.01 * r / 3f32.sqrt()));
     }
 
     #[test]
