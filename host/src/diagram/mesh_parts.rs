@@ -454,7 +454,11 @@ impl ClippedVoronoi<'_> {
                 let boxes = groups.iter().zip(&halos).map(|(g, &h)| around(g, h));
                 HeldSet::of(boxes.chain(covers.iter().copied()).collect())
             });
-            let (boxes, any) = wanted_boxes(comm, want.as_ref(), own_box)?;
+            // Every rank's boxes, once every rank has finished its round:
+            // the time a rank waits for the others is said here.
+            let (wanted, t) = timed(|| wanted_boxes(comm, want.as_ref(), own_box));
+            report.timings.add("waiting", t);
+            let (boxes, any) = wanted?;
             if !any {
                 break;
             }
