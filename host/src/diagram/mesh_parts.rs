@@ -555,13 +555,13 @@ impl ClippedVoronoi<'_> {
             }
             // The groups of the cells not certified and of those whose walks
             // left, and only those (overshooting costs a few groups, not the
-            // part). A list not certified: its group as wide as the list's
-            // ball. A walk that left: boxes holding the balls of its cell's
-            // vertices among the sites held ([`flower_cover`]: every site that
-            // can cut it lies in one, and a walk passes over the cells it
-            // does not hold that no site in could cut), and its group a cell
-            // wider; where the cell is not known (power cells, cells past the
-            // first [`REACH_CELLS`]), its group twice as wide. Every group
+            // part), each group a cell wider. A list not certified: the
+            // cells of its ball around its site. A walk that left: boxes
+            // holding the balls of its cell's vertices among the sites held
+            // ([`flower_cover`]: every site that can cut it lies in one, and
+            // a walk passes over the cells it does not hold that no site in
+            // could cut); where the cell is not known (power cells, cells
+            // past the first [`REACH_CELLS`]), its group twice as wide. Every group
             // twice as wide where a walk left that the job did not name (a
             // device's pieces, a cell not even the host could finish).
             let unnamed = left > 0 && (pieces_left > 0 || kept.left.is_empty());
@@ -581,11 +581,14 @@ impl ClippedVoronoi<'_> {
                         place.ok_or_else(|| Error::Internal(format!("cell {i} of a part left beyond its run")))?;
                     let group = starts.partition_point(|&s| s <= place) - 1;
                     if let Some(need) = list {
+                        // The grid cells of the list's ball around its own
+                        // site (a group's box about a sparse site is wide).
                         let cells = match need * (1.0 + 1e-3) / cell_world {
                             c if c < (u32::MAX - 1) as f64 => c.ceil() as u32 + 1,
                             _ => u32::MAX,
                         };
-                        return Ok((group, Some(cells), Vec::new()));
+                        let own = whole.cell_of(at[i as usize]);
+                        return Ok((group, None, vec![HeldCells::around(own, own, cells, dims, grid.cell_size)]));
                     }
                     // Each cell clipped by every site held: for the first
                     // `REACH_CELLS` cells only (a few hundred leave a round
