@@ -272,12 +272,16 @@ impl ClippedVoronoi<'_> {
         let mut frame_points: Vec<[f64; 3]> = mesh.vertices.iter().map(|&p| frame.to_local(p)).collect();
         frame_points.extend((0..8).map(|c| [0, 1, 2].map(|a| if c >> a & 1 == 0 { l[a] } else { h[a] })));
         let (quantizer, grid) = crate::job::knn::frame_grid(&frame_points, distinct[0] as usize)?;
+        let (box_lo, box_hi) = crate::geom::vec3::bounding_box(frame_points.iter());
+        let (box_lo, box_hi) = crate::job::clip::start_box(box_lo, box_hi);
+        let start_box = (frame.to_world(box_lo), frame.to_world(box_hi));
         drop(frame_points);
         let weights = match span {
             Some([_, largest]) => Some(self.weights_as_one(comm, &own, largest, frame, distinct[0] as usize)?),
             None => None,
         };
-        let whole_grid = Whole { frame, quantizer, grid, keys, lo, hi, distinct: distinct[0] as usize, weights };
+        let distinct = distinct[0] as usize;
+        let whole_grid = Whole { frame, quantizer, grid, keys, lo, hi, start_box, distinct, weights };
         // This rank's sites in the one process's order, and their cells.
         let mut keyed: Vec<(u32, u64, Held)> = own.par_iter().map(|h| (keys.key(h.at), h.site, *h)).collect();
         keyed.par_sort_unstable_by_key(|k| (k.0, k.1));
@@ -438,14 +442,6 @@ impl ClippedVoronoi<'_> {
         let mut done: Option<Part> = None;
         // The box of this rank's own sites' cells (the sites it sends).
         let own_box = (!own_cells.is_empty()).then(|| cells_box(own_cells));
-        // The box the kernels clip a whole cell from: the mesh's and the
-        // sites' box, a hundredth of its diagonal wider.
-        let domain = {
-            let (lo, hi) = crate::geom::vec3::bounding_box(self.mesh.vertices.iter().chain([&whole.lo, &whole.hi]));
-            let diag = (0..3).map(|a| (hi[a] - lo[a]).powi(2)).sum::<f64>().sqrt();
-            let margin = 0.01 * diag.max(1e-3 * whole.frame.scale);
-            (lo.map(|x| x - margin), hi.map(|x| x + margin))
-        };
         loop {
             let want = (done.is_none() && !run.is_empty()).then(|| {
                 let around = |(lo, hi): &([u32; 3], [u32; 3]), halo: u32| {
@@ -570,9 +566,10 @@ impl ClippedVoronoi<'_> {
                 .map(|(i, need)| (i, Some(need)))
                 .chain(kept.left.iter().map(|&i| (i, None)))
                 .collect();
-            let cell_world = grid.cell_size as f64 / per_world;
             let grid_map = GridMap::of(whole);
-            let wanted: Vec<(usize, Option<u32>, Vec<HeldCells>)> = failed
+            // Each failing cell's group, whether it is twice as wide, and the
+            // boxes the cell adds.
+            let wanted: Vec<(usize, bool, Vec<HeldCells>)> = failed
                 .par_iter()
                 .enumerate()
                 .map(|(f, &(i, list))| {
@@ -583,12 +580,12 @@ impl ClippedVoronoi<'_> {
                     if let Some(need) = list {
                         // The grid cells of the list's ball around its own
                         // site (a group's box about a sparse site is wide).
-                        let cells = match need * (1.0 + 1e-3) / cell_world {
+                        let cells = match need * (1.0 + 1e-3) * grid_map.per_cell {
                             c if c < (u32::MAX - 1) as f64 => c.ceil() as u32 + 1,
                             _ => u32::MAX,
                         };
                         let own = whole.cell_of(at[i as usize]);
-                        return Ok((group, None, vec![HeldCells::around(own, own, cells, dims, grid.cell_size)]));
+                        return Ok((group, false, vec![HeldCells::around(own, own, cells, dims, grid.cell_size)]));
                     }
                     // Each cell clipped by every site held: for the first
                     // `REACH_CELLS` cells only (a few hundred leave a round
@@ -596,11 +593,11 @@ impl ClippedVoronoi<'_> {
                     let cell = match self.weights {
                         Some(_) => None,
                         None if f >= REACH_CELLS => None,
-                        None => cell_among(&at, i as usize, domain),
+                        None => cell_among(&at, i as usize, whole.start_box),
                     };
                     Ok(match cell {
-                        Some(cell) => (group, None, flower_cover(&cell, at[i as usize], &grid_map)),
-                        None => (group, Some(halos[group].saturating_mul(2)), Vec::new()),
+                        Some(cell) => (group, false, flower_cover(&cell, at[i as usize], &grid_map)),
+                        None => (group, true, Vec::new()),
                     })
                 })
                 .collect::<Result<_>>()?;
@@ -608,9 +605,9 @@ impl ClippedVoronoi<'_> {
             // last.
             let mut next: Vec<u32> = halos.iter().map(|&h| if unnamed { h.saturating_mul(2) } else { h }).collect();
             let mut seen: std::collections::HashSet<HeldCells> = covers.iter().copied().collect();
-            for (g, cells, boxes) in wanted {
+            for (g, double, boxes) in wanted {
                 let h = halos[g];
-                next[g] = next[g].max(cells.unwrap_or(0).max(h.saturating_add(1)));
+                next[g] = next[g].max(if double { h.saturating_mul(2) } else { h }.max(h.saturating_add(1)));
                 covers.extend(boxes.into_iter().filter(|b| seen.insert(*b)));
             }
             drop(seen);
@@ -750,6 +747,9 @@ struct Whole {
     keys: MortonKeys,
     lo: [f64; 3],
     hi: [f64; 3],
+    /// The box the kernels clip a whole cell from, in input units
+    /// ([`crate::job::clip::start_box`]).
+    start_box: ([f64; 3], [f64; 3]),
     distinct: usize,
     weights: Option<WholeWeights>,
 }
@@ -1384,6 +1384,9 @@ fn flower_cover(cell: &cvd_kernels::polyhedron::Cell, s: [f64; 3], grid: &GridMa
         }
         (meets, false)
     };
+    if balls.is_empty() {
+        return Vec::new();
+    }
     // The balls' box, in the grid.
     let mut lo = [u32::MAX; 3];
     let mut hi = [0u32; 3];
@@ -1393,9 +1396,6 @@ fn flower_cover(cell: &cvd_kernels::polyhedron::Cell, s: [f64; 3], grid: &GridMa
             lo[a] = lo[a].min(cell(c[a] - r));
             hi[a] = hi[a].max(cell(c[a] + r));
         }
-    }
-    if balls.is_empty() {
-        return Vec::new();
     }
     let boxed = |lo: [u32; 3], hi: [u32; 3]| HeldCells {
         lo,

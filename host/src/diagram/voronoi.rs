@@ -16,9 +16,7 @@ use crate::job::sites::{Layout, SiteMap, Window};
 use crate::job::BackendKind;
 use crate::passes::pieces::{PieceCollector, Pieces};
 use crate::passes::polyhedra::{merge_pieces, CellPolyhedron};
-use cvd_kernels::abi::{
-    counter, domain_whole, ClipParams, RefineParams, SplitPoint, ACCUM_PER_SITE, NO_SITE, WHOLE_CELL,
-};
+use cvd_kernels::abi::{counter, domain_whole, ClipParams, RefineParams, SplitPoint, ACCUM_PER_SITE, NO_SITE};
 use cvd_kernels::clip::NoPieces;
 use cvd_kernels::lists::NO_LIST;
 use std::sync::Mutex;
@@ -644,7 +642,7 @@ impl<'a> ClippedVoronoi<'a> {
             None => crate::geom::vec3::bounding_box(sites.iter().chain(&local_mesh.vertices)),
         };
         let diag = (0..3).map(|a| (hi[a] - lo[a]).powi(2)).sum::<f64>().sqrt();
-        let margin = 0.01 * diag.max(1e-3);
+        let (box_lo, box_hi) = crate::job::clip::start_box(lo, hi);
         // Per-site sums, and their total over all sites, are at most (mesh
         // volume <= 1) x 3 (1 + diag)² x the largest density: the largest
         // power-of-two scale that keeps them inside i64 with a bit to spare
@@ -701,12 +699,12 @@ impl<'a> ClippedVoronoi<'a> {
             nbr_end: listed.end as u32,
             own_lo: own.start as u32,
             own_hi: own.end as u32,
-            box_lo_x: (lo[0] - margin) as f32,
-            box_lo_y: (lo[1] - margin) as f32,
-            box_lo_z: (lo[2] - margin) as f32,
-            box_hi_x: (hi[0] + margin) as f32,
-            box_hi_y: (hi[1] + margin) as f32,
-            box_hi_z: (hi[2] + margin) as f32,
+            box_lo_x: box_lo[0] as f32,
+            box_lo_y: box_lo[1] as f32,
+            box_lo_z: box_lo[2] as f32,
+            box_hi_x: box_hi[0] as f32,
+            box_hi_y: box_hi[1] as f32,
+            box_hi_z: box_hi[2] as f32,
             faces_base,
             area_scale: if self.faces { area_bits.exp2() as f32 } else { 0.0 },
             // A site lies within a few quantization steps of its cell, plus
@@ -908,9 +906,10 @@ impl<'a> ClippedVoronoi<'a> {
         // A part's cells whose walks had to leave its window (job sites):
         // the part does them again with a wider halo.
         let mut left: Vec<u32> = if job.is_windowed() && out.counters.get(counter::HALO).is_some_and(|&h| h > 0) {
-            // A whole cell's site, or a cut cell's (a piece of it in a tet).
+            // A whole cell's site, or a cut cell's (a piece of it in a
+            // tet); not a tet's marks.
             let sites = job.params.n_sites;
-            out.unfinished.iter().filter(|e| e[0] == WHOLE_CELL || e[1] < sites).map(|e| e[1]).collect()
+            out.unfinished.iter().filter(|e| e[1] < sites).map(|e| e[1]).collect()
         } else {
             Vec::new()
         };

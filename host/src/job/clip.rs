@@ -322,6 +322,15 @@ pub struct Frame {
     pub scale: f64,
 }
 
+/// The box a whole cell is clipped from (Algorithm 1's box): `lo..hi`, the
+/// mesh's and the sites' box in the local frame, a hundredth of its
+/// diagonal (at least 10⁻⁵) wider on every side.
+pub(crate) fn start_box(lo: [f64; 3], hi: [f64; 3]) -> ([f64; 3], [f64; 3]) {
+    let diag = (0..3).map(|a| (hi[a] - lo[a]).powi(2)).sum::<f64>().sqrt();
+    let margin = 0.01 * diag.max(1e-3);
+    (lo.map(|x| x - margin), hi.map(|x| x + margin))
+}
+
 impl Frame {
     pub(crate) fn of(mesh: &TetMesh) -> Self {
         let (lo, hi) = mesh.bounding_box();
