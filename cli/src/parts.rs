@@ -187,6 +187,7 @@ pub(crate) fn totals_and_records(
         held: report.held,
         halo: report.halo,
         widened: report.widened as u64,
+        rebuilt: report.rebuilt,
         grid_cells: report.grid_cells,
         tets: report.tets,
         parts: report.parts,
@@ -258,10 +259,12 @@ pub(crate) fn print_ranks(summary: &Summary, parts: &str) {
             r.blocks,
             r.held,
             r.halo,
-            match r.widened {
-                0 => String::new(),
-                1 => ", widened once".to_string(),
-                n => format!(", widened {n} times"),
+            match (r.widened, r.rebuilt) {
+                (0, _) => String::new(),
+                (1, 0) => ", widened once".to_string(),
+                (n, 0) => format!(", widened {n} times"),
+                (1, c) => format!(", widened once: {c} cells built again"),
+                (n, c) => format!(", widened {n} times: {c} cells built again"),
             },
             r.grid_cells[0],
             r.grid_cells[1],
@@ -568,6 +571,7 @@ fn record_bytes(r: &RankRecord) -> Vec<u8> {
         r.tets[1],
         r.parts,
         r.widened,
+        r.rebuilt,
     ];
     words.iter().flat_map(|w| w.to_le_bytes()).collect()
 }
@@ -588,5 +592,6 @@ fn record_of(b: &[u8]) -> RankRecord {
         tets: [w(11), w(12)],
         parts: w(13),
         widened: w(14),
+        rebuilt: w(15),
     }
 }

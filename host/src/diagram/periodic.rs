@@ -354,6 +354,8 @@ impl<'a> PeriodicVoronoi<'a> {
                 window: Window::Whole,
                 unheld: None,
                 periodic: true,
+                only: None,
+                halves: false,
             });
         }
         let last = self.last.filter(|l| whole_cells && l.fits(&domain, &sites, self.weights));

@@ -158,6 +158,11 @@ pub struct PartsReport {
     pub halo: f64,
     /// Times the ranks widened the halo.
     pub widened: u32,
+    /// A mesh in parts: the cells built again in the rounds after the
+    /// first, with more sites held (on the CPU only those whose list or
+    /// walk reached past what their part held; a device builds every cell
+    /// of the part again).
+    pub rebuilt: u64,
     /// A mesh in parts: the neighbour lists this rank's boxes did not
     /// certify, over its rounds (each such round widened the halo).
     pub uncertified: u64,
@@ -375,6 +380,8 @@ impl PeriodicVoronoi<'_> {
                 window: if window { Window::Around } else { Window::Whole },
                 unheld: None,
                 periodic: true,
+                only: None,
+                halves: false,
             };
             let weights: Option<Vec<f64>> = self.weights.map(|_| held.iter().map(|h| h.weight).collect());
             // Walks of the pieces' run on the CPU that left the window.

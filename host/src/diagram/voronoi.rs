@@ -540,6 +540,25 @@ impl<'a> ClippedVoronoi<'a> {
                 (inputs, map, 0..own)
             }
         };
+        // The places whose cells are built, if not all: in the job's order.
+        let only = match self.layout.and_then(|l| l.only.map(|o| (l.order, o))) {
+            Some((order, places)) => {
+                let mut built = Vec::with_capacity(places.len());
+                for &p in places {
+                    let input = order
+                        .get(p as usize)
+                        .ok_or_else(|| Error::Internal(format!("place {p} built beyond the layout")))?;
+                    if let Some(u) = map.get(*input as usize) {
+                        if !own.contains(&u) || built.last().is_some_and(|&l| l >= u as u32) {
+                            return Err(Error::Internal(format!("place {p} built out of order or not answered")));
+                        }
+                        built.push(u as u32);
+                    }
+                }
+                Some(std::sync::Arc::from(built))
+            }
+            None => None,
+        };
 
         let frame = Frame::of(mesh);
         let sites: Vec<[f64; 3]> = inputs.iter().map(|&i| frame.to_local(self.sites[i as usize])).collect();
@@ -792,6 +811,7 @@ impl<'a> ClippedVoronoi<'a> {
             held: None,
             keep,
             face_sites: listed.len() as u32,
+            only,
         };
         Ok((job, map, frame))
     }
@@ -930,7 +950,9 @@ impl<'a> ClippedVoronoi<'a> {
             let mut left: Vec<u32> = left.iter().map(|&u| inputs[u as usize]).collect();
             left.sort_unstable();
             left.dedup();
-            KeptLists { left, ..kept_lists(kept, inputs, &job.site_knn, frame.scale, self.candidates) }
+            let listed = job.params.own_lo as usize..job.params.own_hi as usize;
+            let kinds = out.kinds.get(listed).map(<[u8]>::to_vec).unwrap_or_default();
+            KeptLists { left, kinds, ..kept_lists(kept, inputs, &job.site_knn, frame.scale, self.candidates) }
         });
         let mut cells = finish(self.mesh, self.density, self.sites, job, map, frame, out);
         cells.adjacency = adjacency;
@@ -970,6 +992,7 @@ impl ClippedVoronoi<'_> {
             c.packed_lists(&job.site_knn, cvd_kernels::lists::width(n))?
         };
         let summed = (job.params.faces_first as usize, n as usize);
+        let halves = self.layout.is_some_and(|l| l.halves);
         let (mut faces, incomplete) =
             crate::passes::faces::from_sums(sums, &lists.view(base), k, job.params.area_scale as f64, summed);
         if !incomplete.is_empty() {
@@ -983,7 +1006,7 @@ impl ClippedVoronoi<'_> {
                 // (its faces here would come from another body than one
                 // process's); said as a cell out of the halo.
                 None if job.is_windowed() => {
-                    let adjacency = crate::passes::faces::assemble(faces, map, self.sites, frame.scale);
+                    let adjacency = crate::passes::faces::assemble(faces, map, self.sites, frame.scale, halves);
                     return Ok((adjacency, incomplete.len(), incomplete));
                 }
                 None => {
@@ -1011,7 +1034,7 @@ impl ClippedVoronoi<'_> {
             });
         }
         let redone = incomplete.len();
-        Ok((crate::passes::faces::assemble(faces, map, self.sites, frame.scale), redone, Vec::new()))
+        Ok((crate::passes::faces::assemble(faces, map, self.sites, frame.scale, halves), redone, Vec::new()))
     }
 }
 
@@ -1175,7 +1198,17 @@ fn kept_lists(kept: LocalKept, inputs: Vec<u32>, knn: &KnnJob, scale: f64, c: Op
         let mid = beyond.len() / 2;
         beyond.select_nth_unstable_by(mid, f64::total_cmp).1.max(0.0)
     };
-    KeptLists { k: kept.k as usize, lists: kept.lists, reach, kth, inputs, reused, skin, left: Vec::new() }
+    KeptLists {
+        k: kept.k as usize,
+        lists: kept.lists,
+        reach,
+        kth,
+        inputs,
+        reused,
+        skin,
+        left: Vec::new(),
+        kinds: Vec::new(),
+    }
 }
 
 #[cfg(test)]
@@ -1222,6 +1255,8 @@ mod tests {
                 window: Window::Whole,
                 unheld: None,
                 periodic: false,
+                only: None,
+                halves: false,
             };
             ClippedVoronoi::new(&mesh, &sites).faces(true).strategy(Strategy::Whole).layout(layout)
         };

@@ -5,7 +5,7 @@
 
 use crate::error::{Error, Result};
 use crate::geom::timing::{timed, Timings};
-use crate::job::clip::{ClipJob, ClipOutput, Pairing, Strategy};
+use crate::job::clip::{cell_kind, ClipJob, ClipOutput, Pairing, Strategy};
 use crate::job::held::HeldCells;
 use crate::job::kept::{Keep, LocalKept};
 use crate::job::knn::{KnnJob, KnnMethod, Neighbors, PackedLists};
@@ -18,7 +18,7 @@ use cvd_kernels::polyhedron::{CELL_PLANES, CELL_VERTS};
 use cvd_kernels::walk::GridWalk;
 use cvd_kernels::{grid, knn, lists, refine, scan, whole};
 use rayon::prelude::*;
-use std::sync::atomic::{AtomicI64, AtomicU32, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicI64, AtomicU32, AtomicU64, AtomicU8, Ordering};
 use std::sync::Mutex;
 
 /// Thread indices per rayon task.
@@ -64,7 +64,7 @@ impl CpuBackend {
             None if whole => {
                 let lists = match &job.keep {
                     Some(keep) => {
-                        let (lists, local) = self.kept_lists(&job.site_knn, keep, bits, &g);
+                        let (lists, local) = self.kept_lists(&job.site_knn, keep, bits, &g, job.only.as_deref());
                         kept = Some(local);
                         lists
                     }
@@ -87,6 +87,7 @@ impl CpuBackend {
         self.pool.install(|| {
             let p = &refine.clip;
             let mut timings = Timings::default();
+            let mut kinds = Vec::new();
             timings.push("knn", grid_time + site_nn.timings.total() + tet_nn.timings.total());
             let tet_nn = Neighbors { k: tet_nn.k as usize, indices: tet_nn.words, ..Default::default() };
             // The sites' sums, then one volume sum per tet (knn pairing's
@@ -121,23 +122,31 @@ impl CpuBackend {
                         .domain
                         .as_deref()
                         .ok_or_else(|| Error::Internal("a whole-cell job without its domain index".into()))?;
+                    // Every site, or those the job builds only; each one's
+                    // kind as the counters say it.
+                    let only = job.only.as_deref();
+                    let built = only.map_or(p.n_sites as usize, <[u32]>::len);
+                    let cell_kinds: Vec<AtomicU8> = (0..p.n_sites).map(|_| AtomicU8::new(0)).collect();
                     let (_, t) = timed(|| {
                         let w = GridWalk::new(&refine, &site_nn.words, &g.cell_start, &g.cell_count, &g.sorted);
                         let d = domain.view();
-                        par_indices(
-                            p.n_sites as usize,
-                            CHUNK / 16,
-                            &sums,
-                            &totals,
-                            &unfinished,
-                            sinks,
-                            |i, s, c, u, k| {
-                                whole::whole_cell::<CELL_PLANES, CELL_VERTS, _, _, _, _>(
-                                    i, &refine, w, sites, verts, tets, d, faces, s, c, u, k,
-                                )
-                            },
-                        )
+                        par_indices(built, CHUNK / 16, &sums, &totals, &unfinished, sinks, |b, s, c, u, k| {
+                            let i = only.map_or(b, |o| o[b] as usize);
+                            let before = (c.0[counter::WHOLE], c.0[counter::CUT]);
+                            whole::whole_cell::<CELL_PLANES, CELL_VERTS, _, _, _, _>(
+                                i, &refine, w, sites, verts, tets, d, faces, s, c, u, k,
+                            );
+                            let kind = match (c.0[counter::WHOLE] > before.0, c.0[counter::CUT] > before.1) {
+                                (true, _) => cell_kind::WHOLE,
+                                (_, true) => cell_kind::CUT,
+                                _ => cell_kind::NONE,
+                            };
+                            if let Some(slot) = cell_kinds.get(i) {
+                                slot.store(kind, Ordering::Relaxed);
+                            }
+                        })
                     });
+                    kinds = cell_kinds.into_iter().map(AtomicU8::into_inner).collect();
                     timings.push("clip", t);
                 }
                 Strategy::TetCell => {
@@ -223,6 +232,7 @@ impl CpuBackend {
                 chunks: 1,
                 unfinished: still,
                 timings,
+                kinds,
             })
         })
     }
@@ -468,7 +478,17 @@ impl CpuBackend {
     /// candidates where they certify its first `k` (the job's), else from
     /// the grid; the first `k` packed in `bits`-bit entries for the
     /// kernels, all `keep.k` kept.
-    fn kept_lists(&self, job: &KnnJob, keep: &Keep, bits: u32, grid: &CpuGrid) -> (PackedLists, LocalKept) {
+    ///
+    /// With `only` (query places, increasing), those queries' lists alone:
+    /// the others' words stay zero, their distances `u64::MAX`.
+    fn kept_lists(
+        &self,
+        job: &KnnJob,
+        keep: &Keep,
+        bits: u32,
+        grid: &CpuGrid,
+        only: Option<&[u32]>,
+    ) -> (PackedLists, LocalKept) {
         let p = job.params;
         let (k, n) = (p.k, p.n_queries as usize);
         // At least one entry kept (a job of one site has none to list).
@@ -502,7 +522,11 @@ impl CpuBackend {
                         } else {
                             kept
                         };
-                        let q = job.queries[p.query_base as usize + u];
+                        let place = p.query_base as usize + u;
+                        if only.is_some_and(|o| o.binary_search(&(place as u32)).is_err()) {
+                            return;
+                        }
+                        let q = job.queries[place];
                         let at = [q[0], q[1], q[2]];
                         *reused = keep.candidates.as_ref().is_some_and(|c| {
                             let below2 = c.below2.get(u).copied().unwrap_or(0);

@@ -198,6 +198,12 @@ pub struct ClipJob {
     /// [`ClipParams::faces_first`] (a part's whole cells: the run it
     /// answers, not every site it holds).
     pub face_sites: u32,
+    /// Whole cells on the CPU backend: of the answered sites, the only ones
+    /// whose cells are built (job places, increasing; a part's cells built
+    /// again with more sites held). Their lists, walks, pieces and sums are
+    /// the bits of the job building every answered cell; the others' sums
+    /// and faces stay zero. `None`: every answered site.
+    pub only: Option<std::sync::Arc<[u32]>>,
 }
 
 impl ClipJob {
@@ -299,6 +305,22 @@ pub struct ClipOutput {
     pub chunks: u64,
     /// Time per phase.
     pub timings: Timings,
+    /// Whole cells on the CPU backend: each site's cell as the kernels'
+    /// first pass counted it ([`cell_kind`]; what `Counters::whole_cells`
+    /// and `cut_cells` add up), one per site; empty where the backend does
+    /// not say.
+    pub kinds: Vec<u8>,
+}
+
+/// A whole cell as the kernels' first pass counted it
+/// ([`ClipOutput::kinds`]).
+pub mod cell_kind {
+    /// Not built, or not finished (counted neither way).
+    pub const NONE: u8 = 0;
+    /// Whole (`counter::WHOLE`).
+    pub const WHOLE: u8 = 1;
+    /// Cut by the domain's boundary (`counter::CUT`).
+    pub const CUT: u8 = 2;
 }
 
 /// The kernels' one sums buffer cut into its parts: the sites' sums

@@ -119,4 +119,8 @@ pub struct KeptLists {
     /// its window (`Counters::out_of_halo`): the part does them again with
     /// a wider halo.
     pub left: Vec<u32>,
+    /// Per listed site: its cell's kind as the kernels' first pass counted
+    /// it ([`crate::job::clip::cell_kind`]); empty where the backend does
+    /// not say.
+    pub kinds: Vec<u8>,
 }

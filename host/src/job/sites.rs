@@ -171,6 +171,14 @@ pub(crate) struct Layout<'a> {
     /// A periodic box's sites and images: no cell is cut (else a mesh's
     /// sites, whole cells cut by its boundary).
     pub periodic: bool,
+    /// Of the answered places, the only ones whose cells are built
+    /// (increasing; [`crate::job::clip::ClipJob::only`], the CPU
+    /// backend's); `None`: all of them.
+    pub only: Option<&'a [u32]>,
+    /// Each row of the adjacency holds its cell's own half of each face
+    /// only (the caller adds the other side's, as a diagram in parts
+    /// does); else both halves.
+    pub halves: bool,
 }
 
 /// The cells of the whole job's grid a laid-out job's table holds.

@@ -308,8 +308,16 @@ pub(crate) fn complete(
 /// lengths scaled to the world (`scale`), normals along the sites'
 /// difference in the world (`sites`, input order; `map`: input to unique).
 /// The rows are built in the job's order, where a site's neighbours lie
-/// near it in memory, each written to its input row.
-pub(crate) fn assemble(faces: FaceRows, map: &crate::job::sites::SiteMap, sites: &[[f64; 3]], scale: f64) -> Adjacency {
+/// near it in memory, each written to its input row. With `halves`, each
+/// row holds its own half of each face only (the area it saw, halved):
+/// a diagram in parts adds the other side's as one process does here.
+pub(crate) fn assemble(
+    faces: FaceRows,
+    map: &crate::job::sites::SiteMap,
+    sites: &[[f64; 3]],
+    scale: f64,
+    halves: bool,
+) -> Adjacency {
     let n = faces.len();
     // The input index of each unique site (duplicates map to nothing), and
     // its position in the world, in the job's order.
@@ -320,6 +328,7 @@ pub(crate) fn assemble(faces: FaceRows, map: &crate::job::sites::SiteMap, sites:
     // half the area, on both rows.
     let mut one_sided: Vec<(u32, u32, f64)> = (0..n)
         .into_par_iter()
+        .filter(|_| !halves)
         .flat_map_iter(|u| {
             let (vs, areas) = faces.row(u);
             vs.iter()
@@ -366,7 +375,8 @@ pub(crate) fn assemble(faces: FaceRows, map: &crate::job::sites::SiteMap, sites:
         };
         let (vs, areas) = faces.row(u);
         row.clear();
-        row.extend(vs.iter().zip(areas).map(|(&v, &a)| face(v, a, faces.area(v as usize, u as u32).unwrap_or(0.0))));
+        let other = |v: u32| if halves { None } else { faces.area(v as usize, u as u32) };
+        row.extend(vs.iter().zip(areas).map(|(&v, &a)| face(v, a, other(v).unwrap_or(0.0))));
         row.extend(extra(u).iter().map(|&(_, v, a)| face(v, a, 0.0)));
         row.sort_unstable_by_key(|e: &(u32, f64, [f64; 3])| e.0);
         for (k, &(j, a, n)) in row.iter().enumerate() {

@@ -115,6 +115,14 @@ impl Pieces {
         self.labels = labels;
     }
 
+    /// Only the pieces of the sites `keep` says, by the names they have
+    /// now (a part's cells finished in one round of several).
+    pub(crate) fn retain_sites(&mut self, keep: impl Fn(u32) -> bool) {
+        let order = std::mem::take(&mut self.order);
+        let site = |&(part, p): &(u32, u32)| self.label(self.parts[part as usize].sites[p as usize]);
+        self.order = order.into_iter().filter(|k| keep(site(k))).collect();
+    }
+
     /// The name of site index `i` (see [`Pieces::relabel`]).
     fn label(&self, i: u32) -> u32 {
         self.labels.get(i as usize).copied().unwrap_or(i)

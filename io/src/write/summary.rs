@@ -106,9 +106,14 @@ pub struct RankRecord {
     pub held: u64,
     /// The halo's width.
     pub halo: f64,
-    /// Times a part of it was done again with a wider halo (a cell whose
-    /// list or walk reached past what it held), over its parts.
+    /// Rounds in which a part of it held more sites for the cells whose
+    /// list or walk reached past what it held, over its parts.
     pub widened: u64,
+    /// A mesh in parts: the cells it built again in those rounds (on the
+    /// CPU the cells that reached past only; a device builds its part's
+    /// every cell again; 0, not written, when none).
+    #[serde(skip_serializing_if = "is_zero")]
+    pub rebuilt: u64,
     /// The cells of the site grid's table it held (the window of the whole
     /// job's grid around its points), and the whole grid's.
     pub grid_cells: [u64; 2],

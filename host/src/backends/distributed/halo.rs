@@ -250,6 +250,7 @@ pub(crate) fn part_job(
         held: Some(held),
         keep: None,
         face_sites: n as u32,
+        only: None,
     };
     Ok((part, sites))
 }

@@ -124,6 +124,11 @@ impl Backend for VulkanBackend {
     }
 
     fn clip(&self, job: &ClipJob) -> Result<ClipOutput> {
+        if job.only.is_some() {
+            // A part's cells built again: on the CPU backend (a device's
+            // part builds every answered cell again).
+            return Err(Error::Internal("some answered cells only are built on the CPU backend".into()));
+        }
         if job.held.is_some() || (job.is_windowed() && job.strategy != Strategy::Whole) {
             // Tets in parts: their lists' certificates and the tets' first
             // sites marked out of the halo are the CPU backend's. Whole
@@ -300,6 +305,7 @@ impl Backend for VulkanBackend {
                 chunks: 1,
                 unfinished: crate::job::clip::pair_list(&done.read::<u32>(list_back, list_len as usize)),
                 timings: done.timings.clone(),
+                kinds: Vec::new(),
             });
         }
         let cells = if job.strategy == Strategy::CellTet {
@@ -433,6 +439,7 @@ impl Backend for VulkanBackend {
             chunks: plan.tet_parts * windows.len() as u64,
             unfinished: left,
             timings,
+            kinds: Vec::new(),
         })
     }
 }
