@@ -28,10 +28,13 @@
 //!   certified asks again with a halo as wide as the list's ball, a cell
 //!   whose walk left with the grid cells around its vertices' balls among
 //!   the sites held ([`flower_cover`]), the others keep theirs (at most
-//!   the whole grid, which certifies every cell);
-//! - sends each row, with its faces (the other side's halves from the rank
-//!   that built that side, as one process adds them), to the rank that
-//!   read its site.
+//!   the whole grid, which certifies every cell); the next round's job
+//!   holds the wider set and builds those cells only (on the CPU:
+//!   [`crate::job::clip::ClipJob::only`]; a device builds every cell of
+//!   the run again, and the round takes those);
+//! - sends each row, with its faces (the other side's halves from the
+//!   round or the rank that finished that side, as one process adds them),
+//!   to the rank that read its site.
 //!
 //! Power cells carry their weights with their sites: the job shifts them
 //! by the smallest of all, and its local weight bounds read the grid of
@@ -631,6 +634,8 @@ impl ClippedVoronoi<'_> {
             } else if !ends {
                 counters = Default::default();
             }
+            // The lists are read: not kept while the rows are made.
+            drop((kept, listed));
             let width = halos.iter().copied().max().unwrap_or(first_halo) as f64 * grid.cell_size as f64 / per_world;
             report.held = report.held.max(held.len() as u64);
             report.halo = report.halo.max(width);
