@@ -136,6 +136,48 @@ struct Round<'a> {
     finished: &'a [u32],
 }
 
+/// A run of a rank's sites along the curve (places in its order).
+type Run = std::ops::Range<usize>;
+
+/// A sub-part of a rank's sites, from round to round: its run, the groups
+/// of its cells along the curve its halo goes around (their first places
+/// in the run, `starts`, and boxes of grid cells), each group's halo, the
+/// boxes its failing cells asked for, and its cells not finished yet.
+struct SubPart {
+    sub: usize,
+    run: Run,
+    first_halo: u32,
+    /// The curve's key and input index of its first site.
+    first_key: Option<(u32, u64)>,
+    starts: Vec<usize>,
+    groups: Vec<([u32; 3], [u32; 3])>,
+    halos: Vec<u32>,
+    /// Boxes around cells whose lists were not certified or whose walks
+    /// left, holding where a site that cuts them can be
+    /// ([`flower_cover`]).
+    covers: Vec<HeldCells>,
+    /// The run's cells not finished yet (places in the run, increasing;
+    /// `None`: every one).
+    pending: Option<Vec<u32>>,
+    done: bool,
+}
+
+impl SubPart {
+    /// The boxes of grid cells its next round holds: every group's with
+    /// its halo, and the covers; `None` once every cell is finished.
+    fn want(&self, whole: &Whole) -> Option<HeldSet> {
+        if self.done {
+            return None;
+        }
+        let grid = &whole.grid;
+        let dims = [grid.dim_x, grid.dim_y, grid.dim_z];
+        let around =
+            |&(lo, hi): &([u32; 3], [u32; 3]), halo: u32| HeldCells::around(lo, hi, halo, dims, grid.cell_size);
+        let boxes = self.groups.iter().zip(&self.halos).map(|(g, &h)| around(g, h));
+        Some(HeldSet::of(boxes.chain(self.covers.iter().copied()).collect()))
+    }
+}
+
 impl ClippedVoronoi<'_> {
     /// This rank's part of the diagram of the sites of all ranks of `comm`
     /// in the mesh (see the module's documentation): `self`'s sites are
@@ -309,55 +351,78 @@ impl ClippedVoronoi<'_> {
         let own_keys: Vec<u32> = own.iter().map(|h| keys.key(h.at)).collect();
         let runs = cuts_along(own.len(), sub, COUNTED_SLACK, |i| i as i64, |i| own_keys[i]);
         drop(own_keys);
+        // Each round's finished cells: their polyhedra, counters and rows
+        // (and the halves of their faces others' cells share).
+        let mut emit = |round: Round<'_>, counters: Counters| -> Result<RowsAndHalves> {
+            let Round { held, cells, pieces, finished, answer } = round;
+            for (name, t) in &cells.timings.phases {
+                phases.add(name, *t);
+            }
+            (pairing, k) = (cells.pairing, cells.k);
+            for (c, w) in counted.iter_mut().zip(counter_words(&counters)) {
+                *c += w;
+            }
+            let clock = std::time::Instant::now();
+            let is_finished = |i: u32| {
+                let q = i.wrapping_sub(answer.start as u32);
+                finished.binary_search(&q).is_ok()
+            };
+            if let (Some(built), Some(mut pieces)) = (built.as_mut(), pieces) {
+                pieces.retain_sites(is_finished);
+                pieces_merged += pieces.len() as u64;
+                add_polyhedra(built, pieces, held, cells, visit)?;
+                timings.add("polyhedra", clock.elapsed().as_secs_f64());
+            }
+            let clock = std::time::Instant::now();
+            let made = self.rows_of_part(cells, held, answer.start, finished, &reader, ranks)?;
+            timings.add("rows", clock.elapsed().as_secs_f64());
+            Ok(made)
+        };
+        // The sub-parts in turn, each in rounds; every rank takes part in
+        // each round (the boxes wanted, the rows made, the sites held),
+        // with a round of its own or none. (Rounds not kept in step by
+        // sub-part pair one rank's costly first round with another's short
+        // last one: on three blobs 0.5 s faster, among uniform sites 1 s
+        // slower.)
+        let own_box = (!own_cells.is_empty()).then(|| cells_box(&own_cells));
+        let mut duplicates = 0;
+        // The rows a round made, sent in the next.
+        let mut made: RowsAndHalves = Default::default();
         for s in 0..sub {
             let run = runs[s]..runs[s + 1];
             // Duplicates: a run holds all of a position's.
             let mut seen = std::collections::HashSet::new();
-            let duplicates = own[run.clone()].iter().filter(|h| !seen.insert(h.at.map(f64::to_bits))).count();
-            drop(seen);
-            if let Some(c) = counted.last_mut() {
-                *c += duplicates as i64;
+            duplicates += own[run.clone()].iter().filter(|h| !seen.insert(h.at.map(f64::to_bits))).count() as i64;
+            let mut part = self.sub_part(&whole_grid, &own, &own_cells, s, run);
+            loop {
+                let want = part.want(&whole_grid);
+                // Every rank's boxes, once every rank has finished its
+                // round: the time a rank waits for the others is said here.
+                let (wanted, t) = timed(|| wanted_boxes(comm, want.as_ref(), own_box));
+                report.timings.add("waiting", t);
+                let (boxes, any) = wanted?;
+                // The last round's rows to their readers, before the next
+                // job.
+                let (to_rows, to_halves) = std::mem::take(&mut made);
+                let (sent, t) = timed(|| rows.add(comm, to_rows, to_halves, &mut report.sent));
+                report.timings.add("rows", t);
+                sent?;
+                if !any {
+                    break;
+                }
+                let (held, t) = timed(|| spread(comm, &own, &own_cells, own_box, &boxes, &mut report.sent));
+                report.timings.add("exchange", t);
+                let held = held?;
+                if let Some(set) = want {
+                    let on = (backend, geometry);
+                    made =
+                        self.sub_part_round(on, &whole_grid, &own, &mut part, (set, held), &mut report, &mut emit)?;
+                }
             }
-            // Each round's finished cells: their polyhedra, counters and
-            // rows (and the halves of their faces others' cells share).
-            let mut emit = |round: Round<'_>, counters: Counters| -> Result<RowsAndHalves> {
-                let Round { held, cells, pieces, finished, answer, .. } = round;
-                for (name, t) in &cells.timings.phases {
-                    phases.add(name, *t);
-                }
-                (pairing, k) = (cells.pairing, cells.k);
-                for (c, w) in counted.iter_mut().zip(counter_words(&counters)) {
-                    *c += w;
-                }
-                let clock = std::time::Instant::now();
-                let is_finished = |i: u32| {
-                    let q = i.wrapping_sub(answer.start as u32);
-                    finished.binary_search(&q).is_ok()
-                };
-                if let (Some(built), Some(mut pieces)) = (built.as_mut(), pieces) {
-                    pieces.retain_sites(is_finished);
-                    pieces_merged += pieces.len() as u64;
-                    add_polyhedra(built, pieces, held, cells, visit)?;
-                    timings.add("polyhedra", clock.elapsed().as_secs_f64());
-                }
-                let clock = std::time::Instant::now();
-                let made = self.rows_of_part(cells, held, answer.start, finished, &reader, ranks)?;
-                timings.add("rows", clock.elapsed().as_secs_f64());
-                Ok(made)
-            };
-            let whole = &whole_grid;
-            self.sub_part(
-                comm,
-                backend,
-                geometry,
-                whole,
-                &own,
-                &own_cells,
-                (s, run),
-                &mut report,
-                &mut rows,
-                &mut emit,
-            )?;
+        }
+        drop(emit);
+        if let Some(c) = counted.last_mut() {
+            *c += duplicates;
         }
         let clock = std::time::Instant::now();
         let mut rows = MeshRows::of(rows)?;
@@ -412,30 +477,13 @@ impl ClippedVoronoi<'_> {
     }
 
     /// Sub-part `run` of this rank's sites `own` (in the one process's
-    /// order, in grid cells `own_cells`): the cells of its sites, built in a
-    /// job holding every site of a box of grid cells around them, widened
-    /// until every cell is certified (see the module's documentation).
-    /// Every rank takes part in each round, with a sub-part or not.
-    #[allow(clippy::too_many_arguments)]
-    fn sub_part(
-        &self,
-        comm: &dyn Reduce,
-        backend: &dyn crate::backend::Backend,
-        geometry: Option<&CpuBackend>,
-        whole: &Whole,
-        own: &[Held],
-        own_cells: &[[u32; 3]],
-        (sub, run): (usize, std::ops::Range<usize>),
-        report: &mut PartsReport,
-        rows: &mut Received,
-        emit: &mut dyn FnMut(Round<'_>, Counters) -> Result<RowsAndHalves>,
-    ) -> Result<()> {
-        let grid = &whole.grid;
-        let dims = [grid.dim_x, grid.dim_y, grid.dim_z];
+    /// order, in grid cells `own_cells`), before its first round: the
+    /// groups of its cells its halo goes around, each's first halo.
+    fn sub_part(&self, whole: &Whole, own: &[Held], own_cells: &[[u32; 3]], sub: usize, run: Run) -> SubPart {
         let k_site = self.resolved_k_site();
         // A first halo twice as wide as the ball of a cell's list (a cut
-        // cell's walk may reach farther), then twice as wide each round
-        // where a group's cells need it. The ball at the density of the run's typical grid cell
+        // cell's walk may reach farther), then wider each round where a
+        // group's cells need it. The ball at the density of the run's typical grid cell
         // (the median of its occupied cells' sites, at most the grid's
         // mean): where a crowd is packed in tight clusters, most cells are
         // the sparse ones between, whose lists reach farthest, and a halo
@@ -458,262 +506,248 @@ impl ClippedVoronoi<'_> {
         // caller keeps them (the optimisers' diagrams follow one another,
         // their runs much the same).
         let last = self.halos.map(|h| h.get(sub)).unwrap_or_default();
-        let mut halos: Vec<u32> = (0..n_groups).map(|g| first_halo.max(last.get(g).copied().unwrap_or(0))).collect();
-        // Boxes around cells whose walks left, holding where a site that
-        // cuts them can be ([`flower_cover`]).
-        let mut covers: Vec<HeldCells> = Vec::new();
-        // The run's cells not finished yet (places in the run, increasing;
-        // `None`: every one). The CPU builds only those again; a device
-        // builds every answered cell each round, and only those are taken.
-        let mut pending: Option<Vec<u32>> = None;
+        let halos: Vec<u32> = (0..n_groups).map(|g| first_halo.max(last.get(g).copied().unwrap_or(0))).collect();
+        let done = run.is_empty() || first_key.is_none();
+        SubPart { sub, run, first_halo, first_key, starts, groups, halos, covers: Vec::new(), pending: None, done }
+    }
+
+    /// A round of sub-part `part`: the cells of its sites still pending,
+    /// built in a job holding the sites `held` (every site of the boxes
+    /// `set` it asked for), each certified or not; those certified handed
+    /// to `emit` (which returns their rows), the others left for the next
+    /// round with the boxes they need (see the module's documentation).
+    #[allow(clippy::too_many_arguments)]
+    fn sub_part_round(
+        &self,
+        (backend, geometry): (&dyn crate::backend::Backend, Option<&CpuBackend>),
+        whole: &Whole,
+        own: &[Held],
+        part: &mut SubPart,
+        (set, held): (HeldSet, Vec<Held>),
+        report: &mut PartsReport,
+        emit: &mut dyn FnMut(Round<'_>, Counters) -> Result<RowsAndHalves>,
+    ) -> Result<RowsAndHalves> {
+        let grid = &whole.grid;
+        let dims = [grid.dim_x, grid.dim_y, grid.dim_z];
+        let k_site = self.resolved_k_site();
+        let SubPart { sub, run, first_halo, first_key, starts, halos, covers, pending, done, .. } = part;
+        let (sub, first_halo, run, first_key) = (*sub, *first_halo, run.clone(), first_key.unwrap_or_default());
+        // The CPU builds only the cells pending again; a device builds every
+        // answered cell each round, and only those are taken.
         let rebuild_only = backend.kind() == crate::job::BackendKind::Cpu;
-        let mut finished_all = run.is_empty();
-        // The rows a round made, sent in the next.
-        let mut made: RowsAndHalves = Default::default();
-        // The box of this rank's own sites' cells (the sites it sends).
-        let own_box = (!own_cells.is_empty()).then(|| cells_box(own_cells));
-        loop {
-            let want = (!finished_all).then(|| {
-                let around = |(lo, hi): &([u32; 3], [u32; 3]), halo: u32| {
-                    HeldCells::around(*lo, *hi, halo, dims, grid.cell_size)
-                };
-                let boxes = groups.iter().zip(&halos).map(|(g, &h)| around(g, h));
-                HeldSet::of(boxes.chain(covers.iter().copied()).collect())
-            });
-            // Every rank's boxes, once every rank has finished its round:
-            // the time a rank waits for the others is said here.
-            let (wanted, t) = timed(|| wanted_boxes(comm, want.as_ref(), own_box));
-            report.timings.add("waiting", t);
-            let (boxes, any) = wanted?;
-            // The last round's rows to their readers (every rank, every
-            // round), before the next round's job.
-            let (to_rows, to_halves) = std::mem::take(&mut made);
-            let (sent, t) = timed(|| rows.add(comm, to_rows, to_halves, &mut report.sent));
-            report.timings.add("rows", t);
-            sent?;
-            if !any {
-                break;
-            }
-            let (held, t) = timed(|| spread(comm, own, own_cells, own_box, &boxes, &mut report.sent));
-            report.timings.add("exchange", t);
-            let (Some(set), Some(first_key)) = (want, first_key) else { continue };
-            if let Some(p) = &pending {
-                report.rebuilt += if rebuild_only { p.len() } else { run.len() } as u64;
-            }
-            let window = set.bounds;
-            let unheld = set.unheld_bits();
-            let unheld_cells = unheld.as_ref().map_or(0, |b| b.iter().map(|w| w.count_ones() as u64).sum());
-            report.unheld_cells = report.unheld_cells.max(unheld_cells);
-            // In the one process's order; then each held site's input index
-            // and place only (a part holds many sites around its own).
-            let mut keyed: Vec<(u32, u64, Held)> =
-                held?.into_par_iter().map(|h| (whole.keys.key(h.at), h.site, h)).collect();
-            keyed.par_sort_unstable_by_key(|k| (k.0, k.1));
-            let start = keyed.partition_point(|k| (k.0, k.1) < first_key);
-            let held: Vec<u64> = keyed.iter().map(|k| k.1).collect();
-            let at: Vec<[f64; 3]> = keyed.iter().map(|k| k.2.at).collect();
-            let weights: Option<Vec<f64>> = self.weights.map(|_| keyed.iter().map(|k| k.2.weight).collect());
-            drop(keyed);
-            let answer = start..start + run.len();
-            if answer.end > held.len() || held[answer.clone()].iter().zip(&own[run.clone()]).any(|(&a, b)| a != b.site)
-            {
-                return Err(Error::Internal("a sub-part's sites are not a run of its part's order".into()));
-            }
-            let order: Vec<u32> = (0..held.len() as u32).collect();
-            // The cells built again: the pending ones' places.
-            let only: Option<Vec<u32>> = pending
-                .as_ref()
-                .filter(|_| rebuild_only)
-                .map(|p| p.iter().map(|&q| (answer.start + q as usize) as u32).collect());
-            let layout = Layout {
-                order: &order,
-                lo: whole.lo,
-                hi: whole.hi,
-                grid_sites: whole.distinct,
-                answer: (answer.start, answer.end),
-                weights: whole.weights.as_ref().map(|w| w.span),
-                weight_grid: whole.weights.as_ref().and_then(|w| w.grid.as_ref()),
-                window: Window::Held(window),
-                unheld: unheld.as_deref(),
-                periodic: false,
-                only: only.as_deref(),
-                halves: true,
-            };
-            let mut part = ClippedVoronoi { sites: &at, ..*self };
-            if let Some(w) = &weights {
-                part = part.weights(w);
-            }
-            let part = part.strategy(Strategy::Whole).backend(backend).layout(layout).keep_reach(k_site);
-            // Walks of the pieces' run that left the box (or did not end).
-            let mut pieces_left = 0;
-            let (mut cells, pieces) = match geometry {
-                Some(g) if backend.kind() == crate::job::BackendKind::Cpu => {
-                    part.compute_with_pieces(g).map(|(c, p)| (c, Some(p)))?
-                }
-                // A device's cells, the pieces of a run on the CPU (as one
-                // process takes them: `ClippedVoronoi::compute_with_geometry`),
-                // certified too.
-                Some(g) => {
-                    let cells = part.compute()?;
-                    let (again, pieces) = part.faces(false).compute_with_pieces(g)?;
-                    pieces_left = again.counters.out_of_halo + again.counters.unresolved;
-                    (cells, Some(pieces))
-                }
-                None => (part.compute()?, None),
-            };
-            drop(only);
-            let pending_place = |i: u32| {
-                let q = i.wrapping_sub(answer.start as u32);
-                pending.as_ref().map_or((q as usize) < run.len(), |p| p.binary_search(&q).is_ok())
-            };
-            // Each list certified by the box; none of the walks left it.
-            let kept = cells.kept.take().ok_or_else(|| Error::Internal("a part kept no lists".into()))?;
-            let listed: Vec<u32> = kept.inputs.iter().copied().filter(|&i| answer.contains(&(i as usize))).collect();
-            if listed.len() != kept.kth.len() {
-                return Err(Error::Internal(format!("{} lists kept for {} cells", kept.kth.len(), listed.len())));
-            }
-            let shift = window.shift();
-            let clearance = set.clearance();
-            let per_world = whole.quantizer.scale() / whole.frame.scale;
-            // Each pending cell not certified, with the ball its list needs
-            // held.
-            let uncertified: Vec<(u32, f64)> = (0..listed.len())
-                .into_par_iter()
-                .filter(|&u| pending_place(listed[u]))
-                .filter_map(|u| {
-                    let need = kept.kth[u] + 2.0 * (kept.kth[u] - kept.reach[u]).max(0.0);
-                    let d2 = if need.is_finite() { ((need * per_world).ceil() + 2.0).powi(2) as u64 } else { u64::MAX };
-                    let q = whole.quantized(at[listed[u] as usize]);
-                    let certified = set.certifies([0, 1, 2].map(|a| q[a] - shift[a]), d2, clearance.as_deref());
-                    (!certified).then_some((listed[u], need))
-                })
-                .collect();
-            drop(clearance);
-            report.uncertified += uncertified.len() as u64;
-            let c = &cells.counters;
-            let left = c.out_of_halo + c.unresolved + pieces_left;
-            let ends = set.is_whole() || (uncertified.is_empty() && left == 0);
-            // A walk that left that the job did not name (a device's
-            // pieces, a cell not even the host could finish): no cell of
-            // the round is taken.
-            let unnamed = left > 0 && (pieces_left > 0 || kept.left.is_empty());
-            let failed: Vec<(u32, Option<f64>)> = uncertified
-                .into_iter()
-                .map(|(i, need)| (i, Some(need)))
-                .chain(kept.left.iter().map(|&i| (i, None)))
-                .collect();
-            if let Some(&(i, _)) = failed.iter().find(|f| !pending_place(f.0)) {
-                return Err(Error::Internal(format!("cell {i} of a part left beyond the cells it built")));
-            }
-            let mut failing: Vec<u32> = failed.iter().map(|f| f.0 - answer.start as u32).collect();
-            failing.sort_unstable();
-            failing.dedup();
-            // The round's finished cells: the pending ones, less those that
-            // failed.
-            let all_pending = || pending.clone().unwrap_or_else(|| (0..run.len() as u32).collect());
-            let finished: Vec<u32> = match (ends, unnamed) {
-                (true, _) => all_pending(),
-                (false, true) => Vec::new(),
-                (false, false) => all_pending().into_iter().filter(|q| failing.binary_search(q).is_err()).collect(),
-            };
-            // What the finished cells add to the run's counters: on the CPU
-            // their kinds, each round's work, and what the last left; a
-            // device's last round built every cell.
-            let mut counters = cells.counters;
-            if rebuild_only && !kept.kinds.is_empty() {
-                let kind_of = |q: u32| {
-                    let i = answer.start as u32 + q;
-                    listed.binary_search(&i).ok().map_or(crate::job::clip::cell_kind::NONE, |u| kept.kinds[u])
-                };
-                let count = |kind: u8| finished.iter().filter(|&&q| kind_of(q) == kind).count() as u64;
-                counters.whole_cells = count(crate::job::clip::cell_kind::WHOLE);
-                counters.cut_cells = count(crate::job::clip::cell_kind::CUT);
-                if !ends {
-                    (counters.out_of_halo, counters.unresolved) = (0, 0);
-                }
-            } else if !ends {
-                counters = Default::default();
-            }
-            // The lists are read: not kept while the rows are made.
-            drop((kept, listed));
-            let width = halos.iter().copied().max().unwrap_or(first_halo) as f64 * grid.cell_size as f64 / per_world;
-            report.held = report.held.max(held.len() as u64);
-            report.halo = report.halo.max(width);
-            report.grid_cells = [0, 1].map(|i| report.grid_cells[i].max(cells.grid_cells[i]));
-            report.tets = [0, 1].map(|i| report.tets[i].max(cells.tets[i]));
-            let round = Round { held: &held, answer: answer.clone(), cells: &cells, pieces, finished: &finished };
-            made = emit(round, counters)?;
-            drop(cells);
-            if ends {
-                if let Some(h) = self.halos {
-                    h.set(sub, halos.clone());
-                }
-                finished_all = true;
-                continue;
-            }
-            // The groups of the cells not certified and of those whose walks
-            // left, and only those (overshooting costs a few groups, not the
-            // part), each group a cell wider. A list not certified: the
-            // cells of its ball around its site. A walk that left: boxes
-            // holding the balls of its cell's vertices among the sites held
-            // ([`flower_cover`]: every site that can cut it lies in one, and
-            // a walk passes over the cells it does not hold that no site in
-            // could cut); where the cell is not known (power cells, cells
-            // past the first [`REACH_CELLS`]), its group twice as wide. Every group
-            // twice as wide where a walk left that the job did not name (a
-            // device's pieces, a cell not even the host could finish).
-            let grid_map = GridMap::of(whole);
-            // Each failing cell's group, whether it is twice as wide, and the
-            // boxes the cell adds.
-            let wanted: Vec<(usize, bool, Vec<HeldCells>)> = failed
-                .par_iter()
-                .enumerate()
-                .map(|(f, &(i, list))| {
-                    let place = i as usize - answer.start;
-                    let group = starts.partition_point(|&s| s <= place) - 1;
-                    if let Some(need) = list {
-                        // The grid cells of the list's ball around its own
-                        // site (a group's box about a sparse site is wide).
-                        let cells = match need * (1.0 + 1e-3) * grid_map.per_cell {
-                            c if c < (u32::MAX - 1) as f64 => c.ceil() as u32 + 1,
-                            _ => u32::MAX,
-                        };
-                        let own = whole.cell_of(at[i as usize]);
-                        return Ok((group, false, vec![HeldCells::around(own, own, cells, dims, grid.cell_size)]));
-                    }
-                    // Each cell clipped by every site held: for the first
-                    // `REACH_CELLS` cells only (a few hundred leave a round
-                    // where any do).
-                    let cell = match self.weights {
-                        Some(_) => None,
-                        None if f >= REACH_CELLS => None,
-                        None => cell_among(&at, i as usize, whole.start_box),
-                    };
-                    Ok(match cell {
-                        Some(cell) => (group, false, flower_cover(&cell, at[i as usize], &grid_map)),
-                        None => (group, true, Vec::new()),
-                    })
-                })
-                .collect::<Result<_>>()?;
-            // Each failing group's new halo at least a cell wider than its
-            // last.
-            let mut next: Vec<u32> = halos.iter().map(|&h| if unnamed { h.saturating_mul(2) } else { h }).collect();
-            let mut seen: std::collections::HashSet<HeldCells> = covers.iter().copied().collect();
-            for (g, double, boxes) in wanted {
-                let h = halos[g];
-                next[g] = next[g].max(if double { h.saturating_mul(2) } else { h }.max(h.saturating_add(1)));
-                covers.extend(boxes.into_iter().filter(|b| seen.insert(*b)));
-            }
-            drop(seen);
-            halos = next;
-            report.widened += 1;
-            // The cells left for the next round.
-            pending = Some(match unnamed {
-                true => all_pending(),
-                false => failing,
-            });
+        if let Some(p) = pending {
+            report.rebuilt += if rebuild_only { p.len() } else { run.len() } as u64;
         }
-        Ok(())
+        let window = set.bounds;
+        let unheld = set.unheld_bits();
+        let unheld_cells = unheld.as_ref().map_or(0, |b| b.iter().map(|w| w.count_ones() as u64).sum());
+        report.unheld_cells = report.unheld_cells.max(unheld_cells);
+        // In the one process's order; then each held site's input index
+        // and place only (a part holds many sites around its own).
+        let mut keyed: Vec<(u32, u64, Held)> =
+            held.into_par_iter().map(|h| (whole.keys.key(h.at), h.site, h)).collect();
+        keyed.par_sort_unstable_by_key(|k| (k.0, k.1));
+        let start = keyed.partition_point(|k| (k.0, k.1) < first_key);
+        let held: Vec<u64> = keyed.iter().map(|k| k.1).collect();
+        let at: Vec<[f64; 3]> = keyed.iter().map(|k| k.2.at).collect();
+        let weights: Option<Vec<f64>> = self.weights.map(|_| keyed.iter().map(|k| k.2.weight).collect());
+        drop(keyed);
+        let answer = start..start + run.len();
+        if answer.end > held.len() || held[answer.clone()].iter().zip(&own[run.clone()]).any(|(&a, b)| a != b.site) {
+            return Err(Error::Internal("a sub-part's sites are not a run of its part's order".into()));
+        }
+        let order: Vec<u32> = (0..held.len() as u32).collect();
+        // The cells built again: the pending ones' places.
+        let only: Option<Vec<u32>> = pending
+            .as_ref()
+            .filter(|_| rebuild_only)
+            .map(|p| p.iter().map(|&q| (answer.start + q as usize) as u32).collect());
+        let layout = Layout {
+            order: &order,
+            lo: whole.lo,
+            hi: whole.hi,
+            grid_sites: whole.distinct,
+            answer: (answer.start, answer.end),
+            weights: whole.weights.as_ref().map(|w| w.span),
+            weight_grid: whole.weights.as_ref().and_then(|w| w.grid.as_ref()),
+            window: Window::Held(window),
+            unheld: unheld.as_deref(),
+            periodic: false,
+            only: only.as_deref(),
+            halves: true,
+        };
+        let mut part = ClippedVoronoi { sites: &at, ..*self };
+        if let Some(w) = &weights {
+            part = part.weights(w);
+        }
+        let part = part.strategy(Strategy::Whole).backend(backend).layout(layout).keep_reach(k_site);
+        // Walks of the pieces' run that left the box (or did not end).
+        let mut pieces_left = 0;
+        let (mut cells, pieces) = match geometry {
+            Some(g) if backend.kind() == crate::job::BackendKind::Cpu => {
+                part.compute_with_pieces(g).map(|(c, p)| (c, Some(p)))?
+            }
+            // A device's cells, the pieces of a run on the CPU (as one
+            // process takes them: `ClippedVoronoi::compute_with_geometry`),
+            // certified too.
+            Some(g) => {
+                let cells = part.compute()?;
+                let (again, pieces) = part.faces(false).compute_with_pieces(g)?;
+                pieces_left = again.counters.out_of_halo + again.counters.unresolved;
+                (cells, Some(pieces))
+            }
+            None => (part.compute()?, None),
+        };
+        drop(only);
+        let pending_place = |i: u32| {
+            let q = i.wrapping_sub(answer.start as u32);
+            pending.as_ref().map_or((q as usize) < run.len(), |p| p.binary_search(&q).is_ok())
+        };
+        // Each list certified by the box; none of the walks left it.
+        let kept = cells.kept.take().ok_or_else(|| Error::Internal("a part kept no lists".into()))?;
+        let listed: Vec<u32> = kept.inputs.iter().copied().filter(|&i| answer.contains(&(i as usize))).collect();
+        if listed.len() != kept.kth.len() {
+            return Err(Error::Internal(format!("{} lists kept for {} cells", kept.kth.len(), listed.len())));
+        }
+        let shift = window.shift();
+        let clearance = set.clearance();
+        let per_world = whole.quantizer.scale() / whole.frame.scale;
+        // Each pending cell not certified, with the ball its list needs
+        // held.
+        let uncertified: Vec<(u32, f64)> = (0..listed.len())
+            .into_par_iter()
+            .filter(|&u| pending_place(listed[u]))
+            .filter_map(|u| {
+                let need = kept.kth[u] + 2.0 * (kept.kth[u] - kept.reach[u]).max(0.0);
+                let d2 = if need.is_finite() { ((need * per_world).ceil() + 2.0).powi(2) as u64 } else { u64::MAX };
+                let q = whole.quantized(at[listed[u] as usize]);
+                let certified = set.certifies([0, 1, 2].map(|a| q[a] - shift[a]), d2, clearance.as_deref());
+                (!certified).then_some((listed[u], need))
+            })
+            .collect();
+        drop(clearance);
+        report.uncertified += uncertified.len() as u64;
+        let c = &cells.counters;
+        let left = c.out_of_halo + c.unresolved + pieces_left;
+        let ends = set.is_whole() || (uncertified.is_empty() && left == 0);
+        // A walk that left that the job did not name (a device's
+        // pieces, a cell not even the host could finish): no cell of
+        // the round is taken.
+        let unnamed = left > 0 && (pieces_left > 0 || kept.left.is_empty());
+        let failed: Vec<(u32, Option<f64>)> = uncertified
+            .into_iter()
+            .map(|(i, need)| (i, Some(need)))
+            .chain(kept.left.iter().map(|&i| (i, None)))
+            .collect();
+        if let Some(&(i, _)) = failed.iter().find(|f| !pending_place(f.0)) {
+            return Err(Error::Internal(format!("cell {i} of a part left beyond the cells it built")));
+        }
+        let mut failing: Vec<u32> = failed.iter().map(|f| f.0 - answer.start as u32).collect();
+        failing.sort_unstable();
+        failing.dedup();
+        // The round's finished cells: the pending ones, less those that
+        // failed.
+        let all_pending = || pending.clone().unwrap_or_else(|| (0..run.len() as u32).collect());
+        let finished: Vec<u32> = match (ends, unnamed) {
+            (true, _) => all_pending(),
+            (false, true) => Vec::new(),
+            (false, false) => all_pending().into_iter().filter(|q| failing.binary_search(q).is_err()).collect(),
+        };
+        // What the finished cells add to the run's counters: on the CPU
+        // their kinds, each round's work, and what the last left; a
+        // device's last round built every cell.
+        let mut counters = cells.counters;
+        if rebuild_only && !kept.kinds.is_empty() {
+            let kind_of = |q: u32| {
+                let i = answer.start as u32 + q;
+                listed.binary_search(&i).ok().map_or(crate::job::clip::cell_kind::NONE, |u| kept.kinds[u])
+            };
+            let count = |kind: u8| finished.iter().filter(|&&q| kind_of(q) == kind).count() as u64;
+            counters.whole_cells = count(crate::job::clip::cell_kind::WHOLE);
+            counters.cut_cells = count(crate::job::clip::cell_kind::CUT);
+            if !ends {
+                (counters.out_of_halo, counters.unresolved) = (0, 0);
+            }
+        } else if !ends {
+            counters = Default::default();
+        }
+        // The lists are read: not kept while the rows are made.
+        drop((kept, listed));
+        let width = halos.iter().copied().max().unwrap_or(first_halo) as f64 * grid.cell_size as f64 / per_world;
+        report.held = report.held.max(held.len() as u64);
+        report.halo = report.halo.max(width);
+        report.grid_cells = [0, 1].map(|i| report.grid_cells[i].max(cells.grid_cells[i]));
+        report.tets = [0, 1].map(|i| report.tets[i].max(cells.tets[i]));
+        let round = Round { held: &held, answer: answer.clone(), cells: &cells, pieces, finished: &finished };
+        let made = emit(round, counters)?;
+        drop(cells);
+        if ends {
+            if let Some(h) = self.halos {
+                h.set(sub, halos.clone());
+            }
+            *done = true;
+            return Ok(made);
+        }
+        // The groups of the cells not certified and of those whose walks
+        // left, and only those (overshooting costs a few groups, not the
+        // part), each group a cell wider. A list not certified: the
+        // cells of its ball around its site. A walk that left: boxes
+        // holding the balls of its cell's vertices among the sites held
+        // ([`flower_cover`]: every site that can cut it lies in one, and
+        // a walk passes over the cells it does not hold that no site in
+        // could cut); where the cell is not known (power cells, cells
+        // past the first [`REACH_CELLS`]), its group twice as wide. Every group
+        // twice as wide where a walk left that the job did not name (a
+        // device's pieces, a cell not even the host could finish).
+        let grid_map = GridMap::of(whole);
+        // Each failing cell's group, whether it is twice as wide, and the
+        // boxes the cell adds.
+        let wanted: Vec<(usize, bool, Vec<HeldCells>)> = failed
+            .par_iter()
+            .enumerate()
+            .map(|(f, &(i, list))| {
+                let place = i as usize - answer.start;
+                let group = starts.partition_point(|&s| s <= place) - 1;
+                if let Some(need) = list {
+                    // The grid cells of the list's ball around its own
+                    // site (a group's box about a sparse site is wide).
+                    let cells = match need * (1.0 + 1e-3) * grid_map.per_cell {
+                        c if c < (u32::MAX - 1) as f64 => c.ceil() as u32 + 1,
+                        _ => u32::MAX,
+                    };
+                    let own = whole.cell_of(at[i as usize]);
+                    return Ok((group, false, vec![HeldCells::around(own, own, cells, dims, grid.cell_size)]));
+                }
+                // Each cell clipped by every site held: for the first
+                // `REACH_CELLS` cells only (a few hundred leave a round
+                // where any do).
+                let cell = match self.weights {
+                    Some(_) => None,
+                    None if f >= REACH_CELLS => None,
+                    None => cell_among(&at, i as usize, whole.start_box),
+                };
+                Ok(match cell {
+                    Some(cell) => (group, false, flower_cover(&cell, at[i as usize], &grid_map)),
+                    None => (group, true, Vec::new()),
+                })
+            })
+            .collect::<Result<_>>()?;
+        // Each failing group's new halo at least a cell wider than its
+        // last.
+        let mut next: Vec<u32> = halos.iter().map(|&h| if unnamed { h.saturating_mul(2) } else { h }).collect();
+        let mut seen: std::collections::HashSet<HeldCells> = covers.iter().copied().collect();
+        for (g, double, boxes) in wanted {
+            let h = halos[g];
+            next[g] = next[g].max(if double { h.saturating_mul(2) } else { h }.max(h.saturating_add(1)));
+            covers.extend(boxes.into_iter().filter(|b| seen.insert(*b)));
+        }
+        drop(seen);
+        *halos = next;
+        report.widened += 1;
+        // The cells left for the next round.
+        let rest = if unnamed { all_pending() } else { failing };
+        *pending = Some(rest);
+        Ok(made)
     }
 
     /// The rows of a round's finished cells (`finished`: places in the
