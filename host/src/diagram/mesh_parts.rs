@@ -700,6 +700,8 @@ impl ClippedVoronoi<'_> {
         // twice as wide where a walk left that the job did not name (a
         // device's pieces, a cell not even the host could finish).
         let grid_map = GridMap::of(whole);
+        // The held sites by cell, where a cell is clipped on the host.
+        let near_held = failed.iter().any(|f| f.1.is_none()).then(|| NearHeld::new(&at, &grid_map));
         // Each failing cell's group, whether it is twice as wide, and the
         // boxes the cell adds.
         let wanted: Vec<(usize, bool, Vec<HeldCells>)> = failed
@@ -724,7 +726,9 @@ impl ClippedVoronoi<'_> {
                 let cell = match self.weights {
                     Some(_) => None,
                     None if f >= REACH_CELLS => None,
-                    None => cell_among(&at, i as usize, whole.start_box),
+                    None => near_held.as_ref().and_then(|n| {
+                        cell_clipped(&at, i as usize, whole.start_box, n.nearest(i as usize, REACH_CLIPPED))
+                    }),
                 };
                 Ok(match cell {
                     Some(cell) => (group, false, flower_cover(&cell, at[i as usize], &grid_map)),
@@ -1425,23 +1429,30 @@ const REACH_CELLS: usize = 1024;
 /// fewer is larger): every site that cuts that one lies nearer one of
 /// this one's vertices than its own site ([`flower_cover`]). `None` where
 /// it cannot be told (its planes broke down, or nothing of it is left).
-fn cell_among(
+#[cfg(test)]
+fn cell_among(held: &[[f64; 3]], u: usize, start: ([f64; 3], [f64; 3])) -> Option<Box<cvd_kernels::polyhedron::Cell>> {
+    cell_clipped(held, u, start, scan_nearest(held, u))
+}
+
+/// Every held site apart from site `u` (squared distance, place).
+#[cfg(test)]
+fn scan_nearest(held: &[[f64; 3]], u: usize) -> Vec<(f64, u32)> {
+    let s = held[u];
+    held.iter().enumerate().filter_map(|(j, &h)| (h != s).then_some((distance2(h, s), j as u32))).collect()
+}
+
+/// [`cell_among`] from candidates `near` (squared distance, place) that
+/// hold the [`REACH_CLIPPED`] sites nearest site `u` (or all of them).
+fn cell_clipped(
     held: &[[f64; 3]],
     u: usize,
     (lo, hi): ([f64; 3], [f64; 3]),
+    mut near: Vec<(f64, u32)>,
 ) -> Option<Box<cvd_kernels::polyhedron::Cell>> {
-    use crate::geom::vec3::{dot, sub};
+    use crate::geom::vec3::sub;
     use cvd_kernels::glam::{Vec3, Vec4};
     use cvd_kernels::polyhedron::{Cell, Clip};
     let s = *held.get(u)?;
-    let mut near: Vec<(f64, u32)> = held
-        .iter()
-        .enumerate()
-        .filter_map(|(j, &h)| {
-            let d2 = dot(sub(h, s), sub(h, s));
-            (d2 > 0.0).then_some((d2, j as u32))
-        })
-        .collect();
     if near.len() > REACH_CLIPPED {
         near.select_nth_unstable_by(REACH_CLIPPED, |a, b| a.0.total_cmp(&b.0));
         near.truncate(REACH_CLIPPED);
@@ -1462,6 +1473,105 @@ fn cell_among(
         }
     }
     (!cell.is_empty()).then_some(cell)
+}
+
+/// The squared distance between two points.
+fn distance2(a: [f64; 3], b: [f64; 3]) -> f64 {
+    (0..3).map(|k| (a[k] - b[k]) * (a[k] - b[k])).sum()
+}
+
+/// A round's held sites by the whole job's grid cells, to find the sites
+/// nearest one of them ([`cell_clipped`]'s candidates) without looking at
+/// every one.
+struct NearHeld<'a> {
+    at: &'a [[f64; 3]],
+    map: &'a GridMap,
+    /// The corner and size of the box of cells the sites lie in.
+    lo: [i64; 3],
+    dims: [i64; 3],
+    /// Each cell's first entry in `order` (and one more: the end).
+    start: Vec<u32>,
+    order: Vec<u32>,
+}
+
+impl<'a> NearHeld<'a> {
+    fn new(at: &'a [[f64; 3]], map: &'a GridMap) -> Self {
+        let cell = |p: [f64; 3]| map.at(p).map(|c| c.floor() as i64);
+        let (mut lo, mut hi) = ([i64::MAX; 3], [i64::MIN; 3]);
+        for &p in at {
+            let c = cell(p);
+            for a in 0..3 {
+                (lo[a], hi[a]) = (lo[a].min(c[a]), hi[a].max(c[a]));
+            }
+        }
+        let dims = [0, 1, 2].map(|a| (hi[a] - lo[a] + 1).max(0));
+        let index = |c: [i64; 3]| ((c[2] - lo[2]) * dims[1] + (c[1] - lo[1])) * dims[0] + (c[0] - lo[0]);
+        let n_cells = dims.iter().product::<i64>() as usize;
+        let mut start = vec![0u32; n_cells + 1];
+        let cells: Vec<usize> = at.iter().map(|&p| index(cell(p)) as usize).collect();
+        for &c in &cells {
+            start[c + 1] += 1;
+        }
+        for c in 0..n_cells {
+            start[c + 1] += start[c];
+        }
+        let mut order = vec![0u32; at.len()];
+        let mut next = start.clone();
+        for (j, &c) in cells.iter().enumerate() {
+            order[next[c] as usize] = j as u32;
+            next[c] += 1;
+        }
+        Self { at, map, lo, dims, start, order }
+    }
+
+    /// The held sites apart from site `u` (squared distance, place), ring
+    /// of cells after ring around it until they hold the `k` nearest.
+    fn nearest(&self, u: usize, k: usize) -> Vec<(f64, u32)> {
+        let s = self.at[u];
+        let at = self.map.at(s);
+        let c = at.map(|x| x.floor() as i64);
+        let mut near: Vec<(f64, u32)> = Vec::new();
+        let reach = (0..3).map(|a| (c[a] - self.lo[a]).max(self.lo[a] + self.dims[a] - 1 - c[a])).max().unwrap_or(0);
+        for r in 0..=reach.max(0) {
+            for z in c[2] - r..=c[2] + r {
+                for y in c[1] - r..=c[1] + r {
+                    let on_ring = (z - c[2]).abs() == r || (y - c[1]).abs() == r;
+                    let step = if on_ring { 1 } else { (2 * r).max(1) };
+                    let mut x = c[0] - r;
+                    while x <= c[0] + r {
+                        self.add([x, y, z], s, u, &mut near);
+                        x += step;
+                    }
+                }
+            }
+            // No site beyond the ring lies nearer than the ring's faces.
+            let clear =
+                (0..3).map(|a| (at[a] - (c[a] - r) as f64).min((c[a] + r + 1) as f64 - at[a])).fold(f64::MAX, f64::min);
+            let clear = clear / self.map.per_cell;
+            if near.len() >= k {
+                let kth = near.select_nth_unstable_by(k - 1, |a, b| a.0.total_cmp(&b.0)).1 .0;
+                if kth <= clear * clear {
+                    break;
+                }
+            }
+        }
+        near
+    }
+
+    /// The sites of cell `c` (if in the box), but site `u` and its place.
+    fn add(&self, c: [i64; 3], s: [f64; 3], u: usize, near: &mut Vec<(f64, u32)>) {
+        let rel = [0, 1, 2].map(|a| c[a] - self.lo[a]);
+        if (0..3).any(|a| rel[a] < 0 || rel[a] >= self.dims[a]) {
+            return;
+        }
+        let i = ((rel[2] * self.dims[1] + rel[1]) * self.dims[0] + rel[0]) as usize;
+        for &j in &self.order[self.start[i] as usize..self.start[i + 1] as usize] {
+            let p = self.at[j as usize];
+            if j as usize != u && p != s {
+                near.push((distance2(p, s), j));
+            }
+        }
+    }
 }
 
 /// Input points in a grid's cells: continuous cell coordinates.
@@ -1923,6 +2033,28 @@ mod tests {
             let n = sites.len() as u64;
             println!("{what}: {rebuilt} cells of {n} built again");
             assert!(rebuilt > 0 && rebuilt * 20 < n, "{what}: {rebuilt} cells of {n} built again");
+        }
+    }
+
+    /// The held sites by cell find the sites nearest one as a scan of them
+    /// all does: from inside a blob and from the sparse sites around it,
+    /// and where there are fewer sites than asked for.
+    #[test]
+    fn held_sites_by_cell_find_the_nearest_as_a_scan() {
+        let mesh = TetMesh::voxels(4, |_, _, _| true);
+        let mut at = points::clustered(3_000, 1, 0.03, 5);
+        at.extend(points::in_mesh(&mesh, 300, 9));
+        let map = GridMap { dims: [10; 3], cell_size: 1, per_cell: 10.0, origin: [0.0; 3] };
+        let near = NearHeld::new(&at, &map);
+        for u in [0, 1_500, 2_999, 3_000, 3_150, 3_299] {
+            for k in [1, 48, REACH_CLIPPED] {
+                let firsts = |mut all: Vec<(f64, u32)>| {
+                    all.sort_by(|a, b| a.0.total_cmp(&b.0));
+                    all.truncate(k);
+                    all.into_iter().map(|e| e.0).collect::<Vec<_>>()
+                };
+                assert_eq!(firsts(near.nearest(u, k)), firsts(scan_nearest(&at, u)), "site {u}, k = {k}");
+            }
         }
     }
 
