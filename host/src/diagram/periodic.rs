@@ -564,19 +564,63 @@ pub(super) fn coverage(
             (0..3).map(|a| (c[a] - o[a]).powi(2)).sum::<f64>().sqrt()
         })
         .fold(0.0, f64::max);
-    (0..dims[0] * dims[1] * dims[2])
+    let nearest = |c: [f64; 3]| {
+        let (s, _) = grid.nearest(c);
+        let q = points[s as usize].to_f64();
+        (0..3).map(|a| (c[a] - q[a]).powi(2)).sum::<f64>().sqrt()
+    };
+    // The query cells in blocks of `COVERAGE_BLOCK`³, each block's centres
+    // within `r` of its middle `m`: none nearer its nearest point than
+    // `nearest(m) + r` (the distance to the nearest point moves no faster
+    // than the point). The blocks in order of that bound, each's cells
+    // asked until the bound is no more than the largest found: the same
+    // largest, without asking every cell of a wide void.
+    let b = COVERAGE_BLOCK;
+    let blocks = dims.map(|d| d.div_ceil(b));
+    let cells_of = |k: usize| {
+        let at = [k % blocks[0], (k / blocks[0]) % blocks[1], k / (blocks[0] * blocks[1])];
+        [0, 1, 2].map(|a| at[a] * b..((at[a] + 1) * b).min(dims[a]))
+    };
+    let mut bounds: Vec<(f64, usize)> = (0..blocks.iter().product::<usize>())
         .into_par_iter()
-        .filter_map(|c| {
-            let c = centre([c % dims[0], (c / dims[0]) % dims[1], c / (dims[0] * dims[1])]);
-            counted(c).then(|| {
-                let (s, _) = grid.nearest(c);
-                let q = points[s as usize].to_f64();
-                (0..3).map(|a| (c[a] - q[a]).powi(2)).sum::<f64>().sqrt()
-            })
+        .map(|k| {
+            let r = cells_of(k);
+            let frac = |a: usize, i: usize| (i as f64 + 0.5) / dims[a] as f64;
+            let mid = domain.cartesian([0, 1, 2].map(|a| 0.5 * (frac(a, r[a].start) + frac(a, r[a].end - 1))));
+            let reach = (0..8)
+                .map(|c| {
+                    let corner = [0, 1, 2].map(|a| frac(a, if (c >> a) & 1 == 0 { r[a].start } else { r[a].end - 1 }));
+                    let p = domain.cartesian(corner);
+                    (0..3).map(|a| (p[a] - mid[a]).powi(2)).sum::<f64>().sqrt()
+                })
+                .fold(0.0, f64::max);
+            ((nearest(mid) + reach) * (1.0 + 1e-9) + 1e-300, k)
         })
-        .map(|d| (d + half, d))
-        .reduce(|| (0.0, 0.0), |a, b| (a.0.max(b.0), a.1.max(b.1)))
+        .collect();
+    bounds.sort_unstable_by(|x, y| y.0.total_cmp(&x.0).then(x.1.cmp(&y.1)));
+    let mut largest: Option<f64> = None;
+    for (bound, k) in bounds {
+        if largest.is_some_and(|l| bound <= l) {
+            break;
+        }
+        let r = cells_of(k);
+        let mut cells: Vec<[usize; 3]> = Vec::with_capacity(b * b * b);
+        for z in r[2].clone() {
+            for y in r[1].clone() {
+                cells.extend(r[0].clone().map(|x| [x, y, z]));
+            }
+        }
+        let found = cells.into_par_iter().map(centre).filter(|&c| counted(c)).map(nearest).reduce_with(f64::max);
+        largest = match (largest, found) {
+            (Some(l), Some(f)) => Some(l.max(f)),
+            (l, f) => l.or(f),
+        };
+    }
+    largest.map_or((0.0, 0.0), |d| (d + half, d))
 }
+
+/// Query cells a side of a block of [`coverage`].
+const COVERAGE_BLOCK: usize = 8;
 
 /// The query cells of [`coverage`] along each axis.
 fn coverage_dims(domain: &PeriodicBox, spacing: f64) -> [usize; 3] {
@@ -899,6 +943,44 @@ mod tests {
                 }
             }
             assert_eq!(got, expected, "halo {halo}: by site, then shift");
+        }
+    }
+
+    /// The coverage's largest nearest distance, and its bound, are those of
+    /// every query cell asked (the blocks pruned by their bounds hide no
+    /// larger one): clusters alone in a box and in a triclinic one, with
+    /// every cell counted and with half of them.
+    #[test]
+    fn coverage_is_every_query_cells_largest() {
+        let blob = points::clustered(2_000, 2, 0.04, 8);
+        let tilted = PeriodicBox::lammps([0.0; 3], [1.0, 1.2, 0.9], [0.3, -0.2, 0.1]).unwrap();
+        for domain in [PeriodicBox::unit(), tilted] {
+            let at: Vec<[f64; 3]> = blob.iter().map(|&p| domain.cartesian(p)).collect();
+            let spacing = 0.02;
+            let all: Vec<SplitPoint> = at.iter().map(|&p| SplitPoint::site(p, 0.0)).collect();
+            let grid = crate::geom::site_grid::SiteGrid::new(&all);
+            let dims = coverage_dims(&domain, spacing);
+            for half_of in [false, true] {
+                let counted = |c: [f64; 3]| !half_of || domain.fractional(c)[0] < 0.5;
+                let mut most = 0.0f64;
+                for z in 0..dims[2] {
+                    for y in 0..dims[1] {
+                        for x in 0..dims[0] {
+                            let f = [x, y, z].map(|i| i as f64 + 0.5);
+                            let c = domain.cartesian([0, 1, 2].map(|a| f[a] / dims[a] as f64));
+                            if counted(c) {
+                                let (s, _) = grid.nearest(c);
+                                let q = all[s as usize].to_f64();
+                                most = most.max((0..3).map(|a| (c[a] - q[a]).powi(2)).sum::<f64>().sqrt());
+                            }
+                        }
+                    }
+                }
+                let (bound, largest) = coverage(&domain, &at, spacing, counted);
+                assert!(most > 0.2, "a void: {most}");
+                assert_eq!(largest.to_bits(), most.to_bits(), "half: {half_of}");
+                assert!(bound > largest);
+            }
         }
     }
 
