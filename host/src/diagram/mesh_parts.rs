@@ -487,7 +487,7 @@ impl ClippedVoronoi<'_> {
         // (the median of its occupied cells' sites, at most the grid's
         // mean): where a crowd is packed in tight clusters, most cells are
         // the sparse ones between, whose lists reach farthest, and a halo
-        // sized by the mean would be widened, the part computed again.
+        // sized by the mean would be widened, a round more.
         let typical = median_occupancy(&own_cells[run.clone()]).min(crate::job::knn::SITES_PER_CELL);
         let ball = (3.0 * k_site as f64 / (4.0 * std::f64::consts::PI * typical)).cbrt();
         let first_halo = ((2.0 * ball).ceil() as u32).max(1);

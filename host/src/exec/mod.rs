@@ -50,6 +50,12 @@ impl CpuBackend {
     /// Runs a clipping job like [`Backend::clip`], handing every piece
     /// the kernels finish to the tasks' sinks, which end up in `sinks`.
     pub(crate) fn clip_into<S: TaskSink>(&self, job: &ClipJob, sinks: &Mutex<Vec<S>>) -> Result<ClipOutput> {
+        if job.only.is_some() && job.strategy != Strategy::Whole {
+            return Err(Error::Internal(format!(
+                "some answered cells only are built under whole cells, not {:?}",
+                job.strategy
+            )));
+        }
         // The site grid, once: both k-NN jobs search it (the tets' job has
         // the sites' grid), and so do the walks of the pieces their lists
         // do not settle and the second pass.
