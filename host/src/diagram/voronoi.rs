@@ -1292,6 +1292,63 @@ mod tests {
         assert!(faces > 700 * 10, "{faces} faces");
     }
 
+    /// A job building some of its answered cells only (`Layout::only`, the
+    /// CPU's) gives those cells the bits of the job building every one —
+    /// volumes, kinds, and each face's own half, the two halves adding up
+    /// to the whole job's face — and the others nothing.
+    #[test]
+    fn some_cells_only_are_the_bits_of_the_job_building_all() {
+        let mesh = TetMesh::cube(3);
+        let sites = points::uniform(3000, 22);
+        let order = crate::geom::points::morton_order(&sites);
+        let only: Vec<u32> = (1000..1700).filter(|p| p % 7 == 0 || (1300..1340).contains(p)).collect();
+        let laid = |only: Option<&[u32]>, halves: bool| {
+            let layout = Layout {
+                order: &order,
+                lo: [0.0; 3],
+                hi: [1.0; 3],
+                grid_sites: sites.len(),
+                answer: (1000, 1700),
+                weights: None,
+                weight_grid: None,
+                window: Window::Whole,
+                unheld: None,
+                periodic: false,
+                only,
+                halves,
+            };
+            let cv = ClippedVoronoi::new(&mesh, &sites).faces(true).strategy(Strategy::Whole).layout(layout);
+            cv.keep_reach(cv.resolved_k_site()).compute().unwrap()
+        };
+        let (all, some) = (laid(None, false), laid(Some(&only), true));
+        let (a, b) = (all.adjacency().unwrap(), some.adjacency().unwrap());
+        let built = |i: usize| order.iter().position(|&o| o as usize == i).is_some_and(|p| only.contains(&(p as u32)));
+        let (ka, kb) = (all.kept.as_ref().unwrap(), some.kept.as_ref().unwrap());
+        let listed = |k: &KeptLists, i: usize| k.inputs.iter().position(|&j| j as usize == i);
+        let (mut pairs, mut cut) = (0, 0);
+        for i in 0..sites.len() {
+            if !built(i) {
+                assert_eq!((some.volume[i], b.of(i).count()), (0.0, 0), "site {i} not built");
+                continue;
+            }
+            assert_eq!(some.volume[i].to_bits(), all.volume[i].to_bits(), "site {i}");
+            let kind = |k: &KeptLists| listed(k, i).and_then(|u| k.kinds.get(u - 1000).copied());
+            assert_eq!(kind(kb), kind(ka), "site {i}'s kind");
+            cut += (kind(kb) == Some(crate::job::clip::cell_kind::CUT)) as usize;
+            for (j, half, normal) in b.of(i) {
+                let whole = a.of(i).find(|e| e.0 == j).expect("the same neighbours");
+                assert_eq!(normal, whole.2, "site {i}'s face with {j}");
+                if built(j as usize) {
+                    let theirs = b.of(j as usize).find(|e| e.0 == i as u32).map_or(0.0, |e| e.1);
+                    assert_eq!((half + theirs).to_bits(), whole.1.to_bits(), "site {i}'s face with {j}");
+                    pairs += 1;
+                }
+            }
+        }
+        println!("{pairs} faces between built cells, {cut} cut of {}", only.len());
+        assert!(pairs > 50 && cut > 0 && cut < only.len(), "{pairs} faces between built cells, {cut} cut");
+    }
+
     /// Jobs that share a prepared mesh take its tets' order, boundary and
     /// whole-cell index from the first (one index for all), and are the
     /// job built alone, to the bit; a density asks for an index of its own.
