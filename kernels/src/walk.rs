@@ -133,15 +133,26 @@ fn cell_of(x: f32, lo: f32, len: f32, dim: u32) -> u32 {
 #[inline]
 fn cell_gap2(w: &GridWalk, x: [f32; 3], c: [u32; 3]) -> f32 {
     let lo = [w.lo.x, w.lo.y, w.lo.z];
+    let (mut low, mut high) = ([0.0f32; 3], [0.0f32; 3]);
+    let mut a = 0;
+    while a < 3 {
+        low[a] = lo[a] + c[a] as f32 * w.cell_len - w.margin;
+        high[a] = low[a] + w.cell_len + 2.0 * w.margin;
+        a += 1;
+    }
+    box_gap2(x, low, high)
+}
+
+/// The squared distance from `x` to the box `lo..hi` (0 inside it).
+#[inline]
+fn box_gap2(x: [f32; 3], lo: [f32; 3], hi: [f32; 3]) -> f32 {
     let mut d2 = 0.0;
     let mut a = 0;
     while a < 3 {
-        let low = lo[a] + c[a] as f32 * w.cell_len - w.margin;
-        let high = low + w.cell_len + 2.0 * w.margin;
-        let gap = if x[a] < low {
-            low - x[a]
-        } else if x[a] > high {
-            x[a] - high
+        let gap = if x[a] < lo[a] {
+            lo[a] - x[a]
+        } else if x[a] > hi[a] {
+            x[a] - hi[a]
         } else {
             0.0
         };
@@ -191,21 +202,7 @@ pub fn box_may_cut<const P: usize, const V: usize>(
     let mut i = 0;
     while i < (poly.n_verts as usize).min(V) {
         let v = poly.verts[i];
-        let x = [v.x, v.y, v.z];
-        let mut d2 = 0.0;
-        let mut a = 0;
-        while a < 3 {
-            let gap = if x[a] < lo[a] {
-                lo[a] - x[a]
-            } else if x[a] > hi[a] {
-                x[a] - hi[a]
-            } else {
-                0.0
-            };
-            d2 += gap * gap;
-            a += 1;
-        }
-        if d2 <= (v - site).length_squared() * (1.0 + 1e-3) {
+        if box_gap2([v.x, v.y, v.z], lo, hi) <= (v - site).length_squared() * (1.0 + 1e-3) {
             return true;
         }
         i += 1;
@@ -512,20 +509,7 @@ impl<const P: usize, const V: usize> RingVisitor<Polyhedron<P, V>> for CellClip<
         // cut what is wanted of it.
         let x = point(self.sites[self.i as usize].hi);
         let (lo, hi) = ([lo[0] - x.x, lo[1] - x.y, lo[2] - x.z], [hi[0] - x.x, hi[1] - x.y, hi[2] - x.z]);
-        let mut gap2 = 0.0;
-        let mut a = 0;
-        while a < 3 {
-            let gap = if lo[a] > 0.0 {
-                lo[a]
-            } else if hi[a] < 0.0 {
-                -hi[a]
-            } else {
-                0.0
-            };
-            gap2 += gap * gap;
-            a += 1;
-        }
-        gap2 <= self.cap2 && box_may_cut(poly, Point::ZERO, lo, hi)
+        box_gap2([0.0; 3], lo, hi) <= self.cap2 && box_may_cut(poly, Point::ZERO, lo, hi)
     }
 }
 

@@ -1653,12 +1653,7 @@ fn flower_cover(cell: &cvd_kernels::polyhedron::Cell, s: [f64; 3], grid: &GridMa
             hi[a] = hi[a].max(cell(c[a] + r));
         }
     }
-    let boxed = |lo: [u32; 3], hi: [u32; 3]| HeldCells {
-        lo,
-        dim: [0, 1, 2].map(|a| hi[a] - lo[a] + 1),
-        grid: dims,
-        cell_size: grid.cell_size,
-    };
+    let boxed = |lo: [u32; 3], hi: [u32; 3]| HeldCells::around(lo, hi, 0, dims, grid.cell_size);
     let volume = |lo: [u32; 3], hi: [u32; 3]| (0..3).map(|a| (hi[a] - lo[a] + 1) as u64).product::<u64>();
     let mut done = Vec::new();
     let mut todo = std::collections::BinaryHeap::new();

@@ -128,11 +128,13 @@ impl CpuBackend {
                         .domain
                         .as_deref()
                         .ok_or_else(|| Error::Internal("a whole-cell job without its domain index".into()))?;
-                    // Every site, or those the job builds only; each one's
-                    // kind as the counters say it.
+                    // Every site, or those the job builds only; where the
+                    // lists are kept (a part's), each one's kind as the
+                    // counters say it.
                     let only = job.only.as_deref();
                     let built = only.map_or(p.n_sites as usize, <[u32]>::len);
-                    let cell_kinds: Vec<AtomicU8> = (0..p.n_sites).map(|_| AtomicU8::new(0)).collect();
+                    let kinds_of = if job.keep.is_some() { p.n_sites } else { 0 };
+                    let cell_kinds: Vec<AtomicU8> = (0..kinds_of).map(|_| AtomicU8::new(0)).collect();
                     let (_, t) = timed(|| {
                         let w = GridWalk::new(&refine, &site_nn.words, &g.cell_start, &g.cell_count, &g.sorted);
                         let d = domain.view();

@@ -305,7 +305,8 @@ pub struct ClipOutput {
     pub chunks: u64,
     /// Time per phase.
     pub timings: Timings,
-    /// Whole cells on the CPU backend: each site's cell as the kernels'
+    /// Whole cells on the CPU backend, where the lists are kept
+    /// ([`ClipJob::keep`]: a part's): each site's cell as the kernels'
     /// first pass counted it ([`cell_kind`]; what `Counters::whole_cells`
     /// and `cut_cells` add up), one per site; empty where the backend does
     /// not say.
